@@ -1,0 +1,37 @@
+"""The default backend: the numba simulator."""
+
+from __future__ import annotations
+
+from ilcpmac.backends.base import BenchDescription, BenchLimits
+from ilcpmac.bench.format import MotorInfo
+from ilcpmac.model.motor import MotorModel
+from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.sim.simulator import Simulator
+
+
+class SimulatorBackend:
+    """Runs trials on `Simulator`; trial data include the true torque and currents.
+
+    Parameters
+    ----------
+    model : MotorModel
+    limits : BenchLimits
+    warmup_revolutions : int
+    """
+
+    def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1) -> None:
+        self.simulator = Simulator(model, warmup_revolutions)
+        self.limits = limits
+
+    def describe(self) -> BenchDescription:
+        m = self.simulator.model
+        return BenchDescription(
+            motor=MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev,
+                            m.mechanics.inertia_kgm2),
+            backemf_nm_per_a=self.simulator.backemf_counts,
+            calibration=m.controller.calibration(),
+            limits=self.limits,
+        )
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        return self.simulator.run_trial(request)

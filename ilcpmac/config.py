@@ -1,0 +1,156 @@
+"""Campaign configuration: a TOML file, read strictly into frozen dataclasses.
+
+Each TOML table maps to one dataclass of ``ilcpmac.model.motor``; its keys are
+the dataclass's field names (which carry their units). Unknown and missing
+keys, wrong types and out-of-range values raise `ConfigError` naming the file
+and key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+
+from ilcpmac.errors import ConfigError, IlcpmacError
+from ilcpmac.model.motor import (
+    BackEmf,
+    Cogging,
+    Controller,
+    CurrentSensors,
+    Encoder,
+    Excitation,
+    Mechanics,
+    MotorModel,
+    TorqueSensor,
+    TrialGrid,
+    Unexplained,
+    Winding,
+)
+
+#: TOML table name -> dataclass, for the drive model.
+MODEL_SECTIONS: dict[str, type] = {
+    "winding": Winding,
+    "backemf": BackEmf,
+    "cogging": Cogging,
+    "unexplained": Unexplained,
+    "mechanics": Mechanics,
+    "controller": Controller,
+    "current_sensors": CurrentSensors,
+    "torque_sensor": TorqueSensor,
+    "encoder": Encoder,
+}
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    """A parsed campaign file."""
+
+    path: Path
+    model: MotorModel
+    grid: TrialGrid
+    excitation: Excitation
+    sections: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+
+def _coerce(value, annotation, where: str):
+    origin = typing.get_origin(annotation)
+    if origin is tuple:
+        (item,) = {a for a in typing.get_args(annotation) if a is not Ellipsis}
+        if not isinstance(value, list):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        return tuple(_coerce(v, item, where) for v in value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config type {annotation}")  # a programming error, not user input
+
+
+def parse_section(table: dict, cls: type, source: str, section: str):
+    """Build dataclass ``cls`` from TOML ``table``; every error names ``source`` and the key."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [{section}] must be a table")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: [{section}] unknown key {unknown[0]!r} (known: {', '.join(fields)})")
+    values = {}
+    for name, f in fields.items():
+        where = f"{source}: [{section}] {name}"
+        if name not in table:
+            raise ConfigError(f"{where}: missing ({f.metadata.get('doc', '')})")
+        value = _coerce(table[name], hints[name], where)
+        check = f.metadata.get("check")
+        if check is not None and not check(value):
+            raise ConfigError(f"{where}: invalid value {table[name]!r} ({f.metadata.get('doc', '')})")
+        values[name] = value
+    obj = cls(**values)
+    _check_lengths(obj, where=f"{source}: [{section}]")
+    return obj
+
+
+def _check_lengths(obj, where: str) -> None:
+    """Parallel lists (orders, amplitudes, phases) must have equal lengths."""
+    lengths = {f.name: len(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+               if isinstance(getattr(obj, f.name), tuple) and f.name not in
+               ("asymmetry", "alpha", "beta_a", "current_scale_counts_per_a", "current_offset_counts",
+                "torque_setpoints_nm", "speed_setpoints_hz")}
+    if len(set(lengths.values())) > 1:
+        raise ConfigError(f"{where}: lists {', '.join(lengths)} must have equal lengths, got {lengths}")
+
+
+def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict:
+    """Read a TOML file; an unreadable or malformed file raises ``error`` naming it."""
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise error(f"{path}: not valid TOML ({e})") from None
+
+
+def load_config(path: str | Path, extra_sections: dict[str, type] | None = None) -> CampaignConfig:
+    """Read a campaign config.
+
+    Parameters
+    ----------
+    path : path of the TOML file.
+    extra_sections : further optional tables (name -> dataclass) that later
+        layers (the campaign, the pipeline) read from the same file.
+    """
+    path = Path(path)
+    data = read_toml(path)
+    known = set(MODEL_SECTIONS) | {"trials", "excitation"} | set(extra_sections or {})
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(sorted(known))})")
+    for name in [*MODEL_SECTIONS, "trials", "excitation"]:
+        if name not in data:
+            raise ConfigError(f"{path}: missing table [{name}]")
+    parts = {name: parse_section(data[name], cls, str(path), name) for name, cls in MODEL_SECTIONS.items()}
+    model = MotorModel(**parts)
+    cpr = model.encoder.counts_per_rev
+    excitation = parse_section(data["excitation"], Excitation, str(path), "excitation")
+    if excitation.harmonics >= cpr // 2:
+        raise ConfigError(f"{path}: [excitation] harmonics: {excitation.harmonics} is beyond the "
+                          f"Nyquist limit of {cpr} counts per revolution")
+    if len(model.backemf.harmonics) == 0 or 1 not in model.backemf.harmonics:
+        raise ConfigError(f"{path}: [backemf] harmonics: must include the fundamental 1")
+    extras = {name: parse_section(data[name], cls, str(path), name)
+              for name, cls in (extra_sections or {}).items() if name in data}
+    return CampaignConfig(path=path, model=model,
+                          grid=parse_section(data["trials"], TrialGrid, str(path), "trials"),
+                          excitation=excitation, sections=extras)

@@ -1,0 +1,24 @@
+"""The project's errors: each names the file, line or key at fault.
+
+The CLI prints ``str(error)`` on one line and exits with status 2.
+"""
+
+
+class IlcpmacError(Exception):
+    """Base class of every error the CLI reports without a traceback."""
+
+
+class ConfigError(IlcpmacError):
+    """A campaign configuration (TOML) is missing a key, has an unknown key or a bad value."""
+
+
+class BenchFormatError(IlcpmacError):
+    """A bench folder does not follow BENCH_FORMAT.md."""
+
+
+class SimulationError(IlcpmacError):
+    """The simulator was asked for something it cannot run."""
+
+
+class IdentificationError(IlcpmacError):
+    """The data cannot support an estimate; the message says which and why."""

@@ -1,0 +1,60 @@
+"""Tables over one mechanical revolution, sampled at n equally spaced angles.
+
+The simulator uses fine tables (linearly interpolated); the bench format uses
+one row per encoder count.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ilcpmac.model.motor import BackEmf, Cogging, Unexplained, Winding
+
+
+def mechanical_angles_rad(n_points: int) -> np.ndarray:
+    """theta_k = 2 pi k / n, k = 0..n-1."""
+    return 2.0 * np.pi * np.arange(n_points) / n_points
+
+
+def backemf_table(winding: Winding, backemf: BackEmf, n_points: int) -> np.ndarray:
+    """K_p(theta) per phase, N m / A, shape (n_points, 3) (the matrix K of eq. 1.1)."""
+    theta_e = winding.pole_pairs * mechanical_angles_rad(n_points)
+    table = np.zeros((n_points, 3))
+    for p in range(3):
+        shifted = theta_e - 2.0 * np.pi * p / 3.0
+        for n, k, phi in zip(backemf.harmonics, backemf.amplitudes_nm_per_a, backemf.phases_rad):
+            table[:, p] += k * np.sin(n * shifted + phi)
+        table[:, p] *= 1.0 + backemf.asymmetry[p]
+    return table
+
+
+def _sines(orders, amplitudes, phases, n_points: int) -> np.ndarray:
+    theta = mechanical_angles_rad(n_points)
+    table = np.zeros(n_points)
+    for order, amplitude, phase in zip(orders, amplitudes, phases):
+        table += amplitude * np.sin(order * theta + phase)
+    return table
+
+
+def cogging_table(winding: Winding, cogging: Cogging, n_points: int) -> np.ndarray:
+    """tau_c(theta), N m, shape (n_points,)."""
+    orders = [m * winding.cogging_order for m in cogging.multiples]
+    return _sines(orders, cogging.amplitudes_nm, cogging.phases_rad, n_points)
+
+
+def disturbance_table(unexplained: Unexplained, n_points: int) -> np.ndarray:
+    """The unexplained position disturbance, N m, shape (n_points,)."""
+    return _sines(unexplained.orders, unexplained.amplitudes_nm, unexplained.phases_rad, n_points)
+
+
+def current_references(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.ndarray) -> np.ndarray:
+    """Minimum-copper-loss currents i*_p = tau_ref K*_p / sum_q K*_q^2, A (report sec. 2.1).
+
+    Parameters
+    ----------
+    torque_reference_nm : ndarray, shape (n,)
+    backemf_nm_per_a : ndarray, shape (n, 3)
+        The controller's back-EMF table K*.
+    """
+    norm = np.sum(backemf_nm_per_a**2, axis=1)
+    return torque_reference_nm[:, None] * backemf_nm_per_a / norm[:, None]

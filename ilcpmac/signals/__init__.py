@@ -1,0 +1,1 @@
+"""Signal design and position-domain analysis."""

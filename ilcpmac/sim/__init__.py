@@ -1,0 +1,1 @@
+"""The numba motor simulator and its validating Python wrapper."""

@@ -1,0 +1,180 @@
+"""Fixed-step numba kernel of the drive (report fig. 1.1, eqs. 1.1 and 3.1).
+
+One call runs one trial at the control rate: per phase a discrete PI current
+loop reading a sensor with scale, offset and noise, the winding
+L di/dt = v - R i - K_p(theta) omega (exact zero-order-hold step), torque
+sum_p K_p i_p (1 - c i_p^2) + tau_pos(theta), mechanics J domega/dt = tau -
+b omega - coulomb, a piezo torque sensor, and position-triggered sampling
+once per encoder count. Inputs are validated by ``ilcpmac.sim.simulator``.
+"""
+
+import numpy as np
+from numba import njit, uint64
+
+TWO_PI = 2.0 * np.pi
+#: log2 of the length of the Gaussian table that noise draws index.
+GAUSS_BITS = 16
+
+
+@njit(cache=True, inline="always")
+def _xorshift(x):
+    """The next state of a xorshift64 generator (Marsaglia 2003)."""
+    x ^= x << uint64(13)
+    x ^= x >> uint64(7)
+    x ^= x << uint64(17)
+    return x
+
+
+@njit(cache=True, inline="always")
+def _gauss(x, gauss_table):
+    """A standard normal draw: the top bits of state ``x`` pick an entry of a table of normal samples."""
+    return gauss_table[x >> uint64(64 - GAUSS_BITS)]
+
+
+@njit(cache=True, inline="always")
+def _torque(fine, pos, ia, ib, ic, c_sat):
+    """Torque sum_p K_p i_p (1 - c i_p^2) + tau_pos at fractional table index ``pos`` (eq. 1.1).
+
+    Returns the torque and the three torque constants there.
+    """
+    j = int(pos)
+    f = pos - j
+    ka = fine[j, 0] + f * (fine[j + 1, 0] - fine[j, 0])
+    kb = fine[j, 1] + f * (fine[j + 1, 1] - fine[j, 1])
+    kc = fine[j, 2] + f * (fine[j + 1, 2] - fine[j, 2])
+    tau = (fine[j, 3] + f * (fine[j + 1, 3] - fine[j, 3])
+           + ka * ia * (1.0 - c_sat * ia * ia) + kb * ib * (1.0 - c_sat * ib * ib)
+           + kc * ic * (1.0 - c_sat * ic * ic))
+    return tau, ka, kb, kc
+
+
+@njit(cache=True, inline="always")
+def _current_step(i_true, integ, i_ref, k_now, omega, noise_counts, scale_true, offset_true,
+                  amps_per_count, offset_cal, kp, ki_dt, v_max, decay, gain):
+    """One control period of one phase: sensor reading, PI with anti-windup, winding (ZOH).
+
+    Returns the new true current, the new integrator and the measured current.
+    """
+    raw = i_true * scale_true - offset_true + noise_counts  # sensor: i = G_s (r + o_s)
+    i_meas = (raw + offset_cal) * amps_per_count           # controller: (r + o*_s) / (G*_s)^-1
+    err = i_ref - i_meas
+    v = kp * err + integ + ki_dt * err
+    if v > v_max:
+        v = v_max
+    elif v < -v_max:
+        v = -v_max
+    else:
+        integ += ki_dt * err  # conditional integration (anti-windup)
+    return decay * i_true + gain * (v - k_now * omega), integ, i_meas
+
+
+# Fast-math without the no-NaN/no-Inf assumptions: contraction and reassociation
+# shorten the step's dependency chain (the kernel is latency bound).
+FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
+
+
+@njit(cache=True, nogil=True, fastmath=FASTMATH)
+def simulate_trial(
+    fine, i_ref_table, gauss_table,
+    resistance_ohm, inductance_h, kp_v_per_a, ki_v_per_as, voltage_limit_v, dt_s,
+    scale_true, offset_true, scale_cal, offset_cal, current_noise_counts, saturation_per_a2,
+    inertia_kgm2, brake_nms, coulomb_nm, omega0_rad_s,
+    delta, highpass_coef, torque_dc_nm, torque_drift_nm_per_s, torque_noise_nm,
+    warmup_counts, record_counts, timer_resolution_s, max_steps, seed,
+    out_count, out_time, out_i_ref, out_i_meas, out_torque, out_torque_true, out_i_true, out_speed,
+):
+    """Run one trial; fill the ``out_*`` arrays; return the number of samples recorded.
+
+    ``fine`` has shape (M + 1, 4): K_a, K_b, K_c (N m / A) and the position
+    torque (cogging plus disturbance, N m) at M equally spaced angles over a
+    revolution, the first row repeated at the end. Per-phase parameters are
+    arrays of 3. Fewer than ``record_counts`` samples means the trial hit
+    ``max_steps`` (the rotor stalled).
+    """
+    rng = uint64(seed) | uint64(1)  # xorshift needs a non-zero state
+    counts_per_rev = i_ref_table.shape[0]
+    fine_per_rad = (fine.shape[0] - 1) / TWO_PI
+    counts_per_rad = counts_per_rev / TWO_PI
+    decay = np.exp(-resistance_ohm * dt_s / inductance_h)  # ZOH step of L di/dt = -R i + u
+    gain = (1.0 - decay) / resistance_ohm
+    apc = 1.0 / scale_cal  # multiplications instead of divisions in the loop
+    ki_dt = ki_v_per_as * dt_s
+    dt_over_j = dt_s / inertia_kgm2
+    c_sat = saturation_per_a2
+
+    # start at steady speed on the tracked currents, integrators holding R i + e
+    omega = omega0_rad_s
+    i0 = (i_ref_table[0] * scale_cal - offset_cal + offset_true) / scale_true
+    ia, ib, ic = i0[0], i0[1], i0[2]
+    xa = resistance_ohm[0] * ia + fine[0, 0] * omega
+    xb = resistance_ohm[1] * ib + fine[0, 1] * omega
+    xc = resistance_ohm[2] * ic + fine[0, 2] * omega
+    hp_in = delta * _torque(fine, 0.0, ia, ib, ic, c_sat)[0]  # the piezo starts settled
+    hp_out = 0.0
+
+    theta_rev = 0.0  # angle within the revolution, rad
+    revs = 0
+    t = 0.0
+    count_in_rev = 0
+    last_count = 0
+    n = 0
+    end_count = warmup_counts + record_counts
+    for _ in range(max_steps):
+        # torque at the step's start (eq. 1.1 plus the unexplained terms)
+        tau, ka, kb, kc = _torque(fine, theta_rev * fine_per_rad, ia, ib, ic, c_sat)
+        # current control per phase, and the windings over the step (ZOH)
+        rng = _xorshift(rng)
+        na = current_noise_counts * _gauss(rng, gauss_table)
+        rng = _xorshift(rng)
+        nb = current_noise_counts * _gauss(rng, gauss_table)
+        rng = _xorshift(rng)
+        nc = current_noise_counts * _gauss(rng, gauss_table)
+        ia, xa, ma = _current_step(ia, xa, i_ref_table[count_in_rev, 0], ka, omega, na, scale_true[0],
+                                   offset_true[0], apc[0], offset_cal[0], kp_v_per_a[0], ki_dt[0],
+                                   voltage_limit_v, decay[0], gain[0])
+        ib, xb, mb = _current_step(ib, xb, i_ref_table[count_in_rev, 1], kb, omega, nb, scale_true[1],
+                                   offset_true[1], apc[1], offset_cal[1], kp_v_per_a[1], ki_dt[1],
+                                   voltage_limit_v, decay[1], gain[1])
+        ic, xc, mc = _current_step(ic, xc, i_ref_table[count_in_rev, 2], kc, omega, nc, scale_true[2],
+                                   offset_true[2], apc[2], offset_cal[2], kp_v_per_a[2], ki_dt[2],
+                                   voltage_limit_v, decay[2], gain[2])
+        # mechanics (eq. 3.1), forward Euler: independent of this step's current update
+        friction = coulomb_nm if omega > 0.0 else (-coulomb_nm if omega < 0.0 else 0.0)
+        theta_old = theta_rev
+        theta_rev += omega * dt_s
+        omega += dt_over_j * (tau - brake_nms * omega - friction)
+        # piezo: first-order high-pass of delta * tau
+        hp_out = highpass_coef * (hp_out + delta * tau - hp_in)
+        hp_in = delta * tau
+        t += dt_s
+        if theta_rev >= TWO_PI:
+            theta_rev -= TWO_PI
+            theta_old -= TWO_PI
+            revs += 1
+        elif theta_rev < 0.0:
+            theta_rev += TWO_PI
+            theta_old += TWO_PI
+            revs -= 1
+        count_in_rev = min(int(theta_rev * counts_per_rad), counts_per_rev - 1)
+        count = revs * counts_per_rev + count_in_rev
+        if count <= last_count:
+            continue
+        last_count = count
+        if count < warmup_counts:
+            continue
+        if count >= end_count:
+            break
+        # position-triggered sample at the crossing of this count (skipped counts are not recorded)
+        t_c = t - dt_s + dt_s * (count_in_rev / counts_per_rad - theta_old) / (theta_rev - theta_old)
+        out_count[n] = count - warmup_counts
+        out_time[n] = np.round(t_c / timer_resolution_s) * timer_resolution_s
+        out_i_ref[n] = i_ref_table[count_in_rev]
+        out_i_meas[n, 0], out_i_meas[n, 1], out_i_meas[n, 2] = ma, mb, mc
+        out_i_true[n, 0], out_i_true[n, 1], out_i_true[n, 2] = ia, ib, ic
+        rng = _xorshift(rng)
+        out_torque[n] = (hp_out + torque_dc_nm + torque_drift_nm_per_s * t_c
+                         + torque_noise_nm * _gauss(rng, gauss_table))
+        out_torque_true[n] = tau
+        out_speed[n] = omega
+        n += 1
+    return n
