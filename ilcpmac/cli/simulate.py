@@ -1,39 +1,12 @@
-"""The ``ilcpmac`` command line."""
+"""``ilcpmac simulate``: the multisine set-point grid on the simulator, as a bench folder."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ilcpmac.errors import IlcpmacError
-
-console = Console(stderr=True)
-
-
-class _Group(click.Group):
-    """Reports an `IlcpmacError` as one line on stderr and exit status 2, never a traceback."""
-
-    def invoke(self, ctx: click.Context):
-        try:
-            return super().invoke(ctx)
-        except IlcpmacError as e:
-            click.echo(f"error: {e}", err=True)
-            sys.exit(2)
-
-
-def _progress() -> Progress:
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), console=console, transient=False)
-
-
-@click.group(cls=_Group)
-@click.version_option(package_name="ilcpmac")
-def main() -> None:
-    """Identify and compensate the torque ripple of PM AC motors (Grassens 2009 and beyond)."""
+from ilcpmac.cli import console, main, progress_bar
 
 
 @main.command()
@@ -50,7 +23,7 @@ def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | N
 
     cfg = load_config(config)
     n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
-    with _progress() as progress:
+    with progress_bar() as progress:
         task = progress.add_task("simulating trials", total=n)
         bench = simulate_bench(cfg, out_dir, seed=seed, revolutions=revolutions,
                                on_done=lambda i, trial: progress.advance(task))

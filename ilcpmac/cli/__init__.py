@@ -1,0 +1,41 @@
+"""The ``ilcpmac`` command line: one module per command, registered here."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ilcpmac.errors import IlcpmacError
+
+#: progress and messages go to stderr; results (tables) may go to stdout
+console = Console(stderr=True)
+
+
+class _Group(click.Group):
+    """Reports an `IlcpmacError` as one line on stderr and exit status 2, never a traceback."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except IlcpmacError as e:
+            click.echo(f"error: {e}", err=True)
+            sys.exit(2)
+
+
+def progress_bar() -> Progress:
+    """A rich progress bar on stderr."""
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), console=console, transient=False)
+
+
+@click.group(cls=_Group)
+@click.version_option(package_name="ilcpmac")
+def main() -> None:
+    """Identify and compensate the torque ripple of PM AC motors (Grassens 2009 and beyond)."""
+
+
+# Each command lives in its own module and registers itself on `main` when imported.
+from ilcpmac.cli import simulate  # noqa: E402,F401
