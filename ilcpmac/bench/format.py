@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.config import read_toml
 from ilcpmac.errors import BenchFormatError
 from ilcpmac.records import SensorCalibration, TrialData
@@ -235,11 +236,11 @@ def read_bench(folder: str | Path) -> Bench:
 # ---------------------------------------------------------------- writing
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    """Write via a temporary file and rename, so a reader never sees half a file."""
+def atomic_write(path: Path, data: bytes | str) -> None:
+    """Write via a temporary file, fsync and rename, so a reader never sees half a file."""
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        f.write(text)
+    with open(tmp, "wb") as f:
+        f.write(data.encode() if isinstance(data, str) else data)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
@@ -273,37 +274,38 @@ def bench_toml_text(bench: Bench, backemf_file: str = "backemf.csv") -> str:
     return "\n".join(lines)
 
 
-def _csv_text(header: list[str], columns: list[np.ndarray], formats: list[str]) -> str:
-    rows = np.column_stack(columns)
-    row_format = ",".join(formats) + "\n"
-    body = (row_format * rows.shape[0]) % tuple(rows.ravel())
-    return ",".join(header) + "\n" + body
+def _write_csv(path: Path, header: list[str], columns: list[np.ndarray], decimals: list[int]) -> None:
+    """Write a numeric CSV atomically, column c rounded to ``decimals[c]`` decimals."""
+    body = format_rows(np.column_stack(columns), np.array(decimals))
+    atomic_write(path, (",".join(header) + "\n").encode() + body)
 
 
 def write_trial_csv(path: Path, trial: TrialData) -> None:
-    """Write one trial CSV atomically, with the simulator's extra columns when present."""
+    """Write one trial CSV atomically, with the simulator's extra columns when present.
+
+    Times are written to 0.1 us, everything else to 1e-10 of its unit.
+    """
     header = list(TRIAL_COLUMNS)
     columns = [trial.count, trial.time_s, trial.i_ref_a, trial.torque_nm]
-    formats = ["%d", "%.7f"] + ["%.10g"] * 4
+    decimals = [0, 7] + [10] * 4
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
         value = getattr(trial, attr)
         if value is not None:
             header += [prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix]
             columns.append(value)
-            formats += ["%.10g"] * width
-    _atomic_write(path, _csv_text(header, columns, formats))
+            decimals += [10] * width
+    _write_csv(path, header, columns, decimals)
 
 
 def write_backemf_csv(path: Path, backemf_nm_per_a: np.ndarray) -> None:
     """Write backemf.csv: count,k_a,k_b,k_c, one row per encoder count."""
     n = backemf_nm_per_a.shape[0]
-    _atomic_write(path, _csv_text(["count", "k_a", "k_b", "k_c"], [np.arange(n), backemf_nm_per_a],
-                                  ["%d"] + ["%.12g"] * 3))
+    _write_csv(path, ["count", "k_a", "k_b", "k_c"], [np.arange(n), backemf_nm_per_a], [0, 12, 12, 12])
 
 
 def write_bench_toml(folder: Path, bench: Bench) -> None:
     """(Re)write bench.toml atomically: the trials listed are exactly ``bench.trials``."""
-    _atomic_write(folder / BENCH_FILE, bench_toml_text(bench))
+    atomic_write(folder / BENCH_FILE, bench_toml_text(bench))
 
 
 def write_bench(folder: str | Path, bench: Bench) -> None:

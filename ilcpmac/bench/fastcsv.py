@@ -1,0 +1,75 @@
+"""Fast fixed-point CSV formatting (numba): trial files are written as they finish.
+
+``numpy.savetxt`` and ``%`` formatting cost ~0.1 s per 32768-row trial; this
+kernel writes each value as a fixed-point decimal with a per-column number of
+decimals, about ten times faster. Values are rounded to that many decimals.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: largest magnitude a column may hold at its number of decimals (int64 headroom)
+_MAX_SCALED = 9.0e17
+
+
+@njit(cache=True, inline="always")
+def _put_uint(buf, pos, value, min_digits):
+    """Write the decimal digits of a non-negative int, at least ``min_digits`` of them."""
+    n = 1
+    rest = value // 10
+    while rest > 0:
+        n += 1
+        rest //= 10
+    n = max(n, min_digits)
+    for k in range(n - 1, -1, -1):
+        buf[pos + k] = 48 + value % 10
+        value //= 10
+    return pos + n
+
+
+@njit(cache=True)
+def _format_rows(values, decimals, out):
+    """Write rows of ``values`` (n, m) into byte buffer ``out``; return the bytes used."""
+    pos = 0
+    n, m = values.shape
+    scales = np.empty(m, np.int64)
+    for c in range(m):
+        scales[c] = 10 ** decimals[c]
+    for r in range(n):
+        for c in range(m):
+            scaled = int(np.round(values[r, c] * scales[c]))
+            if scaled < 0:
+                out[pos] = 45  # '-'
+                pos += 1
+                scaled = -scaled
+            whole = scaled // scales[c]
+            pos = _put_uint(out, pos, whole, 1)
+            if decimals[c] > 0:
+                out[pos] = 46  # '.'
+                pos += 1
+                pos = _put_uint(out, pos, scaled - whole * scales[c], decimals[c])
+            out[pos] = 44 if c < m - 1 else 10  # ',' or '\n'
+            pos += 1
+    return pos
+
+
+def format_rows(values: np.ndarray, decimals: np.ndarray) -> bytes:
+    """CSV body for ``values`` (n rows, m columns), column c with ``decimals[c]`` decimals.
+
+    Raises ValueError for non-finite values or values too large for their decimals.
+    """
+    values = np.ascontiguousarray(values, dtype=np.float64)
+    decimals = np.ascontiguousarray(decimals, dtype=np.int64)
+    if values.ndim != 2 or decimals.shape != (values.shape[1],):
+        raise ValueError("format_rows needs an (n, m) array and m decimals")
+    if not np.all(np.isfinite(values)):
+        raise ValueError("cannot write NaN or infinite values")
+    limits = _MAX_SCALED / 10.0**decimals
+    if np.any(np.abs(values) > limits):
+        raise ValueError("a value is too large for its number of decimals")
+    width = 21 + decimals.max(initial=0) + 3  # sign, 19 integer digits, '.', decimals, separator
+    out = np.empty(values.shape[0] * values.shape[1] * width, np.uint8)
+    used = _format_rows(values, decimals, out)
+    return out[:used].tobytes()
