@@ -9,6 +9,7 @@ and key.
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import typing
 from dataclasses import dataclass
@@ -30,6 +31,45 @@ from ilcpmac.model.motor import (
     Winding,
 )
 
+def _check(check, doc: str, default):
+    return dataclasses.field(default=default, metadata={"check": check, "doc": doc})
+
+
+def _positive(x) -> bool:
+    return all(v > 0 for v in x) if isinstance(x, tuple) else x > 0
+
+
+@dataclass(frozen=True)
+class CampaignSettings:
+    """[campaign]: the compensation and ILC phases of ``ilcpmac run`` (optional; defaults shown)."""
+
+    ilc_torque_setpoints_nm: tuple[float, ...] = _check(_positive, "ILC set points spanning the torque range, N m",
+                                                        (1.0, 3.0, 5.0))
+    ilc_speed_setpoint_hz: float = _check(_positive, "speed of the compensation and ILC trials, Hz", 0.75)
+    ilc_revolutions: int = _check(_positive, "recorded revolutions per compensation and ILC trial", 32)
+    ilc_trials: int = _check(_positive, "most ILC trials per set point", 10)
+    min_improvement: float = _check(lambda x: 0 <= x < 1, "relative ripple improvement that counts", 0.05)
+    patience: int = _check(_positive, "ILC trials without improvement before a set point stops", 3)
+    ripple_harmonics: int = _check(_positive, "H: ripple is measured over harmonics 1..H", 150)
+
+
+@dataclass(frozen=True)
+class LimitSettings:
+    """[limits]: what every request obeys (optional; defaults shown)."""
+
+    max_current_a: float = _check(_positive, "|current reference| per phase, A", 30.0)
+    max_torque_nm: float = _check(_positive, "|torque reference|, N m", 8.0)
+    max_speed_hz: float = _check(_positive, "speed set point, Hz", 1.5)
+    max_correction_nm: float = _check(_positive, "|torque feed-forward| per count, N m", 1.5)
+
+
+@dataclass(frozen=True)
+class PipelineSettings:
+    """[pipeline]: the stages, in order (optional; defaults shown). Options go in [stages.NAME]."""
+
+    stages: tuple[str, ...] = _check(None, "stage names, built-in or plugins", ("current-sensor", "cogging", "ilc"))
+
+
 #: TOML table name -> dataclass, for the drive model.
 MODEL_SECTIONS: dict[str, type] = {
     "winding": Winding,
@@ -46,13 +86,26 @@ MODEL_SECTIONS: dict[str, type] = {
 
 @dataclass(frozen=True)
 class CampaignConfig:
-    """A parsed campaign file."""
+    """A parsed campaign file.
+
+    Attributes
+    ----------
+    path : the file.
+    model : the simulated drive.
+    grid : the identification set-point grid ([trials]).
+    excitation : its multisine.
+    campaign, limits, pipeline : ``ilcpmac run`` settings.
+    stage_options : each stage's ``[stages.NAME]`` table, checked by the stage itself.
+    """
 
     path: Path
     model: MotorModel
     grid: TrialGrid
     excitation: Excitation
-    sections: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+    campaign: CampaignSettings = CampaignSettings()
+    limits: LimitSettings = LimitSettings()
+    pipeline: PipelineSettings = PipelineSettings()
+    stage_options: dict = dataclasses.field(default_factory=dict, compare=False)
 
 
 def _coerce(value, annotation, where: str):
@@ -67,8 +120,8 @@ def _coerce(value, annotation, where: str):
             raise ConfigError(f"{where}: expected an integer, got {value!r}")
         return value
     if annotation is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
         return float(value)
     if annotation is str:
         if not isinstance(value, str):
@@ -90,6 +143,9 @@ def parse_section(table: dict, cls: type, source: str, section: str):
     for name, f in fields.items():
         where = f"{source}: [{section}] {name}"
         if name not in table:
+            if f.default is not dataclasses.MISSING:
+                values[name] = f.default
+                continue
             raise ConfigError(f"{where}: missing ({f.metadata.get('doc', '')})")
         value = _coerce(table[name], hints[name], where)
         check = f.metadata.get("check")
@@ -122,18 +178,16 @@ def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict:
         raise error(f"{path}: not valid TOML ({e})") from None
 
 
-def load_config(path: str | Path, extra_sections: dict[str, type] | None = None) -> CampaignConfig:
-    """Read a campaign config.
+#: optional tables of ``ilcpmac run``
+RUN_SECTIONS: dict[str, type] = {"campaign": CampaignSettings, "limits": LimitSettings,
+                                 "pipeline": PipelineSettings}
 
-    Parameters
-    ----------
-    path : path of the TOML file.
-    extra_sections : further optional tables (name -> dataclass) that later
-        layers (the campaign, the pipeline) read from the same file.
-    """
+
+def load_config(path: str | Path) -> CampaignConfig:
+    """Read and validate a campaign config (see configs/seed-bench.toml)."""
     path = Path(path)
     data = read_toml(path)
-    known = set(MODEL_SECTIONS) | {"trials", "excitation"} | set(extra_sections or {})
+    known = set(MODEL_SECTIONS) | {"trials", "excitation", "stages"} | set(RUN_SECTIONS)
     unknown = sorted(set(data) - known)
     if unknown:
         raise ConfigError(f"{path}: unknown table [{unknown[0]}] (known: {', '.join(sorted(known))})")
@@ -149,8 +203,16 @@ def load_config(path: str | Path, extra_sections: dict[str, type] | None = None)
                           f"Nyquist limit of {cpr} counts per revolution")
     if len(model.backemf.harmonics) == 0 or 1 not in model.backemf.harmonics:
         raise ConfigError(f"{path}: [backemf] harmonics: must include the fundamental 1")
-    extras = {name: parse_section(data[name], cls, str(path), name)
-              for name, cls in (extra_sections or {}).items() if name in data}
+    run = {name: parse_section(data.get(name, {}), cls, str(path), name) for name, cls in RUN_SECTIONS.items()}
+    if run["campaign"].ripple_harmonics >= cpr // 2:
+        raise ConfigError(f"{path}: [campaign] ripple_harmonics: {run['campaign'].ripple_harmonics} is beyond "
+                          f"the Nyquist limit of {cpr} counts per revolution")
+    stage_options = data.get("stages", {})
+    for name, table in stage_options.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{path}: [stages.{name}] must be a table")
+        if name not in run["pipeline"].stages:
+            raise ConfigError(f"{path}: [stages.{name}] configures a stage that [pipeline] stages does not list")
     return CampaignConfig(path=path, model=model,
                           grid=parse_section(data["trials"], TrialGrid, str(path), "trials"),
-                          excitation=excitation, sections=extras)
+                          excitation=excitation, stage_options=stage_options, **run)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -117,7 +117,7 @@ def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
             try:
                 data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float)
             except ValueError as e:
-                raise BenchFormatError(f"{path}: {_loadtxt_message(e)}") from None
+                raise BenchFormatError(f"{path}: {_loadtxt_message(e, len(header))}") from None
     except FileNotFoundError:
         raise BenchFormatError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as e:
@@ -133,9 +133,20 @@ def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
     return header, data
 
 
-def _loadtxt_message(e: ValueError) -> str:
-    """numpy counts rows from the first data row; shift to file lines (header is line 1)."""
+def _loadtxt_message(e: ValueError, n_header: int) -> str:
+    """Name the file line of a numpy loadtxt error (the header is line 1, the first data row line 2).
+
+    numpy counts data rows from 0 when a value does not convert, but from 1
+    when a row's number of fields differs from the first data row's (which
+    may itself be the row at fault).
+    """
     text = str(e)
+    m = re.search(r"number of columns changed from (\d+) to (\d+) at row (\d+)", text)
+    if m:
+        first, fields, row = (int(g) for g in m.groups())
+        if first != n_header:
+            return f"line 2 has {first} fields, the header has {n_header}"
+        return f"line {row + 1} has {fields} fields, the header has {n_header}"
     m = re.search(r"(?:at|in) row (\d+)", text)
     if m:
         return f"line {int(m.group(1)) + 2}: {text}"
@@ -236,13 +247,17 @@ def read_bench(folder: str | Path) -> Bench:
 # ---------------------------------------------------------------- writing
 
 
-def atomic_write(path: Path, data: bytes | str) -> None:
-    """Write via a temporary file, fsync and rename, so a reader never sees half a file."""
+def atomic_write(path: Path, data: bytes | str, durable: bool = True) -> None:
+    """Write via a temporary file and rename, so a reader never sees half a file.
+
+    ``durable`` also fsyncs before the rename, so the file survives a power cut.
+    """
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
         f.write(data.encode() if isinstance(data, str) else data)
-        f.flush()
-        os.fsync(f.fileno())
+        if durable:
+            f.flush()
+            os.fsync(f.fileno())
     os.replace(tmp, path)
 
 
@@ -256,21 +271,20 @@ def _toml_value(value) -> str:
     return repr(float(value))
 
 
-def bench_toml_text(bench: Bench, backemf_file: str = "backemf.csv") -> str:
-    """The bench.toml text of ``bench``."""
-    m = bench.motor
+def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
+                    trials: list[tuple[str, float, float]], backemf_file: str = "backemf.csv") -> str:
+    """bench.toml text; ``trials`` lists (file, torque set point N m, speed set point Hz)."""
+    m = motor
     lines = ["[motor]",
              f"pole_pairs = {m.pole_pairs}", f"slots = {m.slots}", f"counts_per_rev = {m.counts_per_rev}",
              f"inertia = {_toml_value(m.inertia_kgm2)}", f"backemf_file = {_toml_value(backemf_file)}", ""]
-    if bench.sensors is not None:
-        s = bench.sensors
-        lines += ["[sensors]", f"current_scale = {_toml_value(s.current_scale)}",
-                  f"current_offset = {_toml_value(s.current_offset)}",
-                  f"torque_gain = {_toml_value(s.torque_gain)}", ""]
-    for name, trial in zip(bench.trial_files, bench.trials):
+    if sensors is not None:
+        lines += ["[sensors]", f"current_scale = {_toml_value(sensors.current_scale)}",
+                  f"current_offset = {_toml_value(sensors.current_offset)}",
+                  f"torque_gain = {_toml_value(sensors.torque_gain)}", ""]
+    for name, torque, speed in trials:
         lines += ["[[trials]]", f"file = {_toml_value(name)}",
-                  f"torque_setpoint = {_toml_value(trial.torque_setpoint_nm)}",
-                  f"speed_setpoint = {_toml_value(trial.speed_setpoint_hz)}", ""]
+                  f"torque_setpoint = {_toml_value(torque)}", f"speed_setpoint = {_toml_value(speed)}", ""]
     return "\n".join(lines)
 
 
@@ -280,21 +294,38 @@ def _write_csv(path: Path, header: list[str], columns: list[np.ndarray], decimal
     atomic_write(path, (",".join(header) + "\n").encode() + body)
 
 
-def write_trial_csv(path: Path, trial: TrialData) -> None:
-    """Write one trial CSV atomically, with the simulator's extra columns when present.
+def _trial_columns(trial: TrialData) -> list[tuple[list[str], str, int]]:
+    """(CSV column names, TrialData attribute, decimals) of every column ``trial`` has.
 
-    Times are written to 0.1 us, everything else to 1e-10 of its unit.
+    Times are written to 0.1 us, currents, torques and speeds to 1e-8 of
+    their unit (far below any sensor's noise).
     """
-    header = list(TRIAL_COLUMNS)
-    columns = [trial.count, trial.time_s, trial.i_ref_a, trial.torque_nm]
-    decimals = [0, 7] + [10] * 4
+    columns = [(["count"], "count", 0), (["time"], "time_s", 7),
+               ([f"i_ref_{ph}" for ph in _PHASES], "i_ref_a", 8), (["torque"], "torque_nm", 8)]
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
-        value = getattr(trial, attr)
-        if value is not None:
-            header += [prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix]
-            columns.append(value)
-            decimals += [10] * width
-    _write_csv(path, header, columns, decimals)
+        if getattr(trial, attr) is not None:
+            columns.append(([prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix], attr, 8))
+    return columns
+
+
+def write_trial_csv(path: Path, trial: TrialData) -> None:
+    """Write one trial CSV atomically, with the simulator's extra columns when present."""
+    spec = _trial_columns(trial)
+    header = [name for names, _, _ in spec for name in names]
+    decimals = [d for names, _, d in spec for _ in names]
+    _write_csv(path, header, [getattr(trial, attr) for _, attr, _ in spec], decimals)
+
+
+def as_written(trial: TrialData) -> TrialData:
+    """``trial`` exactly as `write_trial_csv` then `read_trial_csv` would give it back.
+
+    Each value v becomes round(v 10^d) / 10^d, the double nearest to its
+    d-decimal text, so a campaign that learns from this and one resumed from
+    the files learn from identical numbers.
+    """
+    changes = {attr: np.round(getattr(trial, attr) * 10.0**d) / 10.0**d
+               for _, attr, d in _trial_columns(trial) if attr != "count"}
+    return replace(trial, **changes)
 
 
 def write_backemf_csv(path: Path, backemf_nm_per_a: np.ndarray) -> None:
@@ -305,7 +336,8 @@ def write_backemf_csv(path: Path, backemf_nm_per_a: np.ndarray) -> None:
 
 def write_bench_toml(folder: Path, bench: Bench) -> None:
     """(Re)write bench.toml atomically: the trials listed are exactly ``bench.trials``."""
-    atomic_write(folder / BENCH_FILE, bench_toml_text(bench))
+    entries = [(name, t.torque_setpoint_nm, t.speed_setpoint_hz) for name, t in zip(bench.trial_files, bench.trials)]
+    atomic_write(folder / BENCH_FILE, bench_toml_text(bench.motor, bench.sensors, entries))
 
 
 def write_bench(folder: str | Path, bench: Bench) -> None:

@@ -109,8 +109,9 @@ def simulate_trial(
     xa = resistance_ohm[0] * ia + fine[0, 0] * omega
     xb = resistance_ohm[1] * ib + fine[0, 1] * omega
     xc = resistance_ohm[2] * ic + fine[0, 2] * omega
-    hp_in = delta * _torque(fine, 0.0, ia, ib, ic, c_sat)[0]  # the piezo starts settled
-    hp_out = 0.0
+    # the piezo starts settled: its output is the ripple about the steady mean torque b omega + friction
+    hp_in = delta * _torque(fine, 0.0, ia, ib, ic, c_sat)[0]
+    hp_out = hp_in - delta * (brake_nms * omega0_rad_s + coulomb_nm)
 
     theta_rev = 0.0  # angle within the revolution, rad
     revs = 0

@@ -1,0 +1,1 @@
+"""``ilcpmac run``: identification, compensation and ILC phases, persisted trial by trial."""

@@ -1,0 +1,1 @@
+"""The compensation pipeline: stages chained, one joint fit per trial, safety limits."""

@@ -1,0 +1,100 @@
+"""Current-sensor correction: the controller's current scale and offset per phase (eqs. 1.3-1.7).
+
+The stage estimates the physical sensors, x = [G_s,p (A / count), G_s,p o_s,p (A)]
+per phase, which do not change when the calibration does. In a trial run with
+calibration (G*_s^-1, o*_s) and torque-sensor gain delta_j, the joint fit's
+columns K_p I~*_p and K_p (I~* the current references through the identified
+current loop) have coefficients (eqs. 1.3, 1.11)
+
+    a_p = delta_j G*_s,p^-1 G_s,p           (= delta epsilon alpha_p)
+    b_p = delta_j (G_s,p o_s,p - o*_s,p G_s,p)   (= delta beta_p)
+
+which are linear in x: the Kalman measurement matrix is H_j = delta_j
+[[diag(G*^-1), 0], [-diag(o*), I]]. The next request's calibration is
+G*^-1 = 1 / G_s, o* = o_s (so that epsilon = alpha = 1, beta = 0), and
+g*_t = g_t = delta g*_t from the identification.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ilcpmac.estimators.kalman import KalmanEstimator
+from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.signals.harmonics import synchronous_average
+from ilcpmac.stages.base import Frame, StageSetup, plant_response, read_options
+
+DEFAULTS = {"process_noise_rel": 1e-4, "prior_std_rel": 0.02}
+
+
+def filtered_references(trial: TrialData, counts_per_rev: int, bandwidth_hz: float | None) -> np.ndarray:
+    """I*_p through the current loop per count, (counts_per_rev, 3): each harmonic times its lag."""
+    table = synchronous_average(trial.count, trial.i_ref_a, counts_per_rev)
+    if bandwidth_hz is not None:
+        spectrum = np.fft.rfft(table, axis=0)
+        h = np.arange(spectrum.shape[0])
+        spectrum *= plant_response(h, trial_speed_hz(trial, counts_per_rev), bandwidth_hz)[:, None]
+        table = np.fft.irfft(spectrum, n=counts_per_rev, axis=0)
+    return table
+
+
+def trial_speed_hz(trial: TrialData, counts_per_rev: int) -> float:
+    """Mean mechanical speed over the trial, Hz."""
+    return float((trial.count[-1] - trial.count[0]) / counts_per_rev / (trial.time_s[-1] - trial.time_s[0]))
+
+
+class CurrentSensorCorrection:
+    """Built-in stage ``current-sensor``.
+
+    Options (``[stages.current-sensor]``): ``process_noise_rel`` (random-walk
+    std per trial relative to each parameter's prior size), ``prior_std_rel``
+    (floor on the prior std relative to the parameter, used where the
+    identification's standard error is smaller).
+    """
+
+    name = "current-sensor"
+
+    def __init__(self, setup: StageSetup) -> None:
+        opts = read_options(setup.options, DEFAULTS, self.name)
+        ident = setup.identified
+        self._backemf = setup.description.backemf_nm_per_a
+        self._cpr = setup.description.motor.counts_per_rev
+        self._bandwidth_hz = ident.current_loop_bandwidth_hz
+        self._torque_gain = ident.torque_gain_v_per_nm
+        self._identified = ident
+        gain = ident.sensor_gain  # G_s, A / count
+        x0 = np.concatenate([gain, gain * ident.calibration.current_offset + ident.beta_a])
+        gain_std = np.maximum(gain * np.hypot(ident.alpha_std / ident.alpha, ident.epsilon_std / ident.epsilon),
+                              opts["prior_std_rel"] * gain)
+        offset_std = np.maximum(ident.beta_std_a, opts["prior_std_rel"] * np.abs(x0[3:]).max())
+        prior_std = np.concatenate([gain_std, offset_std])
+        size = np.abs(x0) + prior_std
+        self._kalman = KalmanEstimator(x0, prior_std**2, (opts["process_noise_rel"] * size) ** 2)
+
+    def calibration(self) -> SensorCalibration:
+        """The calibration that removes the estimated errors."""
+        x = self._kalman.x
+        gain, gain_offset = x[:3], x[3:]
+        return SensorCalibration(1.0 / gain, gain_offset / gain, self._torque_gain)
+
+    def columns(self, trial: TrialData) -> np.ndarray:
+        k = self._backemf
+        return np.hstack([k * filtered_references(trial, self._cpr, self._bandwidth_hz), k])
+
+    def shape(self, request: TrialRequest) -> TrialRequest:
+        return request.with_changes(calibration=self.calibration())
+
+    def learn(self, trial: TrialData, frame: Frame) -> None:
+        cal = trial.request.calibration
+        H = frame.delta * np.block([[np.diag(cal.current_scale), np.zeros((3, 3))],
+                                    [-np.diag(cal.current_offset), np.eye(3)]])
+        block = frame.block(self.name)
+        self._kalman.update_block(block.estimate, block.information, H)
+
+    def state(self) -> dict:
+        cal = self.calibration()
+        return {"kalman": self._kalman.state(), "current_scale": cal.current_scale.tolist(),
+                "current_offset": cal.current_offset.tolist(), "torque_gain": cal.torque_gain}
+
+    def restore(self, state: dict) -> None:
+        self._kalman.restore(state["kalman"])
