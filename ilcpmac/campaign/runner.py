@@ -71,6 +71,7 @@ def _figures(prefix: str, f: RippleFigures | None) -> dict:
     if f is None:
         return {}
     return {f"ripple_pp_{prefix}": f.pp, f"ripple_rms_{prefix}": f.rms, f"rest_rms_{prefix}": f.rest_rms,
+            f"ripple_rms_repeatable_{prefix}": f.rms_repeatable,
             f"amp_1x_{prefix}_nm": f.amp_1x, f"amp_2x_{prefix}_nm": f.amp_2x,
             f"amp_cogging_{prefix}_nm": f.amp_cogging, f"amp_rest_{prefix}_nm": f.amp_rest}
 
@@ -132,7 +133,8 @@ class CampaignRunner:
         ilc = self._records_at(torque_nm, ("ilc",))
         if len(ilc) >= c.ilc_trials:
             return True
-        history = [r["ripple_pp_measured"] for r in self._records_at(torque_nm, ("compensate", "ilc"))]
+        # judged on the repeatable part: at low torque the noise left in the average hides progress
+        history = [r["ripple_rms_repeatable_measured"] for r in self._records_at(torque_nm, ("compensate", "ilc"))]
         if len(history) <= c.patience:
             return False
         best_before = min(history[: -c.patience])

@@ -84,6 +84,10 @@ class RippleFigures:
         Peak-to-peak and RMS of the band-limited synchronous average, over the mean torque.
     rest_rms : float
         RMS of what is left (non-repeatable, and above H), over the mean torque.
+    rms_repeatable : float
+        ``rms`` with the expected contribution of the non-repeatable part to
+        the average removed (from the revolution-to-revolution scatter): what
+        compensation can still act on, over the mean torque.
     amp_1x, amp_2x, amp_cogging : float
         Amplitudes at 1x and 2x electrical and at the cogging order, N m.
     amp_rest : float
@@ -93,6 +97,7 @@ class RippleFigures:
     pp: float
     rms: float
     rest_rms: float
+    rms_repeatable: float
     amp_1x: float
     amp_2x: float
     amp_cogging: float
@@ -120,6 +125,8 @@ def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int
     others[max_harmonic + 1:] = False
     others[named] = False
     rest = detrended - ripple[count % counts_per_rev]
+    _, variance = revolution_harmonics(count, detrended, counts_per_rev, max_harmonic)
+    noise_power = float(np.sum(variance[1:]) / 2.0)  # expected power of the noise left in the average
 
     def amp(h: int) -> float:
         return float(c[h]) if h <= max_harmonic else 0.0
@@ -128,8 +135,126 @@ def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int
         pp=float(np.ptp(ripple) / mean_torque_nm),
         rms=float(np.std(ripple) / mean_torque_nm),
         rest_rms=float(np.std(rest) / mean_torque_nm),
+        rms_repeatable=float(np.sqrt(max(np.var(ripple) - noise_power, 0.0)) / mean_torque_nm),
         amp_1x=amp(pole_pairs),
         amp_2x=amp(2 * pole_pairs),
         amp_cogging=amp(cogging_order),
         amp_rest=float(np.sqrt(np.sum(c[others] ** 2) / 2.0)),
     )
+
+
+def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: int,
+                         max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
+    """Harmonics 0..max_harmonic averaged over whole revolutions, and the variance of that mean.
+
+    Each revolution's DFT gives complex amplitudes c_h^(r) (as `harmonic_amplitudes`);
+    the mean over revolutions is the synchronous average's spectrum, and the
+    revolution-to-revolution scatter gives its variance per harmonic,
+    E|c_h - mean|^2 / n_revs (the non-repeatable part, e.g. sensor noise).
+    Skipped counts are filled by linear interpolation within their revolution.
+    """
+    mask = whole_revolutions(count, counts_per_rev)
+    count, values = count[mask], np.asarray(values, float)[mask]
+    rev = count // counts_per_rev
+    rev -= rev[0]
+    n_revs = int(rev[-1]) + 1
+    if n_revs < 2:
+        raise ValueError("the variance of revolution harmonics needs at least 2 whole revolutions")
+    table = np.full((n_revs, counts_per_rev), np.nan)
+    table[rev, count % counts_per_rev] = values
+    grid = np.arange(counts_per_rev)
+    for row in table:
+        missing = np.isnan(row)
+        if missing.any():
+            row[missing] = np.interp(grid[missing], grid[~missing], row[~missing], period=counts_per_rev)
+    c = harmonic_amplitudes(table.T).T[:, : max_harmonic + 1]
+    mean = c.mean(axis=0)
+    variance = np.sum(np.abs(c - mean) ** 2, axis=0) / (n_revs - 1) / n_revs
+    return mean, variance
+
+
+def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
+    """Per-count mean of ``values`` (shape (n,) or (n, m)), shape (counts_per_rev, ...).
+
+    The same table as `synchronous_average` for samples that already lie in
+    whole revolutions, computed with one ``bincount`` per column (fast for
+    many columns). Counts never sampled are filled by periodic linear
+    interpolation.
+    """
+    position = count % counts_per_rev
+    hits = np.bincount(position, minlength=counts_per_rev)
+    values = np.asarray(values, float)
+    columns = values.reshape(values.shape[0], -1)
+    seen = hits > 0
+    grid = np.arange(counts_per_rev)
+    table = np.empty((counts_per_rev, columns.shape[1]))
+    for j, column in enumerate(columns.T):
+        sums = np.bincount(position, weights=column, minlength=counts_per_rev)
+        table[seen, j] = sums[seen] / hits[seen]
+        if not seen.all():
+            table[~seen, j] = np.interp(grid[~seen], grid[seen], table[seen, j], period=counts_per_rev)
+    return table.reshape((counts_per_rev,) + values.shape[1:])
+
+
+def slow_trend(count: np.ndarray, time_s: np.ndarray, values: np.ndarray, counts_per_rev: int,
+               degree: int) -> tuple[np.ndarray, float]:
+    """The slow aperiodic trend of position-sampled ``values`` and the variance of what is left.
+
+    Models ``values = p(count mod counts_per_rev) + sum_{d=1}^{degree} c_d P_d(u) + noise``
+    with p any per-count table, P_d the Legendre polynomials and u the time
+    mapped onto [-1, 1]: a sensor's drift (degree 1) and slower settling
+    (higher degrees). The coefficients c_d are fitted to the part of the data
+    that is not periodic in position (each sample minus its per-count mean),
+    so the periodic content cannot bias them. The samples must lie in whole
+    revolutions, at least two of them.
+
+    Returns
+    -------
+    trend : ndarray, shape (n,)
+        ``sum_d c_d P_d(u)`` at the samples (subtract it from ``values``).
+    noise_variance : float
+        Per-sample variance of the rest (neither periodic nor trend).
+    """
+    position = count % counts_per_rev
+    hits = np.bincount(position, minlength=counts_per_rev)
+    dof = count.size - np.count_nonzero(hits) - degree
+    if dof <= 0:
+        raise ValueError("the slow trend needs more samples than counts per revolution plus its degree")
+    u = 2.0 * (time_s - time_s[0]) / (time_s[-1] - time_s[0]) - 1.0
+    basis = np.polynomial.legendre.legvander(u, degree)[:, 1:]
+    design = np.column_stack([basis, values])
+    aperiodic = design - synchronous_table(count, design, counts_per_rev)[position]
+    coef, *_ = np.linalg.lstsq(aperiodic[:, :-1], aperiodic[:, -1], rcond=None)
+    rest = aperiodic[:, -1] - aperiodic[:, :-1] @ coef
+    return basis @ coef, float(rest @ rest / dof)
+
+
+def uniform_time_resample(time_s: np.ndarray, count: np.ndarray, values: np.ndarray, counts_per_rev: int,
+                          samples_per_rev: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Re-sample position-sampled data at constant time intervals (report sec. 3.1).
+
+    The position (a function of time) and ``values`` are interpolated with
+    cubic splines through the samples' time stamps; the uniform grid has
+    ``samples_per_rev`` points per mean revolution period, so that a DFT over
+    whole revolutions puts each harmonic of the revolution in one bin.
+
+    Returns
+    -------
+    t_s : ndarray
+        The uniform time grid: from the first sample, as many mean revolution
+        periods as the samples span (rounded; the last point may lie up to a
+        count beyond the last sample).
+    angle_rad, speed_rad_s : ndarray
+        Mechanical angle and angular velocity (the spline's derivative) there.
+    values_uniform : ndarray
+        ``values`` interpolated there.
+    """
+    from scipy.interpolate import CubicSpline
+
+    angle = 2.0 * np.pi * count / counts_per_rev
+    revolutions = (count[-1] - count[0]) / counts_per_rev
+    period_s = (time_s[-1] - time_s[0]) / revolutions
+    n_revs = int(round(revolutions))
+    t = time_s[0] + np.arange(n_revs * samples_per_rev) * (period_s / samples_per_rev)
+    position = CubicSpline(time_s, angle)
+    return t, position(t), position(t, 1), CubicSpline(time_s, values)(t)

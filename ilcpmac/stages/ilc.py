@@ -158,7 +158,7 @@ class IterativeLearningControl:
         G = self.plant(request, frame.speed_hz)
         u = self._harmonics(request.feedforward_nm)
         e = frame.torque_harmonics_nm[1: self._max_harmonic + 1]
-        var = frame.torque_harmonics_var[1: self._max_harmonic + 1]
+        var = np.maximum(frame.torque_harmonics_var[1: self._max_harmonic + 1], 1e-30)
         gamma = self.options["learning_gain"] * frame.learning_gain
         if self.options["estimation"] == "fixed":
             ripple = e
@@ -168,7 +168,8 @@ class IterativeLearningControl:
             model_drift = self.options["model_uncertainty"] * np.abs(G * (u - m["u_applied"]))
             prior = m["P"] + self.options["process_noise_nm"] ** 2 + model_drift**2
             first = np.isinf(prior)  # no estimate yet: take the measurement as it is
-            gain = np.where(first, 1.0, prior / (np.where(first, 0.0, prior) + var))
+            prior = np.where(first, 0.0, prior)
+            gain = np.where(first, 1.0, prior / (prior + var))
             m["d"] = m["d"] + gain * (z - m["d"])
             m["P"] = np.where(first, var, (1.0 - gain) * prior)
             significant = np.abs(m["d"]) > self.options["significance"] * np.sqrt(m["P"])

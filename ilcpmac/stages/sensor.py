@@ -89,7 +89,15 @@ class CurrentSensorCorrection:
         H = frame.delta * np.block([[np.diag(cal.current_scale), np.zeros((3, 3))],
                                     [-np.diag(cal.current_offset), np.eye(3)]])
         block = frame.block(self.name)
-        self._kalman.update_block(block.estimate, block.information, H)
+        information = block.information
+        if not np.any(trial.request.excitation_nm):
+            # Without excitation the common modes are seen only through the feed-forward, whose
+            # harmonics other stages (cogging, ILC) put where unmodelled ripple is: learn only the
+            # imbalance (alpha) and the offsets' differential part from such a trial.
+            common = np.array([[1, 1, 1, 0, 0, 0], [0, 0, 0, 1, 1, 1]]).T / np.sqrt(3.0)
+            keep = np.eye(6) - common @ common.T
+            information = keep @ information @ keep
+        self._kalman.update_block(block.estimate, information, H)
 
     def state(self) -> dict:
         cal = self.calibration()

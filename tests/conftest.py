@@ -1,0 +1,119 @@
+"""Shared fixtures: the seed bench made small and fast, ideal variants of it, campaign files."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import tomllib
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcpmac.config import CampaignConfig, load_config
+from ilcpmac.model.motor import MotorModel
+from ilcpmac.records import SensorCalibration, TrialRequest
+from ilcpmac.sim.simulator import Simulator
+
+SEED_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
+#: encoder resolution of the fast test model (the seed bench has 4096)
+COUNTS_PER_REV = 1024
+#: recorded revolutions of a test trial
+REVOLUTIONS = 2
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return repr(value)
+
+
+def toml_text(data: dict[str, dict], prefix: str = "") -> str:
+    """TOML text of a campaign: tables (nested ones too) of scalars and lists."""
+    lines = []
+    for table, values in data.items():
+        lines.append(f"[{prefix}{table}]")
+        lines += [f"{key} = {_toml_value(value)}" for key, value in values.items() if not isinstance(value, dict)]
+        lines.append("")
+        lines.append(toml_text({k: v for k, v in values.items() if isinstance(v, dict)}, f"{prefix}{table}."))
+    return "\n".join(lines)
+
+
+@pytest.fixture
+def write_config(tmp_path: Path) -> Callable[..., Path]:
+    """Write the seed campaign with changes into ``tmp_path``; returns a writer.
+
+    ``write(changes, drop)``: ``changes`` maps table -> {key: value} (new tables
+    allowed); ``drop`` lists "table" or "table.key" entries to remove.
+    """
+    def write(changes: dict[str, dict] | None = None, drop: Iterable[str] = (),
+              name: str = "campaign.toml") -> Path:
+        data = tomllib.loads(SEED_CONFIG.read_text())
+        for table, values in (changes or {}).items():
+            data.setdefault(table, {}).update(values)
+        for entry in drop:
+            table, _, key = entry.partition(".")
+            if key:
+                del data[table][key]
+            else:
+                del data[table]
+        path = tmp_path / name
+        path.write_text(toml_text(data))
+        return path
+
+    return write
+
+
+@pytest.fixture(scope="session")
+def seed_config() -> CampaignConfig:
+    """configs/seed-bench.toml as shipped."""
+    return load_config(SEED_CONFIG)
+
+
+@pytest.fixture(scope="session")
+def small_model(seed_config: CampaignConfig) -> MotorModel:
+    """The seed bench with a coarser encoder, so that trials are quick."""
+    m = seed_config.model
+    return dataclasses.replace(m, encoder=dataclasses.replace(m.encoder, counts_per_rev=COUNTS_PER_REV))
+
+
+@pytest.fixture(scope="session")
+def ideal_model(small_model: MotorModel) -> MotorModel:
+    """The small seed bench without any error: ideal sensors, no cogging, nothing unexplained."""
+    m = small_model
+    return dataclasses.replace(
+        m,
+        cogging=dataclasses.replace(m.cogging, amplitudes_nm=(0.0,) * len(m.cogging.multiples)),
+        unexplained=dataclasses.replace(m.unexplained, saturation_per_a2=0.0,
+                                        amplitudes_nm=(0.0,) * len(m.unexplained.orders)),
+        current_sensors=dataclasses.replace(m.current_sensors, epsilon=1.0, alpha=(1.0, 1.0, 1.0),
+                                            beta_a=(0.0, 0.0, 0.0), noise_counts=0.0),
+        torque_sensor=dataclasses.replace(m.torque_sensor, delta=1.0, noise_nm=0.0, highpass_hz=0.0,
+                                          dc_level_nm=0.0, drift_nm_per_s=0.0),
+    )
+
+
+@pytest.fixture(scope="session")
+def make_request() -> Callable[..., TrialRequest]:
+    """Build a request for a model: constant torque unless a feed-forward table is given."""
+    def make(model: MotorModel, torque_nm: float = 2.0, speed_hz: float = 0.5, *,
+             feedforward_nm: np.ndarray | None = None, calibration: SensorCalibration | None = None,
+             seed: int = 1) -> TrialRequest:
+        cpr = model.encoder.counts_per_rev
+        return TrialRequest(
+            torque_nm, speed_hz, REVOLUTIONS,
+            np.zeros(cpr) if feedforward_nm is None else feedforward_nm, np.zeros(cpr),
+            model.controller.calibration() if calibration is None else calibration, seed=seed)
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def small_simulator(small_model: MotorModel) -> Simulator:
+    """A simulator of the small seed bench (all its errors present)."""
+    return Simulator(small_model)

@@ -1,0 +1,241 @@
+"""Bench folders (BENCH_FORMAT.md): round trip, and every kind of bad input named by file and line or key."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcpmac.bench.format import Bench, MotorInfo, as_written, read_bench, write_bench
+from ilcpmac.errors import BenchFormatError
+from ilcpmac.records import SensorCalibration, TrialData
+
+BENCH_TOML = """\
+[motor]
+pole_pairs = 1
+slots = 3
+counts_per_rev = 4
+inertia = 0.01
+backemf_file = "backemf.csv"
+
+[sensors]
+current_scale = [14.0, 14.0, 14.0]
+current_offset = [0.0, 1.5, -1.5]
+torque_gain = 0.9
+
+[[trials]]
+file = "trial_01.csv"
+torque_setpoint = 1.0
+speed_setpoint = 0.5
+"""
+
+BACKEMF_CSV = """\
+count,k_a,k_b,k_c
+0,0.0,-0.17,0.17
+1,0.2,-0.1,-0.1
+2,0.0,0.17,-0.17
+3,-0.2,0.1,0.1
+"""
+
+TRIAL_CSV = """\
+count,time,i_ref_a,i_ref_b,i_ref_c,torque
+0,0.0000,0.0,-1.5,1.5,0.01
+1,0.5000,3.3,-1.7,-1.7,-0.02
+2,1.0000,0.0,1.5,-1.5,0.03
+3,1.5000,-3.3,1.7,1.7,0.00
+4,2.0000,0.0,-1.5,1.5,-0.01
+"""
+
+VALID = {"bench.toml": BENCH_TOML, "backemf.csv": BACKEMF_CSV, "trial_01.csv": TRIAL_CSV}
+#: the per-sample arrays of a trial
+COLUMNS = [f.name for f in dataclasses.fields(TrialData)
+           if f.name not in ("torque_setpoint_nm", "speed_setpoint_hz", "request")]
+
+
+def write_folder(folder: Path, edit: tuple[str, str, str] | None = None) -> Path:
+    """Write the valid bench folder, with ``(file, old, new)`` replaced once in one file."""
+    folder.mkdir(exist_ok=True)
+    for name, text in VALID.items():
+        if edit is not None and edit[0] == name:
+            assert text.count(edit[1]) == 1, edit
+            text = text.replace(edit[1], edit[2])
+        (folder / name).write_text(text)
+    return folder
+
+
+def assert_trials_equal(actual: TrialData, expected: TrialData) -> None:
+    """Bit-identical set points and columns; a column absent from ``expected`` is absent from ``actual``."""
+    assert actual.torque_setpoint_nm == expected.torque_setpoint_nm
+    assert actual.speed_setpoint_hz == expected.speed_setpoint_hz
+    assert actual.count.dtype == np.int64
+    for name in COLUMNS:
+        a, e = getattr(actual, name), getattr(expected, name)
+        if e is None:
+            assert a is None, name
+        else:
+            np.testing.assert_array_equal(a, e, err_msg=name)
+
+
+def assert_round_trip(actual: TrialData, original: TrialData) -> None:
+    """``actual`` is exactly `as_written` of ``original``, and that is ``original`` to far below any noise."""
+    expected = as_written(original)
+    assert_trials_equal(actual, expected)
+    for name in COLUMNS:
+        if getattr(original, name) is not None:
+            np.testing.assert_allclose(getattr(expected, name), getattr(original, name), rtol=0, atol=1e-7,
+                                       err_msg=name)
+
+
+def test_read_hand_written_folder(tmp_path):
+    bench = read_bench(write_folder(tmp_path))
+    assert bench.motor == MotorInfo(pole_pairs=1, slots=3, counts_per_rev=4, inertia_kgm2=0.01)
+    assert bench.motor.cogging_order == 6  # lcm(3 slots, 2 poles)
+    np.testing.assert_array_equal(bench.backemf_nm_per_a[1], [0.2, -0.1, -0.1])
+    np.testing.assert_array_equal(bench.sensors.current_offset, [0.0, 1.5, -1.5])
+    assert bench.sensors.torque_gain == 0.9
+    assert bench.trial_files == ("trial_01.csv",)
+    (trial,) = bench.trials
+    assert (trial.torque_setpoint_nm, trial.speed_setpoint_hz) == (1.0, 0.5)
+    np.testing.assert_array_equal(trial.count, [0, 1, 2, 3, 4])
+    np.testing.assert_array_equal(trial.time_s, [0.0, 0.5, 1.0, 1.5, 2.0])
+    np.testing.assert_array_equal(trial.i_ref_a[1], [3.3, -1.7, -1.7])
+    np.testing.assert_array_equal(trial.torque_nm, [0.01, -0.02, 0.03, 0.0, -0.01])
+    assert trial.i_meas_a is None and trial.torque_true_nm is None
+
+
+def test_sensors_table_is_optional(tmp_path):
+    start = BENCH_TOML.index("[sensors]")
+    folder = write_folder(tmp_path, ("bench.toml", BENCH_TOML[start:BENCH_TOML.index("[[trials]]")], ""))
+    assert read_bench(folder).sensors is None
+
+
+def test_skipped_counts_are_accepted(tmp_path):
+    folder = write_folder(tmp_path, ("trial_01.csv", "2,1.0000,0.0,1.5,-1.5,0.03\n", ""))
+    np.testing.assert_array_equal(read_bench(folder).trials[0].count, [0, 1, 3, 4])
+
+
+def test_columns_in_any_order_and_unknown_columns_ignored(tmp_path):
+    rows = [line.split(",") for line in TRIAL_CSV.splitlines()]
+    order = [5, 3, 0, 4, 2, 1]
+    text = "\n".join(",".join([r[i] for i in order] + ["x" if k == 0 else "7"]) for k, r in enumerate(rows))
+    (tmp_path / "shuffled").mkdir()
+    folder = write_folder(tmp_path / "shuffled")
+    (folder / "trial_01.csv").write_text(text + "\n")
+    expected = read_bench(write_folder(tmp_path / "plain")).trials[0]
+    assert_trials_equal(read_bench(folder).trials[0], expected)
+
+
+def test_round_trip_of_simulated_trials(tmp_path, small_simulator, small_model, make_request):
+    requests = [make_request(small_model, 2.0, 0.5, seed=3), make_request(small_model, 1.0, 1.0, seed=4)]
+    trials = small_simulator.run_trials(requests, workers=1)
+    bench = Bench(
+        motor=MotorInfo(8, 48, small_model.encoder.counts_per_rev, 0.01056),
+        backemf_nm_per_a=small_simulator.backemf_counts,
+        sensors=SensorCalibration([14.0, 14.5, 13.5], [0.25, -3.0, 1.0], 0.908),
+        trials=tuple(trials), trial_files=("a.csv", "b.csv"))
+    write_bench(tmp_path, bench)
+    back = read_bench(tmp_path)
+    assert back.motor == bench.motor
+    np.testing.assert_allclose(back.backemf_nm_per_a, bench.backemf_nm_per_a, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(back.sensors.current_scale, bench.sensors.current_scale)
+    np.testing.assert_array_equal(back.sensors.current_offset, bench.sensors.current_offset)
+    assert back.sensors.torque_gain == bench.sensors.torque_gain
+    assert back.trial_files == ("a.csv", "b.csv")
+    for actual, original in zip(back.trials, trials, strict=True):
+        assert_round_trip(actual, original)
+
+
+def test_round_trip_without_optional_parts(tmp_path):
+    trial = TrialData(torque_setpoint_nm=1.5, speed_setpoint_hz=0.75, count=np.array([0, 1, 3]),
+                      time_s=np.array([0.0, 0.25, 0.75]), i_ref_a=np.arange(9.0).reshape(3, 3) / 7,
+                      torque_nm=np.array([0.1, -0.2, 1.0 / 3.0]))
+    bench = Bench(MotorInfo(2, 6, 3, 0.5), np.eye(3), None, (trial,), ("only.csv",))
+    write_bench(tmp_path, bench)
+    back = read_bench(tmp_path)
+    assert back.sensors is None
+    assert_round_trip(back.trials[0], trial)
+
+
+@pytest.mark.parametrize("edit, message", [
+    # missing keys
+    (("bench.toml", "slots = 3\n", ""), r"bench\.toml: \[motor\]: missing key 'slots'"),
+    (("bench.toml", "torque_gain = 0.9\n", ""), r"bench\.toml: \[sensors\]: missing key 'torque_gain'"),
+    (("bench.toml", "torque_setpoint = 1.0\n", ""), r"bench\.toml: \[\[trials\]\] #1: missing key 'torque_setpoint'"),
+    (("bench.toml", BENCH_TOML[:BENCH_TOML.index("[sensors]")], ""), r"bench\.toml: missing table \[motor\]"),
+    # unknown keys, in every table and at the top level
+    (("bench.toml", "[motor]", "[rotor]"), r"bench\.toml: unknown key 'rotor'"),
+    (("bench.toml", "slots = 3\n", "slots = 3\nslot = 3\n"), r"bench\.toml: \[motor\]: unknown key 'slot'"),
+    (("bench.toml", "torque_gain = 0.9\n", "torque_gain = 0.9\ntorque_offset = 0.0\n"),
+     r"bench\.toml: \[sensors\]: unknown key 'torque_offset'"),
+    (("bench.toml", "speed_setpoint = 0.5\n", "speed_setpoint = 0.5\nspeed = 0.5\n"),
+     r"bench\.toml: \[\[trials\]\] #1: unknown key 'speed'"),
+    (("bench.toml", "[motor]\n", "version = 1\n[motor]\n"), r"bench\.toml: unknown key 'version'"),
+    # wrong values in bench.toml
+    (("bench.toml", "counts_per_rev = 4", "counts_per_rev = 4.0"),
+     r"bench\.toml: \[motor\]: key 'counts_per_rev' must be a positive integer"),
+    (("bench.toml", "inertia = 0.01", "inertia = -0.01"), r"bench\.toml: \[motor\]: key 'inertia' must be positive"),
+    (("bench.toml", "[14.0, 14.0, 14.0]", "[14.0, 14.0]"),
+     r"bench\.toml: \[sensors\]: key 'current_scale' must be a list of 3 numbers"),
+    (("bench.toml", "speed_setpoint = 0.5", "speed_setpoint = nan"),
+     r"bench\.toml: \[\[trials\]\] #1: key 'speed_setpoint' must be a finite number"),
+    # malformed TOML: the parser's line
+    (("bench.toml", "pole_pairs = 1", "pole_pairs = "), r"bench\.toml: not valid TOML \(.*line 2"),
+    # backemf.csv
+    (("backemf.csv", "3,-0.2,0.1,0.1\n", ""), r"backemf\.csv: has 3 rows, expected counts_per_rev = 4"),
+    (("backemf.csv", "count,k_a,k_b,k_c", "count,ka,kb,kc"),
+     r"backemf\.csv: line 1: header must be count,k_a,k_b,k_c, got count,ka,kb,kc"),
+    (("backemf.csv", "2,0.0,0.17", "5,0.0,0.17"), r"backemf\.csv: line 4: count must be 2, got 5"),
+    # trial CSV
+    (("trial_01.csv", ",torque", ",torq"), r"trial_01\.csv: line 1: missing column 'torque'"),
+    (("trial_01.csv", "i_ref_c,", "i_ref_b,"), r"trial_01\.csv: line 1: missing column 'i_ref_c'"),
+    (("trial_01.csv", "\n3,1.5", "\n2,1.5"), r"trial_01\.csv: line 5: count does not increase"),
+    (("trial_01.csv", "\n1,0.5", "\n1.5,0.5"), r"trial_01\.csv: line 3: count must be an integer"),
+    (("trial_01.csv", "0.03\n", "nan\n"), r"trial_01\.csv: line 4: torque is not a finite number"),
+    (("trial_01.csv", "-3.3,1.7,1.7", "-3.3,inf,1.7"), r"trial_01\.csv: line 5: i_ref_b is not a finite number"),
+    (("trial_01.csv", "3.3,-1.7,-1.7", "3.3,abc,-1.7"), r"trial_01\.csv: line 3: could not convert string 'abc'"),
+    (("trial_01.csv", "0.0,1.5,-1.5,0.03\n", "0.0,1.5,0.03\n"), r"trial_01\.csv: line 4 has 5 fields, the header has 6"),
+    (("trial_01.csv", "0.0,1.5,-1.5,0.03\n", "0.0,1.5,-1.5,0.03,9\n"), r"trial_01\.csv: line 4 has 7 fields, the header has 6"),
+    (("trial_01.csv", "0.0,-1.5,1.5,0.01\n", "0.0,-1.5,1.5\n"), r"trial_01\.csv: line 2 has 5 fields, the header has 6"),
+    (("trial_01.csv", TRIAL_CSV[TRIAL_CSV.index("\n1,"):], "\n"), r"trial_01\.csv: needs at least 2 rows, has 1"),
+    # files that are not there
+    (("bench.toml", 'file = "trial_01.csv"', 'file = "trial_02.csv"'), r"trial_02\.csv: no such file"),
+    (("bench.toml", 'backemf_file = "backemf.csv"', 'backemf_file = "emf.csv"'), r"emf\.csv: no such file"),
+])
+def test_bad_folder_names_file_and_line_or_key(tmp_path, edit, message):
+    folder = write_folder(tmp_path, edit)
+    with pytest.raises(BenchFormatError, match=re.escape(str(folder)) + "/" + message):
+        read_bench(folder)
+
+
+def test_unreadable_trial_file(tmp_path):
+    trial = write_folder(tmp_path) / "trial_01.csv"
+    trial.write_bytes(b"count,time\xff\xfe,i_ref_a\n")
+    with pytest.raises(BenchFormatError, match=re.escape(str(trial)) + r": cannot read \("):
+        read_bench(tmp_path)
+
+
+def test_trial_listed_twice(tmp_path):
+    trial = BENCH_TOML[BENCH_TOML.index("[[trials]]"):]
+    folder = write_folder(tmp_path, ("bench.toml", trial, trial + "\n" + trial))
+    with pytest.raises(BenchFormatError, match=r"bench\.toml: \[\[trials\]\] #2: file 'trial_01\.csv' is listed twice"):
+        read_bench(folder)
+
+
+def test_no_trials(tmp_path):
+    folder = write_folder(tmp_path, ("bench.toml", BENCH_TOML[BENCH_TOML.index("[[trials]]"):], ""))
+    with pytest.raises(BenchFormatError, match=r"bench\.toml: needs at least one \[\[trials\]\] entry"):
+        read_bench(folder)
+
+
+def test_missing_bench_toml(tmp_path):
+    (write_folder(tmp_path) / "bench.toml").unlink()
+    with pytest.raises(BenchFormatError, match=re.escape(str(tmp_path / "bench.toml")) + ": no such file"):
+        read_bench(tmp_path)
+
+
+def test_not_a_folder(tmp_path):
+    with pytest.raises(BenchFormatError, match=re.escape(str(tmp_path / "absent")) + ": not a folder"):
+        read_bench(tmp_path / "absent")

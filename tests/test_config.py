@@ -1,0 +1,95 @@
+"""Campaign configuration: the seed file reads, every bad file raises ConfigError naming file, table and key."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from ilcpmac.config import CampaignSettings, LimitSettings, PipelineSettings, load_config
+from ilcpmac.errors import ConfigError
+
+from conftest import SEED_CONFIG
+
+
+def test_seed_config_values(seed_config):
+    m = seed_config.model
+    assert m.winding.pole_pairs == 8
+    assert m.winding.cogging_order == math.lcm(48, 16) == 48
+    assert m.backemf.harmonics == (1, 3, 5, 7)
+    assert m.encoder.counts_per_rev == 4096
+    assert m.mechanics.inertia_kgm2 == 0.01056
+    assert seed_config.grid.torque_setpoints_nm == (1.0, 2.0, 3.0, 4.0, 5.0)
+    assert seed_config.excitation.harmonics == 144
+    assert seed_config.path == SEED_CONFIG
+
+
+def test_alpha_is_normalised_to_mean_one(seed_config):
+    alpha = np.array(seed_config.model.current_sensors.alpha)
+    np.testing.assert_allclose(alpha, np.array([0.8, 1.118, 1.118]) / (3.036 / 3), rtol=1e-12)
+    assert alpha.mean() == pytest.approx(1.0, abs=1e-15)
+
+
+def test_integer_accepted_where_a_number_is_expected(write_config):
+    cfg = load_config(write_config({"mechanics": {"inertia_kgm2": 1}}))
+    assert cfg.model.mechanics.inertia_kgm2 == 1.0
+    assert isinstance(cfg.model.mechanics.inertia_kgm2, float)
+
+
+def test_run_tables_are_optional(write_config, seed_config):
+    cfg = load_config(write_config(drop=("campaign", "limits", "pipeline", "stages")))
+    assert (cfg.campaign, cfg.limits, cfg.pipeline) == (CampaignSettings(), LimitSettings(), PipelineSettings())
+    assert cfg.stage_options == {}
+    assert seed_config.stage_options["ilc"]["learning_gain"] == 1.0
+
+
+@pytest.mark.parametrize("changes, drop, message", [
+    # unknown table and unknown key
+    ({"windings": {"slots": 48}}, (), r"unknown table \[windings\]"),
+    ({"winding": {"pole_pair": 8}}, (), r"\[winding\] unknown key 'pole_pair'"),
+    # missing table and missing key
+    (None, ("cogging",), r"missing table \[cogging\]"),
+    (None, ("winding.slots",), r"\[winding\] slots: missing"),
+    (None, ("current_sensors.beta_a",), r"\[current_sensors\] beta_a: missing"),
+    # wrong type
+    ({"winding": {"slots": "48"}}, (), r"\[winding\] slots: expected an integer, got '48'"),
+    ({"encoder": {"counts_per_rev": True}}, (), r"\[encoder\] counts_per_rev: expected an integer"),
+    ({"mechanics": {"inertia_kgm2": "0.01"}}, (), r"\[mechanics\] inertia_kgm2: expected a finite number"),
+    ({"backemf": {"harmonics": 1}}, (), r"\[backemf\] harmonics: expected a list"),
+    ({"backemf": {"harmonics": [1, 3.5, 5, 7]}}, (), r"\[backemf\] harmonics: expected an integer, got 3.5"),
+    ({"excitation": {"phases": 1}}, (), r"\[excitation\] phases: expected a string"),
+    # bad value
+    ({"mechanics": {"inertia_kgm2": -0.01}}, (), r"\[mechanics\] inertia_kgm2: invalid value -0.01"),
+    ({"mechanics": {"inertia_kgm2": math.nan}}, (), r"\[mechanics\] inertia_kgm2: expected a finite number"),
+    ({"backemf": {"phases_rad": [0.0, math.inf, 0.0, 0.0]}}, (),
+     r"\[backemf\] phases_rad: expected a finite number"),
+    ({"current_sensors": {"alpha": [1.0, 1.0]}}, (), r"\[current_sensors\] alpha: invalid value \[1.0, 1.0\]"),
+    ({"torque_sensor": {"noise_nm": -0.1}}, (), r"\[torque_sensor\] noise_nm: invalid value"),
+    ({"excitation": {"phases": "square"}}, (), r"\[excitation\] phases: invalid value 'square'"),
+    ({"cogging": {"amplitudes_nm": [0.5]}}, (),
+     r"\[cogging\]: lists multiples, amplitudes_nm, phases_rad must have equal lengths"),
+    ({"excitation": {"harmonics": 2048}}, (), r"\[excitation\] harmonics: 2048 is beyond the Nyquist limit"),
+    ({"backemf": {"harmonics": [3, 5, 7, 9]}}, (), r"\[backemf\] harmonics: must include the fundamental 1"),
+    ({"campaign": {"ripple_harmonics": 2048}}, (), r"\[campaign\] ripple_harmonics: 2048 is beyond the Nyquist"),
+    ({"stages": {"shaper": {"gain": 1.0}}}, (),
+     r"\[stages.shaper\] configures a stage that \[pipeline\] stages does not list"),
+])
+def test_bad_config_names_file_table_and_key(write_config, changes, drop, message):
+    path = write_config(changes, drop)
+    with pytest.raises(ConfigError, match=re.escape(str(path)) + ": " + message):
+        load_config(path)
+
+
+def test_malformed_toml_names_file_and_line(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text("[winding]\npole_pairs = \n")
+    with pytest.raises(ConfigError, match=re.escape(str(path)) + r": not valid TOML \(.*line 2"):
+        load_config(path)
+
+
+def test_missing_file(tmp_path):
+    path = tmp_path / "absent.toml"
+    with pytest.raises(ConfigError, match=re.escape(str(path)) + ": cannot read"):
+        load_config(path)

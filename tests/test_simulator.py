@@ -1,0 +1,267 @@
+"""The numba drive simulator against the report's model: eqs. (1.1)-(1.7), (3.1), ripple sources, seeds."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy.interpolate import CubicSpline
+
+from ilcpmac.errors import SimulationError
+from ilcpmac.model.motor import MotorModel
+from ilcpmac.model.tables import backemf_table, cogging_table, disturbance_table
+from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.sim.grid import grid_requests
+from ilcpmac.sim.simulator import SensorTruth, Simulator
+
+from conftest import COUNTS_PER_REV, REVOLUTIONS
+
+#: phase shifts 2 pi p / 3 of phases a, b, c
+PHASORS = np.exp(-2j * np.pi * np.arange(3) / 3)
+
+
+def synchronous_average(trial: TrialData, values: np.ndarray) -> np.ndarray:
+    """Per-count average of ``values`` over the trial's whole revolutions."""
+    revolutions = trial.n_samples // COUNTS_PER_REV
+    keep = trial.count < revolutions * COUNTS_PER_REV
+    index = trial.count[keep] % COUNTS_PER_REV
+    hits = np.bincount(index, minlength=COUNTS_PER_REV)
+    assert np.all(hits == revolutions), "every count of every whole revolution is sampled"
+    return np.bincount(index, weights=values[keep], minlength=COUNTS_PER_REV) / revolutions
+
+
+def harmonics(table: np.ndarray) -> np.ndarray:
+    """Complex amplitudes of mechanical harmonics 0..N/2 of a per-count table (a cos + b sin -> a - jb)."""
+    spectrum = 2.0 * np.fft.rfft(table) / table.size
+    spectrum[0] /= 2.0
+    return spectrum
+
+
+@pytest.fixture(scope="module")
+def sine_model(ideal_model: MotorModel) -> MotorModel:
+    """The ideal drive with a sinusoidal, symmetric back-EMF of 0.2 N m / A (the report's analysis)."""
+    return dataclasses.replace(ideal_model, backemf=dataclasses.replace(
+        ideal_model.backemf, harmonics=(1,), amplitudes_nm_per_a=(0.2,), phases_rad=(0.0,),
+        asymmetry=(0.0, 0.0, 0.0)))
+
+
+# ------------------------------------------------ an ideal drive follows its torque reference
+
+
+@pytest.mark.parametrize("torque_nm", [1.0, 5.0])
+def test_ideal_drive_constant_setpoint_gives_flat_torque(ideal_model, make_request, torque_nm):
+    trial = Simulator(ideal_model).run_trial(make_request(ideal_model, torque_nm))
+    true = trial.torque_true_nm
+    # the 140 Hz current loop fights the back-EMF and loses a little mean torque (0.25-0.4 % at 0.5 Hz)
+    assert true.mean() == pytest.approx(torque_nm, rel=0.005)
+    # left: 6x electrical from the per-count current reference, 1.5-1.7 % pp at 1024 counts
+    assert np.ptp(true) < 0.02 * torque_nm
+    # an ideal piezo passes the torque unchanged, less the level it started at
+    assert np.ptp(trial.torque_nm - true) < 1e-9
+
+
+def test_ideal_drive_follows_slow_feedforward(ideal_model, make_request):
+    theta = 2 * np.pi * np.arange(COUNTS_PER_REV) / COUNTS_PER_REV
+    feedforward = 0.3 * np.sin(theta) + 0.2 * np.cos(3 * theta + 0.4)
+    request = make_request(ideal_model, 2.0, feedforward_nm=feedforward)
+    trial = Simulator(ideal_model).run_trial(request)
+    actual = harmonics(synchronous_average(trial, trial.torque_true_nm))
+    # the sample at a count's crossing still holds the currents of the previous count's reference
+    wanted = harmonics(np.roll(request.torque_reference_nm(), 1))
+    for h in (1, 3):
+        assert abs(actual[h] / wanted[h] - 1) < 0.015, h
+    ripple = np.abs(actual[1:])
+    ripple[[0, 2]] = 0.0
+    assert ripple.max() < 0.02  # nothing but the 6x-electrical residue of the flat case
+
+
+# ------------------------------------------------ where each error puts its ripple (report sec. 1.1)
+
+
+def beta_ripple(beta_a) -> float:
+    """k |sum_p beta_p e^(-j 2 pi p / 3)|: sum_p K_p beta_p at the electrical frequency."""
+    return 0.2 * abs(np.dot(beta_a, PHASORS))
+
+
+def alpha_ripple(alpha, torque_nm: float) -> float:
+    """(tau / 3) |sum_p alpha_p e^(-j 4 pi p / 3)|: sum_p alpha_p K_p i*_p at twice the electrical frequency."""
+    alpha = np.asarray(alpha) / np.mean(alpha)
+    return torque_nm / 3 * abs(np.dot(alpha, PHASORS**2))
+
+
+@pytest.mark.parametrize("error, changes, expected", [
+    # offset error: 1x electrical, mechanical harmonic pole_pairs = 8
+    ("offset", {"current_sensors": {"beta_a": (0.3, -0.15, -0.15)}}, {8: beta_ripple([0.3, -0.15, -0.15])}),
+    # scale imbalance: 2x electrical, harmonic 2 pole_pairs = 16
+    ("scale", {"current_sensors": {"alpha": (0.9, 1.05, 1.05)}}, {16: alpha_ripple([0.9, 1.05, 1.05], 2.0)}),
+    # cogging: lcm(slots, 2 pole_pairs) and its multiples, with the seed's amplitudes 0.5 and 0.08 N m
+    ("cogging", {"cogging": {"amplitudes_nm": (0.5, 0.08)}}, {48: 0.5, 96: 0.08}),
+    ("cogging 36 slots", {"cogging": {"amplitudes_nm": (0.5, 0.08)}, "winding": {"slots": 36}},
+     {144: 0.5, 288: 0.08}),
+])
+def test_each_error_ripples_at_its_own_harmonic(sine_model, make_request, error, changes, expected):
+    model = dataclasses.replace(sine_model, **{
+        section: dataclasses.replace(getattr(sine_model, section), **values) for section, values in changes.items()})
+    trial = Simulator(model).run_trial(make_request(model, 2.0))
+    amplitude = np.abs(harmonics(synchronous_average(trial, trial.torque_true_nm)))
+    dominant = next(iter(expected))
+    assert np.argmax(amplitude[1:]) + 1 == dominant
+    for h, value in expected.items():
+        assert amplitude[h] == pytest.approx(value, rel=0.02), h
+    others = np.delete(amplitude, [0, *expected])
+    assert others.max() < 0.02 * amplitude[dominant]
+
+
+# ------------------------------------------------ eqs. (1.3)-(1.7) and (3.1) on the seed bench
+
+
+@pytest.fixture(scope="module")
+def seed_grid(seed_config, small_model) -> dict[tuple[float, float], TrialRequest]:
+    """The seed campaign's multisine trials on the small model, by (torque, speed) set point."""
+    config = dataclasses.replace(seed_config, model=small_model)
+    return {(r.torque_setpoint_nm, r.speed_setpoint_hz): r
+            for r in grid_requests(config, seed=2009, revolutions=REVOLUTIONS)}
+
+
+@pytest.fixture(scope="module")
+def seed_request(seed_grid) -> TrialRequest:
+    """The seed campaign's 2 N m, 0.5 Hz trial."""
+    return seed_grid[2.0, 0.5]
+
+
+def corrected_calibration(simulator: Simulator) -> SensorCalibration:
+    """The calibration that removes every sensor error."""
+    return SensorCalibration(simulator.scale_true, simulator.offset_true, simulator.torque_gain_true)
+
+
+@pytest.fixture(scope="module", params=["starting", "corrected"])
+def calibrated_trial(request, small_simulator, seed_request) -> tuple[TrialData, SensorTruth]:
+    """A seed trial under the starting and under the corrected calibration, with its truth."""
+    if request.param == "corrected":
+        seed_request = seed_request.with_changes(calibration=corrected_calibration(small_simulator))
+    trial = small_simulator.run_trial(seed_request)
+    return trial, small_simulator.truth(seed_request.calibration)
+
+
+def test_truth_of_the_seed_calibrations(small_simulator, small_model):
+    truth = small_simulator.truth(small_model.controller.calibration())
+    assert truth.delta == pytest.approx(0.822, rel=1e-12)
+    assert truth.epsilon == pytest.approx(0.6868, rel=1e-12)
+    np.testing.assert_allclose(truth.alpha, np.array([0.8, 1.118, 1.118]) / (3.036 / 3), rtol=1e-12)
+    np.testing.assert_allclose(truth.beta_a, [1.0, -0.5, -0.5], rtol=1e-12)
+    ideal = small_simulator.truth(corrected_calibration(small_simulator))
+    assert (ideal.delta, ideal.epsilon) == (pytest.approx(1.0, rel=1e-12), pytest.approx(1.0, rel=1e-12))
+    np.testing.assert_allclose(ideal.alpha, 1.0, rtol=1e-12)
+    np.testing.assert_allclose(ideal.beta_a, 0.0, atol=1e-12)
+
+
+def test_true_torque_is_eq_1_1_with_unexplained_terms(small_simulator, small_model, seed_grid):
+    """tau = sum_p K_p i_p (1 - c i_p^2) + cogging + disturbance, from the recorded true currents."""
+    trial = small_simulator.run_trial(seed_grid[5.0, 0.5])  # the largest currents: saturation shows
+    m = small_model
+    k = trial.count % COUNTS_PER_REV
+    backemf = backemf_table(m.winding, m.backemf, COUNTS_PER_REV)[k]
+    position = (cogging_table(m.winding, m.cogging, COUNTS_PER_REV)
+                + disturbance_table(m.unexplained, COUNTS_PER_REV))[k]
+    i = trial.i_true_a
+    model = np.sum(backemf * i * (1 - m.unexplained.saturation_per_a2 * i**2), axis=1) + position
+    # 1.6 mN m: the kernel evaluates the torque up to one control step before the count's crossing;
+    # the saturation term alone is 3 mN m RMS here
+    assert np.std(trial.torque_true_nm - model) < 0.0025
+
+
+def test_true_currents_follow_eq_1_3(calibrated_trial):
+    """i = epsilon alpha I* + beta, within the current loop's tracking error."""
+    trial, truth = calibrated_trial
+    for p in range(3):
+        slope, intercept = np.polyfit(trial.i_ref_a[:, p], trial.i_true_a[:, p], 1)
+        assert slope == pytest.approx(truth.epsilon * truth.alpha[p], rel=0.01)
+        assert intercept == pytest.approx(truth.beta_a[p], abs=0.02)
+    # at a count's crossing the loop has been tracking the previous count's reference
+    error = trial.i_true_a[1:] - (truth.epsilon * truth.alpha * trial.i_ref_a[:-1] + truth.beta_a)
+    np.testing.assert_array_less(error.std(axis=0), 0.03 * trial.i_true_a.std(axis=0))
+
+
+def test_measured_currents_differ_from_true_by_sensor_noise_only(calibrated_trial, small_simulator, small_model):
+    trial, truth = calibrated_trial
+    error = trial.i_true_a - (truth.epsilon * truth.alpha * trial.i_meas_a + truth.beta_a)
+    noise_a = small_model.current_sensors.noise_counts / small_simulator.scale_true  # G_s times counts RMS
+    # the true current is sampled one 50 us control step after the reading: a little more than noise
+    np.testing.assert_array_less(0.9 * noise_a, error.std(axis=0))
+    np.testing.assert_array_less(error.std(axis=0), 1.3 * noise_a)
+
+
+def test_measured_torque_is_delta_times_true_torque(calibrated_trial, small_model):
+    """tau*_m = delta tau, up to the piezo's unknown level and drift (removed) and its noise."""
+    trial, truth = calibrated_trial
+    difference = trial.torque_nm - truth.delta * trial.torque_true_nm
+    trend = np.polynomial.Polynomial.fit(trial.time_s, difference, 1)
+    residual = difference - trend(trial.time_s)
+    noise_nm = small_model.torque_sensor.noise_nm
+    assert 0.85 * noise_nm < residual.std() < 1.15 * noise_nm
+
+
+def test_dynamics_eq_3_1(calibrated_trial, small_model):
+    """tau = J d(omega)/dt + b omega, with J from the config and b fitted."""
+    trial, _ = calibrated_trial
+    t, omega, tau = trial.time_s, trial.speed_true_rad_s, trial.torque_true_nm
+    accel = CubicSpline(t, omega)(t, 1)  # samples 2 ms apart, torque content up to 72 Hz: resolved
+    inertia_torque = small_model.mechanics.inertia_kgm2 * accel
+    b = np.dot(omega, tau - inertia_torque) / np.dot(omega, omega)
+    residual = tau - inertia_torque - b * omega
+    assert b > 0
+    assert residual.std() < 0.04 * tau.std()  # 0.02 here; J off by 10 % gives 0.09
+
+
+# ------------------------------------------------ seeds
+
+
+def assert_trials_identical(a: TrialData, b: TrialData) -> None:
+    for f in dataclasses.fields(TrialData):
+        if f.name != "request":
+            np.testing.assert_array_equal(getattr(a, f.name), getattr(b, f.name), err_msg=f.name)
+
+
+def test_same_seed_reproduces_bit_identically(small_model, seed_request):
+    assert_trials_identical(Simulator(small_model).run_trial(seed_request),
+                            Simulator(small_model).run_trial(seed_request))
+
+
+def test_different_seed_draws_different_noise(small_simulator, seed_request):
+    a = small_simulator.run_trial(seed_request)
+    b = small_simulator.run_trial(seed_request.with_changes(seed=seed_request.seed + 1))
+    assert not np.array_equal(a.torque_nm, b.torque_nm)
+    assert not np.array_equal(a.i_meas_a, b.i_meas_a)
+    # the noise, not the physics, differs
+    assert np.abs(a.torque_true_nm.mean() - b.torque_true_nm.mean()) < 1e-3
+
+
+def test_run_trials_does_not_depend_on_workers(small_simulator, small_model, make_request):
+    requests = [make_request(small_model, torque, speed, seed=seed)
+                for torque, speed, seed in [(1.0, 1.0, 11), (2.0, 0.5, 12), (3.0, 0.75, 13)]]
+    done = []
+    serial = small_simulator.run_trials(requests, workers=1)
+    parallel = small_simulator.run_trials(requests, workers=2, on_done=lambda i, trial: done.append(i))
+    assert sorted(done) == [0, 1, 2]
+    for request, a, b in zip(requests, serial, parallel, strict=True):
+        assert a.request is request and b.request is request
+        assert_trials_identical(a, b)
+
+
+# ------------------------------------------------ requests the simulator refuses
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"feedforward_nm": np.zeros(COUNTS_PER_REV - 1)}, r"feedforward_nm has shape \(1023,\), expected \(1024,\)"),
+    ({"excitation_nm": np.full(COUNTS_PER_REV, np.nan)}, r"excitation_nm holds NaN"),
+    ({"seed": 2**32}, r"seed must be a 32-bit unsigned integer"),
+    ({"speed_setpoint_hz": 0.0}, r"speed set point must be positive"),
+    ({"revolutions": 0}, r"revolutions must be at least 1"),
+    ({"calibration": SensorCalibration([14.0, -14.0, 14.0], [0.0, 0.0, 0.0], 0.908)},
+     r"calibration needs positive current scales"),
+    ({"torque_setpoint_nm": -1.0}, r"not enough to turn the rotor"),
+])
+def test_bad_request_raises(small_simulator, small_model, make_request, changes, message):
+    with pytest.raises(SimulationError, match=message):
+        small_simulator.run_trial(make_request(small_model).with_changes(**changes))
