@@ -22,3 +22,7 @@ class SimulationError(IlcpmacError):
 
 class IdentificationError(IlcpmacError):
     """The data cannot support an estimate; the message says which and why."""
+
+
+class BackendError(IlcpmacError):
+    """A backend cannot run a trial: refused request, unreachable target, broken protocol."""

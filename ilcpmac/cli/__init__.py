@@ -39,3 +39,4 @@ def main() -> None:
 
 # Each command lives in its own module and registers itself on `main` when imported.
 from ilcpmac.cli import simulate  # noqa: E402,F401
+from ilcpmac.cli import emulate  # noqa: E402,F401

@@ -1,0 +1,387 @@
+"""The bench protocol's frames and messages (docs/protocol.md), over socket pairs."""
+
+from __future__ import annotations
+
+import re
+import socket
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ilcpmac.backends.base import BenchDescription, BenchLimits
+from ilcpmac.backends.protocol import (
+    COLUMNS,
+    HEADER,
+    MAX_PAYLOAD,
+    PROTOCOL_VERSION,
+    Accept,
+    Channel,
+    Column,
+    EndOfTrial,
+    ErrorCode,
+    FrameType,
+    PeerClosed,
+    ProtocolError,
+    ProtocolVersionError,
+    TargetError,
+    TrialAssembler,
+    check_request,
+    decode_accept,
+    decode_describe,
+    decode_end,
+    decode_error,
+    decode_heartbeat,
+    decode_request,
+    encode_accept,
+    encode_describe,
+    encode_end,
+    encode_error,
+    encode_heartbeat,
+    encode_request,
+    encode_trial,
+)
+from ilcpmac.bench.format import MotorInfo
+from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
+CAL = SensorCalibration([14.0, 14.0, 14.0], [0.0, 0.0, 0.0], 0.908)
+
+
+@pytest.fixture
+def pair(request):
+    """(sender, receiver) channels over a connected socket pair, closed afterwards."""
+    a, b = socket.socketpair()
+    for s in (a, b):
+        s.settimeout(2.0)
+    sender, receiver = Channel(a, "the receiver"), Channel(b, "the sender")
+    request.addfinalizer(sender.close)
+    request.addfinalizer(receiver.close)
+    return sender, receiver
+
+
+def toy_description(cpr: int = 4) -> BenchDescription:
+    theta = 2 * np.pi * np.arange(cpr) / cpr
+    backemf = 0.2 * np.sin(8 * theta[:, None] - 2 * np.pi * np.arange(3) / 3)
+    if cpr == 4:
+        backemf = np.array([[0.2, -0.1, -0.1], [0.1, 0.2, -0.1], [-0.1, 0.1, 0.2], [0.0, -0.2, 0.2]])
+    return BenchDescription(MotorInfo(8, 48, cpr, 0.01056), backemf, CAL, BenchLimits(30.0, 8.0, 1.5))
+
+
+def toy_trial(n: int, flags: Column, seed: int = 0) -> TrialData:
+    rng = np.random.default_rng(seed)
+    optional = {name: (rng.standard_normal((n, 3)) if width == 3 else rng.standard_normal(n))
+                for name, width, _, flag in COLUMNS if flag is not None and flags & flag}
+    return TrialData(1.5, 0.7, count=np.cumsum(rng.integers(1, 3, n)), time_s=rng.random(n),
+                     i_ref_a=rng.standard_normal((n, 3)), torque_nm=rng.standard_normal(n), **optional)
+
+
+def stream(trial: TrialData, chunk: int, trial_id: int = 7) -> tuple[list[memoryview], memoryview]:
+    """The DATA payloads and END_OF_TRIAL payload of ``trial`` as bytes."""
+    frames = [memoryview(b"".join(bytes(memoryview(p).cast("B")) for p in parts))
+              for _, parts in encode_trial(trial_id, trial, chunk)]
+    return frames[:-1], frames[-1]
+
+
+# ---------------------------------------------------------------- frames
+
+
+@pytest.mark.parametrize("ftype", list(FrameType))
+def test_frame_round_trip(pair, ftype):
+    sender, receiver = pair
+    payload = bytes(range(256)) * 3
+    sender.send(ftype, [payload[:100], np.arange(4.0), payload[100:]])
+    sender.send(ftype)
+    first, second = receiver.recv(), receiver.recv()
+    assert (first.type, first.seq, first.version) == (ftype, 0, PROTOCOL_VERSION)
+    assert bytes(first.payload) == payload[:100] + np.arange(4.0).astype("<f8").tobytes() + payload[100:]
+    assert (second.seq, bytes(second.payload)) == (1, b"")
+
+
+def test_frame_layout_is_header_payload_crc(pair):
+    sender, _ = pair
+    frame = sender.frame_bytes(FrameType.DATA, [b"abc"])
+    assert frame[:4] == b"ILCP" and len(frame) == 16 + 3 + 4
+    assert struct.unpack("<HHII", frame[4:16]) == (PROTOCOL_VERSION, 5, 0, 3)
+    assert struct.unpack("<I", frame[-4:])[0] == zlib.crc32(frame[:-4])
+
+
+@pytest.mark.parametrize("where", [5, 10, 16, 40, -1])
+def test_corrupted_byte_is_rejected(pair, where):
+    sender, receiver = pair
+    frame = sender.frame_bytes(FrameType.DATA, [np.arange(8.0)])
+    frame[where] ^= 0x10
+    sender.send_bytes(frame)
+    with pytest.raises(ProtocolError, match=r"CRC mismatch in frame \d+ \((DATA|type \d+)\) from the sender"):
+        receiver.recv()
+
+
+def test_bad_magic_is_rejected(pair):
+    sender, receiver = pair
+    frame = sender.frame_bytes(FrameType.HELLO)
+    frame[0:4] = b"HTTP"
+    sender.send_bytes(frame)
+    with pytest.raises(ProtocolError, match="bad magic b'HTTP'"):
+        receiver.recv()
+
+
+def test_oversized_length_is_rejected_before_reading(pair):
+    sender, receiver = pair
+    sender.send_bytes(HEADER.pack(b"ILCP", PROTOCOL_VERSION, FrameType.DATA, 0, MAX_PAYLOAD + 1))
+    with pytest.raises(ProtocolError, match="announces 16777217 payload bytes"):
+        receiver.recv()
+
+
+def test_oversized_payload_is_not_sent(pair):
+    sender, _ = pair
+    with pytest.raises(ProtocolError, match="exceeds the 16777216-byte maximum"):
+        sender.frame_bytes(FrameType.DATA, [bytes(MAX_PAYLOAD + 1)])
+
+
+@pytest.mark.parametrize("keep", [3, 16, 30])
+def test_truncated_frame_is_rejected(pair, keep):
+    sender, receiver = pair
+    sender.send_bytes(sender.frame_bytes(FrameType.DATA, [bytes(20)])[:keep])
+    sender.sock.shutdown(socket.SHUT_WR)
+    with pytest.raises(ProtocolError, match="closed the connection mid-frame"):
+        receiver.recv()
+
+
+def test_close_between_frames_is_peer_closed(pair):
+    sender, receiver = pair
+    sender.send(FrameType.HELLO)
+    sender.sock.shutdown(socket.SHUT_WR)
+    assert receiver.recv().type is FrameType.HELLO
+    with pytest.raises(PeerClosed, match="the sender closed the connection"):
+        receiver.recv()
+
+
+def test_wrong_version_is_rejected(pair):
+    sender, receiver = pair
+    sender.send_bytes(sender.frame_bytes(FrameType.DESCRIBE, [b""], version=PROTOCOL_VERSION + 1))
+    with pytest.raises(ProtocolVersionError, match="speaks protocol version 2, this end speaks version 1"):
+        receiver.recv()
+
+
+def test_error_frame_of_another_version_is_still_read(pair):
+    sender, receiver = pair
+    sender.send_bytes(sender.frame_bytes(FrameType.ERROR, encode_error(ErrorCode.VERSION_MISMATCH, 0, "v3 only"),
+                                         version=3))
+    frame = receiver.recv()
+    assert (frame.type, frame.version) == (FrameType.ERROR, 3)
+    error = decode_error(frame.payload)
+    assert (error.code, error.detail) == (ErrorCode.VERSION_MISMATCH, "v3 only")
+
+
+def test_sequence_gap_is_rejected(pair):
+    sender, receiver = pair
+    sender.frame_bytes(FrameType.DATA, [b"lost"])
+    sender.send(FrameType.DATA, [b"next"])
+    with pytest.raises(ProtocolError, match="sequence gap .*expected frame 0, got 1"):
+        receiver.recv()
+
+
+def test_unknown_frame_type_is_rejected(pair):
+    sender, receiver = pair
+    frame = bytearray(HEADER.pack(b"ILCP", PROTOCOL_VERSION, 99, 0, 0))
+    sender.send_bytes(frame + struct.pack("<I", zlib.crc32(frame)))
+    with pytest.raises(ProtocolError, match="unknown frame type 99"):
+        receiver.recv()
+
+
+# ---------------------------------------------------------------- messages
+
+
+def test_describe_round_trip():
+    description = toy_description(64)
+    parts = encode_describe(description)
+    back = decode_describe(memoryview(b"".join(bytes(memoryview(p).cast("B")) for p in parts)))
+    assert back.motor == description.motor and back.limits == description.limits
+    assert np.array_equal(back.backemf_nm_per_a, description.backemf_nm_per_a)
+    assert np.array_equal(back.calibration.current_scale, CAL.current_scale)
+    assert back.calibration.torque_gain == CAL.torque_gain
+
+
+def test_request_round_trip_keeps_every_field_and_the_seed():
+    rng = np.random.default_rng(3)
+    request = TrialRequest(2.5, 0.75, 3, rng.standard_normal(32), rng.standard_normal(32),
+                           SensorCalibration([13.0, 14.0, 15.0], [0.5, -1.0, 2.0], 0.9), seed=2**32 - 1)
+    payload = memoryview(b"".join(bytes(memoryview(p).cast("B")) for p in encode_request(42, request)))
+    trial_id, back = decode_request(payload)
+    assert trial_id == 42 and back.seed == 2**32 - 1
+    assert (back.torque_setpoint_nm, back.speed_setpoint_hz, back.revolutions) == (2.5, 0.75, 3)
+    assert np.array_equal(back.feedforward_nm, request.feedforward_nm)
+    assert np.array_equal(back.excitation_nm, request.excitation_nm)
+    assert np.array_equal(back.calibration.current_offset, [0.5, -1.0, 2.0])
+    with pytest.raises(ProtocolError, match=r"REQUEST \(table length 32\) payload is 343 bytes, expected 600"):
+        decode_request(payload[:-257])
+
+
+def test_small_messages_round_trip():
+    assert decode_accept(memoryview(b"".join(encode_accept(Accept(3, 2**40))))) == Accept(3, 2**40)
+    assert decode_heartbeat(memoryview(b"".join(encode_heartbeat(9)))) == 9
+    end = EndOfTrial(5, 2, 1000, 0xDEADBEEF)
+    assert decode_end(memoryview(b"".join(encode_end(end)))) == end
+    error = decode_error(memoryview(b"".join(encode_error(ErrorCode.TRIAL_FAILED, 4, "stalled at 3 \u00b0"))))
+    assert isinstance(error, TargetError) and error.trial_id == 4
+    assert str(error) == "target error TRIAL_FAILED: stalled at 3 \u00b0"
+    assert str(decode_error(memoryview(struct.pack("<II", 77, 0)))) == "target error code 77: "
+    assert len(b"".join(encode_error(ErrorCode.INTERNAL, 0, "x" * 5000))) == 8 + 1024
+    with pytest.raises(ProtocolError, match="ACCEPT payload is 15 bytes, expected 16"):
+        decode_accept(memoryview(bytes(15)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 300), chunk=st.integers(1, 70), flags=st.integers(0, 15))
+def test_trial_round_trip(n, chunk, flags):
+    trial = toy_trial(n, Column(flags), seed=n)
+    data, end = stream(trial, chunk)
+    assembler = TrialAssembler(7, n)
+    for payload in data:
+        assembler.add(payload)
+    columns = assembler.finish(end)
+    assert len(data) == -(-n // chunk)
+    for name, _, dtype, flag in COLUMNS:
+        if flag is None or flags & flag:
+            assert columns[name].dtype == dtype and np.array_equal(columns[name], getattr(trial, name))
+        else:
+            assert name not in columns
+
+
+def _assemble(data, end, trial_id: int = 7, max_samples: int = 100):
+    assembler = TrialAssembler(trial_id, max_samples)
+    for payload in data:
+        assembler.add(payload)
+    return assembler.finish(end)
+
+
+def test_trial_with_a_missing_chunk_is_rejected():
+    data, end = stream(toy_trial(40, Column(0)), 10)
+    with pytest.raises(ProtocolError, match="starts at sample 20, expected 10"):
+        _assemble([data[0], *data[2:]], end)
+
+
+def test_trial_with_a_duplicated_chunk_is_rejected():
+    data, end = stream(toy_trial(40, Column(0)), 10)
+    with pytest.raises(ProtocolError, match="starts at sample 10, expected 20"):
+        _assemble([data[0], data[1], data[1], *data[2:]], end)
+
+
+def test_trial_cut_before_its_last_chunk_is_rejected():
+    data, end = stream(toy_trial(40, Column(0)), 10)
+    with pytest.raises(ProtocolError, match="announces 40 samples in 4 frames, received 30 in 3"):
+        _assemble(data[:-1], end)
+
+
+def test_trial_of_another_id_is_rejected():
+    data, end = stream(toy_trial(40, Column(0)), 10)
+    with pytest.raises(ProtocolError, match="DATA frame of trial 7 during trial 8"):
+        _assemble(data, end, trial_id=8)
+
+
+def test_trial_checksum_mismatch_is_rejected():
+    data, end = stream(toy_trial(40, Column(0)), 10)
+    bad_end = memoryview(b"".join(encode_end(EndOfTrial(7, 4, 40, 12345))))
+    with pytest.raises(ProtocolError, match="trial checksum mismatch"):
+        _assemble(data, bad_end)
+
+
+def test_trial_beyond_announced_samples_is_rejected():
+    data, end = stream(toy_trial(40, Column(0)), 10)
+    with pytest.raises(ProtocolError, match=r"10 samples at 30 \(at most 35 announced\)"):
+        _assemble(data, end, max_samples=35)
+
+
+def test_trial_whose_flags_change_is_rejected():
+    first, _ = stream(toy_trial(20, Column(0)), 10)
+    second, end = stream(toy_trial(20, Column.I_MEAS), 10)
+    with pytest.raises(ProtocolError, match="column flags changed from 0x0 to 0x1"):
+        _assemble([first[0], second[1]], end)
+
+
+def test_trial_with_unknown_flags_is_rejected():
+    data, end = stream(toy_trial(20, Column(0)), 20)
+    payload = bytearray(data[0])
+    payload[4] = 0x10
+    with pytest.raises(ProtocolError, match="unknown column flags 0x10"):
+        _assemble([memoryview(payload)], end)
+
+
+def test_trial_whose_counts_do_not_increase_is_rejected():
+    trial = toy_trial(20, Column(0))
+    data, end = stream(TrialData(1.0, 1.0, trial.count[::-1].copy(), trial.time_s, trial.i_ref_a,
+                                 trial.torque_nm), 20)
+    with pytest.raises(ProtocolError, match="counts do not increase"):
+        _assemble(data, end)
+
+
+# ---------------------------------------------------------------- requests a target accepts
+
+
+def _request(cpr: int = 64, **changes) -> TrialRequest:
+    request = TrialRequest(2.0, 1.0, 1, np.zeros(cpr), 0.1 * np.sin(np.arange(cpr)), CAL, seed=1)
+    return request.with_changes(**changes)
+
+
+@pytest.mark.parametrize("changes, code, message", [
+    ({}, None, None),
+    ({"excitation_nm": np.zeros(63)}, ErrorCode.BAD_REQUEST, r"excitation_nm has shape \(63,\)"),
+    ({"feedforward_nm": np.full(64, np.nan)}, ErrorCode.BAD_REQUEST, "NaN"),
+    ({"seed": 2**32}, ErrorCode.BAD_REQUEST, "seed must be a 32-bit"),
+    ({"revolutions": 0}, ErrorCode.BAD_REQUEST, "revolutions must be"),
+    ({"speed_setpoint_hz": 0.0}, ErrorCode.BAD_REQUEST, "speed set point must be positive"),
+    ({"calibration": SensorCalibration([14, 0, 14], [0, 0, 0], 1)}, ErrorCode.BAD_REQUEST, "calibration"),
+    ({"speed_setpoint_hz": 1.6}, ErrorCode.LIMIT_EXCEEDED, "speed set point 1.6 Hz exceeds the bench limit"),
+    ({"torque_setpoint_nm": 7.95}, ErrorCode.LIMIT_EXCEEDED, r"torque reference 8.05 N m at count 33 .* of 8 N m"),
+    ({"torque_setpoint_nm": -7.95}, ErrorCode.LIMIT_EXCEEDED, r"torque reference -8.05 N m at count 11"),
+])
+def test_check_request(changes, code, message):
+    result = check_request(_request(**changes), toy_description(64))
+    if code is None:
+        assert result is None
+    else:
+        assert result[0] is code and re.search(message, result[1])
+
+
+def test_check_request_bounds_the_current_references():
+    # K = 0.2 sin(...): i*_p = tau K_p / sum K^2 peaks at tau / (1.5 * 0.2) per phase
+    description = toy_description(64)
+    tight = BenchDescription(description.motor, description.backemf_nm_per_a, CAL, BenchLimits(6.0, 8.0, 1.5))
+    assert check_request(_request(torque_setpoint_nm=1.7), tight) is None
+    code, message = check_request(_request(torque_setpoint_nm=2.0), tight)
+    assert code is ErrorCode.LIMIT_EXCEEDED
+    assert re.fullmatch(r"current reference 6.\d+ A in phase [abc] at count \d+ exceeds the bench limit of 6 A",
+                        message)
+
+
+# ---------------------------------------------------------------- the worked example of docs/protocol.md
+
+
+def test_worked_example_in_the_docs_matches_the_implementation():
+    dumps = re.findall(r"```text\n(\w+) \((client|target), seq (\d+)\), (\d+) bytes\n((?:[0-9a-f]{4} .*\n)+)```",
+                       DOC.read_text())
+    assert [d[0] for d in dumps] == ["HELLO", "DESCRIBE", "REQUEST", "ACCEPT", "DATA", "DATA", "END_OF_TRIAL",
+                                     "ERROR"]
+    a, b = socket.socketpair()
+    try:
+        client, target = Channel(a, "client"), Channel(b, "target")
+        request = TrialRequest(2.0, 0.5, 1, np.zeros(4), np.array([0.1, 0.0, -0.1, 0.0]), CAL, seed=2009)
+        trial = TrialData(2.0, 0.5, np.arange(4), np.array([0.0, 0.5, 1.0, 1.5]),
+                          np.arange(12.0).reshape(4, 3) / 10, np.array([2.0, 2.1, 1.9, 2.0]))
+        frames = [client.frame_bytes(FrameType.HELLO),
+                  target.frame_bytes(FrameType.DESCRIBE, encode_describe(toy_description(4))),
+                  client.frame_bytes(FrameType.REQUEST, encode_request(1, request)),
+                  target.frame_bytes(FrameType.ACCEPT, encode_accept(Accept(1, 4))),
+                  *(target.frame_bytes(ftype, parts) for ftype, parts in encode_trial(1, trial, 2)),
+                  target.frame_bytes(FrameType.ERROR, encode_error(ErrorCode.LIMIT_EXCEEDED, 2, "speed"))]
+    finally:
+        a.close()
+        b.close()
+    for (name, _, seq, size, hexdump), frame in zip(dumps, frames):
+        documented = bytes.fromhex("".join(line[6:] for line in hexdump.splitlines()))
+        assert int(size) == len(documented) and struct.unpack_from("<I", documented, 8)[0] == int(seq)
+        assert documented == bytes(frame), name

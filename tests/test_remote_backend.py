@@ -1,0 +1,336 @@
+"""RemoteBackend against the bench emulator on 127.0.0.1: equality with the simulator, faults, limits.
+
+Every emulator listens on an ephemeral port and is stopped by a finalizer;
+every socket read has a short timeout, so no test can hang.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import select
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from ilcpmac.backends import Backend
+from ilcpmac.backends.base import BenchLimits
+from ilcpmac.backends.emulator import BenchEmulator, Fault, FaultPlan
+from ilcpmac.backends.protocol import (
+    Accept,
+    Channel,
+    ErrorCode,
+    FrameType,
+    decode_error,
+    decode_request,
+    encode_accept,
+    encode_describe,
+    encode_error,
+    encode_request,
+    encode_trial,
+)
+from ilcpmac.backends.remote import RemoteBackend, parse_address
+from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.cli import main
+from ilcpmac.config import load_config
+from ilcpmac.errors import BackendError
+from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.sim.grid import grid_requests
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED_CONFIG = ROOT / "configs" / "seed-bench.toml"
+LIMITS = BenchLimits(max_current_a=30.0, max_torque_nm=8.0, max_speed_hz=1.5)
+HOST = "127.0.0.1"
+
+
+@pytest.fixture(scope="module")
+def config():
+    """The seed bench with 256 counts per revolution (60 excited harmonics): trials of milliseconds."""
+    cfg = load_config(SEED_CONFIG)
+    model = dataclasses.replace(cfg.model, encoder=dataclasses.replace(cfg.model.encoder, counts_per_rev=256))
+    return dataclasses.replace(cfg, model=model, excitation=dataclasses.replace(cfg.excitation, harmonics=60))
+
+
+@pytest.fixture(scope="module")
+def simulator(config) -> SimulatorBackend:
+    return SimulatorBackend(config.model, LIMITS, config.grid.warmup_revolutions)
+
+
+@pytest.fixture(scope="module")
+def requests(config) -> list[TrialRequest]:
+    """Four grid requests (2 revolutions each), from both ends of the set-point grid."""
+    grid = grid_requests(config, seed=11, revolutions=2)
+    return [grid[0], grid[7], grid[15], grid[-1]]
+
+
+@pytest.fixture
+def emulator(request, simulator):
+    """Start an in-process emulator on an ephemeral port; stopped when the test ends."""
+
+    def start(backend: Backend = simulator, port: int = 0, **options) -> BenchEmulator:
+        options = {"chunk_samples": 100, "heartbeat_s": 0.05, "restart_delay_s": 0.05, **options}
+        server = BenchEmulator(backend, HOST, port, **options)
+        request.addfinalizer(server.stop)
+        return server.start()
+
+    return start
+
+
+@pytest.fixture
+def remote(request):
+    """A RemoteBackend with short timeouts and back-off; closed when the test ends."""
+
+    def connect(address: str, **options) -> RemoteBackend:
+        options = {"connect_timeout_s": 1.0, "read_timeout_s": 0.5, "retries": 2, "backoff_s": 0.02, **options}
+        backend = RemoteBackend(address, **options)
+        request.addfinalizer(backend.close)
+        return backend
+
+    return connect
+
+
+def assert_same_trial(got: TrialData, expected: TrialData) -> None:
+    """Every field equal bit for bit, with the same dtypes."""
+    for f in dataclasses.fields(TrialData):
+        a, b = getattr(got, f.name), getattr(expected, f.name)
+        if f.name == "request":
+            continue
+        if isinstance(b, np.ndarray):
+            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), f.name
+        else:
+            assert a == b, f.name
+
+
+# ---------------------------------------------------------------- equality with the simulator
+
+
+def test_remote_trials_equal_the_simulator_bit_for_bit(emulator, remote, simulator, requests):
+    server = emulator()
+    backend = remote(server.address)
+    assert isinstance(backend, Backend)
+    for request in requests:
+        trial = backend.run_trial(request)
+        assert trial.request is request
+        assert trial.i_meas_a is not None and trial.speed_true_rad_s is not None
+        assert_same_trial(trial, simulator.run_trial(request))
+    assert server.requests_received == len(requests) and server.faults_fired == []
+
+
+def test_describe_carries_the_simulators_description(emulator, remote, simulator):
+    described = remote(emulator().address).describe()
+    expected = simulator.describe()
+    assert described.motor == expected.motor and described.limits == LIMITS
+    assert np.array_equal(described.backemf_nm_per_a, expected.backemf_nm_per_a)
+    assert np.array_equal(described.calibration.current_scale, expected.calibration.current_scale)
+
+
+def test_heartbeats_keep_a_slow_trial_alive(emulator, remote, simulator, requests):
+    class Slow:
+        def describe(self):
+            return simulator.describe()
+
+        def run_trial(self, request):
+            time.sleep(0.6)
+            return simulator.run_trial(request)
+
+    server = emulator(Slow(), heartbeat_s=0.05)
+    trial = remote(server.address, read_timeout_s=0.3).run_trial(requests[0])
+    assert_same_trial(trial, simulator.run_trial(requests[0]))
+
+
+# ---------------------------------------------------------------- faults
+
+
+@pytest.mark.parametrize("fault", ["drop", "stall", "corrupt", "restart"])
+def test_a_fault_once_ends_in_a_clean_retry(emulator, remote, simulator, requests, fault, caplog):
+    server = emulator(faults=FaultPlan(**{fault: Fault(2)}, stall_s=5.0))
+    backend = remote(server.address, retries=3, backoff_s=0.1)
+    trials = [backend.run_trial(r) for r in requests[:3]]
+    for trial, request in zip(trials, requests):
+        assert_same_trial(trial, simulator.run_trial(request))
+    assert server.faults_fired == [(fault, 2)]
+    assert server.requests_received == 4  # trial 2 was sent twice, nothing else repeated
+    assert "trial 2 (2 N m, 0.6 Hz)" in caplog.text and "attempt 1 of 4 failed" in caplog.text
+
+
+@pytest.mark.parametrize("fault, reason", [
+    ("drop", "closed the connection"),
+    ("stall", "timed out waiting for the target"),
+    ("corrupt", r"CRC mismatch in frame \d+ \(DATA\)"),
+    ("restart", "closed the connection|Connection refused"),
+])
+def test_a_persistent_fault_ends_in_a_clear_error(emulator, remote, requests, fault, reason):
+    server = emulator(faults=FaultPlan(**{fault: Fault(2, repeat=True)}, stall_s=5.0))
+    backend = remote(server.address, retries=3, backoff_s=0.1)
+    backend.run_trial(requests[0])
+    with pytest.raises(BackendError, match=rf"^trial 2 \(2 N m, 0.6 Hz\) on 127.0.0.1:\d+: gave up after 4 "
+                                           rf"attempts; last failure: .*({reason})"):
+        backend.run_trial(requests[1])
+    assert 2 <= server.requests_received <= 5
+
+
+def test_a_wrong_protocol_version_is_a_clear_error_without_retry(emulator, remote, requests):
+    server = emulator(faults=FaultPlan(wrong_version=Fault(1)))
+    with pytest.raises(BackendError, match=r"^trial 1 \(1 N m, 0.5 Hz\) on 127.0.0.1:\d+: bench target .* "
+                                           r"speaks protocol version 2, this end speaks version 1$"):
+        remote(server.address).run_trial(requests[0])
+    assert server.requests_received == 1
+
+
+def test_a_failed_trial_is_reported_without_retry(emulator, remote, requests):
+    server = emulator()
+    with pytest.raises(BackendError, match=r"^trial 1 \(-1 N m, 0.5 Hz\) .*: target error TRIAL_FAILED: "
+                                           r"set point -1.0 N m gives .* not enough to turn the rotor"):
+        remote(server.address).run_trial(requests[0].with_changes(torque_setpoint_nm=-1.0))
+    assert server.requests_received == 1
+
+
+def test_a_busy_target_is_tried_again(request, remote, simulator, requests):
+    """A hand-written target: BUSY on the first connection, the trial on the second."""
+    listener = socket.create_server((HOST, 0))
+    listener.settimeout(5.0)
+    request.addfinalizer(listener.close)
+
+    def serve() -> None:
+        for busy in (True, False):
+            conn, _ = listener.accept()
+            with conn:
+                conn.settimeout(5.0)
+                channel = Channel(conn, "client")
+                channel.recv()
+                channel.send(FrameType.DESCRIBE, encode_describe(simulator.describe()))
+                trial_id, trial_request = decode_request(channel.recv().payload)
+                if busy:
+                    channel.send(FrameType.ERROR, encode_error(ErrorCode.BUSY, trial_id, "another client"))
+                    continue
+                channel.send(FrameType.ACCEPT, encode_accept(Accept(trial_id, 10**6)))
+                for ftype, parts in encode_trial(trial_id, simulator.run_trial(trial_request), 64):
+                    channel.send(ftype, parts)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    request.addfinalizer(lambda: thread.join(5.0))
+    trial = remote(f"{HOST}:{listener.getsockname()[1]}").run_trial(requests[0])
+    assert_same_trial(trial, simulator.run_trial(requests[0]))
+
+
+def test_an_unreachable_target_is_a_clear_error(remote):
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind((HOST, 0))
+        port = probe.getsockname()[1]
+    backend = remote(f"{HOST}:{port}", retries=1)
+    with pytest.raises(BackendError, match=rf"^handshake with the bench target on 127.0.0.1:{port}: gave up after "
+                                           r"2 attempts; last failure: ConnectionRefusedError"):
+        backend.describe()
+
+
+def test_a_target_that_changes_after_reconnecting_is_refused(emulator, remote, simulator, requests):
+    first = emulator()
+    backend = remote(first.address)
+    backend.run_trial(requests[0])
+    first.stop()
+    other = SimulatorBackend(simulator.simulator.model, dataclasses.replace(LIMITS, max_torque_nm=9.0))
+    emulator(other, port=first.port)
+    with pytest.raises(BackendError, match="describes another motor, calibration or limits after reconnecting"):
+        backend.run_trial(requests[1])
+
+
+# ---------------------------------------------------------------- limits
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"speed_setpoint_hz": 2.0}, r"speed set point 2 Hz exceeds the bench limit of 1.5 Hz"),
+    ({"torque_setpoint_nm": 8.5}, r"torque reference 8.\d+ N m at count \d+ .* limit of 8 N m"),
+    ({"torque_setpoint_nm": 6.0}, r"current reference \d+.\d+ A in phase [abc] at count \d+ .* limit of 15 A"),
+    ({"excitation_nm": np.zeros(10)}, r"BAD_REQUEST.*excitation_nm has shape \(10,\)"),
+])
+def test_requests_beyond_the_limits_are_refused_before_sending(emulator, remote, simulator, requests, changes,
+                                                              message):
+    server = emulator(SimulatorBackend(simulator.simulator.model, dataclasses.replace(LIMITS, max_current_a=15.0)))
+    with pytest.raises(BackendError, match=rf"^trial 1 \(.*\): refused before sending .*{message}"):
+        remote(server.address).run_trial(requests[0].with_changes(**changes))
+    assert server.requests_received == 0
+
+
+def test_the_target_refuses_requests_beyond_its_limits_too(emulator, requests):
+    server = emulator()
+    with socket.create_connection((HOST, server.port), timeout=2.0) as sock:
+        channel = Channel(sock, "emulator")
+        channel.send(FrameType.HELLO)
+        assert channel.recv().type is FrameType.DESCRIBE
+        channel.send(FrameType.REQUEST, encode_request(5, requests[0].with_changes(speed_setpoint_hz=3.0)))
+        error = decode_error(channel.recv().payload)
+        assert (error.code, error.trial_id) == (ErrorCode.LIMIT_EXCEEDED, 5)
+        channel.send(FrameType.REQUEST, encode_request(6, requests[0]))  # the connection is still usable
+        assert channel.recv().type is FrameType.ACCEPT
+
+
+@pytest.mark.parametrize("send, code, message", [
+    (lambda ch: ch.frame_bytes(FrameType.HELLO, version=2), ErrorCode.VERSION_MISMATCH,
+     "this target speaks protocol version 1"),
+    (lambda ch: ch.frame_bytes(FrameType.REQUEST, [b"x"]), ErrorCode.UNEXPECTED_FRAME,
+     "expected HELLO, got REQUEST"),
+    (lambda ch: ch.frame_bytes(FrameType.HELLO)[:-1] + b"\0", ErrorCode.MALFORMED_FRAME,
+     "CRC mismatch in frame 0"),
+])
+def test_the_target_answers_a_bad_first_frame_with_an_error_and_closes(emulator, send, code, message):
+    server = emulator()
+    with socket.create_connection((HOST, server.port), timeout=2.0) as sock:
+        channel = Channel(sock, "emulator")
+        channel.send_bytes(send(channel))
+        frame = channel.recv()
+        error = decode_error(frame.payload)
+        assert (frame.type, frame.version, error.code) == (FrameType.ERROR, 1, code)
+        assert error.detail.startswith(message)
+        assert sock.recv(1) == b""
+
+
+def test_bad_addresses_are_refused():
+    for address in ["localhost", "127.0.0.1:", "127.0.0.1:http", ":5000", "127.0.0.1:70000"]:
+        with pytest.raises(BackendError, match="must be HOST:PORT"):
+            parse_address(address)
+    assert parse_address("[::1]:5000") == ("::1", 5000)
+
+
+# ---------------------------------------------------------------- ilcpmac emulate
+
+
+def test_emulate_command_serves_the_simulator(tmp_path, remote):
+    config = tmp_path / "bench.toml"
+    config.write_text(SEED_CONFIG.read_text().replace("counts_per_rev = 4096", "counts_per_rev = 512")
+                      .replace("harmonics = 144", "harmonics = 60"))
+    process = subprocess.Popen([sys.executable, "-c", "from ilcpmac.cli import main; main()", "emulate",
+                                "--port", "0", "--config", str(config), "--drop", "1"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        ready, _, _ = select.select([process.stdout], [], [], 20.0)
+        assert ready, "ilcpmac emulate did not start within 20 s"
+        line = process.stdout.readline()
+        assert line.startswith("listening on 127.0.0.1:"), process.stderr.read() if process.poll() else line
+        backend = remote(line.split()[-1], read_timeout_s=5.0)
+        cfg = load_config(config)
+        request = grid_requests(cfg, seed=3, revolutions=1)[0]
+        assert_same_trial(backend.run_trial(request), SimulatorBackend(cfg.model, LIMITS).run_trial(request))
+        backend.close()
+    finally:
+        process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(10.0)
+        finally:
+            process.kill()
+    assert process.returncode == 0
+    stderr = process.stderr.read()
+    assert "fault on trial 1: drop" in stderr and "stopped after 2 trial requests" in stderr
+
+
+def test_emulate_reports_a_bad_fault_spec_in_one_line():
+    result = CliRunner().invoke(main, ["emulate", "--port", "0", "--config", str(SEED_CONFIG), "--stall", "two"])
+    assert result.exit_code == 2
+    assert result.output == "error: fault trial 'two' must be N (trial N only) or N+ (trial N and later)\n"
