@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.bench.format import MotorInfo
 from ilcpmac.model.motor import MotorModel
@@ -11,6 +13,9 @@ from ilcpmac.sim.simulator import Simulator
 
 class SimulatorBackend:
     """Runs trials on `Simulator`; trial data include the true torque and currents.
+
+    The kernel releases the GIL, so a campaign may run ``max_parallel_trials``
+    trials at once in threads.
 
     Parameters
     ----------
@@ -22,6 +27,7 @@ class SimulatorBackend:
     def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1) -> None:
         self.simulator = Simulator(model, warmup_revolutions)
         self.limits = limits
+        self.max_parallel_trials = os.cpu_count() or 1
 
     def describe(self) -> BenchDescription:
         m = self.simulator.model

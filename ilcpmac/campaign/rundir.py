@@ -100,8 +100,8 @@ class RunDir:
         """Delete what a crash left of a trial that was never committed, and temporary files."""
         indices = range(1, len(self._entries) + 1)
         keep = {trial_file(i) for i in indices} | {self._state_path(self.path, i).name for i in indices}
-        for f in [*self.path.glob("trial_*"), *(self.path / STATES).glob("trial_*"),
-                  *self.path.glob("*.tmp"), *(self.path / STATES).glob("*.tmp")]:
+        for f in {*self.path.glob("trial_*"), *(self.path / STATES).glob("trial_*"),
+                  *self.path.glob("*.tmp"), *(self.path / STATES).glob("*.tmp")}:
             if f.name not in keep:
                 f.unlink()
 

@@ -99,17 +99,18 @@ class CampaignRunner:
         self.events = events
         self.description: BenchDescription = run_dir.description
         c = config.campaign
-        if c.ilc_speed_setpoint_hz > config.limits.max_speed_hz:
-            raise ConfigError(f"{config.path}: [campaign] ilc_speed_setpoint_hz {c.ilc_speed_setpoint_hz} exceeds "
-                              f"[limits] max_speed_hz {config.limits.max_speed_hz}")
-        self.limits = SafetyLimits(config.limits.max_correction_nm, config.limits.max_current_a,
-                                   config.limits.max_torque_nm)
+        bench = self.description.limits  # never ask more than the bench accepts
+        self.limits = SafetyLimits(config.limits.max_correction_nm,
+                                   min(config.limits.max_current_a, bench.max_current_a),
+                                   min(config.limits.max_torque_nm, bench.max_torque_nm))
+        max_speed_hz = min(config.limits.max_speed_hz, bench.max_speed_hz)
         self.grid = [replace(r, calibration=self.description.calibration)
                      for r in grid_requests(config, seed, config.grid.revolutions)]
-        for r in self.grid:
-            if r.speed_setpoint_hz > config.limits.max_speed_hz:
-                raise ConfigError(f"{config.path}: [trials] speed set point {r.speed_setpoint_hz} Hz exceeds "
-                                  f"[limits] max_speed_hz {config.limits.max_speed_hz}")
+        for where, speed in [("[campaign] ilc_speed_setpoint_hz", c.ilc_speed_setpoint_hz),
+                             *(("[trials] speed_setpoints_hz", r.speed_setpoint_hz) for r in self.grid)]:
+            if speed > max_speed_hz:
+                raise ConfigError(f"{config.path}: {where}: {speed} Hz exceeds the speed limit {max_speed_hz} Hz "
+                                  "([limits] max_speed_hz or the bench's)")
         self.records: list[dict] = []
         self.identified: Identified | None = None
         self.identification_json: dict | None = None

@@ -40,3 +40,6 @@ def main() -> None:
 # Each command lives in its own module and registers itself on `main` when imported.
 from ilcpmac.cli import simulate  # noqa: E402,F401
 from ilcpmac.cli import emulate  # noqa: E402,F401
+from ilcpmac.cli import run  # noqa: E402,F401
+from ilcpmac.cli import report  # noqa: E402,F401
+from ilcpmac.cli import stages  # noqa: E402,F401

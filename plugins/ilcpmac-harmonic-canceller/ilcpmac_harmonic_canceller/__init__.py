@@ -1,0 +1,79 @@
+"""Cancel the torque ripple at chosen harmonics: an example ilcpmac stage plugin.
+
+Per set point and chosen harmonic h, a Kalman filter (across trials)
+estimates the disturbance d_h from z_h = e_h - G(h) c_h, where e_h is the
+measured torque harmonic in true units, c_h the correction the trial carried
+and G the identified current loop; the next correction is c_h = -d_h / G(h).
+Other harmonics are left alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ilcpmac.errors import ConfigError
+from ilcpmac.estimators import KalmanEstimator
+from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.stages import Frame, StageSetup
+from ilcpmac.stages.base import plant_response, read_options
+
+DEFAULTS = {"orders": [1], "process_noise_nm": 1e-5}
+
+
+class HarmonicCanceller:
+    """Stage ``harmonic-canceller``: options ``orders`` and ``process_noise_nm``."""
+
+    name = "harmonic-canceller"
+
+    def __init__(self, setup: StageSetup) -> None:
+        opts = read_options(setup.options, DEFAULTS, self.name)
+        self.orders = np.array(opts["orders"], int)
+        if self.orders.size == 0 or np.any(self.orders < 1) or np.any(self.orders > setup.max_harmonic):
+            raise ConfigError(f"[stages.{self.name}] orders: need harmonics in 1..{setup.max_harmonic}")
+        self._q = opts["process_noise_nm"] ** 2
+        self._cpr = setup.description.motor.counts_per_rev
+        self._bandwidth_hz = setup.identified.current_loop_bandwidth_hz
+        self._theta = 2.0 * np.pi * np.arange(self._cpr) / self._cpr
+        self._correction: dict[str, np.ndarray] = {}  # complex amplitude per order, N m, per set point
+        self._kalman: dict[str, KalmanEstimator] = {}
+
+    @staticmethod
+    def _key(request: TrialRequest) -> str:
+        return f"{request.torque_setpoint_nm:g}@{request.speed_setpoint_hz:g}"
+
+    def _filter(self, key: str) -> KalmanEstimator:
+        n = 2 * self.orders.size
+        return self._kalman.setdefault(key, KalmanEstimator(np.zeros(n), np.full(n, 1.0), self._q))
+
+    def columns(self, trial: TrialData) -> None:
+        return None
+
+    def shape(self, request: TrialRequest) -> TrialRequest:
+        c = self._correction.get(self._key(request))
+        if c is None:
+            return request
+        table = np.real(np.exp(1j * np.outer(self._theta, self.orders)) @ c)
+        return request.with_changes(feedforward_nm=request.feedforward_nm + table)
+
+    def learn(self, trial: TrialData, frame: Frame) -> None:
+        if np.any(trial.request.excitation_nm):
+            return  # an identification trial: its ripple is mostly the excitation
+        key = self._key(trial.request)
+        g = plant_response(self.orders, frame.speed_hz, self._bandwidth_hz)
+        applied = self._correction.get(key, np.zeros(self.orders.size, complex))
+        z = frame.torque_harmonics_nm[self.orders] - g * applied
+        var = frame.torque_harmonics_var[self.orders] / 2.0  # per real component
+        kalman = self._filter(key)
+        kalman.update(np.concatenate([z.real, z.imag]), np.concatenate([var, var]))
+        d = kalman.x[: self.orders.size] + 1j * kalman.x[self.orders.size:]
+        self._correction[key] = -d / g
+
+    def state(self) -> dict:
+        return {key: {"re": c.real.tolist(), "im": c.imag.tolist(), "kalman": self._kalman[key].state()}
+                for key, c in self._correction.items()}
+
+    def restore(self, state: dict) -> None:
+        self._correction = {key: np.array(s["re"]) + 1j * np.array(s["im"]) for key, s in state.items()}
+        self._kalman = {}
+        for key, s in state.items():
+            self._filter(key).restore(s["kalman"])

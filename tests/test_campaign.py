@@ -1,0 +1,199 @@
+"""The campaign of ``ilcpmac run``: phases, ripple falling, persistence, resume, the guard.
+
+These tests inject an identification built from the simulator's truth, so that
+they test the campaign and not the estimators (those are tested against known
+truth in tests/test_identify_*.py); tests/test_cli_run.py runs the whole
+command with the real identification.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcpmac.backends.base import BenchLimits
+from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.bench.format import read_bench
+from ilcpmac.campaign.rundir import RunDir, RunDirError
+from ilcpmac.campaign.runner import CampaignRunner
+from ilcpmac.config import load_config
+from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.sim.grid import truth_dict
+
+SUMMARY_KEYS = {"index", "phase", "torque_setpoint", "speed_setpoint", "ripple_pp_measured",
+                "ripple_rms_measured", "ripple_pp_true", "ripple_rms_true"}
+
+
+class TruthIdentification:
+    """The identification's answer taken from the simulator's truth (dependency injection)."""
+
+    def __init__(self, backend: SimulatorBackend) -> None:
+        sim = backend.simulator
+        cpr = sim.model.encoder.counts_per_rev
+        request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration())
+        self._json = truth_dict(sim, request)
+        self.current_loop_bandwidth_hz = sim.model.controller.bandwidth_hz
+        self.calls = 0
+
+    def __call__(self, bench):
+        self.calls += 1
+        return self
+
+    def to_json(self) -> dict:
+        return self._json
+
+
+class Quiet:
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def trial(self, record: dict, records: list[dict]) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        self.messages.append(text)
+
+
+class Crash(RuntimeError):
+    pass
+
+
+class CrashingBackend:
+    """Runs trials until the Nth call, then fails like a killed process would."""
+
+    def __init__(self, backend: SimulatorBackend, fail_on_call: int) -> None:
+        self.backend, self.fail_on_call, self.calls = backend, fail_on_call, 0
+        self.max_parallel_trials = 1
+
+    def describe(self):
+        return self.backend.describe()
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        self.calls += 1
+        if self.calls == self.fail_on_call:
+            raise Crash(f"killed during call {self.calls}")
+        return self.backend.run_trial(request)
+
+
+@pytest.fixture
+def campaign_config(write_config):
+    """A small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials."""
+    path = write_config({
+        "encoder": {"counts_per_rev": 1024},
+        "excitation": {"harmonics": 100},
+        "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
+        "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": 6, "ilc_trials": 4,
+                     "ripple_harmonics": 100},
+        "stages": {"ilc": {"learning_gain": 1.0, "q_cutoff_harmonic": 100, "estimation": "kalman"}},
+    })
+    return load_config(path)
+
+
+def _backend(cfg) -> SimulatorBackend:
+    return SimulatorBackend(cfg.model, BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm,
+                                                   cfg.limits.max_speed_hz), cfg.grid.warmup_revolutions)
+
+
+def _run(cfg, out: Path, backend=None, resume: bool = False, events=None) -> dict:
+    sim = _backend(cfg)
+    backend = backend or sim
+    run_dir = RunDir.resume(out, sim.describe()) if resume else \
+        RunDir.create(out, sim.describe(), cfg.path.read_text())
+    return CampaignRunner(cfg, backend, run_dir, 7, TruthIdentification(sim), events or Quiet()).run()
+
+
+def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_config, tmp_path):
+    summary = _run(campaign_config, tmp_path / "run")
+    records = summary["trials"]
+    roles = [r["role"] for r in records]
+    assert roles[:4] == ["grid"] * 4
+    assert roles[4:6] == ["baseline"] * 2 and roles[6:8] == ["compensate"] * 2
+    assert set(roles[8:]) == {"ilc"} and 2 <= roles.count("ilc") <= 8
+    assert [r["phase"] for r in records[:6]] == ["identify"] * 6
+    for r in records:
+        assert SUMMARY_KEYS <= set(r)
+    final = summary["final"]
+    assert final["reduction_factor_true"] > 20
+    assert final["ripple_pp_true"] < 0.02
+    bench = read_bench(tmp_path / "run")
+    assert len(bench.trials) == len(records)
+    assert [t.torque_setpoint_nm for t in bench.trials] == [r["torque_setpoint"] for r in records]
+    states = sorted((tmp_path / "run" / "states").glob("trial_*.json"))
+    assert len(states) == len(records)
+    last = json.loads(states[-1].read_text())
+    assert set(last["pipeline"]) == {"current-sensor", "cogging", "ilc"}
+    assert json.loads((tmp_path / "run" / "summary.json").read_text()) == summary
+
+
+@pytest.mark.parametrize("fail_on_call", [3, 9])  # in the parallel grid, and in the ILC phase
+def test_resume_after_a_crash_ends_as_an_uninterrupted_run(campaign_config, tmp_path, fail_on_call):
+    reference = _run(campaign_config, tmp_path / "reference")
+    crashed = tmp_path / "crashed"
+    with pytest.raises(Crash):
+        _run(campaign_config, crashed, CrashingBackend(_backend(campaign_config), fail_on_call))
+    listed = read_bench(crashed).trials
+    assert len(listed) == fail_on_call - 1  # every finished trial committed, nothing of the failed one
+    assert sorted(p.name for p in crashed.glob("trial_*")) == [f"trial_{i:03d}.csv" for i in range(1, fail_on_call)]
+    resumed = _run(campaign_config, crashed, resume=True)
+    assert resumed == reference
+
+
+def test_leftovers_of_an_uncommitted_trial_are_removed_on_resume(campaign_config, tmp_path):
+    _run(dataclasses.replace(campaign_config, campaign=dataclasses.replace(campaign_config.campaign,
+                                                                           ilc_trials=1)), tmp_path / "run")
+    run = tmp_path / "run"
+    n = len(read_bench(run).trials)
+    (run / f"trial_{n + 1:03d}.csv").write_text("count,time\n0,")  # half a trial, never listed
+    (run / "states" / f"trial_{n + 1:03d}.json.tmp").write_text("{")
+    RunDir.resume(run, _backend(campaign_config).describe())
+    assert not (run / f"trial_{n + 1:03d}.csv").exists()
+    assert not (run / "states" / f"trial_{n + 1:03d}.json.tmp").exists()
+
+
+def test_an_existing_run_directory_is_not_overwritten(campaign_config, tmp_path):
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "keep.txt").write_text("data")
+    with pytest.raises(RunDirError, match="exists and is not empty.*--resume"):
+        _run(campaign_config, tmp_path / "run")
+    assert (tmp_path / "run" / "keep.txt").read_text() == "data"
+
+
+class GrowingRipple:
+    """Adds a ripple at harmonic 20 that grows with every ILC-phase trial (something the ILC
+    cannot follow), so that the measured ripple grows twice in a row."""
+
+    def __init__(self, backend: SimulatorBackend) -> None:
+        self.backend, self.n = backend, 0
+        self.max_parallel_trials = 1
+
+    def describe(self):
+        return self.backend.describe()
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        trial = self.backend.run_trial(request)
+        if np.any(request.excitation_nm) or not np.any(request.feedforward_nm):
+            return trial
+        self.n += 1
+        theta = 2 * np.pi * trial.count / 1024
+        extra = 0.05 * self.n**2 * np.cos(20 * theta + self.n)
+        return dataclasses.replace(trial, torque_nm=trial.torque_nm + extra)
+
+
+def test_guard_reverts_and_halves_the_gain_when_the_ripple_grows_twice(campaign_config, tmp_path):
+    events = Quiet()
+    cfg = dataclasses.replace(campaign_config, campaign=dataclasses.replace(
+        campaign_config.campaign, ilc_torque_setpoints_nm=(2.0,), ilc_trials=4, patience=4))
+    summary = _run(cfg, tmp_path / "run", GrowingRipple(_backend(cfg)), events=events)
+    guard = [m for m in events.messages if m.startswith("guard:")]
+    assert guard and "halved the learning gain to 0.5" in guard[0]
+    states = [json.loads(p.read_text()) for p in sorted((tmp_path / "run" / "states").glob("trial_*.json"))]
+    events_saved = [s["guard"] for s in states if s["guard"]]
+    assert events_saved[0]["learning_gain"] == 0.5
+    best = events_saved[0]["reverted_to_trial"]
+    reverted = next(s for s in states if s["guard"])
+    assert reverted["pipeline"] == states[best - 1]["pipeline"]
+    assert summary["trials"][-1]["role"] == "ilc"
