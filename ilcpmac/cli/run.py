@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import click
@@ -36,7 +37,7 @@ def _backend(kind: str, address: str | None, config, limits):
 @main.command()
 @click.argument("config", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Run directory to create (default runs/<config name>).")
+              help="Run directory to create (default runs/<config name>-<date>-<time>).")
 @click.option("--backend", "backend_kind", type=click.Choice(["sim", "remote"]), default="sim", show_default=True,
               help="Run trials on the simulator or on a bench target (docs/protocol.md).")
 @click.option("--address", help="HOST:PORT of the bench target, with --backend remote.")
@@ -85,7 +86,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
         if resume_dir is not None:
             run_dir = RunDir.resume(resume_dir, description)
         else:
-            out_dir = out_dir or Path("runs") / config_path.stem
+            out_dir = out_dir or Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
             run_dir = RunDir.create(out_dir, description, config_path.read_text())
             run_dir.write_json(RUN_FILE, {"seed": seed, "trials": trials, "config": str(config_path)})
         records: list[dict] = []

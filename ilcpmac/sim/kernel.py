@@ -37,7 +37,7 @@ def _torque(fine, pos, ia, ib, ic, c_sat):
 
     Returns the torque and the three torque constants there.
     """
-    j = int(pos)
+    j = min(int(pos), fine.shape[0] - 2)  # theta within an ulp of 2 pi must not read past the table
     f = pos - j
     ka = fine[j, 0] + f * (fine[j + 1, 0] - fine[j, 0])
     kb = fine[j, 1] + f * (fine[j + 1, 1] - fine[j, 1])
