@@ -297,14 +297,14 @@ def _write_csv(path: Path, header: list[str], columns: list[np.ndarray], decimal
 def _trial_columns(trial: TrialData) -> list[tuple[list[str], str, int]]:
     """(CSV column names, TrialData attribute, decimals) of every column ``trial`` has.
 
-    Times are written to 0.1 us, currents, torques and speeds to 1e-8 of
-    their unit (far below any sensor's noise).
+    Times are written to 0.1 us, currents, torques and speeds to 1e-6 of
+    their unit (far below any sensor's noise: the rounding adds 3e-7 RMS).
     """
     columns = [(["count"], "count", 0), (["time"], "time_s", 7),
-               ([f"i_ref_{ph}" for ph in _PHASES], "i_ref_a", 8), (["torque"], "torque_nm", 8)]
+               ([f"i_ref_{ph}" for ph in _PHASES], "i_ref_a", 6), (["torque"], "torque_nm", 6)]
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
         if getattr(trial, attr) is not None:
-            columns.append(([prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix], attr, 8))
+            columns.append(([prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix], attr, 6))
     return columns
 
 

@@ -87,10 +87,13 @@ class CampaignRunner:
     seed : seeds every trial (trial k uses ``trial_seed(seed, k)``).
     identify : the identification, ``identify(bench) -> result``.
     events : the user interface.
+    extra_stages : stage factories by name, for stages a script defines without packaging them.
     """
 
     def __init__(self, config: CampaignConfig, backend: Backend, run_dir: RunDir, seed: int,
-                 identify: Callable[[Bench], Identification], events: CampaignEvents) -> None:
+                 identify: Callable[[Bench], Identification], events: CampaignEvents,
+                 extra_stages: dict[str, Callable[[StageSetup], object]] | None = None) -> None:
+        self.extra_stages = extra_stages
         self.config = config
         self.backend = backend
         self.run_dir = run_dir
@@ -279,7 +282,8 @@ class CampaignRunner:
         names = list(self.config.pipeline.stages)
         setups = {name: StageSetup(self.description, self.identified, self.config.campaign.ripple_harmonics,
                                    self.config.stage_options.get(name, {})) for name in names}
-        self.pipeline = Pipeline(build_stages(names, setups), self.description, self.identified, self.limits,
+        stages = build_stages(names, setups, self.extra_stages)
+        self.pipeline = Pipeline(stages, self.description, self.identified, self.limits,
                                  self.config.campaign.ripple_harmonics)
 
     def _guard(self, torque_nm: float, key: str) -> dict | None:

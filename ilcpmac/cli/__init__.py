@@ -43,3 +43,4 @@ from ilcpmac.cli import emulate  # noqa: E402,F401
 from ilcpmac.cli import run  # noqa: E402,F401
 from ilcpmac.cli import report  # noqa: E402,F401
 from ilcpmac.cli import stages  # noqa: E402,F401
+from ilcpmac.cli import identify  # noqa: E402,F401

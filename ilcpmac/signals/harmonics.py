@@ -32,20 +32,15 @@ def synchronous_average(count: np.ndarray, values: np.ndarray, counts_per_rev: i
     mask = whole_revolutions(count, counts_per_rev)
     if not mask.any():
         raise ValueError("no whole revolution in the data")
-    position = count[mask] % counts_per_rev
-    values = np.asarray(values)[mask]
-    sums = np.zeros((counts_per_rev,) + values.shape[1:])
-    np.add.at(sums, position, values)
-    hits = np.bincount(position, minlength=counts_per_rev)
-    seen = hits > 0
-    average = sums[seen] / hits[seen].reshape((-1,) + (1,) * (values.ndim - 1))
-    if seen.all():
-        return average
-    grid = np.arange(counts_per_rev)
-    known = grid[seen]
-    flat = average.reshape(known.size, -1)
-    filled = np.column_stack([np.interp(grid, known, col, period=counts_per_rev) for col in flat.T])
-    return filled.reshape((counts_per_rev,) + values.shape[1:])
+    return synchronous_table(count[mask], np.asarray(values)[mask], counts_per_rev)
+
+
+def linear_trend(x: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """The least-squares straight line through ``values`` against ``x``, at ``x``."""
+    x = np.asarray(x, float)
+    dx = x - x.mean()
+    slope = np.dot(dx, values - values.mean()) / max(np.dot(dx, dx), 1e-300)
+    return values.mean() + slope * dx
 
 
 def harmonic_amplitudes(table: np.ndarray) -> np.ndarray:
@@ -114,8 +109,7 @@ def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int
     """
     mask = whole_revolutions(count, counts_per_rev)
     count, torque = count[mask], torque_nm[mask]
-    trend = np.polyval(np.polyfit(count.astype(float), torque, 1), count)
-    detrended = torque - trend
+    detrended = torque - linear_trend(count, torque)
     average = synchronous_average(count, detrended, counts_per_rev)
     ripple = band_limited(average, max_harmonic)
     c = np.abs(harmonic_amplitudes(ripple))
@@ -224,7 +218,8 @@ def slow_trend(count: np.ndarray, time_s: np.ndarray, values: np.ndarray, counts
     basis = np.polynomial.legendre.legvander(u, degree)[:, 1:]
     design = np.column_stack([basis, values])
     aperiodic = design - synchronous_table(count, design, counts_per_rev)[position]
-    coef, *_ = np.linalg.lstsq(aperiodic[:, :-1], aperiodic[:, -1], rcond=None)
+    gram = aperiodic.T @ aperiodic  # normal equations: the Legendre columns are well conditioned
+    coef = np.linalg.solve(gram[:-1, :-1], gram[:-1, -1])
     rest = aperiodic[:, -1] - aperiodic[:, :-1] @ coef
     return basis @ coef, float(rest @ rest / dof)
 

@@ -39,16 +39,22 @@ def installed_stages() -> dict[str, StageEntry]:
     return found
 
 
-def build_stages(names: list[str], setups: dict[str, StageSetup]) -> list[Stage]:
-    """Build the named stages in order; an unknown name or a broken plugin raises `ConfigError`."""
+def build_stages(names: list[str], setups: dict[str, StageSetup],
+                 extra: dict[str, Callable[[StageSetup], Stage]] | None = None) -> list[Stage]:
+    """Build the named stages in order; an unknown name or a broken plugin raises `ConfigError`.
+
+    ``extra`` maps names to factories defined in the calling script (they take
+    precedence over installed stages), for stages that are not packaged.
+    """
     available = installed_stages()
+    extra = extra or {}
     stages = []
     for name in names:
-        if name not in available:
+        if name not in available and name not in extra:
             raise ConfigError(f"[pipeline] stages: no stage named {name!r} is installed "
                               f"(installed: {', '.join(sorted(available))})")
         try:
-            factory = available[name].load()
+            factory = extra[name] if name in extra else available[name].load()
         except Exception as e:  # a plugin that fails to import must not crash the run with a traceback
             raise ConfigError(f"[pipeline] stages: stage {name!r} failed to load: {e}") from None
         stage = factory(setups[name])

@@ -1,0 +1,197 @@
+"""Identification of the torque ripple's sources from a bench folder (report chapters 1-4, and beyond).
+
+`identify_bench` runs, on a `ilcpmac.bench.format.Bench`:
+
+1. the reduction of each trial to one revolution (`reduction`);
+2. the report's total system gain delta*eps from the harmonic frequency
+   response (`system_gain`, ch. 2);
+3. the joint least-squares fit over all set points with the identified
+   current loop (`joint`, beyond the report);
+4. the torque-sensor gain delta from the mechanical dynamics (`sensor_gain`, ch. 3);
+5. the report's decoupling by the pseudo-inverse (`decoupling`, sec. 1.4, ch. 4);
+
+and returns an `IdentificationResult` holding both methods' estimates and,
+in its main fields, the better one of each.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ilcpmac.bench.format import Bench
+from ilcpmac.errors import IdentificationError
+from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
+from ilcpmac.identify.joint import JointEstimate, fit_joint
+from ilcpmac.identify.loop import CurrentLoop
+from ilcpmac.identify.reduction import BenchTables, reduce_bench
+from ilcpmac.identify.result import IdentificationResult, MethodEstimates, corrected_calibration
+from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
+from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
+
+__all__ = ["IdentificationDetails", "IdentificationResult", "MethodEstimates", "identify_bench"]
+
+#: the steps reported to ``progress``
+STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-sensor gain (ch. 3)",
+         "decoupling (ch. 4)")
+#: the loop the joint fit starts from when ch. 2 gives none: a 200 Hz lag
+DEFAULT_LOOP = CurrentLoop(np.full(3, 1.0 / (2.0 * np.pi * 200.0)), 0.0)
+
+
+@dataclass(frozen=True)
+class IdentificationDetails:
+    """The intermediate estimates behind a result (any but ``tables`` may be None), for plots and diagnostics."""
+
+    tables: BenchTables
+    system: SystemGainEstimate | None
+    joint: JointEstimate | None
+    sensor: SensorGainEstimate | None
+    decoupling: DecouplingEstimate | None
+
+
+def _attempt(messages: list, compute: Callable):
+    """``compute()``, or None with its IdentificationError's message kept."""
+    try:
+        return compute()
+    except IdentificationError as e:
+        messages.append(str(e))
+        return None
+
+
+def _ratio(numerator: float | None, numerator_std: float | None, denominator: float | None,
+           denominator_std: float | None) -> tuple[float | None, float | None]:
+    """A ratio and its standard error (relative errors added in quadrature)."""
+    if numerator is None or denominator is None:
+        return None, None
+    value = numerator / denominator
+    return value, abs(value) * float(np.hypot(numerator_std / numerator, denominator_std / denominator))
+
+
+def _method(gain: tuple, sensor_gain: tuple, alpha: tuple, beta_star: tuple, inertia: tuple,
+            cogging_measured: np.ndarray | None) -> MethodEstimates:
+    """One method's estimates from its (value, std) pairs of delta*eps, delta, alpha, delta beta and J*,
+    and its cogging in measured units (eq. 1.11); (None, None) where the method gave none."""
+    delta, delta_std = sensor_gain
+    epsilon, epsilon_std = _ratio(*gain, delta, delta_std)
+    beta = beta_std = cogging = None
+    if delta is not None and beta_star[0] is not None:
+        beta = beta_star[0] / delta
+        beta_std = np.hypot(beta_star[1] / delta, beta * delta_std / delta)
+    if delta is not None and cogging_measured is not None:
+        cogging = cogging_measured / delta
+    return MethodEstimates(*gain, delta, delta_std, epsilon, epsilon_std, *alpha, beta, beta_std, *inertia, cogging)
+
+
+#: a (value, standard error) pair a method did not give
+MISSING = (None, None)
+
+
+def _report_method(system: SystemGainEstimate | None, sensor: SensorGainEstimate | None,
+                   decoupling: DecouplingEstimate | None) -> MethodEstimates:
+    """The report's estimates: ch. 2 gain, ch. 3 mean J*, ch. 4 decoupling averaged over set points."""
+    return _method(
+        (system.delta_epsilon, system.delta_epsilon_std) if system else MISSING,
+        (sensor.delta, sensor.delta_std) if sensor else MISSING,
+        (decoupling.alpha(), decoupling.alpha_std()) if decoupling else MISSING,
+        (decoupling.beta_star_mean(), decoupling.beta_star_std()) if decoupling else MISSING,
+        (sensor.inertia, sensor.inertia_std) if sensor else MISSING,
+        decoupling.mean_cogging_nm() if decoupling else None)
+
+
+def _joint_method(joint: JointEstimate | None, sensor: SensorGainEstimate | None,
+                  counts_per_rev: int) -> MethodEstimates:
+    """The joint fit's estimates, with the pooled, sensor-corrected J* of ch. 3."""
+    corrected = sensor is not None and np.isfinite(sensor.corrected_delta)
+    return _method(
+        (joint.delta_epsilon, joint.delta_epsilon_std) if joint else MISSING,
+        (sensor.corrected_delta, sensor.corrected_delta_std) if corrected else MISSING,
+        (joint.alpha, joint.alpha_std) if joint else MISSING,
+        (joint.beta_star_a, joint.beta_star_std) if joint else MISSING,
+        (sensor.corrected_inertia, sensor.corrected_inertia_std) if corrected else MISSING,
+        joint.cogging_table_nm(counts_per_rev) if joint else None)
+
+
+def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | None = None) -> IdentificationResult:
+    """Identify delta*eps, delta, eps, alpha, beta, J* and the cogging torque of a bench folder.
+
+    Parameters
+    ----------
+    bench : Bench
+        A bench folder in memory (`ilcpmac.bench.format.read_bench`).
+    progress : callable, optional
+        ``progress(step, index, total)`` before each step of STEPS.
+
+    Raises
+    ------
+    IdentificationError
+        When no trial can be used or nothing at all can be estimated. An
+        estimate that is impossible on its own is reported in ``messages``.
+    """
+    def step(index: int) -> None:
+        if progress is not None:
+            progress(STEPS[index], index, len(STEPS))
+
+    step(0)
+    tables = reduce_bench(bench)
+    messages = list(tables.messages)
+    step(1)
+    system = _attempt(messages, lambda: estimate_system_gain(tables))
+    step(2)
+    joint = _attempt(messages, lambda: fit_joint(tables, system.loop if system is not None else DEFAULT_LOOP))
+    step(3)
+    band = joint.sets.fit.max() if joint else (system.harmonics.max() if system else 2 * bench.motor.cogging_order)
+    sensor = _attempt(messages, lambda: estimate_sensor_gain(
+        tables, int(band), None if joint is None else joint.sensor_response))
+    step(4)
+    decoupling = None if system is None else decouple(tables, system.delta_epsilon)
+    if system is None and joint is None and sensor is None:
+        raise IdentificationError("nothing can be estimated: " + "; ".join(messages))
+
+    report = _report_method(system, sensor, decoupling)
+    joint_estimates = _joint_method(joint, sensor, bench.motor.counts_per_rev)
+    best = {name: getattr(joint_estimates, name) if getattr(joint_estimates, name) is not None
+            else getattr(report, name) for name in MethodEstimates.__dataclass_fields__}
+    calibration = None
+    if bench.sensors is not None and all(best[k] is not None for k in ("epsilon", "alpha", "beta", "delta")):
+        calibration = corrected_calibration(bench.sensors, best["epsilon"], best["alpha"], best["beta"],
+                                            best["delta"])
+    bandwidth = per_phase = None
+    if joint is not None and not joint.loop.is_ideal:
+        per_phase = tuple(float(b) for b in joint.loop.bandwidth_hz)
+        bandwidth = float(np.mean(per_phase))
+    return IdentificationResult(
+        **best, current_loop_bandwidth_hz=bandwidth, current_loop_bandwidth_per_phase_hz=per_phase,
+        methods={"report": report, "joint": joint_estimates}, calibration=calibration, messages=tuple(messages),
+        diagnostics=_diagnostics(tables, system, joint, sensor),
+        details=IdentificationDetails(tables, system, joint, sensor, decoupling))
+
+
+def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: JointEstimate | None,
+                 sensor: SensorGainEstimate | None) -> dict:
+    """JSON-able details of each step."""
+    out: dict = {"trials_used": len(tables.trials)}
+    if system is not None:
+        out["system_gain"] = {
+            "residue": system.residue, "harmonics": [int(system.harmonics.min()), int(system.harmonics.max())],
+            "harmonics_used": int(system.used.sum()),
+            "median_coherence": float(np.median(system.coherence[system.used])),
+            "loop_corrected_total_system_gain": system.loop_gain,
+            "loop_corner_hz": float(system.loop.bandwidth_hz[0])}
+    if joint is not None:
+        out["joint"] = {
+            "chi2_reduced": joint.chi2_reduced, "harmonics": [int(joint.sets.fit.min()), int(joint.sets.fit.max())],
+            "current_loop_time_constant_s": joint.loop.time_constant_s.tolist(),
+            "current_loop_time_constant_std_s": joint.loop_std[:3].tolist(),
+            "current_loop_delay_s": joint.loop.delay_s,
+            "torque_sensor_highpass_hz": joint.highpass_hz, "torque_sensor_highpass_std_hz": joint.highpass_std,
+            "torque_sensor_delay_s": joint.torque_delay_s, "winding_time_constant_s": joint.winding_time_constant_s,
+            "saturation_per_a2_over_delta2": joint.saturation_per_a2}
+    if sensor is not None:
+        out["sensor_gain"] = {
+            "inertia_per_set_point": [
+                {"torque_setpoint": t.torque_setpoint_nm, "speed_setpoint": t.speed_setpoint_hz, "inertia": float(j),
+                 "inertia_std": float(s)}
+                for t, j, s in zip(tables.trials, sensor.inertia_per_trial, sensor.inertia_std_per_trial)]}
+    return out

@@ -1,0 +1,494 @@
+"""One joint least-squares fit over all set points (beyond the report).
+
+The report fits the total system gain delta*eps to a frequency response
+(ch. 2), then alpha*, beta* per set point by the pseudo-inverse of eq. (1.12)
+with the cogging as the residual (eq. 1.13). Here every trial's torque
+harmonics are fitted at once, in the harmonics domain (sec. 2.3), by
+
+    tau*_k(h) = H_s(h f_k) [ sum_p theta_p A_kp(h) + sum_p beta*_p B_p(h) + c_e E_k(h) + s S_k(h) + T(h) ] + noise,
+
+for harmonic h of trial k at mean speed f_k, where
+
+- A_kp = DFT(K_p (G_p I*_p)): the per-phase theoretical torque (K . I*_i of
+  eq. 1.3) through the current loop G_p (`ilcpmac.identify.loop`, applied in
+  time count by count), with theta_p = delta eps alpha_p: their mean is the
+  total system gain delta*eps, so it no longer rests on the frequency
+  response alone;
+- B_p = DFT(K_p): the back-EMF columns of eq. (1.10), beta*_p = delta beta_p;
+- E_k = DFT(sum_p K_p W (1 - G_p) e_p): the loop's tracking error to the
+  back-EMF e_p = K_p omega (omega measured per count), through the winding
+  W = 1 / (1 + s L/R); c_e = -delta / R. The speed ripple makes it ripple at
+  the electrical harmonics where beta is read;
+- S_k = -DFT(sum_p K_p i_p^3), i_p = theta_p G_p I*_p + beta*_p: a saturation
+  term (the torque constant falling with current), whose set-point dependent
+  ripple at 6x electrical would otherwise be taken for cogging;
+- T(h): one position table shared by all trials, free on the cogging
+  harmonics (multiples of lcm(slots, 2 pole_pairs)) and on the harmonics where
+  K has no content: the cogging torque delta tau_c and the unexplained
+  position-locked rest. Each trial has its own multisine phases, so the
+  current columns vary from trial to trial and T cannot absorb them;
+- H_s: the torque sensor, a first-order high-pass (the piezo cannot measure
+  the mean, sec. 1.1) with corner f_hp, and a delay D of the measurement,
+  removed by advancing the data in time.
+
+The sensor's DC level and drift never enter: they were removed from the
+aperiodic part of each trial (`ilcpmac.identify.reduction`). The loop's time
+constants and delay, f_hp, L/R and D enter nonlinearly and are found by
+variable projection (the linear parameters and T are solved for at every
+step); standard errors come from the covariance sigma^2 (J^T J)^-1 of all
+parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy.optimize import least_squares
+
+from ilcpmac.errors import IdentificationError
+from ilcpmac.identify.loop import CurrentLoop, lagged_phase, trial_amplitudes
+from ilcpmac.identify.reduction import BenchTables
+
+#: relative amplitude (of the largest harmonic) below which a column carries no information
+SIGNIFICANT = 1e-3
+#: names of the nonlinear parameters, in order, and their typical sizes
+NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding_tau_s", "torque_delay_s")
+NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
+LINEAR = ("theta_a", "theta_b", "theta_c", "beta_star_a", "beta_star_b", "beta_star_c", "emf", "saturation")
+
+
+@dataclass(frozen=True)
+class HarmonicSets:
+    """Which harmonics the joint fit uses, and where the shared position table is free.
+
+    Attributes
+    ----------
+    fit : ndarray of int
+        Harmonics 1..max where the per-phase torque columns carry information.
+    table_free : ndarray of bool, shape fit.shape
+        Whether T(h) is free there (cogging harmonics and harmonics without back-EMF content).
+    cogging : ndarray of int
+        Multiples of the cogging order below the Nyquist harmonic.
+    """
+
+    fit: np.ndarray
+    table_free: np.ndarray
+    cogging: np.ndarray
+
+
+@dataclass(frozen=True)
+class JointEstimate:
+    """Result of the joint fit; torques in measured units (scaled by delta).
+
+    Attributes
+    ----------
+    theta, theta_std : ndarray, shape (3,)
+        delta eps alpha_p per phase (eq. 1.3 through 1.11).
+    beta_star_a, beta_star_std : ndarray, shape (3,)
+        delta beta_p, A (eq. 1.11).
+    saturation_per_a2, saturation_std : float
+        s = c / delta^2 of the saturation term, per A^2.
+    loop : CurrentLoop
+        The identified current loop.
+    loop_std : ndarray, shape (4,)
+        Standard errors of tau_a, tau_b, tau_c and delay_s, s.
+    highpass_hz, highpass_std : float
+        The torque sensor's high-pass corner.
+    winding_time_constant_s : float
+        L / R of the winding filter of the back-EMF column.
+    torque_delay_s : float
+        Delay of the torque measurement (its filter and sampling), s.
+    position_table : dict[int, complex]
+        T(h), N m (measured), for every harmonic where it is free.
+    cogging_harmonics : ndarray of int
+    covariance : ndarray
+        Covariance of (LINEAR + NONLINEAR active) parameters, named in ``parameter_names``.
+    parameter_names : tuple of str
+    chi2_reduced : float
+        Weighted residual sum of squares per degree of freedom (1 when only noise is left).
+    harmonic_response : ndarray, shape (n_trials, n_fit), complex
+        Per trial and fit harmonic, the modelled response of the measured torque to
+        the theoretical torque sum_p K_p I*_p (for plots).
+    sets : HarmonicSets
+    """
+
+    theta: np.ndarray
+    theta_std: np.ndarray
+    beta_star_a: np.ndarray
+    beta_star_std: np.ndarray
+    saturation_per_a2: float
+    saturation_std: float
+    loop: CurrentLoop
+    loop_std: np.ndarray
+    highpass_hz: float
+    highpass_std: float
+    winding_time_constant_s: float
+    torque_delay_s: float
+    position_table: dict
+    cogging_harmonics: np.ndarray
+    covariance: np.ndarray
+    parameter_names: tuple
+    chi2_reduced: float
+    sets: HarmonicSets
+
+    @property
+    def delta_epsilon(self) -> float:
+        """delta*eps = mean_p theta_p (alpha has mean 1, eq. 1.6)."""
+        return float(self.theta.mean())
+
+    @property
+    def cramer_rao(self) -> np.ndarray:
+        """sigma^2 (J^T J)^-1 with sigma^2 the measured noise alone: the Cramer-Rao bound of the model."""
+        return self.covariance / max(self.chi2_reduced, 1.0)
+
+    def std_of(self, weights_by_name: dict[str, float], covariance: np.ndarray | None = None) -> float:
+        """Standard error of a linear combination of named parameters (``covariance`` defaults to the fit's)."""
+        g = np.array([weights_by_name.get(name, 0.0) for name in self.parameter_names])
+        return float(np.sqrt(g @ (self.covariance if covariance is None else covariance) @ g))
+
+    @property
+    def delta_epsilon_std(self) -> float:
+        """Standard error of delta*eps."""
+        return self.delta_epsilon_std_of(self.covariance)
+
+    def delta_epsilon_std_of(self, covariance: np.ndarray) -> float:
+        """Standard error of delta*eps under ``covariance``."""
+        return self.std_of({f"theta_{p}": 1.0 / 3.0 for p in "abc"}, covariance)
+
+    @property
+    def alpha(self) -> np.ndarray:
+        """alpha_p = theta_p / mean(theta) (eq. 1.6)."""
+        return self.theta / self.theta.mean()
+
+    @property
+    def alpha_std(self) -> np.ndarray:
+        """Standard errors of alpha (first-order error propagation)."""
+        return self.alpha_std_of(self.covariance)
+
+    def alpha_std_of(self, covariance: np.ndarray) -> np.ndarray:
+        """Standard errors of alpha under ``covariance``."""
+        mean = self.theta.mean()
+        out = []
+        for p, name in enumerate("abc"):
+            grad = {f"theta_{q}": -self.theta[p] / (3.0 * mean**2) for q in "abc"}
+            grad[f"theta_{name}"] += 1.0 / mean
+            out.append(self.std_of(grad, covariance))
+        return np.array(out)
+
+    def sensor_response(self, harmonics: np.ndarray, speed_hz: float) -> np.ndarray:
+        """The torque sensor's identified response per harmonic at a speed: high-pass and delay."""
+        w = 2.0 * np.pi * np.asarray(harmonics, float) * speed_hz
+        return 1j * w / (1j * w + 2.0 * np.pi * self.highpass_hz) * np.exp(-1j * w * self.torque_delay_s)
+
+    def cogging_table_nm(self, counts_per_rev: int) -> np.ndarray:
+        """delta tau_c per count, N m (measured units): T on the cogging harmonics."""
+        return table_from_harmonics({h: self.position_table[h] for h in self.cogging_harmonics}, counts_per_rev)
+
+
+def table_from_harmonics(amplitudes: dict, counts_per_rev: int) -> np.ndarray:
+    """Per-count table sum_h Re(c_h exp(j h theta)) from one-sided amplitudes {h: c_h}."""
+    spectrum = np.zeros(counts_per_rev // 2 + 1, complex)
+    for h, c in amplitudes.items():
+        spectrum[h] = c * counts_per_rev / 2.0
+    return np.fft.irfft(spectrum, n=counts_per_rev)
+
+
+def harmonic_sets(tables: BenchTables) -> HarmonicSets:
+    """The harmonics of the joint fit (see `HarmonicSets`), from the data and bench.toml alone."""
+    motor = tables.motor
+    cpr = motor.counts_per_rev
+    nyquist = cpr // 2 - 1
+    i_ref = np.stack([t.i_ref_table_a for t in tables.trials])
+    ideal = trial_amplitudes(i_ref * tables.backemf_nm_per_a, nyquist)
+    size = np.abs(ideal[:, 1:]).max(axis=(0, 2))
+    significant = np.flatnonzero(size > SIGNIFICANT * size.max()) + 1
+    fit = np.arange(1, significant.max() + 1)
+    backemf = np.abs(trial_amplitudes(tables.backemf_nm_per_a[None], nyquist)[0])
+    has_backemf = backemf[1:].max(axis=1) > SIGNIFICANT * backemf[1:].max()
+    cogging = np.arange(motor.cogging_order, nyquist + 1, motor.cogging_order)
+    table_free = ~has_backemf[fit - 1] | np.isin(fit, cogging)
+    return HarmonicSets(fit=fit, table_free=table_free, cogging=cogging)
+
+
+class _JointProblem:
+    """The weighted, position-table-profiled least-squares problem for given nonlinear parameters.
+
+    ``phi`` holds the nonlinear parameters in the order of NONLINEAR.
+    """
+
+    def __init__(self, tables: BenchTables, sets: HarmonicSets) -> None:
+        self.sets = sets
+        self.backemf = tables.backemf_nm_per_a
+        self.cpr = tables.motor.counts_per_rev
+        self.max_fit = int(sets.fit.max())
+        self.speeds = np.array([t.speed_hz for t in tables.trials])
+        self.i_ref = np.stack([t.i_ref_table_a for t in tables.trials])
+        self.count_period = np.ascontiguousarray(np.stack([t.count_period_s for t in tables.trials]))
+        self.torque = np.stack([t.torque_table_nm for t in tables.trials])
+        self.max_harmonic = int(max(self.max_fit, sets.cogging.max(initial=0)))
+        self._cache: dict[str, dict] = {}
+        self.variance = np.array([t.harmonic_variance_nm2 for t in tables.trials])
+        backemf_cols = trial_amplitudes(self.backemf[None], self.max_fit)[0][sets.fit]
+        self.backemf_design = np.broadcast_to(backemf_cols, (len(tables.trials),) + backemf_cols.shape)
+        # back-EMF per count, e_p = K_p omega (omega over the intervals either side of the count)
+        omega = 4.0 * np.pi / (self.cpr * (self.count_period + np.roll(self.count_period, 1, axis=1)))
+        self.emf = self.backemf * omega[:, :, None]
+
+    @staticmethod
+    def loop_of(phi: np.ndarray) -> CurrentLoop:
+        return CurrentLoop(phi[:3], phi[3])
+
+    def data(self, phi: np.ndarray) -> np.ndarray:
+        """Harmonic amplitudes 0..max_harmonic of the measured torque tables advanced by D = phi[6] s.
+
+        The torque sensor's filter and sampling delay the measurement by D;
+        advancing the data in time (cubic interpolation through the count
+        instants) puts it back on the count instants of the model.
+        """
+        return self._cached("data", (phi[6],), lambda: trial_amplitudes(
+            time_shifted(self.torque, self.count_period, phi[6])[:, :, None], self.max_harmonic)[:, :, 0])
+
+    def highpass(self, phi: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
+        """The piezo sensor's first-order high-pass j w / (j w + w_c), shape (n_trials, len(harmonics))."""
+        omega = 2.0 * np.pi * self.speeds[:, None] * harmonics[None, :]
+        return 1j * omega / (1j * omega + 2.0 * np.pi * phi[4])
+
+    def _cached(self, kind: str, key: tuple, compute):
+        """Memoised per-phase columns: a finite-difference step changes one parameter at a time."""
+        store = self._cache.setdefault(kind, {})
+        if key not in store:
+            if len(store) >= 32:
+                store.pop(next(iter(store)))
+            store[key] = compute()
+        return store[key]
+
+    def phase_current(self, phi: np.ndarray, p: int) -> np.ndarray:
+        """G_p I*_p per count, shape (n_trials, cpr)."""
+        return self._cached(f"current{p}", (phi[p], phi[3]), lambda: lagged_phase(
+            self.i_ref[:, :, p], self.count_period, phi[p], phi[3]))
+
+    def currents(self, phi: np.ndarray) -> np.ndarray:
+        """G_p I*_p per count, shape (n_trials, cpr, 3)."""
+        return np.stack([self.phase_current(phi, p) for p in range(3)], axis=2)
+
+    def amplitudes(self, tables: np.ndarray) -> np.ndarray:
+        """Fit-harmonic amplitudes of per-count torque tables (n_trials, cpr, m) -> (n_trials, n_fit, m)."""
+        return trial_amplitudes(tables, self.max_fit)[:, self.sets.fit]
+
+    def phase_columns(self, phi: np.ndarray, p: int) -> np.ndarray:
+        """Amplitudes of K_p G_p I*_p and of K_p W (1 - G_p) e_p, shape (n_trials, n_fit, 2)."""
+        k = self.backemf[:, p]
+        current = self._cached(f"current_amplitude{p}", (phi[p], phi[3]), lambda: self.amplitudes(
+            (k * self.phase_current(phi, p))[:, :, None]))
+
+        def rejected():
+            emf = self.emf[:, :, p]
+            return emf - lagged_phase(emf, self.count_period, phi[p], phi[3], continuous=True)
+
+        emf = self._cached(f"emf_amplitude{p}", (phi[p], phi[3], phi[5]), lambda: self.amplitudes(
+            (k * lagged_phase(self._cached(f"rejected{p}", (phi[p], phi[3]), rejected), self.count_period,
+                              phi[5], 0.0, continuous=True))[:, :, None]))
+        return np.concatenate([current, emf], axis=2)
+
+    def design(self, phi: np.ndarray, saturation: np.ndarray | None) -> np.ndarray:
+        """All linear columns (LINEAR, without saturation when None), shape (n_trials, n_fit, n_columns).
+
+        The back-EMF column is sum_p K_p W (1 - G_p) e_p: the current loop's
+        tracking error to its back-EMF disturbance e_p = K_p omega, through the
+        winding W = 1 / (1 + s L / R) (its coefficient is -delta / R).
+        """
+        per_phase = [self.phase_columns(phi, p) for p in range(3)]
+        parts = [*(c[:, :, :1] for c in per_phase), self.backemf_design,
+                 sum(c[:, :, 1:] for c in per_phase)]
+        if saturation is not None:
+            parts.append(saturation[:, :, None])
+        return np.concatenate(parts, axis=2)
+
+    def saturation_column(self, phi: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """S_k = -DFT(sum_p K_p i_p^3), i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, n_fit)."""
+        currents = x[:3] * self.currents(phi) + x[3:6]
+        return self.amplitudes(-np.sum(self.backemf * currents**3, axis=2)[:, :, None])[:, :, 0]
+
+    def weights(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """High-pass per trial and fit harmonic, and the weights |H_hp|^2 / variance."""
+        hp = self.highpass(phi, self.sets.fit)
+        return hp, np.abs(hp) ** 2 / self.variance[:, None]
+
+    def weighted(self, phi: np.ndarray, design: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Data over the high-pass and columns, weighted, with T(h) profiled out, stacked real."""
+        hp, weights = self.weights(phi)
+        y = self.data(phi)[:, self.sets.fit] / hp
+        free = self.sets.table_free
+        y = y - free * _weighted_mean(y, weights)
+        design = design - free[:, None] * _weighted_mean(design, weights[:, :, None])
+        root = np.sqrt(weights)
+        y = (root * y).ravel()
+        design = (root[:, :, None] * design).reshape(-1, design.shape[2])
+        return np.concatenate([y.real, y.imag]), np.concatenate([design.real, design.imag])
+
+    def solve(self, phi: np.ndarray, saturation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Linear parameters and the weighted residual vector at ``phi``."""
+        y, design = self.weighted(phi, self.design(phi, saturation))
+        scale = np.sqrt(np.sum(design**2, axis=0))
+        scale[scale == 0.0] = 1.0
+        x = np.linalg.lstsq((design.T @ design) / np.outer(scale, scale), (design.T @ y) / scale, rcond=None)[0] / scale
+        return x, y - design @ x
+
+    def position_table(self, phi: np.ndarray, design: np.ndarray, x: np.ndarray) -> dict:
+        """T(h) where free: the weighted mean over trials of what the columns leave, N m."""
+        hp, weights = self.weights(phi)
+        rest = _weighted_mean(self.data(phi)[:, self.sets.fit] / hp - design @ x, weights)[0]
+        table = {int(h): complex(c) for h, c, free in zip(self.sets.fit, rest, self.sets.table_free) if free}
+        beyond = self.sets.cogging[self.sets.cogging > self.max_fit]
+        if beyond.size:
+            hp = self.highpass(phi, beyond)
+            mean = _weighted_mean(self.data(phi)[:, beyond] / hp, np.abs(hp) ** 2 / self.variance[:, None])[0]
+            table.update({int(h): complex(c) for h, c in zip(beyond, mean)})
+        return table
+
+
+def time_shifted(tables: np.ndarray, count_period_s: np.ndarray, shift_s: float) -> np.ndarray:
+    """Periodic per-count tables (n_trials, cpr) evaluated at t_c + shift_s instead of t_c.
+
+    The count instants t_c follow from the count periods; values in between
+    come from four-point (cubic) Lagrange interpolation in time.
+    """
+    out = np.empty_like(tables, dtype=float)
+    _time_shift_kernel(np.ascontiguousarray(tables, float), np.ascontiguousarray(count_period_s, float),
+                       float(shift_s), out)
+    return out
+
+
+@njit(cache=True)
+def _time_shift_kernel(tables, count_period_s, shift_s, out):
+    n_trials, cpr = tables.shape
+    for k in range(n_trials):
+        # count instants over three revolutions, the middle one holding the target instants
+        period = count_period_s[k].sum()
+        t = np.empty(3 * cpr + 1)
+        t[0] = -period
+        for i in range(3 * cpr):
+            t[i + 1] = t[i] + count_period_s[k, i % cpr]
+        base = cpr
+        for c in range(cpr):
+            target = t[cpr + c] + shift_s
+            while target < t[base] and base > 1:
+                base -= 1
+            while base < 3 * cpr - 2 and target >= t[base + 1]:
+                base += 1
+            value = 0.0
+            for i in range(base - 1, base + 3):
+                weight = 1.0
+                for j in range(base - 1, base + 3):
+                    if i != j:
+                        weight *= (target - t[j]) / (t[i] - t[j])
+                value += weight * tables[k, i % cpr]
+            out[k, c] = value
+
+
+def _weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted mean over trials (axis 0), kept as a leading axis of length 1."""
+    return np.sum(weights * values, axis=0, keepdims=True) / np.sum(weights, axis=0, keepdims=True)
+
+
+def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
+    """The joint fit (module docstring), its loop started from ``initial_loop``.
+
+    The report's ideal loop (currents equal to references at each count) is
+    fitted too and kept unless the lagged loop, whose delay cannot be
+    negative, fits better by more than its extra parameters' worth.
+
+    Raises
+    ------
+    IdentificationError
+        With a single trial, or when the references carry no excitation that
+        differs between trials (the mean torque is unobservable through the
+        piezo sensor and T(h) absorbs what all trials share).
+    """
+    sets = harmonic_sets(tables)
+    problem = _JointProblem(tables, sets)
+    _check_excitation(problem)
+    lagged = _fit_nonlinear(problem, initial_loop, np.ones(7, bool))
+    ideal = _fit_nonlinear(problem, CurrentLoop(), np.array([0, 0, 0, 0, 1, 0, 1], bool))
+    # the lag must pay for its five more parameters (Akaike)
+    _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
+    design = problem.design(phi, saturation)
+    covariance, names, chi2 = _covariance(problem, phi, active, saturation, x, rest)
+    std = dict(zip(names, np.sqrt(np.diag(covariance))))
+    return JointEstimate(
+        theta=x[:3], theta_std=np.array([std[f"theta_{p}"] for p in "abc"]),
+        beta_star_a=x[3:6], beta_star_std=np.array([std[f"beta_star_{p}"] for p in "abc"]),
+        saturation_per_a2=float(x[-1]), saturation_std=float(std["saturation"]),
+        loop=problem.loop_of(phi),
+        loop_std=np.array([std.get(name, 0.0) for name in NONLINEAR[:4]]),
+        highpass_hz=float(phi[4]), highpass_std=float(std["highpass_hz"]), winding_time_constant_s=float(phi[5]),
+        torque_delay_s=float(phi[6]),
+        position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
+        covariance=covariance, parameter_names=names, chi2_reduced=chi2, sets=sets)
+
+
+def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray) -> tuple:
+    """Variable projection over the ``active`` nonlinear parameters, started from ``loop``.
+
+    The saturation column is built from the currents of the starting point,
+    and rebuilt once from the fitted ones.
+
+    Returns (weighted residual sum of squares, phi, active, saturation column, linear parameters, residual).
+    """
+    phi = np.array([*loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s, 0.01, 1e-3, 0.0])
+    lower = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])[active]
+    saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])
+
+    def residual(free: np.ndarray) -> np.ndarray:
+        full = phi.copy()
+        full[active] = free
+        return problem.solve(full, saturation)[1]
+
+    solution = least_squares(residual, np.maximum(phi[active], lower), bounds=(lower, np.inf),
+                             x_scale=NONLINEAR_SCALE[active], method="trf", ftol=1e-6, xtol=1e-6)
+    phi[active] = solution.x
+    saturation = problem.saturation_column(phi, problem.solve(phi, saturation)[0])
+    x, rest = problem.solve(phi, saturation)
+    return float(rest @ rest), phi, active, saturation, x, rest
+
+
+def _check_excitation(problem: _JointProblem) -> None:
+    """The theoretical torque sum_p K_p I*_p must ripple beyond what all trials share."""
+    if problem.i_ref.shape[0] < 2:
+        raise IdentificationError(
+            "total system gain (joint fit): a single trial - the current response can only be told from the "
+            "position-locked torque (cogging and the rest) by trials with different excitation")
+    total = problem.amplitudes(np.sum(problem.i_ref * problem.backemf, axis=2)[:, :, None])[:, :, 0]
+    varying = total - total.mean(axis=0, keepdims=True)
+    if np.sqrt(np.mean(np.abs(varying) ** 2)) < 3.0 * np.sqrt(problem.variance.mean()):
+        raise IdentificationError(
+            "total system gain (joint fit): no excitation - the current references do not ripple beyond "
+            "what every trial shares, and the piezo sensor cannot see the mean torque")
+
+
+def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, saturation: np.ndarray,
+                x: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, tuple, float]:
+    """sigma^2 (J^T J)^-1 over the linear and active nonlinear parameters.
+
+    J holds the weighted, T-profiled linear columns and the derivatives of the
+    weighted residual with respect to each active nonlinear parameter at fixed
+    linear parameters. sigma^2 is the reduced chi-square, at least 1 (the
+    weights hold the noise variance measured off the aperiodic part).
+    """
+    _, design = problem.weighted(phi, problem.design(phi, saturation))
+    columns = [design]
+    names = list(LINEAR)
+    for i in np.flatnonzero(active):
+        step = 1e-6 * max(abs(phi[i]), NONLINEAR_SCALE[i])
+        shifted = phi.copy()
+        shifted[i] += step
+        y, design_shifted = problem.weighted(shifted, problem.design(shifted, saturation))
+        columns.append((rest - (y - design_shifted @ x))[:, None] / step)
+        names.append(NONLINEAR[i])
+    jac = np.hstack(columns)
+    dof = jac.shape[0] - jac.shape[1] - 2 * int(problem.sets.table_free.sum())
+    chi2 = float(rest @ rest / dof)
+    covariance = np.linalg.pinv(jac.T @ jac) * max(chi2, 1.0)
+    return covariance, tuple(names), chi2

@@ -1,0 +1,166 @@
+"""Current-loop dynamics: how the phase currents follow their references (beyond the report).
+
+The report assumes the currents follow the references I*_p exactly (sec. 2.3:
+"in this range the current follows the reference closely"). With a 140 Hz
+current loop (sec. 2.1) and harmonics up to 144 at 1 Hz they do not: the
+harmonic response rolls off, which biases the total system gain (the report's
+14 % residue). Here each phase's loop is a first-order lag with time constant
+tau_p and a common delay T_d,
+
+    G_p(s) = exp(-s T_d) / (1 + s tau_p).
+
+A PI loop tuned for bandwidth f_c by pole-zero cancellation on a current
+sensor whose gain error is eps alpha_p closes at f_c / (eps alpha_p), so the
+phases differ; T_d stands for the controller's computation and sampling.
+
+The reference is a staircase in time (the controller updates it once per
+encoder count) and the rotor speed ripples, so the loop is applied exactly in
+time, count by count, with each trial's measured count intervals: the state
+s_c (the current when count c is reached) obeys
+
+    s_{c+1} = x_c + (s_c - x_c) exp(-dt_c / tau),
+
+and the current sampled at count c is the state at t_c - T_d. The periodic
+steady state is found by running the recursion from late in the previous
+revolution, long enough for the start to be forgotten. The same loop leaves a
+tracking error to the back-EMF e_p = K_p omega, which its sensitivity
+1 - G_p lets through (`ilcpmac.identify.joint`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from ilcpmac.signals.harmonics import harmonic_amplitudes
+
+
+@dataclass(frozen=True)
+class CurrentLoop:
+    """A first-order current loop per phase with a common delay.
+
+    Attributes
+    ----------
+    time_constant_s : ndarray, shape (3,)
+        tau_p per phase, s. All zero with ``delay_s < 0`` is the report's
+        ideal loop (the current equals the reference at each count).
+    delay_s : float
+        T_d, s.
+    """
+
+    time_constant_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    delay_s: float = -1e-9
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "time_constant_s", np.asarray(self.time_constant_s, float).reshape(3))
+        object.__setattr__(self, "delay_s", float(self.delay_s))
+
+    @property
+    def is_ideal(self) -> bool:
+        """Whether the currents equal the references (no lag, eq. 1.3 as the report uses it)."""
+        return bool(np.all(self.time_constant_s <= 0.0))
+
+    @property
+    def bandwidth_hz(self) -> np.ndarray:
+        """Corner frequency 1 / (2 pi tau_p) per phase, Hz (inf without lag)."""
+        with np.errstate(divide="ignore"):
+            return 1.0 / (2.0 * np.pi * self.time_constant_s)
+
+    def response(self, harmonics: np.ndarray, speed_hz: float, counts_per_rev: int) -> np.ndarray:
+        """The loop's response per harmonic and phase at a constant speed, shape (len(harmonics), 3).
+
+        The z-transform of the count recursion (module docstring) with equal
+        count intervals 1 / (counts_per_rev speed_hz), at z = exp(j 2 pi h / counts_per_rev).
+        """
+        z_inv = np.exp(-2j * np.pi * np.asarray(harmonics, float)[:, None] / counts_per_rev)
+        dt = 1.0 / (counts_per_rev * speed_hz)
+        tau = np.maximum(self.time_constant_s, 1e-300)
+        a = np.exp(-dt / tau)
+        state = (1.0 - a) * z_inv / (1.0 - a * z_inv)  # s_c / x_c
+        if self.delay_s >= 0.0:
+            b = np.exp(-(dt - self.delay_s) / tau)
+            return z_inv * (1.0 - b) + b * z_inv * state
+        b = np.exp(self.delay_s / tau)
+        return 1.0 - b + b * state
+
+
+@njit(cache=True)
+def _lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
+    """The count recursion of the module docstring for one phase, x of shape (n_trials, cpr); fills ``out``.
+
+    ``decay`` = exp(-dt / tau) per count; ``delayed``: T_d >= 0, the sample
+    lies between the previous count and this one, and ``sample_decay`` =
+    exp(-(dt_{c-1} - T_d) / tau), else exp(T_d / tau) (0 without lag). With ``continuous`` the input is linear
+    between counts (a smooth signal such as the back-EMF) instead of a
+    staircase, and ``out`` holds the undelayed state at each count.
+    """
+    n_trials, cpr = x.shape
+    for k in range(n_trials):
+        # warm up over the end of the revolution until the start has decayed below 1e-16
+        start = cpr - 1
+        remaining = 1.0
+        while start > 0 and remaining > 1e-16:
+            remaining *= decay[k, start]
+            start -= 1
+        s = x[k, start]
+        s_prev = s
+        for step in range(start, 2 * cpr):
+            c = step % cpr
+            recording = step >= cpr
+            a = decay[k, c]
+            x_now = x[k, c]
+            if recording and not continuous:
+                if delayed:  # the state at t_c - T_d, between counts c - 1 and c
+                    x_prev = x[k, c - 1]  # c - 1 = -1 wraps to the revolution's last count
+                    out[k, c] = x_prev + (s_prev - x_prev) * sample_decay[k, c]
+                else:  # the state at t_c + |T_d|, after count c
+                    out[k, c] = x_now + (s - x_now) * sample_decay[k, c]
+            s_prev = s
+            if continuous:  # exact for an input linear between counts
+                x_next = x[k, (c + 1) % cpr]
+                s = a * s + x_next - a * x_now - (x_next - x_now) * (1.0 - a) * tau / dt[k, c]
+                if recording:
+                    out[k, (c + 1) % cpr] = s
+            else:
+                s = x_now + (s - x_now) * a
+
+
+def lagged(x: np.ndarray, count_period_s: np.ndarray, loop: CurrentLoop, continuous: bool = False) -> np.ndarray:
+    """Per-count tables ``x`` (n_trials, cpr, 3) through the loop, sampled at each count.
+
+    ``continuous``: ``x`` samples a smooth signal (linear between counts)
+    rather than a staircase held from each count to the next.
+    """
+    return np.stack([lagged_phase(x[:, :, p], count_period_s, loop.time_constant_s[p], loop.delay_s, continuous)
+                     for p in range(3)], axis=2)
+
+
+def lagged_phase(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: float, delay_s: float,
+                 continuous: bool = False) -> np.ndarray:
+    """One phase's per-count tables ``x`` (n_trials, cpr) through a loop with time constant tau and delay T_d."""
+    tau = float(time_constant_s)
+    if tau > 0.0:
+        decay = np.exp(-count_period_s / tau)
+        if delay_s >= 0.0:  # at most one count back
+            sample_decay = np.exp(-np.maximum(np.roll(count_period_s, 1, axis=1) - delay_s, 0.0) / tau)
+        else:
+            sample_decay = np.full_like(count_period_s, np.exp(delay_s / tau))
+    else:
+        decay = sample_decay = np.zeros_like(count_period_s)
+    out = np.empty(x.shape)
+    _lag_kernel(np.ascontiguousarray(x, float), count_period_s, tau, decay, sample_decay, delay_s >= 0.0,
+                continuous, out)
+    if continuous and delay_s != 0.0:  # the state at t_c - T_d, linear between counts
+        if delay_s > 0.0:
+            out = out - delay_s / np.roll(count_period_s, 1, axis=1) * (out - np.roll(out, 1, axis=1))
+        else:
+            out = out - delay_s / count_period_s * (np.roll(out, -1, axis=1) - out)
+    return out
+
+
+def trial_amplitudes(tables: np.ndarray, max_harmonic: int) -> np.ndarray:
+    """Harmonic amplitudes 0..max_harmonic of per-count tables stacked along axis 0 (trials)."""
+    c = harmonic_amplitudes(np.moveaxis(tables, 1, 0))[: max_harmonic + 1]
+    return np.moveaxis(c, 0, 1)

@@ -1,0 +1,155 @@
+"""Each trial reduced to one mechanical revolution (the report's "harmonics domain", sec. 2.3).
+
+A trial is sampled once per encoder count, so over whole revolutions its
+repeatable part is a per-count table and its DFT gives harmonics of the
+mechanical revolution. The piezo torque sensor adds an unknown DC level and a
+slow drift (sec. 1.1): the drift is fitted to the part of the torque that is
+not periodic in position (`ilcpmac.signals.harmonics.slow_trend`) and removed
+before averaging, so neither can bias an estimate; what is left over gives the
+noise variance that weights every fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.errors import IdentificationError
+from ilcpmac.records import TrialData
+from ilcpmac.signals.harmonics import slow_trend, synchronous_table, whole_revolutions
+
+#: Highest Legendre degree of the torque sensor's slow trend (linear drift and slow settling).
+TREND_DEGREE = 5
+
+
+@dataclass(frozen=True)
+class TrialTables:
+    """One trial over its whole revolutions, and its synchronous averages.
+
+    Attributes
+    ----------
+    torque_setpoint_nm, speed_setpoint_hz : float
+        The set point, as listed in bench.toml.
+    speed_hz : float
+        Mean mechanical speed over the whole revolutions, Hz.
+    revolutions : int
+        Whole revolutions used.
+    count, time_s : ndarray, shape (n,)
+        The samples in whole revolutions.
+    torque_nm : ndarray, shape (n,)
+        Measured torque there with the sensor's slow trend removed, N m.
+    torque_table_nm : ndarray, shape (counts_per_rev,)
+        Synchronous average of ``torque_nm`` per encoder count, N m.
+    i_ref_table_a : ndarray, shape (counts_per_rev, 3)
+        Synchronous average of the current references I*_p, A.
+    count_period_s : ndarray, shape (counts_per_rev,)
+        Mean time from each count to the next, s (from the synchronous average
+        of the time stamps: the speed ripple, 2 pi / (counts_per_rev dt) rad/s).
+    noise_variance_nm2 : float
+        Per-sample variance of the torque that is neither periodic nor trend, N^2 m^2.
+    harmonic_variance_nm2 : float
+        Variance of the real (and of the imaginary) part of one harmonic
+        amplitude of ``torque_table_nm`` due to that noise, N^2 m^2.
+    """
+
+    torque_setpoint_nm: float
+    speed_setpoint_hz: float
+    speed_hz: float
+    revolutions: int
+    count: np.ndarray
+    time_s: np.ndarray
+    torque_nm: np.ndarray
+    torque_table_nm: np.ndarray
+    i_ref_table_a: np.ndarray
+    count_period_s: np.ndarray
+    noise_variance_nm2: float
+    harmonic_variance_nm2: float
+
+
+@dataclass(frozen=True)
+class BenchTables:
+    """A bench folder reduced trial by trial.
+
+    Attributes
+    ----------
+    motor : MotorInfo
+    backemf_nm_per_a : ndarray, shape (counts_per_rev, 3)
+        K per phase and count, N m / A.
+    trials : tuple of TrialTables
+        The trials that could be reduced.
+    trial_files : tuple of str
+        Their file names.
+    messages : tuple of str
+        Why other trials were left out.
+    """
+
+    motor: MotorInfo
+    backemf_nm_per_a: np.ndarray
+    trials: tuple[TrialTables, ...]
+    trial_files: tuple[str, ...]
+    messages: tuple[str, ...]
+
+
+def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
+    """Reduce one trial: whole revolutions, slow trend removed, synchronous averages.
+
+    Raises
+    ------
+    IdentificationError
+        With fewer than two whole revolutions: the sensor's drift cannot then
+        be told from the ripple.
+    """
+    mask = whole_revolutions(trial.count, counts_per_rev)
+    count, time_s = trial.count[mask], trial.time_s[mask]
+    revolutions = int(np.unique(count // counts_per_rev).size) if mask.any() else 0
+    if revolutions < 2:
+        raise IdentificationError(
+            f"{revolutions} whole revolution(s); at least 2 are needed to tell the torque sensor's drift "
+            "from the ripple")
+    degree = min(TREND_DEGREE, revolutions - 1)
+    torque = trial.torque_nm[mask]
+    trend, noise_variance = slow_trend(count, time_s, torque, counts_per_rev, degree)
+    torque = torque - trend
+    hits = np.bincount(count % counts_per_rev, minlength=counts_per_rev)
+    inverse_hits = 1.0 / np.maximum(hits, 1)
+    # the time of each count over one mean revolution: the linear trend plus the averaged wobble (speed ripple),
+    # so that revolutions missing a count (skipped) do not bias the average
+    seconds_per_count, start = np.polyfit(count - count[0], time_s - time_s[0], 1)
+    wobble = synchronous_table(count, time_s - time_s[0] - start - seconds_per_count * (count - count[0]),
+                               counts_per_rev)
+    time_table = wobble + seconds_per_count * np.arange(counts_per_rev)
+    return TrialTables(
+        torque_setpoint_nm=trial.torque_setpoint_nm, speed_setpoint_hz=trial.speed_setpoint_hz,
+        speed_hz=1.0 / (seconds_per_count * counts_per_rev), revolutions=revolutions, count=count, time_s=time_s,
+        torque_nm=torque,
+        torque_table_nm=synchronous_table(count, torque, counts_per_rev),
+        i_ref_table_a=synchronous_table(count, trial.i_ref_a[mask], counts_per_rev),
+        count_period_s=np.diff(time_table, append=time_table[0] + seconds_per_count * counts_per_rev),
+        noise_variance_nm2=noise_variance,
+        harmonic_variance_nm2=2.0 * noise_variance * float(inverse_hits.mean()) / counts_per_rev,
+    )
+
+
+def reduce_bench(bench: Bench) -> BenchTables:
+    """Reduce every trial of ``bench``; trials that cannot be reduced are left out with a message.
+
+    Raises
+    ------
+    IdentificationError
+        When no trial can be reduced.
+    """
+    cpr = bench.motor.counts_per_rev
+
+    trials, files, messages = [], [], []
+    for name, trial in zip(bench.trial_files, bench.trials):
+        try:
+            trials.append(reduce_trial(trial, cpr))
+            files.append(name)
+        except IdentificationError as e:
+            messages.append(f"{name} left out: {e}")
+    if not trials:
+        raise IdentificationError("no trial can be used: " + "; ".join(messages))
+    return BenchTables(bench.motor, np.asarray(bench.backemf_nm_per_a, float), tuple(trials), tuple(files),
+                       tuple(messages))

@@ -1,0 +1,169 @@
+"""Total system gain delta*eps from the harmonic frequency response (report ch. 2).
+
+The theoretical torque sum_p K_p I*_p (eq. 1.3 with ideal sensors and no
+cogging) is compared with the measured torque in the harmonics domain
+(sec. 2.3): per mechanical revolution a DFT, then the H1 estimate of their
+frequency response over harmonics 1..H, averaged over revolutions and set
+points, with its coherence. Harmonics where the report's model does not hold
+are left out: multiples of the pole-pair count (current-sensor offsets at 1x
+and scale errors at 2x electrical, and their multiples) and of the cogging
+order (sec. 2.4, fig. 2.5). A constant fitted by least squares to the
+magnitude is delta*eps; its relative misfit is the report's "residue".
+
+Beyond the report, `fit_loop_to_response` reads the current loop's roll-off
+from the same responses: harmonic h of a trial at speed f lies at h f Hz, so
+the same harmonic rolls off differently at different speeds, which separates
+the loop from a constant gain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ilcpmac.errors import IdentificationError
+from ilcpmac.identify.loop import CurrentLoop, trial_amplitudes
+from ilcpmac.identify.reduction import BenchTables
+from ilcpmac.signals.harmonics import revolution_harmonics
+
+#: relative amplitude (of the largest harmonic) that counts as excited
+EXCITED = 1e-2
+#: coherence below which the response is not trusted (sec. 2.4: "should be close to one")
+MIN_COHERENCE = 0.5
+
+
+@dataclass(frozen=True)
+class SystemGainEstimate:
+    """The report's total-system-gain estimate (ch. 2) and its frequency responses.
+
+    Attributes
+    ----------
+    harmonics : ndarray of int
+        Excited harmonics 1..H of the theoretical torque.
+    response : ndarray, complex, shape (H,)
+        H1 response from theoretical to measured torque, averaged over revolutions and set points.
+    coherence : ndarray, shape (H,)
+    response_per_trial, coherence_per_trial : ndarray, shape (n_trials, H)
+        The same per set point (the report's figs. 2.4 and 2.5 show one curve each).
+    used : ndarray of bool, shape (H,)
+        Harmonics the constant is fitted to (not excluded, coherence high enough).
+    delta_epsilon, delta_epsilon_std : float
+        The fitted constant and its standard error.
+    residue : float
+        RMS of (|H| - delta_eps) over the used harmonics, relative to delta_eps.
+    loop_gain : float
+        delta*eps from the loop-corrected fit (`fit_loop_to_response`).
+    loop : CurrentLoop
+        The loop read from the roll-off (one time constant for all phases).
+    """
+
+    harmonics: np.ndarray
+    response: np.ndarray
+    coherence: np.ndarray
+    response_per_trial: np.ndarray
+    coherence_per_trial: np.ndarray
+    used: np.ndarray
+    delta_epsilon: float
+    delta_epsilon_std: float
+    residue: float
+    loop_gain: float
+    loop: CurrentLoop
+
+
+def theoretical_torque_tables(tables: BenchTables) -> np.ndarray:
+    """sum_p K_p I*_p per trial and count, N m (eq. 1.3 with alpha eps = 1, beta = 0, no cogging)."""
+    return np.stack([np.sum(tables.backemf_nm_per_a * t.i_ref_table_a, axis=1) for t in tables.trials])
+
+
+def excluded_harmonics(harmonics: np.ndarray, pole_pairs: int, cogging_order: int) -> np.ndarray:
+    """Where the report's model does not hold: multiples of the pole pairs and of the cogging order (fig. 2.5)."""
+    return (harmonics % pole_pairs == 0) | (harmonics % cogging_order == 0)
+
+
+def estimate_system_gain(tables: BenchTables) -> SystemGainEstimate:
+    """The report's ch. 2: H1 response, coherence, constant fit and residue, plus the loop read from the roll-off.
+
+    Raises
+    ------
+    IdentificationError
+        Without excitation beyond the set point, or when the coherence is too low.
+    """
+    cpr = tables.motor.counts_per_rev
+    theory = theoretical_torque_tables(tables)
+    x = trial_amplitudes(theory[:, :, None], cpr // 2 - 1)[:, :, 0]
+    size = np.abs(x[:, 1:]).max(axis=0)
+    if size.max() < 1e-12 or not np.any(size > EXCITED * size.max()):
+        raise IdentificationError("total system gain (ch. 2): no excitation - the torque reference has no ripple")
+    top = int(np.flatnonzero(size > EXCITED * size.max()).max()) + 1
+    h = np.arange(1, top + 1)
+    x = x[:, h]
+    y = np.empty_like(x)
+    y_scatter = np.empty(x.shape)
+    revolutions = np.array([t.revolutions for t in tables.trials], float)
+    for k, trial in enumerate(tables.trials):
+        mean, variance = revolution_harmonics(trial.count, trial.torque_nm, cpr, top)
+        y[k] = mean[h]
+        y_scatter[k] = variance[h] * (trial.revolutions - 1) * trial.revolutions  # sum_r |Y_r - mean|^2
+    r = revolutions[:, None]
+    s_yx = r * y * np.conj(x)
+    s_xx = r * np.abs(x) ** 2
+    s_yy = r * np.abs(y) ** 2 + y_scatter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        response_per_trial = s_yx / s_xx
+        coherence_per_trial = np.abs(s_yx) ** 2 / (s_xx * s_yy)
+        response = s_yx.sum(axis=0) / s_xx.sum(axis=0)
+        coherence = np.abs(s_yx.sum(axis=0)) ** 2 / (s_xx.sum(axis=0) * s_yy.sum(axis=0))
+    excited = size[h - 1] > EXCITED * size.max()
+    kept = excited & ~excluded_harmonics(h, tables.motor.pole_pairs, tables.motor.cogging_order)
+    used = kept & (coherence >= MIN_COHERENCE)
+    if used.sum() < max(3, kept.sum() // 4):
+        raise IdentificationError(
+            f"total system gain (ch. 2): coherence too low - {int(used.sum())} of {int(kept.sum())} harmonics "
+            f"reach {MIN_COHERENCE} (median {np.nanmedian(coherence[kept]):.2f})")
+    magnitude = np.abs(response[used])
+    gain = float(magnitude.mean())
+    speeds = np.array([t.speed_hz for t in tables.trials])
+    weights = np.where(used, 1.0, 0.0)[None, :] * s_xx
+    loop_gain, loop = fit_loop_to_response(h, speeds, response_per_trial, weights, cpr)
+    return SystemGainEstimate(
+        harmonics=h, response=response, coherence=coherence, response_per_trial=response_per_trial,
+        coherence_per_trial=coherence_per_trial, used=used, delta_epsilon=gain,
+        delta_epsilon_std=float(magnitude.std(ddof=1) / np.sqrt(magnitude.size)),
+        residue=float(np.sqrt(np.mean((magnitude - gain) ** 2)) / gain), loop_gain=loop_gain, loop=loop)
+
+
+def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses: np.ndarray,
+                         weights: np.ndarray, counts_per_rev: int) -> tuple[float, CurrentLoop]:
+    """Fit H_k(h) = g G(h, f_k) to per-trial responses: a gain and one first-order loop with a delay.
+
+    Parameters
+    ----------
+    harmonics : ndarray of int, shape (H,)
+    speeds_hz : ndarray, shape (n_trials,)
+    responses : ndarray, complex, shape (n_trials, H)
+    weights : ndarray, shape (n_trials, H)
+        Zero where a harmonic is not to be used.
+    counts_per_rev : int
+
+    Returns
+    -------
+    gain : float
+        g, the loop-corrected delta*eps.
+    loop : CurrentLoop
+        The same time constant for all phases.
+    """
+    root = np.sqrt(weights / weights.max())
+    valid = root > 0
+
+    def residual(params: np.ndarray) -> np.ndarray:
+        gain, tau, delay = params
+        loop = CurrentLoop(np.full(3, tau), delay)
+        model = np.stack([gain * loop.response(harmonics, f, counts_per_rev)[:, 0] for f in speeds_hz])
+        error = np.where(valid, root * (np.nan_to_num(responses) - model), 0.0).ravel()
+        return np.concatenate([error.real, error.imag])
+
+    start = np.array([np.abs(responses[valid]).mean(), 1e-4, 0.0])
+    fit = least_squares(residual, start, bounds=([0.0, 0.0, -np.inf], np.inf), x_scale=[0.1, 1e-3, 1e-4])
+    return float(fit.x[0]), CurrentLoop(np.full(3, fit.x[1]), fit.x[2])

@@ -1,0 +1,67 @@
+"""Shared benches for the identification tests: cached, seeded, built in memory.
+
+Not a conftest: the tests import what they need from here.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.identify import IdentificationResult, identify_bench
+from ilcpmac.identify.synthetic import SyntheticCampaign, SyntheticMotor, SyntheticSensors, synthetic_bench
+
+SEED_CONFIG = "configs/seed-bench.toml"
+
+
+@lru_cache(maxsize=None)
+def seed_bench() -> tuple[Bench, dict]:
+    """The seed bench of configs/seed-bench.toml, simulated in memory (30 trials, 8 revolutions)."""
+    from pathlib import Path
+
+    from ilcpmac.config import load_config
+    from ilcpmac.sim.grid import grid_requests, truth_dict
+    from ilcpmac.sim.simulator import Simulator
+
+    config = load_config(Path(__file__).resolve().parents[1] / SEED_CONFIG)
+    simulator = Simulator(config.model, config.grid.warmup_revolutions)
+    requests = grid_requests(config, config.grid.seed, config.grid.revolutions)
+    trials = simulator.run_trials(requests)
+    m = config.model
+    bench = Bench(MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
+                  simulator.backemf_counts, requests[0].calibration, tuple(trials),
+                  tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))))
+    return bench, truth_dict(simulator, requests[0])
+
+
+#: a motor unlike the seed bench: 4 pole pairs, 36 slots (cogging order 72), 2048 counts
+OTHER_MOTOR = SyntheticMotor()
+OTHER_SENSORS = SyntheticSensors(delta=0.9, epsilon=0.8, alpha=(0.9, 1.05, 1.05), beta_a=(0.3, -0.2, 0.1))
+
+
+@lru_cache(maxsize=None)
+def other_bench(loop_hz: float | None = None, skip_fraction: float = 0.0, highpass_hz: float = 0.0,
+                seed: int = 1) -> tuple[Bench, dict]:
+    """A synthetic bench of OTHER_MOTOR (3 torques x 2 speeds, 4 revolutions)."""
+    campaign = SyntheticCampaign(current_loop_hz=loop_hz, skip_fraction=skip_fraction,
+                                 torque_highpass_hz=highpass_hz, seed=seed)
+    return synthetic_bench(OTHER_MOTOR, OTHER_SENSORS, campaign)
+
+
+@lru_cache(maxsize=None)
+def identified(kind: str, *args) -> tuple[IdentificationResult, dict]:
+    """identify_bench on ``seed_bench()`` ("seed") or ``other_bench(*args)`` ("other"), with the truth."""
+    bench, truth = seed_bench() if kind == "seed" else other_bench(*args)
+    return identify_bench(bench), truth
+
+
+def relative_error(estimate: float, truth: float) -> float:
+    return abs(estimate / truth - 1.0)
+
+
+def cogging_error(estimate: np.ndarray, truth: dict) -> float:
+    """RMS error of the cogging table relative to the true cogging's RMS."""
+    true = np.asarray(truth["cogging"]["torque"])
+    return float(np.sqrt(np.mean((estimate - true) ** 2) / np.mean(true**2)))

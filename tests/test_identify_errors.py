@@ -1,0 +1,83 @@
+"""Benches that cannot support an estimate: a clear message, the other estimates still reported; the CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from identify_helpers import OTHER_MOTOR, OTHER_SENSORS, other_bench
+
+from ilcpmac.bench.format import write_bench
+from ilcpmac.cli import main
+from ilcpmac.errors import IdentificationError
+from ilcpmac.identify import identify_bench
+from ilcpmac.identify.synthetic import SyntheticCampaign, synthetic_bench
+
+
+def _shortened(bench, keep_counts: int, indices):
+    """``bench`` with the trials at ``indices`` cut to their first ``keep_counts`` samples."""
+    trials = list(bench.trials)
+    for i in indices:
+        t = trials[i]
+        trials[i] = dataclasses.replace(t, count=t.count[:keep_counts], time_s=t.time_s[:keep_counts],
+                                        i_ref_a=t.i_ref_a[:keep_counts], torque_nm=t.torque_nm[:keep_counts])
+    return dataclasses.replace(bench, trials=tuple(trials))
+
+
+def test_a_trial_with_too_few_revolutions_is_left_out():
+    bench, truth = other_bench()
+    short = _shortened(bench, int(1.5 * bench.motor.counts_per_rev), [0])
+    result = identify_bench(short)
+    assert any("trial_01.csv" in m and "revolution" in m for m in result.messages)
+    assert result.delta_epsilon == pytest.approx(truth["total_system_gain"], rel=0.01)
+
+
+def test_no_trial_long_enough_is_an_error():
+    bench, _ = other_bench()
+    short = _shortened(bench, bench.motor.counts_per_rev, range(len(bench.trials)))
+    with pytest.raises(IdentificationError, match="no trial can be used"):
+        identify_bench(short)
+
+
+def test_no_excitation_keeps_the_inertia_estimate():
+    bench, truth = synthetic_bench(OTHER_MOTOR, OTHER_SENSORS, SyntheticCampaign(excitation_fraction=0.0, seed=3))
+    result = identify_bench(bench)
+    assert any("total system gain" in m and "no excitation" in m for m in result.messages)
+    assert result.delta_epsilon is None and result.alpha is None
+    assert result.delta == pytest.approx(truth["torque_sensor_gain"], rel=0.03)
+
+
+def test_single_set_point_falls_back_to_the_report():
+    """One trial: no inertia average and no joint fit; the report's ch. 2 and ch. 4 still answer."""
+    bench, truth = synthetic_bench(OTHER_MOTOR, OTHER_SENSORS, SyntheticCampaign(
+        torque_setpoints_nm=(2.0,), speed_setpoints_hz=(0.8,), seed=4))
+    result = identify_bench(bench)
+    assert any("torque-sensor gain" in m and "single set point" in m for m in result.messages)
+    assert any("joint fit" in m and "single trial" in m for m in result.messages)
+    assert result.delta is None and result.beta is None and result.calibration is None
+    assert result.delta_epsilon == result.methods["report"].delta_epsilon
+    assert result.delta_epsilon == pytest.approx(truth["total_system_gain"], rel=0.01)
+    np.testing.assert_allclose(result.alpha, truth["alpha"], atol=0.05)
+
+
+def test_cli_writes_the_result_and_a_table(tmp_path):
+    bench, truth = other_bench()
+    write_bench(tmp_path / "bench", bench)
+    runner = CliRunner()
+    out = runner.invoke(main, ["identify", str(tmp_path / "bench"), "--output", str(tmp_path / "result.json"),
+                               "--plots", str(tmp_path / "plots")])
+    assert out.exit_code == 0, out.output
+    data = json.loads((tmp_path / "result.json").read_text())
+    assert data["total_system_gain"] == pytest.approx(truth["total_system_gain"], rel=0.005)
+    assert "delta*eps" in out.output
+    assert len(list((tmp_path / "plots").glob("fig*.png"))) == 8
+
+
+def test_cli_reports_an_invalid_folder_in_one_line(tmp_path):
+    out = CliRunner().invoke(main, ["identify", str(tmp_path / "missing"), "--output", str(tmp_path / "r.json")])
+    assert out.exit_code == 2
+    errors = [line for line in out.output.splitlines() if line.startswith("error:")]
+    assert errors == [f"error: {tmp_path / 'missing'}: not a folder"]
