@@ -21,7 +21,7 @@ from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import PipelineSettings, load_config
 from ilcpmac.identify import identify_bench
 from ilcpmac.stages import Frame, StageSetup
-from ilcpmac.stages.base import plant_response, read_options
+from ilcpmac.stages.base import read_options
 
 
 class OneHarmonicCanceller:
@@ -32,7 +32,7 @@ class OneHarmonicCanceller:
     def __init__(self, setup: StageSetup) -> None:
         opts = read_options(setup.options, {"order": 20, "gain": 0.5}, self.name)
         self.order, self.gain = opts["order"], opts["gain"]
-        self.bandwidth_hz = setup.identified.current_loop_bandwidth_hz
+        self.setup = setup
         cpr = setup.description.motor.counts_per_rev
         self.theta = 2 * np.pi * np.arange(cpr) / cpr
         self.c = 0j  # correction, complex amplitude in N m
@@ -45,7 +45,7 @@ class OneHarmonicCanceller:
         return request.with_changes(feedforward_nm=request.feedforward_nm + table)
 
     def learn(self, trial, frame: Frame):
-        g = plant_response(np.array([self.order]), frame.speed_hz, self.bandwidth_hz)[0]
+        g = self.setup.torque_response(np.array([self.order]), frame.speed_hz, trial.request.calibration)[0]
         self.c -= self.gain * frame.learning_gain * frame.torque_harmonics_nm[self.order] / g
 
     def state(self):

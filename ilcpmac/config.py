@@ -46,7 +46,7 @@ class CampaignSettings:
     ilc_torque_setpoints_nm: tuple[float, ...] = _check(_positive, "ILC set points spanning the torque range, N m",
                                                         (1.0, 3.0, 5.0))
     ilc_speed_setpoint_hz: float = _check(_positive, "speed of the compensation and ILC trials, Hz", 0.75)
-    ilc_revolutions: int = _check(_positive, "recorded revolutions per compensation and ILC trial", 32)
+    ilc_revolutions: int = _check(_positive, "recorded revolutions per compensation and ILC trial", 48)
     ilc_trials: int = _check(_positive, "most ILC trials per set point", 10)
     min_improvement: float = _check(lambda x: 0 <= x < 1, "relative ripple improvement that counts", 0.05)
     patience: int = _check(_positive, "ILC trials without improvement before a set point stops", 3)

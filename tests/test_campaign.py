@@ -36,7 +36,6 @@ class TruthIdentification:
         cpr = sim.model.encoder.counts_per_rev
         request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration())
         self._json = truth_dict(sim, request)
-        self.current_loop_bandwidth_hz = sim.model.controller.bandwidth_hz
         self.calls = 0
 
     def __call__(self, bench):

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 from ilcpmac.backends.base import BenchDescription
@@ -144,7 +145,9 @@ class RunDir:
 
     def _commit(self, index: int, trial: TrialData, state: dict, summary: dict,
                 entries: list[tuple[str, float, float]]) -> None:
-        write_trial_csv(self.path / trial_file(index), trial)
+        # the simulator's true currents and speed are not kept (the true torque is, for honest
+        # ripple figures): a 64-revolution trial is 30 % smaller and quicker to write
+        write_trial_csv(self.path / trial_file(index), replace(trial, i_true_a=None, speed_true_rad_s=None))
         atomic_write(self._state_path(self.path, index), json.dumps(state))
         self._write_bench_toml(entries)
         self.write_summary(summary)

@@ -62,8 +62,6 @@ class Step:
 class Identification(Protocol):
     """What the identification returns (ilcpmac.identify.IdentificationResult)."""
 
-    current_loop_bandwidth_hz: float | None
-
     def to_json(self) -> dict: ...
 
 
@@ -268,14 +266,12 @@ class CampaignRunner:
                       tuple(grid_trials), tuple(f"trial_{i:03d}.csv" for i in range(1, len(grid_trials) + 1)))
         result = self.identify(bench)
         self.identification_json = result.to_json()
-        self.identified = Identified.from_result(self.identification_json, self.description.calibration,
-                                                 result.current_loop_bandwidth_hz)
+        self.identified = Identified.from_result(self.identification_json, self.description.calibration)
         for record, trial in zip(self.records, grid_trials):
             trial = replace(trial, request=replace(self.grid[record["index"] - 1]))
             record.update(_figures("measured", self._measured_figures(trial)))
         self.run_dir.write_json("identification.json", {
-            "result": self.identification_json, "current_loop_bandwidth_hz": result.current_loop_bandwidth_hz,
-            "grid_records": self.records[: len(self.grid)]})
+            "result": self.identification_json, "grid_records": self.records[: len(self.grid)]})
         self.run_dir.write_summary(self.summary())
 
     def _start_pipeline(self) -> None:
@@ -314,8 +310,7 @@ class CampaignRunner:
                 self._identify(self._grid_trials())
             else:
                 self.identification_json = saved["result"]
-                self.identified = Identified.from_result(saved["result"], self.description.calibration,
-                                                         saved["current_loop_bandwidth_hz"])
+                self.identified = Identified.from_result(saved["result"], self.description.calibration)
                 self.records[: len(self.grid)] = saved["grid_records"]
         last = self.run_dir.state(done)
         self.gains = dict(last.get("gains", {}))

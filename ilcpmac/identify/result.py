@@ -121,6 +121,7 @@ class IdentificationResult:
                                   "current_offset": _json_value(self.calibration.current_offset),
                                   "torque_gain": float(self.calibration.torque_gain)}
         out["current_loop_bandwidth_hz"] = _json_value(self.current_loop_bandwidth_hz)
+        out["current_loop_bandwidth_per_phase_hz"] = _json_value(self.current_loop_bandwidth_per_phase_hz)
         out["methods"] = {name: {k: v for k, v in estimates.to_json().items() if k != "cogging"}
                           for name, estimates in self.methods.items()}
         out["diagnostics"] = self.diagnostics

@@ -47,6 +47,9 @@ def truth_dict(simulator: Simulator, request: TrialRequest) -> dict:
         "beta": t.beta_a.tolist(),
         "inertia_estimate": t.delta * simulator.model.mechanics.inertia_kgm2,
         "cogging": {"count": list(range(cpr)), "torque": simulator.cogging_counts().tolist()},
+        # the PI loop closes on the measured current, 1 / (epsilon alpha_p) times the true one
+        "current_loop_bandwidth_per_phase_hz": (simulator.model.controller.bandwidth_hz
+                                                / (t.epsilon * t.alpha)).tolist(),
         "calibration": {
             "current_scale": simulator.scale_true.tolist(),
             "current_offset": simulator.offset_true.tolist(),

@@ -36,23 +36,42 @@ class Identified:
     epsilon_std: float = 0.0
     alpha_std: np.ndarray = field(default_factory=lambda: np.zeros(3))
     beta_std_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    current_loop_bandwidth_hz: float | None = None
+    current_loop_bandwidth_per_phase_hz: np.ndarray | None = None
 
     @classmethod
-    def from_result(cls, result: dict, calibration: SensorCalibration,
-                    current_loop_bandwidth_hz: float | None = None) -> "Identified":
-        """Build from an identification result JSON (BENCH_FORMAT.md keys)."""
+    def from_result(cls, result: dict, calibration: SensorCalibration) -> "Identified":
+        """Build from an identification result JSON (BENCH_FORMAT.md keys, plus the current loop's
+        ``current_loop_bandwidth_per_phase_hz`` or ``current_loop_bandwidth_hz`` when identified)."""
 
         def std(key, default):
-            return np.asarray(result.get(key + "_std", default), float)
+            value = result.get(key + "_std")
+            return np.asarray(default if value is None else value, float)
 
+        bandwidth = result.get("current_loop_bandwidth_per_phase_hz") or result.get("current_loop_bandwidth_hz")
         return cls(
             delta=float(result["torque_sensor_gain"]), epsilon=float(result["epsilon"]),
             alpha=np.asarray(result["alpha"], float), beta_a=np.asarray(result["beta"], float),
             cogging_nm=np.asarray(result["cogging"]["torque"], float), calibration=calibration,
             delta_std=float(std("torque_sensor_gain", 0.0)), epsilon_std=float(std("epsilon", 0.0)),
             alpha_std=std("alpha", np.zeros(3)), beta_std_a=std("beta", np.zeros(3)),
-            current_loop_bandwidth_hz=current_loop_bandwidth_hz)
+            current_loop_bandwidth_per_phase_hz=None if bandwidth is None else np.broadcast_to(
+                np.asarray(bandwidth, float), (3,)).copy())
+
+    def loop_bandwidth_at(self, calibration: SensorCalibration) -> np.ndarray | None:
+        """Each phase's current-loop corner while the controller uses ``calibration``, Hz.
+
+        The PI loop closes on the measured current, (G*_s^-1 G_s)^-1 = 1 / (epsilon alpha_p)
+        times the true one, so its corner scales with 1 / (epsilon alpha_p).
+        """
+        if self.current_loop_bandwidth_per_phase_hz is None:
+            return None
+        return (self.current_loop_bandwidth_per_phase_hz * self.epsilon_alpha_at(self.calibration)
+                / self.epsilon_alpha_at(calibration))
+
+    def mean_loop_bandwidth_at(self, calibration: SensorCalibration) -> float | None:
+        """The phases' mean current-loop corner at ``calibration``, Hz (None if not identified)."""
+        bandwidth = self.loop_bandwidth_at(calibration)
+        return None if bandwidth is None else float(np.mean(bandwidth))
 
     @property
     def sensor_gain(self) -> np.ndarray:
@@ -91,6 +110,15 @@ class StageSetup:
     identified: Identified
     max_harmonic: int
     options: dict = field(default_factory=dict)
+
+    def torque_response(self, harmonics: np.ndarray, speed_hz: float,
+                        calibration: SensorCalibration) -> np.ndarray:
+        """Torque reference to true torque at mechanical harmonics h, while the controller uses
+        ``calibration``: mean(epsilon alpha) times the identified current loop and the reference hold."""
+        ident = self.identified
+        gain = float(np.mean(ident.epsilon_alpha_at(calibration)))
+        return gain * plant_response(harmonics, speed_hz, ident.mean_loop_bandwidth_at(calibration),
+                                     self.description.motor.counts_per_rev)
 
 
 @dataclass(frozen=True)
@@ -175,11 +203,17 @@ def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[st
     return values
 
 
-def plant_response(harmonics: np.ndarray, speed_hz: float, bandwidth_hz: float | None) -> np.ndarray:
-    """Torque reference to torque at mechanical harmonics h: the current loop's first-order lag.
+def plant_response(harmonics: np.ndarray, speed_hz: float, bandwidth_hz: float | None,
+                   counts_per_rev: int) -> np.ndarray:
+    """Current reference to current at mechanical harmonics h (per unit).
 
-    1 / (1 + j h f_m / f_bw) at frequency h f_m; 1 when no bandwidth was identified.
+    The controller holds each count's reference until the next count (a
+    half-count delay, exp(-j pi h / counts_per_rev)), and the current loop
+    lags it as a first order 1 / (1 + j h f_m / f_bw) at frequency h f_m (no
+    lag when no bandwidth was identified).
     """
+    h = np.asarray(harmonics, float)
+    hold = np.exp(-1j * np.pi * h / counts_per_rev)
     if bandwidth_hz is None:
-        return np.ones(len(harmonics), complex)
-    return 1.0 / (1.0 + 1j * np.asarray(harmonics) * speed_hz / bandwidth_hz)
+        return hold
+    return hold / (1.0 + 1j * h * speed_hz / bandwidth_hz)

@@ -5,8 +5,10 @@ multiples of the cogging order lcm(slots, 2 pole_pairs) up to H, in true
 torque units (N m). In the joint fit their columns have coefficients
 delta_j times the state (the feed-forward itself acts through the current
 columns), so H_j = delta_j I (eq. 1.13 restricted to the cogging harmonics).
-The feed-forward is divided by the identified current loop's response at the
-request's speed, so that the torque the loop delivers cancels the cogging.
+The feed-forward is divided by the torque response to the reference (the
+sensors' gain, the reference hold and the identified current loop at the
+request's calibration and speed), so that the torque delivered cancels the
+cogging.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 from ilcpmac.estimators.kalman import KalmanEstimator
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, harmonic_columns
-from ilcpmac.stages.base import Frame, StageSetup, plant_response, read_options
+from ilcpmac.stages.base import Frame, StageSetup, read_options
 
 DEFAULTS = {"prior_std_nm": 0.01, "process_noise_nm": 1e-4}
 
@@ -34,7 +36,7 @@ class CoggingFeedForward:
         opts = read_options(setup.options, DEFAULTS, self.name)
         motor = setup.description.motor
         self._cpr = motor.counts_per_rev
-        self._bandwidth_hz = setup.identified.current_loop_bandwidth_hz
+        self._setup = setup
         self.orders = np.arange(motor.cogging_order, setup.max_harmonic + 1, motor.cogging_order)
         c = harmonic_amplitudes(setup.identified.cogging_nm)[self.orders]
         # tau_c = sum Re(c e^{j h theta}) = sum Re(c) cos - Im(c) sin
@@ -46,18 +48,18 @@ class CoggingFeedForward:
         """The estimated cogging torque per encoder count, N m."""
         return harmonic_columns(self._theta, self.orders) @ self._kalman.x
 
-    def feedforward_nm(self, speed_hz: float) -> np.ndarray:
-        """Minus the cogging torque, through the inverse of the identified current loop at ``speed_hz``."""
+    def feedforward_nm(self, request: TrialRequest) -> np.ndarray:
+        """Minus the cogging torque, through the inverse of the identified current loop for ``request``."""
         n = len(self.orders)
         c = self._kalman.x[:n] - 1j * self._kalman.x[n:]  # complex amplitudes, tau = Re(c e^{j h theta})
-        c = c / plant_response(self.orders, speed_hz, self._bandwidth_hz)
+        c = c / self._setup.torque_response(self.orders, request.speed_setpoint_hz, request.calibration)
         return -(harmonic_columns(self._theta, self.orders) @ np.concatenate([c.real, -c.imag]))
 
     def columns(self, trial: TrialData) -> np.ndarray:
         return harmonic_columns(self._theta, self.orders)
 
     def shape(self, request: TrialRequest) -> TrialRequest:
-        ff = self.feedforward_nm(request.speed_setpoint_hz)
+        ff = self.feedforward_nm(request)
         return request.with_changes(feedforward_nm=request.feedforward_nm + ff)
 
     def learn(self, trial: TrialData, frame: Frame) -> None:

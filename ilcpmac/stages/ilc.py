@@ -7,8 +7,9 @@ harmonics in true units:
 
     u_{j+1} = Q (u_j + gamma L eps_j),   eps_j = -(estimated ripple under u_j),   L = 1 / G^
 
-G^(h) = mean(epsilon alpha) at the trial's calibration times the identified
-current loop 1 / (1 + j h f_m / f_bw); Q is a zero-phase (real) low-pass over
+G^(h) = mean(epsilon alpha) at the trial's calibration times the reference
+hold exp(-j pi h / counts_per_rev) and the identified current loop
+1 / (1 + j h f_m / f_bw) (`StageSetup.torque_response`); Q is a zero-phase (real) low-pass over
 harmonics (1 up to the cut-off harmonic, 0 above). Harmonic 0 is
 never touched: the mean torque stays the set point's. Because u is the total
 feed-forward, the stage stays consistent when earlier stages change theirs.
@@ -78,6 +79,7 @@ class IterativeLearningControl:
         self.options = opts
         self._cpr = setup.description.motor.counts_per_rev
         self._identified = setup.identified
+        self._setup = setup
         self._max_harmonic = min(setup.max_harmonic, opts["q_cutoff_harmonic"])
         self._h = np.arange(1, self._max_harmonic + 1)
         self._q = q_filter(self._h, opts["q_cutoff_harmonic"])
@@ -88,8 +90,7 @@ class IterativeLearningControl:
 
     def plant(self, request: TrialRequest, speed_hz: float) -> np.ndarray:
         """G^(h): torque reference to true torque per harmonic at this calibration and speed."""
-        gain = float(np.mean(self._identified.epsilon_alpha_at(request.calibration)))
-        return gain * plant_response(self._h, speed_hz, self._identified.current_loop_bandwidth_hz)
+        return self._setup.torque_response(self._h, speed_hz, request.calibration)
 
     def check_convergence(self, request: TrialRequest) -> None:
         """Raise `ConfigError` unless |1 - L G| < 1/|Q| for G within the model uncertainty."""
@@ -97,12 +98,13 @@ class IterativeLearningControl:
         speed = request.speed_setpoint_hz
         model = self.plant(request, speed)
         gamma = self.options["learning_gain"]
-        bandwidth = self._identified.current_loop_bandwidth_hz
+        bandwidth = self._identified.mean_loop_bandwidth_at(request.calibration)
+        cpr = self._cpr
         worst = np.zeros(self._h.size)
         for g_scale in (1 - u, 1 + u):
             for bw_scale in ((1 - u, 1 + u) if bandwidth else (1.0,)):
-                true = g_scale * model * plant_response(self._h, speed, bandwidth and bandwidth * bw_scale) \
-                    / plant_response(self._h, speed, bandwidth)
+                true = g_scale * model * plant_response(self._h, speed, bandwidth and bandwidth * bw_scale, cpr) \
+                    / plant_response(self._h, speed, bandwidth, cpr)
                 worst = np.maximum(worst, np.abs(1.0 - gamma * true / model))
         passband = self._q > 0
         bad = passband & (worst * self._q >= 1.0)

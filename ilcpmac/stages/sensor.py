@@ -27,20 +27,41 @@ from ilcpmac.stages.base import Frame, StageSetup, plant_response, read_options
 DEFAULTS = {"process_noise_rel": 1e-4, "prior_std_rel": 0.02}
 
 
-def filtered_references(trial: TrialData, counts_per_rev: int, bandwidth_hz: float | None) -> np.ndarray:
-    """I*_p through the current loop per count, (counts_per_rev, 3): each harmonic times its lag."""
+def filtered_references(trial: TrialData, counts_per_rev: int, bandwidth_hz: np.ndarray | None) -> np.ndarray:
+    """I*_p as the currents follow it, per count, (counts_per_rev, 3): each harmonic times the
+    reference hold and the phase's current loop."""
     table = synchronous_average(trial.count, trial.i_ref_a, counts_per_rev)
-    if bandwidth_hz is not None:
-        spectrum = np.fft.rfft(table, axis=0)
-        h = np.arange(spectrum.shape[0])
-        spectrum *= plant_response(h, trial_speed_hz(trial, counts_per_rev), bandwidth_hz)[:, None]
-        table = np.fft.irfft(spectrum, n=counts_per_rev, axis=0)
-    return table
+    spectrum = np.fft.rfft(table, axis=0)
+    h = np.arange(spectrum.shape[0])
+    speed = trial_speed_hz(trial, counts_per_rev)
+    for p in range(3):
+        spectrum[:, p] *= plant_response(h, speed, None if bandwidth_hz is None else bandwidth_hz[p],
+                                         counts_per_rev)
+    return np.fft.irfft(spectrum, n=counts_per_rev, axis=0)
 
 
 def trial_speed_hz(trial: TrialData, counts_per_rev: int) -> float:
     """Mean mechanical speed over the trial, Hz."""
     return float((trial.count[-1] - trial.count[0]) / counts_per_rev / (trial.time_s[-1] - trial.time_s[0]))
+
+
+def _without_common_modes(information: np.ndarray) -> np.ndarray:
+    """The information about the imbalance and the offsets' differential part alone.
+
+    Without excitation the common modes (the sum of the gains, the sum of the
+    offsets) are seen only through the feed-forward, whose harmonics other
+    stages (cogging, ILC) put where unmodelled ripple is. They are
+    marginalised out: in the basis [common; differential] the differential
+    block's information is the Schur complement over the common one, mapped
+    back with zero information along the common directions.
+    """
+    common = np.array([[1, 1, 1, 0, 0, 0], [0, 0, 0, 1, 1, 1]]).T / np.sqrt(3.0)
+    differential = np.linalg.svd(np.eye(6) - common @ common.T)[0][:, :4]
+    basis = np.hstack([common, differential])
+    rotated = basis.T @ information @ basis
+    cc, cd, dd = rotated[:2, :2], rotated[:2, 2:], rotated[2:, 2:]
+    marginal = dd - cd.T @ np.linalg.pinv(cc, hermitian=True) @ cd
+    return differential @ marginal @ differential.T
 
 
 class CurrentSensorCorrection:
@@ -59,7 +80,6 @@ class CurrentSensorCorrection:
         ident = setup.identified
         self._backemf = setup.description.backemf_nm_per_a
         self._cpr = setup.description.motor.counts_per_rev
-        self._bandwidth_hz = ident.current_loop_bandwidth_hz
         self._torque_gain = ident.torque_gain_v_per_nm
         self._identified = ident
         gain = ident.sensor_gain  # G_s, A / count
@@ -79,7 +99,8 @@ class CurrentSensorCorrection:
 
     def columns(self, trial: TrialData) -> np.ndarray:
         k = self._backemf
-        return np.hstack([k * filtered_references(trial, self._cpr, self._bandwidth_hz), k])
+        bandwidth = self._identified.loop_bandwidth_at(trial.request.calibration)
+        return np.hstack([k * filtered_references(trial, self._cpr, bandwidth), k])
 
     def shape(self, request: TrialRequest) -> TrialRequest:
         return request.with_changes(calibration=self.calibration())
@@ -91,12 +112,7 @@ class CurrentSensorCorrection:
         block = frame.block(self.name)
         information = block.information
         if not np.any(trial.request.excitation_nm):
-            # Without excitation the common modes are seen only through the feed-forward, whose
-            # harmonics other stages (cogging, ILC) put where unmodelled ripple is: learn only the
-            # imbalance (alpha) and the offsets' differential part from such a trial.
-            common = np.array([[1, 1, 1, 0, 0, 0], [0, 0, 0, 1, 1, 1]]).T / np.sqrt(3.0)
-            keep = np.eye(6) - common @ common.T
-            information = keep @ information @ keep
+            information = _without_common_modes(information)
         self._kalman.update_block(block.estimate, information, H)
 
     def state(self) -> dict:

@@ -3,7 +3,8 @@
 Per set point and chosen harmonic h, a Kalman filter (across trials)
 estimates the disturbance d_h from z_h = e_h - G(h) c_h, where e_h is the
 measured torque harmonic in true units, c_h the correction the trial carried
-and G the identified current loop; the next correction is c_h = -d_h / G(h).
+and G the identified torque response (`StageSetup.torque_response`); the next
+correction moves to -d_h / G(h) by the pipeline's learning gain.
 Other harmonics are left alone.
 """
 
@@ -15,7 +16,7 @@ from ilcpmac.errors import ConfigError
 from ilcpmac.estimators import KalmanEstimator
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.stages import Frame, StageSetup
-from ilcpmac.stages.base import plant_response, read_options
+from ilcpmac.stages.base import read_options
 
 DEFAULTS = {"orders": [1], "process_noise_nm": 1e-5}
 
@@ -27,12 +28,15 @@ class HarmonicCanceller:
 
     def __init__(self, setup: StageSetup) -> None:
         opts = read_options(setup.options, DEFAULTS, self.name)
-        self.orders = np.array(opts["orders"], int)
-        if self.orders.size == 0 or np.any(self.orders < 1) or np.any(self.orders > setup.max_harmonic):
-            raise ConfigError(f"[stages.{self.name}] orders: need harmonics in 1..{setup.max_harmonic}")
+        orders = opts["orders"]
+        if (not orders or not all(type(h) is int and 1 <= h <= setup.max_harmonic for h in orders)
+                or len(set(orders)) != len(orders)):
+            raise ConfigError(f"[stages.{self.name}] orders: need distinct integer harmonics in "
+                              f"1..{setup.max_harmonic}, got {orders!r}")
+        self.orders = np.array(orders, int)
+        self._setup = setup
         self._q = opts["process_noise_nm"] ** 2
         self._cpr = setup.description.motor.counts_per_rev
-        self._bandwidth_hz = setup.identified.current_loop_bandwidth_hz
         self._theta = 2.0 * np.pi * np.arange(self._cpr) / self._cpr
         self._correction: dict[str, np.ndarray] = {}  # complex amplitude per order, N m, per set point
         self._kalman: dict[str, KalmanEstimator] = {}
@@ -59,14 +63,15 @@ class HarmonicCanceller:
         if np.any(trial.request.excitation_nm):
             return  # an identification trial: its ripple is mostly the excitation
         key = self._key(trial.request)
-        g = plant_response(self.orders, frame.speed_hz, self._bandwidth_hz)
+        g = self._setup.torque_response(self.orders, frame.speed_hz, trial.request.calibration)
         applied = self._correction.get(key, np.zeros(self.orders.size, complex))
         z = frame.torque_harmonics_nm[self.orders] - g * applied
         var = frame.torque_harmonics_var[self.orders] / 2.0  # per real component
         kalman = self._filter(key)
         kalman.update(np.concatenate([z.real, z.imag]), np.concatenate([var, var]))
         d = kalman.x[: self.orders.size] + 1j * kalman.x[self.orders.size:]
-        self._correction[key] = -d / g
+        # move towards -d / G, by the pipeline's learning gain (the guard halves it)
+        self._correction[key] = applied + frame.learning_gain * (-d / g - applied)
 
     def state(self) -> dict:
         return {key: {"re": c.real.tolist(), "im": c.imag.tolist(), "kalman": self._kalman[key].state()}
