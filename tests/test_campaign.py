@@ -15,46 +15,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ilcpmac.backends.base import BenchLimits
+from campaign_helpers import SMALL_CAMPAIGN, Quiet, run_campaign, simulator_backend
+
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import read_bench
 from ilcpmac.campaign.rundir import RunDir, RunDirError
-from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import load_config
 from ilcpmac.records import TrialData, TrialRequest
-from ilcpmac.sim.grid import truth_dict
 
 SUMMARY_KEYS = {"index", "phase", "torque_setpoint", "speed_setpoint", "ripple_pp_measured",
                 "ripple_rms_measured", "ripple_pp_true", "ripple_rms_true"}
 
 
-class TruthIdentification:
-    """The identification's answer taken from the simulator's truth (dependency injection)."""
-
-    def __init__(self, backend: SimulatorBackend) -> None:
-        sim = backend.simulator
-        cpr = sim.model.encoder.counts_per_rev
-        request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration())
-        self._json = truth_dict(sim, request)
-        self.calls = 0
-
-    def __call__(self, bench):
-        self.calls += 1
-        return self
-
-    def to_json(self) -> dict:
-        return self._json
-
-
-class Quiet:
-    def __init__(self) -> None:
-        self.messages: list[str] = []
-
-    def trial(self, record: dict, records: list[dict]) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        self.messages.append(text)
+@pytest.fixture
+def campaign_config(write_config):
+    return load_config(write_config(SMALL_CAMPAIGN))
 
 
 class Crash(RuntimeError):
@@ -78,35 +53,8 @@ class CrashingBackend:
         return self.backend.run_trial(request)
 
 
-@pytest.fixture
-def campaign_config(write_config):
-    """A small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials."""
-    path = write_config({
-        "encoder": {"counts_per_rev": 1024},
-        "excitation": {"harmonics": 100},
-        "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
-        "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": 6, "ilc_trials": 4,
-                     "ripple_harmonics": 100},
-        "stages": {"ilc": {"learning_gain": 1.0, "q_cutoff_harmonic": 100, "estimation": "kalman"}},
-    })
-    return load_config(path)
-
-
-def _backend(cfg) -> SimulatorBackend:
-    return SimulatorBackend(cfg.model, BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm,
-                                                   cfg.limits.max_speed_hz), cfg.grid.warmup_revolutions)
-
-
-def _run(cfg, out: Path, backend=None, resume: bool = False, events=None) -> dict:
-    sim = _backend(cfg)
-    backend = backend or sim
-    run_dir = RunDir.resume(out, sim.describe()) if resume else \
-        RunDir.create(out, sim.describe(), cfg.path.read_text())
-    return CampaignRunner(cfg, backend, run_dir, 7, TruthIdentification(sim), events or Quiet()).run()
-
-
 def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_config, tmp_path):
-    summary = _run(campaign_config, tmp_path / "run")
+    summary = run_campaign(campaign_config, tmp_path / "run")
     records = summary["trials"]
     roles = [r["role"] for r in records]
     assert roles[:4] == ["grid"] * 4
@@ -129,26 +77,26 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
 
 
 @pytest.mark.parametrize("fail_on_call", [3, 9])  # in the parallel grid, and in the ILC phase
-def test_resume_after_a_crash_ends_as_an_uninterrupted_run(campaign_config, tmp_path, fail_on_call):
-    reference = _run(campaign_config, tmp_path / "reference")
+def test_resume_after_a_crash_ends_as_an_uninterruptedrun_campaign(campaign_config, tmp_path, fail_on_call):
+    reference = run_campaign(campaign_config, tmp_path / "reference")
     crashed = tmp_path / "crashed"
     with pytest.raises(Crash):
-        _run(campaign_config, crashed, CrashingBackend(_backend(campaign_config), fail_on_call))
+        run_campaign(campaign_config, crashed, CrashingBackend(simulator_backend(campaign_config), fail_on_call))
     listed = read_bench(crashed).trials
     assert len(listed) == fail_on_call - 1  # every finished trial committed, nothing of the failed one
     assert sorted(p.name for p in crashed.glob("trial_*")) == [f"trial_{i:03d}.csv" for i in range(1, fail_on_call)]
-    resumed = _run(campaign_config, crashed, resume=True)
+    resumed = run_campaign(campaign_config, crashed, resume=True)
     assert resumed == reference
 
 
 def test_leftovers_of_an_uncommitted_trial_are_removed_on_resume(campaign_config, tmp_path):
-    _run(dataclasses.replace(campaign_config, campaign=dataclasses.replace(campaign_config.campaign,
+    run_campaign(dataclasses.replace(campaign_config, campaign=dataclasses.replace(campaign_config.campaign,
                                                                            ilc_trials=1)), tmp_path / "run")
     run = tmp_path / "run"
     n = len(read_bench(run).trials)
     (run / f"trial_{n + 1:03d}.csv").write_text("count,time\n0,")  # half a trial, never listed
     (run / "states" / f"trial_{n + 1:03d}.json.tmp").write_text("{")
-    RunDir.resume(run, _backend(campaign_config).describe())
+    RunDir.resume(run, simulator_backend(campaign_config).describe())
     assert not (run / f"trial_{n + 1:03d}.csv").exists()
     assert not (run / "states" / f"trial_{n + 1:03d}.json.tmp").exists()
 
@@ -157,7 +105,7 @@ def test_an_existing_run_directory_is_not_overwritten(campaign_config, tmp_path)
     (tmp_path / "run").mkdir()
     (tmp_path / "run" / "keep.txt").write_text("data")
     with pytest.raises(RunDirError, match="exists and is not empty.*--resume"):
-        _run(campaign_config, tmp_path / "run")
+        run_campaign(campaign_config, tmp_path / "run")
     assert (tmp_path / "run" / "keep.txt").read_text() == "data"
 
 
@@ -186,7 +134,7 @@ def test_guard_reverts_and_halves_the_gain_when_the_ripple_grows_twice(campaign_
     events = Quiet()
     cfg = dataclasses.replace(campaign_config, campaign=dataclasses.replace(
         campaign_config.campaign, ilc_torque_setpoints_nm=(2.0,), ilc_trials=4, patience=4))
-    summary = _run(cfg, tmp_path / "run", GrowingRipple(_backend(cfg)), events=events)
+    summary = run_campaign(cfg, tmp_path / "run", GrowingRipple(simulator_backend(cfg)), events=events)
     guard = [m for m in events.messages if m.startswith("guard:")]
     assert guard and "halved the learning gain to 0.5" in guard[0]
     states = [json.loads(p.read_text()) for p in sorted((tmp_path / "run" / "states").glob("trial_*.json"))]

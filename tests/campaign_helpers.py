@@ -1,0 +1,71 @@
+"""Helpers for the campaign tests: a small campaign, its simulator, an identification from truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ilcpmac.backends.base import Backend, BenchLimits
+from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.campaign.rundir import RunDir
+from ilcpmac.campaign.runner import CampaignRunner
+from ilcpmac.config import CampaignConfig
+from ilcpmac.records import TrialRequest
+from ilcpmac.sim.grid import truth_dict
+
+#: a small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials
+SMALL_CAMPAIGN = {
+    "encoder": {"counts_per_rev": 1024},
+    "excitation": {"harmonics": 100},
+    "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
+    "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": 6, "ilc_trials": 4,
+                 "ripple_harmonics": 100},
+    "stages": {"ilc": {"learning_gain": 1.0, "q_cutoff_harmonic": 100, "estimation": "kalman"}},
+}
+
+
+class TruthIdentification:
+    """The identification's answer taken from the simulator's truth (dependency injection), so
+    that campaign tests test the campaign; the estimators are tested in test_identify_*.py."""
+
+    def __init__(self, backend: SimulatorBackend) -> None:
+        sim = backend.simulator
+        cpr = sim.model.encoder.counts_per_rev
+        request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration())
+        self._json = truth_dict(sim, request)
+
+    def __call__(self, bench):
+        return self
+
+    def to_json(self) -> dict:
+        return self._json
+
+
+class Quiet:
+    """Campaign events that only collect the messages."""
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    def trial(self, record: dict, records: list[dict]) -> None:
+        pass
+
+    def message(self, text: str) -> None:
+        self.messages.append(text)
+
+
+def simulator_backend(cfg: CampaignConfig) -> SimulatorBackend:
+    """The simulator of ``cfg`` with its limits."""
+    return SimulatorBackend(cfg.model, BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm,
+                                                   cfg.limits.max_speed_hz), cfg.grid.warmup_revolutions)
+
+
+def run_campaign(cfg: CampaignConfig, out: Path, backend: Backend | None = None, resume: bool = False,
+                 events=None) -> dict:
+    """Run (or resume) ``cfg`` into ``out`` with seed 7; the truth's identification."""
+    sim = simulator_backend(cfg)
+    backend = backend or sim
+    run_dir = RunDir.resume(out, sim.describe()) if resume else \
+        RunDir.create(out, sim.describe(), cfg.path.read_text())
+    return CampaignRunner(cfg, backend, run_dir, 7, TruthIdentification(sim), events or Quiet()).run()
