@@ -16,10 +16,12 @@ import numpy as np
 
 from ilcpmac.backends.base import BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.bench.format import read_bench
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import PipelineSettings, load_config
 from ilcpmac.identify import identify_bench
+from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.stages import Frame, StageSetup
 from ilcpmac.stages.base import read_options
 
@@ -78,7 +80,13 @@ def main() -> None:
         run_dir = RunDir.create(Path(tmp) / "run", backend.describe(), cfg.path.read_text())
         runner = CampaignRunner(cfg, backend, run_dir, seed=1, identify=identify_bench, events=Printer(),
                                 extra_stages={"one-harmonic": OneHarmonicCanceller})
-        runner.run()
+        summary = runner.run()
+        # the run directory is a bench folder: compare the true torque at harmonic 20, first and last trial
+        bench = read_bench(run_dir.path)
+        first = next(i for i, r in enumerate(summary["trials"]) if r["role"] == "compensate")
+        for label, trial in (("before", bench.trials[first]), ("after", bench.trials[-1])):
+            table = synchronous_average(trial.count, trial.torque_true_nm, bench.motor.counts_per_rev)
+            print(f"{label}: true torque at harmonic 20: {1000 * abs(harmonic_amplitudes(table)[20]):.3f} mN m")
 
 
 if __name__ == "__main__":

@@ -144,3 +144,30 @@ def test_guard_reverts_and_halves_the_gain_when_the_ripple_grows_twice(campaign_
     reverted = next(s for s in states if s["guard"])
     assert reverted["pipeline"] == states[best - 1]["pipeline"]
     assert summary["trials"][-1]["role"] == "ilc"
+
+
+def test_a_campaign_runs_through_an_installed_plugin_stage(write_config, tmp_path):
+    """The example plugin (plugins/ilcpmac-harmonic-canceller, installed by the test command) is named
+    in a config like a built-in and cancels the seed bench's disturbance at orders 20, 36 and 100."""
+    changes = dict(SMALL_CAMPAIGN)
+    changes["pipeline"] = {"stages": ["current-sensor", "cogging", "harmonic-canceller"]}
+    changes["stages"] = {"harmonic-canceller": {"orders": [20, 36, 100]}}
+    changes["campaign"] = dict(SMALL_CAMPAIGN["campaign"], ilc_torque_setpoints_nm=[3.0], ilc_trials=3)
+    cfg = load_config(write_config(changes, drop=["stages.ilc"]))
+    summary = run_campaign(cfg, tmp_path / "run")
+    run = tmp_path / "run"
+    states = [json.loads(p.read_text()) for p in sorted((run / "states").glob("trial_*.json"))]
+    assert set(states[-1]["pipeline"]) == {"current-sensor", "cogging", "harmonic-canceller"}
+    trials = read_bench(run).trials
+    roles = [r["role"] for r in summary["trials"]]
+    before = trials[roles.index("compensate")]  # the canceller has learned nothing yet
+    after = trials[len(roles) - 1]
+    for order, amplitude in zip((20, 36, 100), (0.012, 0.01, 0.006)):
+        assert _true_amplitude(before, order) > 0.5 * amplitude
+        assert _true_amplitude(after, order) < 0.2 * _true_amplitude(before, order)
+
+
+def _true_amplitude(trial: TrialData, order: int) -> float:
+    from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
+
+    return float(abs(harmonic_amplitudes(synchronous_average(trial.count, trial.torque_true_nm, 1024))[order]))

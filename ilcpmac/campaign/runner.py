@@ -100,6 +100,9 @@ class CampaignRunner:
         self.events = events
         self.description: BenchDescription = run_dir.description
         c = config.campaign
+        if self.description.motor.counts_per_rev != config.model.encoder.counts_per_rev:
+            raise ConfigError(f"{config.path}: [encoder] counts_per_rev {config.model.encoder.counts_per_rev} "
+                              f"differs from the bench's {self.description.motor.counts_per_rev}")
         bench = self.description.limits  # never ask more than the bench accepts
         self.limits = SafetyLimits(config.limits.max_correction_nm,
                                    min(config.limits.max_current_a, bench.max_current_a),
