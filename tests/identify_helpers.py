@@ -65,3 +65,13 @@ def cogging_error(estimate: np.ndarray, truth: dict) -> float:
     """RMS error of the cogging table relative to the true cogging's RMS."""
     true = np.asarray(truth["cogging"]["torque"])
     return float(np.sqrt(np.mean((estimate - true) ** 2) / np.mean(true**2)))
+
+
+def assert_targets(result, truth) -> None:
+    """The issue's accuracy targets for a bench without current-loop lag."""
+    assert relative_error(result.delta_epsilon, truth["total_system_gain"]) < 0.005
+    assert relative_error(result.delta, truth["torque_sensor_gain"]) < 0.015
+    assert relative_error(result.epsilon, truth["epsilon"]) < 0.02
+    assert np.abs(result.alpha - truth["alpha"]).max() < 0.003
+    assert np.abs(result.beta - truth["beta"]).max() < 0.01
+    assert cogging_error(result.cogging_nm, truth) < 0.03

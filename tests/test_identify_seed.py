@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from identify_helpers import cogging_error, identified, relative_error
+from identify_helpers import assert_targets, identified, relative_error
 
 pytestmark = pytest.mark.slow
 
@@ -21,12 +21,7 @@ def seed():
 
 def test_joint_fit_meets_the_targets(seed):
     result, truth = seed
-    assert relative_error(result.delta_epsilon, truth["total_system_gain"]) < 0.005
-    assert relative_error(result.delta, truth["torque_sensor_gain"]) < 0.015
-    assert relative_error(result.epsilon, truth["epsilon"]) < 0.02
-    assert np.abs(result.alpha - truth["alpha"]).max() < 0.003
-    assert np.abs(result.beta - truth["beta"]).max() < 0.01
-    assert cogging_error(result.cogging_nm, truth) < 0.03
+    assert_targets(result, truth)
     assert relative_error(result.inertia_estimate, truth["inertia_estimate"]) < 0.015
 
 

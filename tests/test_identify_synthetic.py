@@ -6,20 +6,10 @@ import json
 
 import numpy as np
 import pytest
-from identify_helpers import cogging_error, identified, relative_error
+from identify_helpers import assert_targets, identified, relative_error
 
 from ilcpmac.bench.format import read_bench, write_bench
 from ilcpmac.identify import identify_bench
-
-
-def assert_targets(result, truth) -> None:
-    """The issue's accuracy targets for a bench without current-loop lag."""
-    assert relative_error(result.delta_epsilon, truth["total_system_gain"]) < 0.005
-    assert relative_error(result.delta, truth["torque_sensor_gain"]) < 0.015
-    assert relative_error(result.epsilon, truth["epsilon"]) < 0.02
-    assert np.abs(result.alpha - truth["alpha"]).max() < 0.003
-    assert np.abs(result.beta - truth["beta"]).max() < 0.01
-    assert cogging_error(result.cogging_nm, truth) < 0.03
 
 
 def test_other_motor_meets_the_targets():
