@@ -210,7 +210,11 @@ def test_compensation_trials_leave_the_common_scale_alone(fine):
     run_trials(fine, pipeline, 4, seed=103, after=record)
     # "learn only the imbalance (alpha) and the offsets' differential part from such a trial"
     assert max(scales) < 0.01
-    assert np.ptp(means) < 0.01 * TORQUE_NM
+    # the mean torque is not pulled away from the set point (the bug dropped it by 6-7 %); correcting
+    # the injected imbalance brings it closer
+    off = np.abs(np.array(means) - TORQUE_NM)
+    assert off.max() < 0.015 * TORQUE_NM
+    assert off[-1] < off[0]
 
 
 def test_sensor_stage_state_restores(fast):

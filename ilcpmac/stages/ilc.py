@@ -20,9 +20,9 @@ revolution-to-revolution variance as measurement noise (and a process noise
 that grows with the change of u times the model uncertainty, since a model
 error turns a change of u into an apparent change of d), so the effective
 learning gain falls as the estimate firms up and the residual tends to zero
-instead of stalling at the fixed-gain floor gamma sigma^2 / (2 - gamma). Only
-harmonics whose estimate stands out of its uncertainty (|d^| > significance
-* std) are learned: noise is never fed forward. ``estimation = "fixed"``
+instead of stalling at the fixed-gain floor gamma sigma^2 / (2 - gamma). Each estimate is shrunk by its
+uncertainty, d^ max(0, 1 - significance^2 P / |d^|^2): harmonics that do not
+stand out of their noise are not learned, and none switches on and off. ``estimation = "fixed"``
 gives the classical fixed-gain ILC on the raw e_j, for comparison.
 
 Before learning, the monotonic-convergence condition |1 - L G| < 1 / |Q| is
@@ -43,7 +43,7 @@ DEFAULTS = {
     "q_cutoff_harmonic": 150,
     "estimation": "kalman",
     "process_noise_nm": 1e-5,
-    "significance": 3.0,
+    "significance": 2.0,
     "model_uncertainty": 0.2,
 }
 
@@ -174,8 +174,11 @@ class IterativeLearningControl:
             gain = np.where(first, 1.0, prior / (prior + var))
             m["d"] = m["d"] + gain * (z - m["d"])
             m["P"] = np.where(first, var, (1.0 - gain) * prior)
-            significant = np.abs(m["d"]) > self.options["significance"] * np.sqrt(m["P"])
-            ripple = np.where(significant, m["d"], 0.0) + G * u
+            # shrink each estimate by its uncertainty (positive-part James-Stein): what does not stand
+            # out of its noise is not fed forward, and nothing switches on and off between trials
+            threshold2 = self.options["significance"] ** 2 * m["P"]
+            shrink = np.maximum(0.0, 1.0 - threshold2 / np.maximum(np.abs(m["d"]) ** 2, 1e-300))
+            ripple = shrink * m["d"] + G * u
         m["u_applied"] = u
         m["u"] = self._q * (u - gamma * ripple / G)
         self._trials[key] = self._trials.get(key, 0) + 1

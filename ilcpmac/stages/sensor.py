@@ -24,7 +24,7 @@ from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import synchronous_average
 from ilcpmac.stages.base import Frame, StageSetup, plant_response, read_options
 
-DEFAULTS = {"process_noise_rel": 1e-4, "prior_std_rel": 0.02}
+DEFAULTS = {"process_noise_rel": 1e-6, "prior_std_rel": 0.02}
 
 
 def filtered_references(trial: TrialData, counts_per_rev: int, bandwidth_hz: np.ndarray | None) -> np.ndarray:
