@@ -170,3 +170,26 @@ def _true_amplitude(trial: TrialData, order: int) -> float:
     from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 
     return float(abs(harmonic_amplitudes(synchronous_average(trial.count, trial.torque_true_nm, 1024))[order]))
+
+
+def test_a_campaign_stops_with_a_clear_error_when_the_identification_lacks_an_estimate(campaign_config, tmp_path):
+    from campaign_helpers import TruthIdentification
+
+    from ilcpmac.campaign.runner import CampaignRunner
+    from ilcpmac.errors import IdentificationError
+
+    sim = simulator_backend(campaign_config)
+    answer = TruthIdentification(sim).to_json()
+    answer.update(alpha=None, messages=["alpha: coherence too low"])
+
+    class Lacking:
+        def __call__(self, bench):
+            return self
+
+        def to_json(self):
+            return answer
+
+    run_dir = RunDir.create(tmp_path / "run", sim.describe(), campaign_config.path.read_text())
+    with pytest.raises(IdentificationError, match="needs alpha.*coherence too low"):
+        CampaignRunner(campaign_config, sim, run_dir, 7, Lacking(), Quiet()).run()
+    assert len(read_bench(tmp_path / "run").trials) == 4  # the grid is kept for a later --resume

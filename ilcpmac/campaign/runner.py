@@ -28,7 +28,7 @@ from ilcpmac.backends.base import Backend, BenchDescription
 from ilcpmac.bench.format import Bench, as_written
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.config import CampaignConfig
-from ilcpmac.errors import ConfigError
+from ilcpmac.errors import ConfigError, IdentificationError
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits, enforce_limits
 from ilcpmac.records import TrialData, TrialRequest
@@ -269,6 +269,12 @@ class CampaignRunner:
                       tuple(grid_trials), tuple(f"trial_{i:03d}.csv" for i in range(1, len(grid_trials) + 1)))
         result = self.identify(bench)
         self.identification_json = result.to_json()
+        missing = [key for key in ("torque_sensor_gain", "epsilon", "alpha", "beta", "cogging")
+                   if self.identification_json.get(key) is None]
+        if missing:
+            why = "; ".join(self.identification_json.get("messages", [])) or "no reason given"
+            raise IdentificationError(f"the compensation needs {', '.join(missing)}, which the identification "
+                                      f"could not estimate ({why})")
         self.identified = Identified.from_result(self.identification_json, self.description.calibration)
         for record, trial in zip(self.records, grid_trials):
             trial = replace(trial, request=replace(self.grid[record["index"] - 1]))

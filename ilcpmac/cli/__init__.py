@@ -23,6 +23,10 @@ class _Group(click.Group):
         except IlcpmacError as e:
             click.echo(f"error: {e}", err=True)
             sys.exit(2)
+        except KeyboardInterrupt:
+            click.echo("error: interrupted (a run directory can be continued with ilcpmac run --resume)",
+                       err=True)
+            sys.exit(130)
 
 
 def progress_bar() -> Progress:
