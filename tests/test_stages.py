@@ -4,8 +4,7 @@ Every pipeline here runs trials of four revolutions at 3 N m, 0.75 Hz (the
 seed campaign's ILC speed) on the seed bench, starting from the simulator's
 truth with known errors put in. The bench has 1024 counts per revolution
 where that is enough, and its own 4096 (same simulation cost: the kernel steps
-in time) where the pipeline's unmodelled half-count delay of the reference
-(see the xfail below) would bias the answer at 1024.
+in time) where a finer encoder makes the answer sharper.
 """
 
 from __future__ import annotations
@@ -269,11 +268,11 @@ def test_cogging_estimate_stays_at_the_truth_in_compensation_trials(fast):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "BUG (design) without excitation the joint fit leaves the current-sensor columns' common gain free, so "
-    "the feed-forward's own torque is collinear with the cogging columns: the cogging block has ~zero "
-    "information along the stage's own feed-forward and an amplitude error of the identified cogging is "
-    "never learned in compensation trials (with the two bugs above fixed, 1.3x stays 1.30x; today it "
-    "wanders to 1.14x with them); without ILC the error stays in the torque (0.13 N m at order 48)"))
+    "KNOWN LIMITATION (design): without excitation the joint fit leaves the current-sensor columns' common "
+    "gain free, so the feed-forward's own torque is collinear with the cogging columns: the cogging block "
+    "has ~zero information along the stage's own feed-forward and an amplitude error of the identified "
+    "cogging is never learned in compensation trials (1.3x stays 1.30x); without ILC the error stays in "
+    "the torque (0.13 N m at order 48). ILC, in the default pipeline, removes it."))
 def test_cogging_amplitude_error_is_learned_in_compensation_trials(fine):
     ident = identified(fine, cogging_nm=perturbed_cogging(fine, 1.3, 1.3))
     pipeline = make_pipeline(fine, ["current-sensor", "cogging"], ident)
