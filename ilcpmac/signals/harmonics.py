@@ -37,10 +37,13 @@ def synchronous_average(count: np.ndarray, values: np.ndarray, counts_per_rev: i
 
 def linear_trend(x: np.ndarray, values: np.ndarray) -> np.ndarray:
     """The least-squares straight line through ``values`` against ``x``, at ``x``."""
-    x = np.asarray(x, float)
-    dx = x - x.mean()
-    slope = np.dot(dx, values - values.mean()) / max(np.dot(dx, dx), 1e-300)
-    return values.mean() + slope * dx
+    dx = np.asarray(x, float)
+    dx = dx - dx.mean()
+    mean = values.mean()
+    slope = np.dot(dx, values) / max(np.dot(dx, dx), 1e-300)  # sum(dx) = 0: no need to centre values
+    dx *= slope
+    dx += mean
+    return dx
 
 
 def harmonic_amplitudes(table: np.ndarray) -> np.ndarray:
@@ -110,16 +113,17 @@ def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int
     mask = whole_revolutions(count, counts_per_rev)
     count, torque = count[mask], torque_nm[mask]
     detrended = torque - linear_trend(count, torque)
-    average = synchronous_average(count, detrended, counts_per_rev)
-    ripple = band_limited(average, max_harmonic)
-    c = np.abs(harmonic_amplitudes(ripple))
+    # the synchronous average's harmonics are the mean of the revolutions' harmonics
+    harmonics, variance = revolution_harmonics(count, detrended, counts_per_rev, max_harmonic)
+    spectrum = np.zeros(counts_per_rev // 2 + 1, complex)
+    spectrum[1: max_harmonic + 1] = harmonics[1:]
+    ripple = np.fft.irfft(spectrum, n=counts_per_rev) * counts_per_rev / 2.0
+    c = np.abs(harmonics)
     named = [h for h in (pole_pairs, 2 * pole_pairs, cogging_order) if h <= max_harmonic]
     others = np.ones(c.size, bool)
     others[0] = False
-    others[max_harmonic + 1:] = False
     others[named] = False
     rest = detrended - ripple[count % counts_per_rev]
-    _, variance = revolution_harmonics(count, detrended, counts_per_rev, max_harmonic)
     noise_power = float(np.sum(variance[1:]) / 2.0)  # expected power of the noise left in the average
 
     def amp(h: int) -> float:

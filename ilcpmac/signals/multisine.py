@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ilcpmac.model.tables import mechanical_angles_rad
-
 
 def multisine_phases_rad(harmonics: int, kind: str, rng: np.random.Generator | None = None) -> np.ndarray:
     """Phases of harmonics 1..harmonics: seeded random, or Schroeder's low-crest-factor law.
@@ -29,7 +27,7 @@ def multisine(counts_per_rev: int, harmonics: int, rms_nm: float, phases_rad: np
     """
     if harmonics >= counts_per_rev // 2:
         raise ValueError(f"{harmonics} harmonics need more than {counts_per_rev} counts per revolution")
-    theta = mechanical_angles_rad(counts_per_rev)
     amplitude = rms_nm * np.sqrt(2.0 / harmonics)
-    h = np.arange(1, harmonics + 1)
-    return amplitude * np.cos(np.outer(theta, h) + phases_rad).sum(axis=1)
+    spectrum = np.zeros(counts_per_rev // 2 + 1, complex)
+    spectrum[1: harmonics + 1] = amplitude * np.exp(1j * np.asarray(phases_rad))
+    return np.fft.irfft(spectrum, n=counts_per_rev) * counts_per_rev / 2.0
