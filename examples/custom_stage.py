@@ -73,7 +73,7 @@ def main() -> None:
     cfg = dataclasses.replace(
         cfg, pipeline=PipelineSettings(("current-sensor", "cogging", "one-harmonic")),
         stage_options={"one-harmonic": {"order": 20, "gain": 0.5}},
-        campaign=dataclasses.replace(cfg.campaign, ilc_torque_setpoints_nm=(3.0,), ilc_trials=4, ilc_revolutions=8))
+        campaign=dataclasses.replace(cfg.campaign, ilc_torque_setpoints_nm=(3.0,), ilc_trials=4, ilc_revolutions=(8,)))
     limits = BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm, cfg.limits.max_speed_hz)
     backend = SimulatorBackend(cfg.model, limits, cfg.grid.warmup_revolutions)
     with tempfile.TemporaryDirectory() as tmp:

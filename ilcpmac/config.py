@@ -46,11 +46,19 @@ class CampaignSettings:
     ilc_torque_setpoints_nm: tuple[float, ...] = _check(_positive, "ILC set points spanning the torque range, N m",
                                                         (1.0, 3.0, 5.0))
     ilc_speed_setpoint_hz: float = _check(_positive, "speed of the compensation and ILC trials, Hz", 0.75)
-    ilc_revolutions: int = _check(_positive, "recorded revolutions per compensation and ILC trial", 48)
+    ilc_revolutions: tuple[int, ...] = _check(
+        _positive, "recorded revolutions per compensation and ILC trial: one for all ILC set points, or one each",
+        (64, 32, 32))
     ilc_trials: int = _check(_positive, "most ILC trials per set point", 10)
     min_improvement: float = _check(lambda x: 0 <= x < 1, "relative ripple improvement that counts", 0.05)
-    patience: int = _check(_positive, "ILC trials without improvement before a set point stops", 3)
+    patience: int = _check(_positive, "ILC trials without improvement before a set point stops", 4)
     ripple_harmonics: int = _check(_positive, "H: ripple is measured over harmonics 1..H", 150)
+
+    def revolutions_at(self, torque_setpoint_nm: float) -> int:
+        """The recorded revolutions of a compensation or ILC trial at this set point."""
+        if len(self.ilc_revolutions) == 1:
+            return self.ilc_revolutions[0]
+        return self.ilc_revolutions[self.ilc_torque_setpoints_nm.index(torque_setpoint_nm)]
 
 
 @dataclass(frozen=True)
@@ -157,12 +165,14 @@ def parse_section(table: dict, cls: type, source: str, section: str):
     return obj
 
 
+#: fields that describe one sum of sines together: their lists must have equal lengths
+_PARALLEL_LISTS = ("harmonics", "multiples", "orders", "amplitudes_nm_per_a", "amplitudes_nm", "phases_rad")
+
+
 def _check_lengths(obj, where: str) -> None:
     """Parallel lists (orders, amplitudes, phases) must have equal lengths."""
     lengths = {f.name: len(getattr(obj, f.name)) for f in dataclasses.fields(obj)
-               if isinstance(getattr(obj, f.name), tuple) and f.name not in
-               ("asymmetry", "alpha", "beta_a", "current_scale_counts_per_a", "current_offset_counts",
-                "torque_setpoints_nm", "speed_setpoints_hz")}
+               if f.name in _PARALLEL_LISTS and isinstance(getattr(obj, f.name), tuple)}
     if len(set(lengths.values())) > 1:
         raise ConfigError(f"{where}: lists {', '.join(lengths)} must have equal lengths, got {lengths}")
 
@@ -204,6 +214,9 @@ def load_config(path: str | Path) -> CampaignConfig:
     if len(model.backemf.harmonics) == 0 or 1 not in model.backemf.harmonics:
         raise ConfigError(f"{path}: [backemf] harmonics: must include the fundamental 1")
     run = {name: parse_section(data.get(name, {}), cls, str(path), name) for name, cls in RUN_SECTIONS.items()}
+    if len(run["campaign"].ilc_revolutions) not in (1, len(run["campaign"].ilc_torque_setpoints_nm)):
+        raise ConfigError(f"{path}: [campaign] ilc_revolutions: give one number, or one per ILC set point "
+                          f"({len(run['campaign'].ilc_torque_setpoints_nm)})")
     if run["campaign"].ripple_harmonics >= cpr // 2:
         raise ConfigError(f"{path}: [campaign] ripple_harmonics: {run['campaign'].ripple_harmonics} is beyond "
                           f"the Nyquist limit of {cpr} counts per revolution")

@@ -19,7 +19,7 @@ SMALL_CAMPAIGN = {
     "encoder": {"counts_per_rev": 1024},
     "excitation": {"harmonics": 100},
     "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
-    "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": 6, "ilc_trials": 4,
+    "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": [6], "ilc_trials": 4,
                  "ripple_harmonics": 100},
     "stages": {"ilc": {"learning_gain": 1.0, "q_cutoff_harmonic": 100, "estimation": "kalman"}},
 }

@@ -93,3 +93,12 @@ def test_missing_file(tmp_path):
     path = tmp_path / "absent.toml"
     with pytest.raises(ConfigError, match=re.escape(str(path)) + ": cannot read"):
         load_config(path)
+
+
+def test_ilc_revolutions_are_one_number_or_one_per_ilc_set_point(write_config):
+    cfg = load_config(write_config({"campaign": {"ilc_revolutions": [40]}}))
+    assert [cfg.campaign.revolutions_at(t) for t in (1.0, 3.0, 5.0)] == [40, 40, 40]
+    cfg = load_config(write_config({"campaign": {"ilc_revolutions": [64, 32, 16]}}))
+    assert [cfg.campaign.revolutions_at(t) for t in (1.0, 3.0, 5.0)] == [64, 32, 16]
+    with pytest.raises(ConfigError, match=r"campaign.toml: \[campaign\] ilc_revolutions: give one number"):
+        load_config(write_config({"campaign": {"ilc_revolutions": [64, 32]}}))

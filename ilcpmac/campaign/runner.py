@@ -127,7 +127,7 @@ class CampaignRunner:
     def _base_request(self, torque_nm: float, index: int) -> TrialRequest:
         cpr = self.description.motor.counts_per_rev
         c = self.config.campaign
-        return TrialRequest(torque_nm, c.ilc_speed_setpoint_hz, c.ilc_revolutions, np.zeros(cpr), np.zeros(cpr),
+        return TrialRequest(torque_nm, c.ilc_speed_setpoint_hz, c.revolutions_at(torque_nm), np.zeros(cpr), np.zeros(cpr),
                             self.description.calibration, seed=trial_seed(self.seed, index))
 
     def _records_at(self, torque_nm: float, roles: tuple[str, ...]) -> list[dict]:
