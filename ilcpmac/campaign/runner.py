@@ -108,8 +108,9 @@ class CampaignRunner:
                                    min(config.limits.max_current_a, bench.max_current_a),
                                    min(config.limits.max_torque_nm, bench.max_torque_nm))
         max_speed_hz = min(config.limits.max_speed_hz, bench.max_speed_hz)
-        self.grid = [replace(r, calibration=self.description.calibration)
-                     for r in grid_requests(config, seed, config.grid.revolutions)]
+        # trial k of the campaign (1-based) is seeded with trial_seed(seed, k), the grid's too
+        self.grid = [replace(r, calibration=self.description.calibration, seed=trial_seed(seed, i + 1))
+                     for i, r in enumerate(grid_requests(config, seed, config.grid.revolutions))]
         for where, speed in [("[campaign] ilc_speed_setpoint_hz", c.ilc_speed_setpoint_hz),
                              *(("[trials] speed_setpoints_hz", r.speed_setpoint_hz) for r in self.grid)]:
             if speed > max_speed_hz:
@@ -150,7 +151,7 @@ class CampaignRunner:
         n = len(self.records)
         index = n + 1
         if n < len(self.grid):
-            return Step("identify", "grid", replace(self.grid[n], seed=trial_seed(self.seed, index)))
+            return Step("identify", "grid", self.grid[n])
         for role, phase in (("baseline", "identify"), ("compensate", "compensate")):
             for torque in self.config.campaign.ilc_torque_setpoints_nm:
                 if not self._records_at(torque, (role,)):
@@ -195,7 +196,7 @@ class CampaignRunner:
     def _run_grid(self) -> None:
         """Run the remaining grid trials (in parallel where the backend allows), persist them in order."""
         start = len(self.records)
-        steps = [replace(r, seed=trial_seed(self.seed, i + 1)) for i, r in enumerate(self.grid)][start:]
+        steps = self.grid[start:]
         self.events.message(f"identify: {len(self.grid)} multisine trials over the set-point grid")
         workers = min(getattr(self.backend, "max_parallel_trials", 1), os.cpu_count() or 1)
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:

@@ -23,10 +23,9 @@ def _backend(kind: str, address: str | None, config, limits):
     if kind == "sim":
         from ilcpmac.backends.simulated import SimulatorBackend
 
-        backend = SimulatorBackend(config.model, BenchLimits(limits.max_current_a, limits.max_torque_nm,
-                                                             limits.max_speed_hz),
-                                   config.grid.warmup_revolutions)
-        return backend
+        return SimulatorBackend(config.model, BenchLimits(limits.max_current_a, limits.max_torque_nm,
+                                                          limits.max_speed_hz),
+                                config.grid.warmup_revolutions)
     if not address:
         raise ConfigError("--backend remote needs --address HOST:PORT")
     from ilcpmac.backends.remote import RemoteBackend

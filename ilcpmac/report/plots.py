@@ -11,7 +11,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ilcpmac.bench.format import read_trial_csv  # noqa: E402
-from ilcpmac.signals.harmonics import band_limited, harmonic_amplitudes, synchronous_average  # noqa: E402
+from ilcpmac.signals.harmonics import (  # noqa: E402
+    band_limited,
+    harmonic_amplitudes,
+    linear_trend,
+    synchronous_average,
+)
 
 
 def ripple_per_trial(records: list[dict], path: Path) -> None:
@@ -35,8 +40,8 @@ def ripple_per_trial(records: list[dict], path: Path) -> None:
 
 def _ripple_table(trial, counts_per_rev: int, max_harmonic: int, true: bool) -> np.ndarray:
     torque = trial.torque_true_nm if true and trial.torque_true_nm is not None else trial.torque_nm
-    trend = np.polyval(np.polyfit(trial.time_s, torque, 1), trial.time_s)
-    return band_limited(synchronous_average(trial.count, torque - trend, counts_per_rev), max_harmonic)
+    detrended = torque - linear_trend(trial.time_s, torque)
+    return band_limited(synchronous_average(trial.count, detrended, counts_per_rev), max_harmonic)
 
 
 def before_after(run_dir: Path, records: list[dict], counts_per_rev: int, max_harmonic: int,
