@@ -94,6 +94,34 @@ def test_bad_config_exits_2_with_one_line(write_config, tmp_path, changes, messa
     assert not (tmp_path / "bench").exists()
 
 
+@pytest.mark.parametrize("changes, options, message", [
+    # the former segfaults, MemoryError and AttributeError
+    ({"controller": {"control_rate_hz": 0.001}}, [], r"\[controller\] control_rate_hz: invalid value 0.001"),
+    ({"trials": {"speed_setpoints_hz": [1e-6]}}, [], r"\[trials\] speed_setpoints_hz: at 1e-06 Hz .* lasts 3e\+06 s"),
+    ({"trials": {"revolutions": 20000}}, [], r"\[trials\] revolutions: 20000 x .*max_samples_per_trial"),
+    ({"trials": {"torque_setpoints_nm": []}}, [], r"\[trials\] torque_setpoints_nm: invalid value \[\]"),
+    # the command line's overrides are checked as the config's values are
+    ({}, ["--revolutions", "20000"], r"\[trials\] revolutions: 20000 x .*max_samples_per_trial"),
+    ({}, ["--seed", str(2**64)], r"\[trials\] seed: invalid value 18446744073709551616"),
+])
+def test_config_without_physical_sense_exits_2_with_one_line(write_config, tmp_path, changes, options, message):
+    config = write_config({**SMALL, **{table: {**SMALL.get(table, {}), **values} for table, values in changes.items()}})
+    result = simulate(str(config), "--out", str(tmp_path / "bench"), *options)
+    assert result.exit_code == 2, result.output
+    assert_one_error_line(result.stderr, result.output, config)
+    assert re.search(message, result.stderr), result.stderr
+    assert not (tmp_path / "bench").exists()
+
+
+def test_console_script_former_segfault_exits_2(write_config, tmp_path):
+    script = Path(sysconfig.get_path("scripts")) / "ilcpmac"
+    config = write_config({**SMALL, "controller": {"control_rate_hz": 0.001}})
+    done = subprocess.run([str(script), "simulate", str(config), "--out", str(tmp_path / "bench")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr  # was -11 (SIGSEGV)
+    assert_one_error_line(done.stderr, done.stdout + done.stderr, config)
+
+
 def test_missing_config_exits_2(tmp_path):
     config = tmp_path / "absent.toml"
     result = simulate(str(config), "--out", str(tmp_path / "bench"))
@@ -120,3 +148,11 @@ def test_damaged_bench_folder_is_rejected_by_the_reader(write_config, tmp_path):
     trial.write_text("".join(lines))
     with pytest.raises(BenchFormatError, match=re.escape(str(trial)) + ": line 11: count does not increase"):
         read_bench(out)
+
+
+def test_output_folder_that_cannot_be_made_exits_2(write_config, tmp_path):
+    (tmp_path / "file").write_text("")
+    out = tmp_path / "file" / "bench"  # a folder under a plain file: NotADirectoryError, was a traceback
+    result = simulate(str(write_config(SMALL)), "--out", str(out))
+    assert result.exit_code == 2
+    assert_one_error_line(result.stderr, result.output, out)

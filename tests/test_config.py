@@ -69,7 +69,7 @@ def test_run_tables_are_optional(write_config, seed_config):
     ({"torque_sensor": {"noise_nm": -0.1}}, (), r"\[torque_sensor\] noise_nm: invalid value"),
     ({"excitation": {"phases": "square"}}, (), r"\[excitation\] phases: invalid value 'square'"),
     ({"cogging": {"amplitudes_nm": [0.5]}}, (),
-     r"\[cogging\]: lists multiples, amplitudes_nm, phases_rad must have equal lengths"),
+     r"\[cogging\] multiples, amplitudes_nm, phases_rad: must have equal lengths"),
     ({"excitation": {"harmonics": 2048}}, (), r"\[excitation\] harmonics: 2048 is beyond the Nyquist limit"),
     ({"backemf": {"harmonics": [3, 5, 7, 9]}}, (), r"\[backemf\] harmonics: must include the fundamental 1"),
     ({"campaign": {"ripple_harmonics": 2048}}, (), r"\[campaign\] ripple_harmonics: 2048 is beyond the Nyquist"),

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -13,9 +16,9 @@ from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import backemf_table, cogging_table, disturbance_table
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.sim.grid import grid_requests
-from ilcpmac.sim.simulator import SensorTruth, Simulator
+from ilcpmac.sim.simulator import MAX_COUNTS_PER_REV, MAX_SAMPLES, SensorTruth, Simulator
 
-from conftest import COUNTS_PER_REV, REVOLUTIONS
+from conftest import COUNTS_PER_REV, REVOLUTIONS, SEED_CONFIG
 
 #: phase shifts 2 pi p / 3 of phases a, b, c
 PHASORS = np.exp(-2j * np.pi * np.arange(3) / 3)
@@ -259,9 +262,115 @@ def test_run_trials_does_not_depend_on_workers(small_simulator, small_model, mak
     ({"speed_setpoint_hz": 0.0}, r"speed set point must be positive"),
     ({"revolutions": 0}, r"revolutions must be at least 1"),
     ({"calibration": SensorCalibration([14.0, -14.0, 14.0], [0.0, 0.0, 0.0], 0.908)},
-     r"calibration needs positive current scales"),
+     r"calibration needs finite positive current scales"),
     ({"torque_setpoint_nm": -1.0}, r"not enough to turn the rotor"),
+    # every other input of the kernel
+    ({"feedforward_nm": [0.0] * COUNTS_PER_REV}, r"feedforward_nm must be a real NumPy array"),
+    ({"excitation_nm": np.zeros(COUNTS_PER_REV, complex)}, r"excitation_nm must be a real NumPy array"),
+    ({"feedforward_nm": np.zeros((COUNTS_PER_REV, 1))}, r"feedforward_nm has shape \(1024, 1\)"),
+    ({"seed": -1}, r"seed must be a 32-bit unsigned integer, got -1"),
+    ({"seed": 1.5}, r"seed must be a 32-bit unsigned integer, got 1.5"),
+    ({"revolutions": 2.0}, r"revolutions must be at least 1, got 2.0"),
+    ({"revolutions": True}, r"revolutions must be at least 1, got True"),
+    ({"revolutions": MAX_SAMPLES // COUNTS_PER_REV + 1}, r"8193 revolutions x 1024 counts are more samples than the "
+                                                          r"simulator's 8388608 per trial"),
+    ({"torque_setpoint_nm": np.nan}, r"torque set point must be a finite number, got nan"),
+    ({"torque_setpoint_nm": 10**400}, r"torque set point must be a finite number"),
+    ({"speed_setpoint_hz": np.inf}, r"speed set point must be positive, got inf"),
+    ({"speed_setpoint_hz": "0.5"}, r"speed set point must be positive, got '0.5'"),
+    ({"speed_setpoint_hz": 20.0}, r"speed set point 20 Hz x 1024 counts per revolution is more than half the "
+                                  r"control rate 20000 Hz"),
+    # the former segfaults: a speed that takes hours, a brake too strong for the step
+    ({"speed_setpoint_hz": 1e-6}, r"a trial of 1 \+ 2 revolutions at 1e-06 Hz needs a budget of 1.8e\+11 control "
+                                  r"steps, more than the simulator's 2147483648"),
+    ({"speed_setpoint_hz": 1e-4}, r"set point 2.0 N m at 0.0001 Hz needs a brake of 2.19e\+03 N m s, too strong"),
+    ({"calibration": SensorCalibration([14.0, np.inf, 14.0], [0.0, 0.0, 0.0], 0.908)}, r"calibration"),
+    ({"calibration": SensorCalibration([14.0, 14.0, 14.0], [0.0, np.nan, 0.0], 0.908)}, r"calibration"),
+    ({"calibration": SensorCalibration([14.0, 14.0, 14.0], [0.0, 0.0, 0.0], np.nan)}, r"calibration"),
 ])
 def test_bad_request_raises(small_simulator, small_model, make_request, changes, message):
     with pytest.raises(SimulationError, match=message):
         small_simulator.run_trial(make_request(small_model).with_changes(**changes))
+
+
+def _with(model: MotorModel, table: str, **changes) -> MotorModel:
+    return dataclasses.replace(model, **{table: dataclasses.replace(getattr(model, table), **changes)})
+
+
+@pytest.mark.parametrize("table, changes, message", [
+    ("controller", {"control_rate_hz": 0.001}, r"model \[controller\] control_rate_hz: invalid value 0.001"),
+    ("controller", {"bandwidth_hz": 5000.0}, r"model \[controller\] bandwidth_hz: 5000 Hz is above"),
+    ("mechanics", {"inertia_kgm2": np.nan}, r"model \[mechanics\] inertia_kgm2: invalid value nan"),
+    ("winding", {"pole_pairs": 10**6}, r"model \[winding\] pole_pairs"),
+    ("encoder", {"counts_per_rev": 2 * MAX_COUNTS_PER_REV},
+     r"model \[encoder\] counts_per_rev: 524288 is more than the simulator's 262144"),
+    ("cogging", {"amplitudes_nm": (0.5,)}, r"model \[cogging\] multiples, amplitudes_nm, phases_rad: must have equal"),
+])
+def test_bad_model_raises(small_model, table, changes, message):
+    with pytest.raises(SimulationError, match=message):
+        Simulator(_with(small_model, table, **changes))
+
+
+@pytest.mark.parametrize("warmup", [-1, 1.5, True, 2**25])
+def test_bad_warmup_raises(small_model, warmup):
+    with pytest.raises(SimulationError, match=r"warmup_revolutions must be an integer within 0\.\.16777216"):
+        Simulator(small_model, warmup)
+
+
+# ------------------------------------------------ the kernel stays within its arrays whatever it is given
+
+#: Runs the kernel on hostile arguments in a child process (a write out of bounds would kill it, not the tests):
+#: the arguments of a valid small trial, then one change each; prints the samples returned per case.
+KERNEL_SCRIPT = """
+import dataclasses
+import inspect
+import json
+import sys
+
+import numpy as np
+import ilcpmac.sim.simulator as simulator
+from ilcpmac.config import load_config
+from ilcpmac.sim.kernel import simulate_trial
+
+captured = []
+simulator.simulate_trial = lambda *args: captured.append(args) or simulate_trial(*args)
+model = load_config(sys.argv[1]).model
+model = dataclasses.replace(model, encoder=dataclasses.replace(model.encoder, counts_per_rev=256))
+cal = model.controller.calibration()
+request = simulator.TrialRequest(2.0, 1.0, 2, np.zeros(256), np.zeros(256), cal, seed=1)
+simulator.Simulator(model).run_trial(request)
+valid = inspect.signature(simulate_trial).bind(*captured[0]).arguments
+short = lambda name, n: {name: valid[name][:n]}
+cases = {
+    "valid": {},
+    "control rate 0.001 Hz": {"dt_s": 1000.0},
+    "speed 1e-6 Hz": {"omega0_rad_s": 2e-6 * np.pi, "brake_nms": 2.0 / (2e-6 * np.pi)},
+    "backwards": {"omega0_rad_s": -10.0},
+    "NaN speed": {"omega0_rad_s": np.nan},
+    "tiny inertia": {"inertia_kgm2": 1e-30},
+    "short output": short("out_i_meas", 100),
+    "short count output": short("out_count", 100),
+    "record beyond the outputs": {"record_counts": valid["record_counts"] + 1},
+    "short Gaussian table": short("gauss_table", 1000),
+    "one-row table": short("fine", 1),
+    "two-phase references": {"i_ref_table": np.ascontiguousarray(valid["i_ref_table"][:, :2])},
+    "two-phase resistance": short("resistance_ohm", 2),
+}
+done = {}
+for name, change in cases.items():
+    args = {**valid, **change}
+    args["max_steps"] = min(args["max_steps"], 200_000)
+    done[name] = simulate_trial(*args.values())
+print(json.dumps(done))
+"""
+
+
+def test_kernel_stays_within_its_arrays_on_hostile_arguments():
+    done = subprocess.run([sys.executable, "-c", KERNEL_SCRIPT, str(SEED_CONFIG)], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    samples = json.loads(done.stdout)
+    assert samples.pop("valid") == samples.pop("backwards") == 2 * 256  # the rotor turns round, and on
+    diverged = {"control rate 0.001 Hz", "speed 1e-6 Hz", "NaN speed", "tiny inertia"}
+    assert all(samples[name] < 2 * 256 for name in diverged), samples
+    assert all(samples[name] == 0 for name in set(samples) - diverged), samples

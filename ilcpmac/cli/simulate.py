@@ -18,14 +18,20 @@ from ilcpmac.cli import console, main, progress_bar
               help="Override [trials] revolutions (recorded, after the warm-up).")
 def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | None) -> None:
     """Simulate CONFIG's multisine set-point grid into a bench folder with truth.json."""
-    from ilcpmac.config import load_config
+    import dataclasses
+
+    from ilcpmac.config import check_config, load_config
     from ilcpmac.sim.grid import simulate_bench
 
     cfg = load_config(config)
+    overrides = {key: value for key, value in (("seed", seed), ("revolutions", revolutions)) if value is not None}
+    if overrides:
+        cfg = dataclasses.replace(cfg, grid=dataclasses.replace(cfg.grid, **overrides))
+        check_config(cfg)
+    out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the trials run
     n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
     with progress_bar() as progress:
         task = progress.add_task("simulating trials", total=n)
-        bench = simulate_bench(cfg, out_dir, seed=seed, revolutions=revolutions,
-                               on_done=lambda i, trial: progress.advance(task))
+        bench = simulate_bench(cfg, out_dir, on_done=lambda i, trial: progress.advance(task))
     samples = sum(t.n_samples for t in bench.trials)
     console.print(f"wrote {len(bench.trials)} trials ({samples} samples) and truth.json to {out_dir}")

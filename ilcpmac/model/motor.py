@@ -8,37 +8,99 @@ Each dataclass is one TOML section of a campaign config (see
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import reprlib
+from dataclasses import Field, dataclass, field, fields
 
 import numpy as np
 
 from ilcpmac.records import SensorCalibration
 
+#: Most terms of one sum of sines (back-EMF, cogging, disturbance).
+MAX_TERMS = 64
+#: Most torque (and most speed) set points of an identification grid.
+MAX_GRID_SETPOINTS = 100
 
-def _positive(x) -> bool:
-    return np.all(np.asarray(x) > 0)
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = 60
+_SHORT.maxlist = _SHORT.maxtuple = 8
 
 
-def _non_negative(x) -> bool:
-    return np.all(np.asarray(x) >= 0)
+def shown(value) -> str:
+    """``repr(value)`` cut short, a tuple shown as the TOML list it was read from, for one-line errors."""
+    return _SHORT.repr(list(value) if isinstance(value, tuple) else value)
 
 
-def _three(x) -> bool:
-    return len(x) == 3
+def finite_number(x) -> bool:
+    """A real number (not a bool), finite and within the range of a float (a larger integer is not)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
+        return False
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
+#: The range of each [motor] quantity of a bench, one for configs, bench folders and the protocol's
+#: DESCRIBE: pole pairs up to the few hundred of the most multipolar machines; three phases need three
+#: slots; encoders up to 20 bits (log a finer one at 2^20 counts); inertia from a micro-motor's rotor to
+#: a flywheel of tonnes, kg m^2.
+MOTOR_RANGES = {"pole_pairs": (1, 256), "slots": (3, 2048), "counts_per_rev": (4, 2**20), "inertia": (1e-8, 1e4)}
+
+
+def in_range(low: float, high: float, *, low_open: bool = False, high_open: bool = False):
+    """A check: the value (or every value of a list) lies in [low, high], without an end that is open.
+
+    NaN fails every comparison, so it is out of every range.
+    """
+    def check(x) -> bool:
+        values = tuple(x) if isinstance(x, (tuple, list, np.ndarray)) else (x,)
+        return all((low < v if low_open else low <= v) and (v < high if high_open else v <= high)
+                   for v in values)
+
+    return check
+
+
+def length_in(low: int, high: int):
+    """A check: a list of ``low`` to ``high`` values."""
+    return lambda x: low <= len(x) <= high
+
+
+def all_of(*checks):
+    """A check that passes when every one of ``checks`` does (in order, so a length check guards the rest)."""
+    return lambda x: all(check(x) for check in checks)
 
 
 def _param(check=None, doc: str = "", **kw):
     return field(metadata={"check": check, "doc": doc}, **kw)
 
 
+_THREE = length_in(3, 3)
+_TERMS = length_in(0, MAX_TERMS)
+
+
+def _terms(low: float, high: float, doc: str):
+    """A list of a sum of sines' terms (at most MAX_TERMS), each within [low, high]."""
+    return _param(all_of(_TERMS, in_range(low, high)), f"{doc}, at most {MAX_TERMS} terms")
+
+
+def _phases():
+    return _terms(-2 * math.pi, 2 * math.pi, "phi, rad, each within [-2 pi, 2 pi]")
+
+
+def _per_phase(low: float, high: float, doc: str, *, low_open: bool = False):
+    return _param(all_of(_THREE, in_range(low, high, low_open=low_open)), f"{doc}, three values")
+
+
 @dataclass(frozen=True)
 class Winding:
     """Motor geometry and per-phase electrical parameters."""
 
-    pole_pairs: int = _param(_positive, "electrical revolutions per mechanical revolution")
-    slots: int = _param(_positive, "stator slots")
-    phase_resistance_ohm: float = _param(_positive, "R per phase, ohm")
-    phase_inductance_h: float = _param(_positive, "L per phase, H")
+    pole_pairs: int = _param(in_range(*MOTOR_RANGES["pole_pairs"]),
+                             "electrical revolutions per mechanical revolution, 1..256")
+    slots: int = _param(in_range(*MOTOR_RANGES["slots"]), "stator slots, 3..2048")
+    phase_resistance_ohm: float = _param(in_range(1e-6, 1e3), "R per phase, ohm, within [1e-6, 1e3] "
+                                         "(the winding's exact step divides by R)")
+    phase_inductance_h: float = _param(in_range(1e-9, 10.0), "L per phase, H, within [1e-9, 10]")
 
     @property
     def cogging_order(self) -> int:
@@ -54,19 +116,22 @@ class BackEmf:
     with theta_e = pole_pairs * theta the electrical angle.
     """
 
-    harmonics: tuple[int, ...] = _param(_positive, "harmonic orders n of the electrical angle")
-    amplitudes_nm_per_a: tuple[float, ...] = _param(None, "k_n, N m / A")
-    phases_rad: tuple[float, ...] = _param(None, "phi_n, rad")
-    asymmetry: tuple[float, ...] = _param(_three, "relative amplitude deviation per phase")
+    harmonics: tuple[int, ...] = _param(all_of(length_in(1, MAX_TERMS), in_range(1, 4096)),
+                                        f"harmonic orders n of the electrical angle, 1..4096, "
+                                        f"1 to {MAX_TERMS} terms")
+    amplitudes_nm_per_a: tuple[float, ...] = _terms(-100.0, 100.0, "k_n, N m / A, each within [-100, 100]")
+    phases_rad: tuple[float, ...] = _phases()
+    asymmetry: tuple[float, ...] = _per_phase(-1.0, 1.0, "relative amplitude deviation per phase, within "
+                                              "(-1, 1] (a phase's constant keeps its sign)", low_open=True)
 
 
 @dataclass(frozen=True)
 class Cogging:
     """Cogging torque tau_c = sum_m a_m sin(m N_c theta + phi_m), N_c = lcm(slots, 2 pole_pairs)."""
 
-    multiples: tuple[int, ...] = _param(_positive, "m: multiples of the cogging order")
-    amplitudes_nm: tuple[float, ...] = _param(None, "a_m, N m")
-    phases_rad: tuple[float, ...] = _param(None, "phi_m, rad")
+    multiples: tuple[int, ...] = _terms(1, 4096, "m: multiples of the cogging order, 1..4096")
+    amplitudes_nm: tuple[float, ...] = _terms(-1e3, 1e3, "a_m, N m, each within [-1e3, 1e3]")
+    phases_rad: tuple[float, ...] = _phases()
 
 
 @dataclass(frozen=True)
@@ -78,31 +143,33 @@ class Unexplained:
     at orders that are not multiples of the cogging order.
     """
 
-    saturation_per_a2: float = _param(_non_negative, "relative torque-constant drop per A^2")
-    orders: tuple[int, ...] = _param(_positive, "disturbance orders per mechanical revolution")
-    amplitudes_nm: tuple[float, ...] = _param(None, "d_k, N m")
-    phases_rad: tuple[float, ...] = _param(None, "phi_k, rad")
+    saturation_per_a2: float = _param(in_range(0.0, 1.0), "relative torque-constant drop per A^2, within [0, 1]")
+    orders: tuple[int, ...] = _terms(1, 2**23, "disturbance orders per mechanical revolution, 1..2^23")
+    amplitudes_nm: tuple[float, ...] = _terms(-1e3, 1e3, "d_k, N m, each within [-1e3, 1e3]")
+    phases_rad: tuple[float, ...] = _phases()
 
 
 @dataclass(frozen=True)
 class Mechanics:
     """J d(omega)/dt = torque - b omega - coulomb sign(omega) (eq. 3.1)."""
 
-    inertia_kgm2: float = _param(_positive, "J, kg m^2")
-    coulomb_friction_nm: float = _param(_non_negative, "Coulomb friction, N m")
+    inertia_kgm2: float = _param(in_range(*MOTOR_RANGES["inertia"]), "J, kg m^2, within [1e-8, 1e4]")
+    coulomb_friction_nm: float = _param(in_range(0.0, 1e4), "Coulomb friction, N m, within [0, 1e4]")
 
 
 @dataclass(frozen=True)
 class Controller:
     """Discrete PI current control per phase and the controller's calibration."""
 
-    control_rate_hz: float = _param(_positive, "control (and simulation) rate, Hz")
-    bandwidth_hz: float = _param(_positive, "closed-loop current bandwidth, Hz")
-    voltage_limit_v: float = _param(_positive, "phase voltage limit, V")
-    current_scale_counts_per_a: tuple[float, ...] = _param(
-        lambda x: _three(x) and _positive(x), "(G*_s)^-1 per phase, counts / A")
-    current_offset_counts: tuple[float, ...] = _param(_three, "o*_s per phase, counts")
-    torque_gain_v_per_nm: float = _param(_positive, "g*_t, V / N m")
+    control_rate_hz: float = _param(in_range(1e3, 1e6), "control (and simulation) rate, Hz, within [1e3, 1e6] "
+                                    "(digital current loops run at kHz to hundreds of kHz)")
+    bandwidth_hz: float = _param(in_range(0.0, 1e5, low_open=True),
+                                 "closed-loop current bandwidth, Hz, positive, at most control_rate_hz / 10")
+    voltage_limit_v: float = _param(in_range(0.0, 1e4, low_open=True), "phase voltage limit, V, within (0, 1e4]")
+    current_scale_counts_per_a: tuple[float, ...] = _per_phase(0.0, 1e9, "(G*_s)^-1 per phase, counts / A, "
+                                                               "within (0, 1e9]", low_open=True)
+    current_offset_counts: tuple[float, ...] = _per_phase(-1e9, 1e9, "o*_s per phase, counts, within [-1e9, 1e9]")
+    torque_gain_v_per_nm: float = _param(in_range(0.0, 1e3, low_open=True), "g*_t, V / N m, within (0, 1e3]")
 
     def calibration(self) -> SensorCalibration:
         """The calibration the controller starts with."""
@@ -117,10 +184,10 @@ class CurrentSensors:
     epsilon, alpha and beta follow eqs. (1.5)-(1.7); alpha is normalised to mean 1.
     """
 
-    epsilon: float = _param(_positive, "mean current-sensor gain error")
-    alpha: tuple[float, ...] = _param(lambda x: _three(x) and _positive(x), "scale imbalance per phase")
-    beta_a: tuple[float, ...] = _param(_three, "offset error per phase, A")
-    noise_counts: float = _param(_non_negative, "white reading noise, counts RMS")
+    epsilon: float = _param(in_range(0.0, 10.0, low_open=True), "mean current-sensor gain error, within (0, 10]")
+    alpha: tuple[float, ...] = _per_phase(0.0, 10.0, "scale imbalance per phase, within (0, 10]", low_open=True)
+    beta_a: tuple[float, ...] = _per_phase(-1e3, 1e3, "offset error per phase, A, within [-1e3, 1e3]")
+    noise_counts: float = _param(in_range(0.0, 1e6), "white reading noise, counts RMS, within [0, 1e6]")
 
     def __post_init__(self) -> None:
         alpha = np.asarray(self.alpha, float)
@@ -139,11 +206,14 @@ class CurrentSensors:
 class TorqueSensor:
     """Piezo torque sensor: measured = delta * highpass(torque) + DC + drift t + noise."""
 
-    delta: float = _param(_positive, "g_t / g*_t at the controller's starting calibration (eq. 1.4)")
-    noise_nm: float = _param(_non_negative, "white noise, N m RMS per sample")
-    highpass_hz: float = _param(_non_negative, "first-order high-pass corner of the piezo, Hz")
-    dc_level_nm: float = _param(_non_negative, "bound of the unknown DC level (uniform, seeded), N m")
-    drift_nm_per_s: float = _param(_non_negative, "bound of the unknown linear drift (uniform, seeded), N m / s")
+    delta: float = _param(in_range(0.0, 10.0, low_open=True),
+                          "g_t / g*_t at the controller's starting calibration (eq. 1.4), within (0, 10]")
+    noise_nm: float = _param(in_range(0.0, 1e3), "white noise, N m RMS per sample, within [0, 1e3]")
+    highpass_hz: float = _param(in_range(0.0, 1e3), "first-order high-pass corner of the piezo, Hz, within [0, 1e3]")
+    dc_level_nm: float = _param(in_range(0.0, 1e4),
+                                "bound of the unknown DC level (uniform, seeded), N m, within [0, 1e4]")
+    drift_nm_per_s: float = _param(in_range(0.0, 1e3), "bound of the unknown linear drift (uniform, seeded), "
+                                   "N m / s, within [0, 1e3]")
 
     def true_gain_v_per_nm(self, starting_calibration: SensorCalibration) -> float:
         """g_t, V / N m."""
@@ -154,28 +224,37 @@ class TorqueSensor:
 class Encoder:
     """Incremental encoder with position-triggered sampling."""
 
-    counts_per_rev: int = _param(_positive, "encoder counts per mechanical revolution")
-    timer_resolution_s: float = _param(_positive, "time-stamp quantum, s")
+    counts_per_rev: int = _param(in_range(*MOTOR_RANGES["counts_per_rev"]),
+                                 "encoder counts per mechanical revolution, 4..2^20")
+    timer_resolution_s: float = _param(in_range(0.0, 1e-3, low_open=True), "time-stamp quantum, s, within (0, 1e-3]")
 
 
 @dataclass(frozen=True)
 class Excitation:
     """Multisine added to the torque reference over mechanical harmonics 1..harmonics."""
 
-    harmonics: int = _param(_positive, "highest excited harmonic of the mechanical revolution")
-    fraction: float = _param(_non_negative, "multisine RMS as a fraction of the torque set point")
+    harmonics: int = _param(in_range(1, 2**23), "highest excited harmonic of the mechanical revolution, "
+                            "below counts_per_rev / 2")
+    fraction: float = _param(in_range(0.0, 1.0), "multisine RMS as a fraction of the torque set point, within [0, 1]")
     phases: str = _param(lambda x: x in ("random", "schroeder"), '"random" (seeded) or "schroeder"')
 
 
 @dataclass(frozen=True)
 class TrialGrid:
-    """The set-point grid of an identification campaign."""
+    """The set-point grid of an identification campaign.
 
-    torque_setpoints_nm: tuple[float, ...] = _param(_positive, "torque set points, N m")
-    speed_setpoints_hz: tuple[float, ...] = _param(_positive, "mechanical speed set points, Hz")
-    revolutions: int = _param(_positive, "recorded revolutions per trial")
-    warmup_revolutions: int = _param(_positive, "revolutions simulated and dropped first")
-    seed: int = _param(_non_negative, "seed of every random generator")
+    Ranges against [limits] (set points, trial duration, samples) are checked by ``ilcpmac.config``.
+    """
+
+    torque_setpoints_nm: tuple[float, ...] = _param(
+        all_of(length_in(1, MAX_GRID_SETPOINTS), in_range(0.0, 1e4, low_open=True)),
+        f"torque set points, N m, positive, 1 to {MAX_GRID_SETPOINTS} of them")
+    speed_setpoints_hz: tuple[float, ...] = _param(
+        all_of(length_in(1, MAX_GRID_SETPOINTS), in_range(0.0, 1e3, low_open=True)),
+        f"mechanical speed set points, Hz, positive, 1 to {MAX_GRID_SETPOINTS} of them")
+    revolutions: int = _param(in_range(1, 2**24), "recorded revolutions per trial, at least 1")
+    warmup_revolutions: int = _param(in_range(1, 2**24), "revolutions simulated and dropped first, at least 1")
+    seed: int = _param(in_range(0, 2**63 - 1), "seed of every random generator, 0..2^63-1")
 
 
 @dataclass(frozen=True)
@@ -191,3 +270,68 @@ class MotorModel:
     current_sensors: CurrentSensors
     torque_sensor: TorqueSensor
     encoder: Encoder
+
+
+#: fields that describe one sum of sines together: their lists must have equal lengths
+_PARALLEL_LISTS = ("harmonics", "multiples", "orders", "amplitudes_nm_per_a", "amplitudes_nm", "phases_rad")
+
+
+def value_problem(f: Field, value) -> str | None:
+    """``"key: invalid value ... (doc)"`` if field ``f``'s check refuses ``value``, else None."""
+    check = f.metadata.get("check")
+    if check is None or check(value):
+        return None
+    return f"{f.name}: invalid value {shown(value)} ({f.metadata.get('doc', '')})"
+
+
+def lengths_problem(obj) -> str | None:
+    """``"a, b: must have equal lengths ..."`` if the parallel lists of dataclass ``obj`` differ, else None."""
+    lengths = {f.name: len(getattr(obj, f.name)) for f in fields(obj)
+               if f.name in _PARALLEL_LISTS and isinstance(getattr(obj, f.name), tuple)}
+    if len(set(lengths.values())) > 1:
+        return f"{', '.join(lengths)}: must have equal lengths, got {lengths}"
+    return None
+
+
+def section_problem(table: str, obj) -> str | None:
+    """The first field of dataclass ``obj`` out of its range, or its unequal parallel lists, as "[table] ..."."""
+    for f in fields(obj):
+        problem = value_problem(f, getattr(obj, f.name))
+        if problem is not None:
+            return f"[{table}] {problem}"
+    problem = lengths_problem(obj)
+    return None if problem is None else f"[{table}] {problem}"
+
+
+def model_problem(model: MotorModel) -> str | None:
+    """The first value of ``model`` out of its range, as "[table] key: why" (tables as in a config), or None.
+
+    Each field's own check, then the checks across keys: the fundamental of
+    the back-EMF, every order within the encoder's Nyquist limit, the current
+    bandwidth within a tenth of the control rate.
+    """
+    for section in fields(model):
+        problem = section_problem(section.name, getattr(model, section.name))
+        if problem is not None:
+            return problem
+    emf, w, cpr = model.backemf, model.winding, model.encoder.counts_per_rev
+    if 1 not in emf.harmonics or emf.amplitudes_nm_per_a[emf.harmonics.index(1)] == 0:
+        return "[backemf] harmonics: must include the fundamental 1, with a non-zero amplitude"
+    highest = {
+        "[backemf] harmonics": (max(emf.harmonics) * w.pole_pairs,
+                                f"harmonic {max(emf.harmonics)} x [winding] pole_pairs {w.pole_pairs}"),
+        "[cogging] multiples": (max(model.cogging.multiples, default=0) * w.cogging_order,
+                                f"multiple {max(model.cogging.multiples, default=0)} x the cogging order "
+                                f"{w.cogging_order} = lcm([winding] slots, 2 pole_pairs)"),
+        "[unexplained] orders": (max(model.unexplained.orders, default=0), "order"),
+    }
+    for key, (order, how) in highest.items():
+        if order >= cpr // 2:
+            return (f"{key}: mechanical order {order} ({how}) is beyond the Nyquist limit of "
+                    f"[encoder] counts_per_rev {cpr}")
+    ctrl = model.controller
+    if ctrl.bandwidth_hz > ctrl.control_rate_hz / 10:
+        return (f"[controller] bandwidth_hz: {ctrl.bandwidth_hz:g} Hz is above control_rate_hz / 10 = "
+                f"{ctrl.control_rate_hz / 10:g} Hz (a discrete current loop needs ten control periods per "
+                "bandwidth period)")
+    return None

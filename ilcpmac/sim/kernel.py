@@ -5,7 +5,8 @@ loop reading a sensor with scale, offset and noise, the winding
 L di/dt = v - R i - K_p(theta) omega (exact zero-order-hold step), torque
 sum_p K_p i_p (1 - c i_p^2) + tau_pos(theta), mechanics J domega/dt = tau -
 b omega - coulomb, a piezo torque sensor, and position-triggered sampling
-once per encoder count. Inputs are validated by ``ilcpmac.sim.simulator``.
+once per encoder count. Inputs are validated by ``ilcpmac.sim.simulator``;
+whatever it is given, the kernel reads and writes only within its arrays.
 """
 
 import numpy as np
@@ -46,6 +47,25 @@ def _torque(fine, pos, ia, ib, ic, c_sat):
            + ka * ia * (1.0 - c_sat * ia * ia) + kb * ib * (1.0 - c_sat * ib * ib)
            + kc * ic * (1.0 - c_sat * ic * ic))
     return tau, ka, kb, kc
+
+
+@njit(cache=True)
+def _shapes_fit(fine, i_ref_table, gauss_table, per_phase, record_counts, out_1d, out_3):
+    """Whether every index the kernel computes stays within its arrays."""
+    if fine.ndim != 2 or fine.shape[0] < 2 or fine.shape[1] != 4 or i_ref_table.shape[0] < 1:
+        return False
+    if i_ref_table.shape[1] != 3 or gauss_table.shape[0] < 1 << GAUSS_BITS:
+        return False
+    for a in per_phase:
+        if a.shape[0] < 3:
+            return False
+    for a in out_1d:
+        if a.shape[0] < record_counts:
+            return False
+    for a in out_3:
+        if a.shape[0] < record_counts or a.shape[1] != 3:
+            return False
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -89,8 +109,15 @@ def simulate_trial(
     torque (cogging plus disturbance, N m) at M equally spaced angles over a
     revolution, the first row repeated at the end. Per-phase parameters are
     arrays of 3. Fewer than ``record_counts`` samples means the trial hit
-    ``max_steps`` (the rotor stalled).
+    ``max_steps`` (the rotor stalled) or diverged (the angle left its
+    revolution); arrays too small for the indices return 0 samples.
     """
+    if not _shapes_fit(fine, i_ref_table, gauss_table,
+                       (resistance_ohm, inductance_h, kp_v_per_a, ki_v_per_as, scale_true, offset_true,
+                        scale_cal, offset_cal),
+                       record_counts, (out_time, out_torque, out_torque_true, out_speed),
+                       (out_i_ref, out_i_meas, out_i_true)) or out_count.shape[0] < record_counts:
+        return 0
     rng = uint64(seed) | uint64(1)  # xorshift needs a non-zero state
     counts_per_rev = i_ref_table.shape[0]
     fine_per_rad = (fine.shape[0] - 1) / TWO_PI
@@ -156,6 +183,8 @@ def simulate_trial(
             theta_rev += TWO_PI
             theta_old += TWO_PI
             revs -= 1
+        if not 0.0 <= theta_rev <= TWO_PI:
+            break  # NaN, or more than a revolution in one step: out of the validated ranges
         count_in_rev = min(int(theta_rev * counts_per_rad), counts_per_rev - 1)
         count = revs * counts_per_rev + count_in_rev
         if count <= last_count:

@@ -1,7 +1,13 @@
-"""Python side of the simulator: validate, build the kernel's inputs, run trials in parallel."""
+"""Python side of the simulator: validate, build the kernel's inputs, run trials in parallel.
+
+Every input of the kernel is checked here first (`SimulationError`, one line
+naming the value): the model's ranges, the request's values, shapes and
+dtypes, and the trial's size against `MAX_SAMPLES` and `MAX_STEPS`.
+"""
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -10,13 +16,22 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ilcpmac.errors import SimulationError
-from ilcpmac.model.motor import MotorModel
+from ilcpmac.model.motor import MotorModel, finite_number, model_problem, shown
 from ilcpmac.model.tables import backemf_table, cogging_table, current_references, disturbance_table
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.sim.kernel import GAUSS_BITS, simulate_trial
 
 #: Physics tables hold this many points per encoder count (linear interpolation in between).
 OVERSAMPLE = 16
+#: Most encoder counts per revolution simulated: the tables then hold 4.2 M rows (134 MB).
+MAX_COUNTS_PER_REV = 2**18
+#: Most samples one trial records: its eight output arrays take 112 bytes per sample (0.94 GB at the cap).
+MAX_SAMPLES = 2**23
+#: Most control steps of one trial's budget (three times its nominal duration over the control period):
+#: about a minute of one core at the cap.
+MAX_STEPS = 2**31
+#: Most warm-up revolutions.
+MAX_WARMUP_REVOLUTIONS = 2**24
 
 
 def trial_seed(seed: int, index: int) -> int:
@@ -46,6 +61,15 @@ class Simulator:
     """
 
     def __init__(self, model: MotorModel, warmup_revolutions: int = 1) -> None:
+        problem = model_problem(model)
+        if problem is not None:
+            raise SimulationError(f"model {problem}")
+        if model.encoder.counts_per_rev > MAX_COUNTS_PER_REV:
+            raise SimulationError(f"model [encoder] counts_per_rev: {model.encoder.counts_per_rev} is more than "
+                                  f"the simulator's {MAX_COUNTS_PER_REV}")
+        if not (_integer(warmup_revolutions) and 0 <= warmup_revolutions <= MAX_WARMUP_REVOLUTIONS):
+            raise SimulationError(f"warmup_revolutions must be an integer within 0..{MAX_WARMUP_REVOLUTIONS}, "
+                                  f"got {shown(warmup_revolutions)}")
         self.model = model
         self.warmup_revolutions = warmup_revolutions
         cpr = model.encoder.counts_per_rev
@@ -77,23 +101,45 @@ class Simulator:
         """The true cogging torque per encoder count, N m."""
         return self.cogging_fine[::OVERSAMPLE].copy()
 
-    def _check(self, request: TrialRequest) -> None:
+    def _check(self, request: TrialRequest) -> int:
+        """Refuse what the kernel cannot run; returns the trial's step budget."""
         cpr = self.model.encoder.counts_per_rev
         for name in ("feedforward_nm", "excitation_nm"):
             table = getattr(request, name)
+            if not isinstance(table, np.ndarray) or table.dtype.kind not in "fiu":
+                raise SimulationError(f"request {name} must be a real NumPy array, got {shown(table)}")
             if table.shape != (cpr,):
                 raise SimulationError(f"request {name} has shape {table.shape}, expected ({cpr},)")
             if not np.all(np.isfinite(table)):
                 raise SimulationError(f"request {name} holds NaN or infinite values")
-        if not 0 <= request.seed < 2**32:
-            raise SimulationError(f"request seed must be a 32-bit unsigned integer, got {request.seed}")
-        if not request.speed_setpoint_hz > 0:
-            raise SimulationError(f"speed set point must be positive, got {request.speed_setpoint_hz}")
-        if request.revolutions < 1:
-            raise SimulationError(f"revolutions must be at least 1, got {request.revolutions}")
+        if not (_integer(request.seed) and 0 <= request.seed < 2**32):
+            raise SimulationError(f"request seed must be a 32-bit unsigned integer, got {shown(request.seed)}")
+        if not (_integer(request.revolutions) and request.revolutions >= 1):
+            raise SimulationError(f"revolutions must be at least 1, got {shown(request.revolutions)}")
+        if request.revolutions * cpr > MAX_SAMPLES:
+            raise SimulationError(f"{request.revolutions} revolutions x {cpr} counts are more samples than the "
+                                  f"simulator's {MAX_SAMPLES} per trial")
+        if not finite_number(request.torque_setpoint_nm):
+            raise SimulationError(f"torque set point must be a finite number, got {shown(request.torque_setpoint_nm)}")
+        speed = request.speed_setpoint_hz
+        if not (finite_number(speed) and speed > 0):
+            raise SimulationError(f"speed set point must be positive, got {shown(speed)}")
+        rate = self.model.controller.control_rate_hz
+        if speed * cpr > rate / 2:
+            raise SimulationError(f"speed set point {speed:g} Hz x {cpr} counts per revolution is more than half "
+                                  f"the control rate {rate:g} Hz (each count needs two control periods)")
+        budget = 3.0 * (self.warmup_revolutions + request.revolutions) / speed * rate + 1000
+        if not budget <= MAX_STEPS:
+            raise SimulationError(f"a trial of {self.warmup_revolutions} + {request.revolutions} revolutions at "
+                                  f"{speed:g} Hz needs a budget of {budget:.3g} control steps, more than the "
+                                  f"simulator's {MAX_STEPS}")
         cal = request.calibration
-        if not (np.all(cal.current_scale > 0) and cal.torque_gain > 0 and np.all(np.isfinite(cal.current_offset))):
-            raise SimulationError("request calibration needs positive current scales and torque gain")
+        scale, offset, gain = cal.current_scale, cal.current_offset, cal.torque_gain
+        if not (np.all(np.isfinite(scale) & (scale > 0)) and np.all(np.isfinite(offset))
+                and math.isfinite(gain) and gain > 0):
+            raise SimulationError("request calibration needs finite positive current scales and torque gain "
+                                  "and finite offsets")
+        return int(budget)
 
     def _steady_state(self, request: TrialRequest, i_ref: np.ndarray) -> np.ndarray:
         """Torque per count with ideal current tracking, N m (eq. 1.3 plus the unexplained terms)."""
@@ -105,35 +151,41 @@ class Simulator:
 
     def run_trial(self, request: TrialRequest) -> TrialData:
         """Simulate one trial; ``request.seed`` fixes every random draw."""
-        self._check(request)
+        max_steps = self._check(request)
         m = self.model
         cpr = m.encoder.counts_per_rev
-        i_ref = current_references(request.torque_reference_nm(), self.backemf_counts)
+        i_ref = np.ascontiguousarray(current_references(request.torque_reference_nm(), self.backemf_counts),
+                                     dtype=np.float64)
+        if not np.all(np.isfinite(i_ref)):
+            raise SimulationError("the torque reference needs infinite currents where the back-EMF table vanishes")
         omega0 = 2.0 * np.pi * request.speed_setpoint_hz
         mean_torque = float(self._steady_state(request, i_ref).mean())
-        if mean_torque <= m.mechanics.coulomb_friction_nm:
+        if not mean_torque > m.mechanics.coulomb_friction_nm:
             raise SimulationError(
                 f"set point {request.torque_setpoint_nm} N m gives {mean_torque:.3g} N m mean torque: "
                 "not enough to turn the rotor against friction")
         brake = (mean_torque - m.mechanics.coulomb_friction_nm) / omega0
+        dt = 1.0 / m.controller.control_rate_hz
+        if not brake * dt / m.mechanics.inertia_kgm2 < 1.0:
+            raise SimulationError(
+                f"set point {request.torque_setpoint_nm} N m at {request.speed_setpoint_hz:g} Hz needs a brake of "
+                f"{brake:.3g} N m s, too strong for the explicit speed update (brake x control period / inertia "
+                "must stay below 1): raise the speed")
         rng = np.random.default_rng(request.seed)
         dc = rng.uniform(-1.0, 1.0) * m.torque_sensor.dc_level_nm
         drift = rng.uniform(-1.0, 1.0) * m.torque_sensor.drift_nm_per_s
-        dt = 1.0 / m.controller.control_rate_hz
         w_bw = 2.0 * np.pi * m.controller.bandwidth_hz
         r = np.full(3, m.winding.phase_resistance_ohm)
         ell = np.full(3, m.winding.phase_inductance_h)
         delta = self.torque_gain_true / request.calibration.torque_gain
         warmup = self.warmup_revolutions * cpr
         record = request.revolutions * cpr
-        duration = (self.warmup_revolutions + request.revolutions) / request.speed_setpoint_hz
-        max_steps = int(3.0 * duration / dt) + 1000
         out = _allocate(record)
         n = simulate_trial(
-            self.fine, np.ascontiguousarray(i_ref), self.gauss_table,
+            self.fine, i_ref, self.gauss_table,
             r, ell, w_bw * ell, w_bw * r, m.controller.voltage_limit_v, dt,
-            self.scale_true, self.offset_true, request.calibration.current_scale,
-            request.calibration.current_offset, m.current_sensors.noise_counts,
+            self.scale_true, self.offset_true, np.ascontiguousarray(request.calibration.current_scale),
+            np.ascontiguousarray(request.calibration.current_offset), m.current_sensors.noise_counts,
             m.unexplained.saturation_per_a2,
             m.mechanics.inertia_kgm2, brake, m.mechanics.coulomb_friction_nm, omega0,
             delta, 1.0 / (1.0 + 2.0 * np.pi * m.torque_sensor.highpass_hz * dt), dc, drift,
@@ -142,7 +194,7 @@ class Simulator:
         )
         if n < 2 or out[0][n - 1] < record - 1 - cpr // 2:
             raise SimulationError(
-                f"trial at {request.torque_setpoint_nm} N m, {request.speed_setpoint_hz} Hz stalled "
+                f"trial at {request.torque_setpoint_nm} N m, {request.speed_setpoint_hz} Hz stalled or diverged "
                 f"after {n} of {record} counts")
         count, time, i_ref_s, i_meas, torque, torque_true, i_true, speed = (a[:n] for a in out)
         return TrialData(
@@ -167,6 +219,10 @@ class Simulator:
                 if on_done is not None:
                     on_done(i, results[i])
         return results  # type: ignore[return-value]
+
+
+def _integer(x) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
 
 
 def _allocate(n: int) -> tuple[np.ndarray, ...]:

@@ -16,11 +16,16 @@ from __future__ import annotations
 import numpy as np
 
 from ilcpmac.estimators.kalman import KalmanEstimator
+from ilcpmac.model.motor import in_range
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, harmonic_columns
-from ilcpmac.stages.base import Frame, StageSetup, read_options
+from ilcpmac.stages.base import Frame, StageSetup
+from ilcpmac.stages.registry import check_options
 
 DEFAULTS = {"prior_std_nm": 0.01, "process_noise_nm": 1e-4}
+#: each option's range
+RANGES = {"prior_std_nm": (in_range(0.0, 1e3, low_open=True), "N m, within (0, 1e3]"),
+          "process_noise_nm": (in_range(0.0, 1e3), "N m per trial, within [0, 1e3]")}
 
 
 class CoggingFeedForward:
@@ -33,7 +38,7 @@ class CoggingFeedForward:
     name = "cogging"
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = read_options(setup.options, DEFAULTS, self.name)
+        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
         motor = setup.description.motor
         self._cpr = motor.counts_per_rev
         self._setup = setup

@@ -34,9 +34,11 @@ from __future__ import annotations
 import numpy as np
 
 from ilcpmac.errors import ConfigError
+from ilcpmac.model.motor import in_range
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.stages.base import Frame, StageSetup, plant_response, read_options
+from ilcpmac.stages.base import Frame, StageSetup, plant_response
+from ilcpmac.stages.registry import check_options
 
 DEFAULTS = {
     "learning_gain": 1.0,
@@ -45,6 +47,16 @@ DEFAULTS = {
     "process_noise_nm": 1e-5,
     "significance": 2.0,
     "model_uncertainty": 0.2,
+}
+#: each option's range (q_cutoff_harmonic is also checked against the encoder's Nyquist limit)
+RANGES = {
+    "learning_gain": (in_range(0.0, 10.0, low_open=True),
+                      "gamma, within (0, 10]; convergence asks for less (checked on the identified model)"),
+    "q_cutoff_harmonic": (in_range(1, 2**23), "highest learned harmonic, below counts_per_rev / 2"),
+    "estimation": (lambda x: x in ("kalman", "fixed"), '"kalman" or "fixed"'),
+    "process_noise_nm": (in_range(0.0, 1e3), "N m per trial, within [0, 1e3]"),
+    "significance": (in_range(0.0, 100.0), "standard deviations, within [0, 100]"),
+    "model_uncertainty": (in_range(0.0, 1.0, high_open=True), "relative, within [0, 1)"),
 }
 
 
@@ -71,13 +83,13 @@ class IterativeLearningControl:
     name = "ilc"
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = read_options(setup.options, DEFAULTS, self.name)
-        if opts["estimation"] not in ("kalman", "fixed"):
-            raise ConfigError(f'[stages.ilc] estimation: must be "kalman" or "fixed", got {opts["estimation"]!r}')
-        if not 1 <= opts["q_cutoff_harmonic"] < setup.description.motor.counts_per_rev // 2:
-            raise ConfigError(f"[stages.ilc] q_cutoff_harmonic: {opts['q_cutoff_harmonic']} out of range")
+        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
+        cpr = setup.description.motor.counts_per_rev
+        if not opts["q_cutoff_harmonic"] < cpr // 2:
+            raise ConfigError(f"[stages.ilc] q_cutoff_harmonic: {opts['q_cutoff_harmonic']} is beyond the "
+                              f"Nyquist limit of {cpr} counts per revolution")
         self.options = opts
-        self._cpr = setup.description.motor.counts_per_rev
+        self._cpr = cpr
         self._identified = setup.identified
         self._setup = setup
         self._max_harmonic = min(setup.max_harmonic, opts["q_cutoff_harmonic"])

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from importlib.metadata import entry_points
-from typing import Callable
+from typing import Any, Callable
 
 from ilcpmac.errors import ConfigError
-from ilcpmac.stages.base import Stage, StageSetup
+from ilcpmac.model.motor import shown
+from ilcpmac.stages.base import Stage, StageSetup, read_options
 
 GROUP = "ilcpmac.stages"
 
@@ -62,3 +63,30 @@ def build_stages(names: list[str], setups: dict[str, StageSetup],
             raise ConfigError(f"[pipeline] stages: {name!r} does not implement the Stage protocol")
         stages.append(stage)
     return stages
+
+
+def check_options(options: dict, defaults: dict[str, Any], ranges: dict[str, tuple[Callable, str]],
+                  stage: str) -> dict[str, Any]:
+    """A stage's options over its defaults (`read_options`), each within its range.
+
+    ``ranges`` maps a key to ``(check, doc)``; a value its check refuses raises
+    `ConfigError` naming ``[stages.NAME] key``.
+    """
+    values = read_options(options, defaults, stage)
+    for key, (check, doc) in ranges.items():
+        if not check(values[key]):
+            raise ConfigError(f"[stages.{stage}] {key}: invalid value {shown(values[key])} ({doc})")
+    return values
+
+
+def check_builtin_options(name: str, options: dict) -> None:
+    """Check the options of stage ``name`` if it is a built-in one, before any stage is built.
+
+    A campaign config is checked when it is read, not after the identification;
+    other stages check their options when they are built.
+    """
+    from ilcpmac.stages import cogging, ilc, sensor  # they import this module
+
+    builtin = {"ilc": ilc, "cogging": cogging, "current-sensor": sensor}
+    if name in builtin:
+        check_options(options, builtin[name].DEFAULTS, builtin[name].RANGES, name)

@@ -20,11 +20,16 @@ from __future__ import annotations
 import numpy as np
 
 from ilcpmac.estimators.kalman import KalmanEstimator
+from ilcpmac.model.motor import in_range
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import synchronous_average
-from ilcpmac.stages.base import Frame, StageSetup, plant_response, read_options
+from ilcpmac.stages.base import Frame, StageSetup, plant_response
+from ilcpmac.stages.registry import check_options
 
 DEFAULTS = {"process_noise_rel": 1e-6, "prior_std_rel": 0.02}
+#: each option's range
+RANGES = {"process_noise_rel": (in_range(0.0, 1.0), "relative, within [0, 1]"),
+          "prior_std_rel": (in_range(0.0, 10.0, low_open=True), "relative, within (0, 10]")}
 
 
 def filtered_references(trial: TrialData, counts_per_rev: int, bandwidth_hz: np.ndarray | None) -> np.ndarray:
@@ -76,7 +81,7 @@ class CurrentSensorCorrection:
     name = "current-sensor"
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = read_options(setup.options, DEFAULTS, self.name)
+        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
         ident = setup.identified
         self._backemf = setup.description.backemf_nm_per_a
         self._cpr = setup.description.motor.counts_per_rev
