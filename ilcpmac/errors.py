@@ -13,7 +13,7 @@ class ConfigError(IlcpmacError):
 
 
 class BenchFormatError(IlcpmacError):
-    """A bench folder does not follow BENCH_FORMAT.md."""
+    """A bench folder does not follow docs/bench-format.md."""
 
 
 class SimulationError(IlcpmacError):
@@ -26,3 +26,7 @@ class IdentificationError(IlcpmacError):
 
 class BackendError(IlcpmacError):
     """A backend cannot run a trial: refused request, unreachable target, broken protocol."""
+
+
+class SafetyError(IlcpmacError):
+    """A request would break the safety limits, or a stage produced an invalid one; nothing was sent."""

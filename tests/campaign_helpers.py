@@ -11,7 +11,7 @@ from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import CampaignConfig
-from ilcpmac.records import TrialRequest
+from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.sim.grid import truth_dict
 
 #: a small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials
@@ -61,11 +61,30 @@ def simulator_backend(cfg: CampaignConfig) -> SimulatorBackend:
                                                    cfg.limits.max_speed_hz), cfg.grid.warmup_revolutions)
 
 
+class Recording:
+    """A backend that records every request reaching it and the trial ``backend`` ran for it."""
+
+    def __init__(self, backend: Backend) -> None:
+        self.backend = backend
+        self.requests: list[TrialRequest] = []
+        self.trials: list[TrialData] = []
+        self.max_parallel_trials = 1
+
+    def describe(self):
+        return self.backend.describe()
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        self.requests.append(request)
+        self.trials.append(self.backend.run_trial(request))
+        return self.trials[-1]
+
+
 def run_campaign(cfg: CampaignConfig, out: Path, backend: Backend | None = None, resume: bool = False,
-                 events=None) -> dict:
+                 events=None, extra_stages: dict | None = None) -> dict:
     """Run (or resume) ``cfg`` into ``out`` with seed 7; the truth's identification."""
     sim = simulator_backend(cfg)
     backend = backend or sim
     run_dir = RunDir.resume(out, sim.describe()) if resume else \
         RunDir.create(out, sim.describe(), cfg.path.read_text())
-    return CampaignRunner(cfg, backend, run_dir, 7, TruthIdentification(sim), events or Quiet()).run()
+    return CampaignRunner(cfg, backend, run_dir, 7, TruthIdentification(sim), events or Quiet(),
+                          extra_stages).run()

@@ -193,3 +193,97 @@ def test_a_campaign_stops_with_a_clear_error_when_the_identification_lacks_an_es
     with pytest.raises(IdentificationError, match="needs alpha.*coherence too low"):
         CampaignRunner(campaign_config, sim, run_dir, 7, Lacking(), Quiet()).run()
     assert len(read_bench(tmp_path / "run").trials) == 4  # the grid is kept for a later --resume
+
+
+# ---------------------------------------------------------------- the limits (issue 8)
+
+
+@pytest.mark.parametrize("changes, bench_current_a, message", [
+    ({"limits": {"max_current_a": 0.001}}, 30.0,
+     r"\[trials\] set point 2 N m at 0.6 Hz, revolutions 3, with its \[excitation\] multisine \(fraction 0.05 .*\): "
+     r"current reference .* A in phase . at count \d+ exceeds 0.001 A \(\[limits\] max_current_a or the bench's\)"),
+    ({}, 5.0, r"\[trials\] set point 2 N m at 0.6 Hz.*: current reference .* exceeds 5 A \(\[limits\] max_current_a "
+              r"or the bench's\)"),
+    ({"limits": {"max_torque_nm": 2.0}}, 30.0,
+     r"\[trials\] set point 2 N m at 0.6 Hz.*: torque reference 2.\d+ N m at count \d+ .* exceeds 2 N m "
+     r"\(\[limits\] max_torque_nm or the bench's\)"),
+    ({"campaign": {"ilc_speed_setpoint_hz": 3.0}}, 30.0,
+     r"\[campaign\] ilc_torque_setpoints_nm 2 N m at ilc_speed_setpoint_hz 3 Hz, ilc_revolutions 6: speed set "
+     r"point 3 Hz exceeds 1.5 Hz \(\[limits\] max_speed_hz or the bench's\)"),
+    ({"grid": {"torque_setpoints_nm": (2.0,)}, "campaign": {"ilc_torque_setpoints_nm": (4.0,)},
+      "limits": {"max_current_a": 14.0}}, 30.0,
+     r"\[campaign\] ilc_torque_setpoints_nm 4 N m .*: with a calibration at the edge of the trust region "
+     r"\(\[limits\] max_scale_deviation, max_offset_deviation_a\): flowing current .* exceeds 14 A"),
+    ({"limits": {"max_trial_duration_s": 9.0}}, 30.0,
+     r"\[campaign\] ilc_torque_setpoints_nm 2 N m .*: the trial lasts 9.333 s \(1 warm-up and 6 revolutions at "
+     r"0.75 Hz\), beyond 9 s \(\[limits\] max_trial_duration_s\)"),
+], ids=["config-current", "bench-current", "torque", "speed-3-hz", "trust-region", "duration"])
+def test_a_plan_beyond_the_limits_fails_before_any_trial(campaign_config, tmp_path, changes, bench_current_a,
+                                                          message):
+    """Issue 8: the grid ran (up to 18 A) whatever [limits] said; now the whole plan is checked first.
+    (The configs are changed in memory: the checks must hold whatever the config reader lets through.)"""
+    from campaign_helpers import Recording, TruthIdentification
+
+    from ilcpmac.backends.base import BenchLimits
+    from ilcpmac.campaign.runner import CampaignRunner
+    from ilcpmac.errors import ConfigError
+
+    cfg = dataclasses.replace(campaign_config, **{table: dataclasses.replace(getattr(campaign_config, table), **values)
+                                                  for table, values in changes.items()})
+    sim = SimulatorBackend(cfg.model, BenchLimits(bench_current_a, 8.0, 1.5), cfg.grid.warmup_revolutions)
+    recording = Recording(sim)
+    run_dir = RunDir.create(tmp_path / "run", sim.describe(), cfg.path.read_text())
+    with pytest.raises(ConfigError, match=message):
+        CampaignRunner(cfg, recording, run_dir, 7, TruthIdentification(sim), Quiet()).run()
+    run_dir.close()
+    assert recording.requests == []
+
+
+class TenfoldScale:
+    """A stage that multiplies the calibration's current scales by 10 (issue 8: 92.9 A against 30 A)."""
+
+    name = "tenfold"
+
+    def __init__(self, setup) -> None:
+        pass
+
+    def columns(self, trial):
+        return None
+
+    def shape(self, request: TrialRequest) -> TrialRequest:
+        cal = request.calibration
+        return request.with_changes(calibration=dataclasses.replace(cal, current_scale=10 * cal.current_scale))
+
+    def learn(self, trial, frame) -> None:
+        pass
+
+    def state(self) -> dict:
+        return {}
+
+    def restore(self, state: dict) -> None:
+        pass
+
+
+@pytest.mark.slow
+def test_every_request_of_a_campaign_obeys_the_limits_whatever_a_stage_asks(write_config, tmp_path):
+    from campaign_helpers import Recording
+
+    from ilcpmac.model.tables import current_references
+
+    changes = {**SMALL_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "tenfold", "cogging", "ilc"]},
+               "campaign": {**SMALL_CAMPAIGN["campaign"], "ilc_trials": 1}, "limits": {"max_current_a": 20.0}}
+    cfg = load_config(write_config(changes))
+    sim = simulator_backend(cfg)
+    recording, events = Recording(sim), Quiet()
+    summary = run_campaign(cfg, tmp_path / "run", recording, events=events, extra_stages={"tenfold": TenfoldScale})
+    clipped = [m for m in events.messages if m.startswith("limits: stage 'tenfold' set a calibration outside")]
+    assert len(clipped) == sum(r["role"] in ("compensate", "ilc") for r in summary["trials"]) > 0
+    assert "current scale of phase a deviates +900 % from the identified sensors" in clipped[0]
+    backemf = sim.describe().backemf_nm_per_a
+    assert len(read_bench(tmp_path / "run").trials) == len(recording.requests)
+    for request in recording.requests:
+        truth = sim.simulator.truth(request.calibration)
+        i_ref = current_references(request.torque_reference_nm(), backemf)
+        assert np.abs(truth.epsilon * truth.alpha * i_ref + truth.beta_a).max() <= 20.0 * (1 + 1e-6)
+    # the simulated true current within the limit plus the tolerance tests/test_limits_property.py justifies
+    assert max(np.abs(t.i_true_a).max() for t in recording.trials) <= 20.25

@@ -30,10 +30,17 @@ from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.config import CampaignConfig
 from ilcpmac.errors import ConfigError, IdentificationError
 from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.pipeline.safety import SafetyLimits, enforce_limits
+from ilcpmac.pipeline.safety import (
+    LimitGuard,
+    SafetyLimits,
+    check_plan,
+    identified_truth,
+    torque_violation,
+    trust_edges,
+)
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import RippleFigures, ripple_figures
-from ilcpmac.sim.grid import grid_requests
+from ilcpmac.sim.grid import grid_plan, grid_requests
 from ilcpmac.sim.simulator import trial_seed
 from ilcpmac.stages.base import Identified, StageSetup
 from ilcpmac.stages.ilc import setpoint_key
@@ -74,13 +81,59 @@ def _figures(prefix: str, f: RippleFigures | None) -> dict:
             f"amp_cogging_{prefix}_nm": f.amp_cogging, f"amp_rest_{prefix}_nm": f.amp_rest}
 
 
+def base_request(config: CampaignConfig, description: BenchDescription, torque_nm: float,
+                 seed: int) -> TrialRequest:
+    """An uncompensated request at an ILC set point, with the bench's own calibration."""
+    cpr = description.motor.counts_per_rev
+    c = config.campaign
+    return TrialRequest(torque_nm, c.ilc_speed_setpoint_hz, c.revolutions_at(torque_nm), np.zeros(cpr),
+                        np.zeros(cpr), description.calibration, seed=seed)
+
+
+@dataclass(frozen=True)
+class CampaignPlan:
+    """The limits of a campaign and its grid, checked against the bench before anything runs or is written.
+
+    Attributes
+    ----------
+    limits : the config's limits, tightened by the bench's.
+    grid : the identification grid's requests; trial k (1-based) is seeded with ``trial_seed(seed, k)``.
+    """
+
+    limits: SafetyLimits
+    grid: list[TrialRequest]
+
+    @classmethod
+    def build(cls, config: CampaignConfig, description: BenchDescription, seed: int) -> "CampaignPlan":
+        """Check every request the campaign will make: the grid, each ILC set point as its baseline runs it,
+        and as the stages may run it (any calibration of the trust region); raise `ConfigError` naming the keys."""
+        if description.motor.counts_per_rev != config.model.encoder.counts_per_rev:
+            raise ConfigError(f"{config.path}: [encoder] counts_per_rev {config.model.encoder.counts_per_rev} "
+                              f"differs from the bench's {description.motor.counts_per_rev}")
+        limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
+        grid = [replace(r, calibration=description.calibration, seed=trial_seed(seed, i + 1))
+                for i, r in enumerate(grid_requests(config, seed, config.grid.revolutions))]
+        c = config.campaign
+        baselines = [(f"{config.path}: [campaign] ilc_torque_setpoints_nm {torque:g} N m at ilc_speed_setpoint_hz "
+                      f"{c.ilc_speed_setpoint_hz:g} Hz, ilc_revolutions {c.revolutions_at(torque)}",
+                      base_request(config, description, torque, 0)) for torque in c.ilc_torque_setpoints_nm]
+        check_plan([*grid_plan(config, grid), *baselines], description, limits)
+        for place, request in baselines:
+            for edge in trust_edges(limits):
+                why = torque_violation(request.torque_reference_nm(), description.backemf_nm_per_a, limits, edge)
+                if why is not None:
+                    raise ConfigError(f"{place}: with a calibration at the edge of the trust region ([limits] "
+                                      f"max_scale_deviation, max_offset_deviation_a): {why}")
+        return cls(limits, grid)
+
+
 class CampaignRunner:
     """Runs (or resumes) a campaign.
 
     Parameters
     ----------
     config : the campaign.
-    backend : where trials run.
+    backend : where trials run; every request reaches it through a `LimitGuard`.
     run_dir : where they are persisted.
     seed : seeds every trial (trial k uses ``trial_seed(seed, k)``).
     identify : the identification, ``identify(bench) -> result``.
@@ -93,29 +146,16 @@ class CampaignRunner:
                  extra_stages: dict[str, Callable[[StageSetup], object]] | None = None) -> None:
         self.extra_stages = extra_stages
         self.config = config
-        self.backend = backend
         self.run_dir = run_dir
         self.seed = seed
         self.identify = identify
         self.events = events
         self.description: BenchDescription = run_dir.description
-        c = config.campaign
-        if self.description.motor.counts_per_rev != config.model.encoder.counts_per_rev:
-            raise ConfigError(f"{config.path}: [encoder] counts_per_rev {config.model.encoder.counts_per_rev} "
-                              f"differs from the bench's {self.description.motor.counts_per_rev}")
-        bench = self.description.limits  # never ask more than the bench accepts
-        self.limits = SafetyLimits(config.limits.max_correction_nm,
-                                   min(config.limits.max_current_a, bench.max_current_a),
-                                   min(config.limits.max_torque_nm, bench.max_torque_nm))
-        max_speed_hz = min(config.limits.max_speed_hz, bench.max_speed_hz)
-        # trial k of the campaign (1-based) is seeded with trial_seed(seed, k), the grid's too
-        self.grid = [replace(r, calibration=self.description.calibration, seed=trial_seed(seed, i + 1))
-                     for i, r in enumerate(grid_requests(config, seed, config.grid.revolutions))]
-        for where, speed in [("[campaign] ilc_speed_setpoint_hz", c.ilc_speed_setpoint_hz),
-                             *(("[trials] speed_setpoints_hz", r.speed_setpoint_hz) for r in self.grid)]:
-            if speed > max_speed_hz:
-                raise ConfigError(f"{config.path}: {where}: {speed} Hz exceeds the speed limit {max_speed_hz} Hz "
-                                  "([limits] max_speed_hz or the bench's)")
+        plan = CampaignPlan.build(config, self.description, seed)
+        self.limits = plan.limits
+        #: every request of every phase passes the limits here (the identified sensors join them later)
+        self.backend = LimitGuard(backend, self.description, self.limits)
+        self.grid = plan.grid
         self.records: list[dict] = []
         self.identified: Identified | None = None
         self.identification_json: dict | None = None
@@ -126,10 +166,7 @@ class CampaignRunner:
     # ---------------------------------------------------------------- planning
 
     def _base_request(self, torque_nm: float, index: int) -> TrialRequest:
-        cpr = self.description.motor.counts_per_rev
-        c = self.config.campaign
-        return TrialRequest(torque_nm, c.ilc_speed_setpoint_hz, c.revolutions_at(torque_nm), np.zeros(cpr), np.zeros(cpr),
-                            self.description.calibration, seed=trial_seed(self.seed, index))
+        return base_request(self.config, self.description, torque_nm, trial_seed(self.seed, index))
 
     def _records_at(self, torque_nm: float, roles: tuple[str, ...]) -> list[dict]:
         return [r for r in self.records if r["role"] in roles and r["torque_setpoint"] == torque_nm]
@@ -168,10 +205,11 @@ class CampaignRunner:
         try:
             self._resume()
             self._loop()
+            self.run_dir.flush()
+            summary = self.summary()
+            self.run_dir.write_summary(summary)
         finally:
             self.run_dir.close()
-        summary = self.summary()
-        self.run_dir.write_summary(summary)
         return summary
 
     def _loop(self) -> None:
@@ -184,8 +222,6 @@ class CampaignRunner:
             request = step.request
             if step.role != "baseline":
                 request = self.pipeline.shape(request)
-            else:
-                request = enforce_limits(request, self.description.backemf_nm_per_a, self.limits)
             trial = self._run(request)
             self._finish(step, trial)
 
@@ -214,9 +250,10 @@ class CampaignRunner:
         record.update(self._ripple(trial))
         baseline = self._records_at(step.request.torque_setpoint_nm, ("baseline",))
         if step.role in ("compensate", "ilc") and baseline:
-            record["reduction_factor"] = baseline[0]["ripple_pp_measured"] / record["ripple_pp_measured"]
-            if "ripple_pp_true" in record:
-                record["reduction_factor_true"] = baseline[0]["ripple_pp_true"] / record["ripple_pp_true"]
+            for kind in ("measured", "true"):
+                before, after = baseline[0].get(f"ripple_pp_{kind}"), record.get(f"ripple_pp_{kind}")
+                if before is not None and after is not None and after > 0:  # a flat trace has no factor
+                    record["reduction_factor" + ("_true" if kind == "true" else "")] = before / after
         self.records.append(record)
         if step.role == "ilc":
             guard = self._guard(step.request.torque_setpoint_nm, key)
@@ -276,7 +313,7 @@ class CampaignRunner:
             why = "; ".join(self.identification_json.get("messages", [])) or "no reason given"
             raise IdentificationError(f"the compensation needs {', '.join(missing)}, which the identification "
                                       f"could not estimate ({why})")
-        self.identified = Identified.from_result(self.identification_json, self.description.calibration)
+        self._set_identified(self.identification_json)
         for record, trial in zip(self.records, grid_trials):
             trial = replace(trial, request=replace(self.grid[record["index"] - 1]))
             record.update(_figures("measured", self._measured_figures(trial)))
@@ -284,13 +321,18 @@ class CampaignRunner:
             "result": self.identification_json, "grid_records": self.records[: len(self.grid)]})
         self.run_dir.write_summary(self.summary())
 
+    def _set_identified(self, result: dict) -> None:
+        """Take the identification: the stages start from it, the limits bound the flowing current with it."""
+        self.identified = Identified.from_result(result, self.description.calibration)
+        self.backend.truth = identified_truth(self.identified)
+
     def _start_pipeline(self) -> None:
         names = list(self.config.pipeline.stages)
         setups = {name: StageSetup(self.description, self.identified, self.config.campaign.ripple_harmonics,
                                    self.config.stage_options.get(name, {})) for name in names}
         stages = build_stages(names, setups, self.extra_stages)
         self.pipeline = Pipeline(stages, self.description, self.identified, self.limits,
-                                 self.config.campaign.ripple_harmonics)
+                                 self.config.campaign.ripple_harmonics, self.events.message)
 
     def _guard(self, torque_nm: float, key: str) -> dict | None:
         """Revert to the best correction and halve the learning gain when the ripple grew twice in a row."""
@@ -320,7 +362,7 @@ class CampaignRunner:
                 self._identify(self._grid_trials())
             else:
                 self.identification_json = saved["result"]
-                self.identified = Identified.from_result(saved["result"], self.description.calibration)
+                self._set_identified(saved["result"])
                 self.records[: len(self.grid)] = saved["grid_records"]
         last = self.run_dir.state(done)
         self.gains = dict(last.get("gains", {}))

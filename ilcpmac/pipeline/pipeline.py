@@ -2,11 +2,24 @@
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from ilcpmac.backends.base import BenchDescription
 from ilcpmac.pipeline.regression import Regression
-from ilcpmac.pipeline.safety import SafetyLimits, enforce_limits
+from ilcpmac.pipeline.safety import (
+    FlowingCurrent,
+    SafetyError,
+    SafetyLimits,
+    calibration_violation,
+    clip_to_trust_region,
+    enforce_limits,
+    extent_violation,
+    form_violation,
+    identified_truth,
+    torque_violation,
+)
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, revolution_harmonics
 from ilcpmac.stages.base import Frame, Identified, Stage
@@ -29,21 +42,54 @@ class Pipeline:
     identified : the identification the stages start from.
     limits : the safety limits every request obeys.
     max_harmonic : H, the ripple band.
+    notify : told when the limits change what a stage asked for (a calibration clipped).
     """
 
     def __init__(self, stages: list[Stage], description: BenchDescription, identified: Identified,
-                 limits: SafetyLimits, max_harmonic: int) -> None:
+                 limits: SafetyLimits, max_harmonic: int, notify: Callable[[str], None] | None = None) -> None:
         self.stages = stages
         self.description = description
         self.identified = identified
         self.limits = limits
         self.max_harmonic = max_harmonic
+        self.notify = notify
+        self._truth = identified_truth(identified)
 
     def shape(self, request: TrialRequest) -> TrialRequest:
-        """Pass ``request`` through every stage, then clip it to the limits."""
+        """Pass ``request`` through every stage, each output checked (`checked`), then clip the
+        feed-forward to the limits (`enforce_limits`)."""
         for stage in self.stages:
-            request = stage.shape(request)
-        return enforce_limits(request, self.description.backemf_nm_per_a, self.limits)
+            request = self.checked(stage.shape(request), stage.name)
+        flowing = FlowingCurrent.at(request.calibration, self._truth)
+        return enforce_limits(request, self.description.backemf_nm_per_a, self.limits, flowing)
+
+    def checked(self, request: TrialRequest, stage: str) -> TrialRequest:
+        """Stage ``stage``'s output, its calibration clipped into the trust region.
+
+        Raises `SafetyError` naming the stage for anything else out of bounds: no request, NaN or
+        infinity, a wrong shape, a speed, length or duration beyond the limits, or a set point that
+        with its excitation breaks the torque or current limits.
+        """
+        if not isinstance(request, TrialRequest):
+            raise SafetyError(f"stage {stage!r} returned {type(request).__name__}, not a TrialRequest")
+        cpr = self.description.motor.counts_per_rev
+        why = form_violation(request, cpr) or extent_violation(request, cpr, self.limits)
+        if why is not None:
+            raise SafetyError(f"stage {stage!r}: {why}")
+        nominal = self.description.calibration
+        calibration = clip_to_trust_region(request.calibration, nominal, self._truth, self.limits)
+        if calibration is not request.calibration:
+            if self.notify is not None:
+                self.notify(f"limits: stage {stage!r} set a calibration outside the trust region: "
+                            f"{calibration_violation(request.calibration, nominal, self._truth, self.limits)}; "
+                            "clipped to the region around the identified sensors")
+            request = request.with_changes(calibration=calibration)
+        why = torque_violation(request.torque_setpoint_nm + request.excitation_nm, self.description.backemf_nm_per_a,
+                               self.limits, FlowingCurrent.at(calibration, self._truth))
+        if why is not None:
+            raise SafetyError(f"stage {stage!r}: set point {request.torque_setpoint_nm:g} N m with its "
+                              f"excitation: {why}")
+        return request
 
     def claimed_harmonics(self) -> np.ndarray:
         """Harmonics the stages' models claim: multiples of the pole-pair count up to H."""

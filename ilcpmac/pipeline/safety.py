@@ -1,52 +1,403 @@
-"""Limits every request obeys, whatever the stages ask."""
+"""Limits every request obeys, whatever the stages ask: the one check that decides what may reach a backend.
+
+`request_violation` is that check (docs/safety.md): the campaign's `LimitGuard`
+applies it to every request of every phase, the plan check to every planned
+request before the first trial, and the bench protocol (client and emulator)
+to every REQUEST. `enforce_limits` and `clip_to_trust_region` are the two
+corrections the pipeline applies instead of refusing: the feed-forward and a
+stage's calibration are clipped, everything else out of bounds is an error.
+"""
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
+from typing import Iterable
 
 import numpy as np
 
-from ilcpmac.errors import ConfigError
-from ilcpmac.records import TrialRequest
+from ilcpmac.backends.base import BenchDescription, BenchLimits
+from ilcpmac.config import LimitSettings
+from ilcpmac.errors import ConfigError, IdentificationError, SafetyError
+from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.stages.base import Identified
+
+#: relative slack of every comparison with a limit: what clipping to a bound may leave after rounding
+ROUNDING = 1e-9
 
 
 @dataclass(frozen=True)
 class SafetyLimits:
-    """Bounds on a request.
+    """Bounds on a request (docs/safety.md); the optional ones are unbounded unless given.
 
     Attributes
     ----------
     max_correction_nm : float
         |feed-forward| per count, N m.
     max_current_a : float
-        |I*_p| per count and phase, A.
+        |I*_p| per count and phase, and the flowing |i_p| where the sensors are known, A.
     max_torque_nm : float
         |torque reference| per count, N m.
+    max_speed_hz : float
+        Speed set point, Hz.
+    max_scale_deviation, max_offset_deviation_a, max_torque_gain_deviation : float
+        The calibration trust region: relative deviation of each current scale, deviation of each
+        current offset in amperes (counts / scale), relative deviation of the torque gain.
+    max_samples_per_trial : float
+        revolutions x counts_per_rev.
+    max_trial_duration_s : float
+        (warm-up + recorded revolutions) / speed, s.
+    warmup_revolutions : int
+        Revolutions a trial runs before recording, counted in its duration.
+    from_config : bool
+        Messages name the [limits] keys (True) or "the bench limit" (False).
     """
 
     max_correction_nm: float
     max_current_a: float
     max_torque_nm: float
+    max_speed_hz: float = math.inf
+    max_scale_deviation: float = math.inf
+    max_offset_deviation_a: float = math.inf
+    max_torque_gain_deviation: float = math.inf
+    max_samples_per_trial: float = math.inf
+    max_trial_duration_s: float = math.inf
+    warmup_revolutions: int = 0
+    from_config: bool = False
+
+    @classmethod
+    def of_bench(cls, bench: BenchLimits) -> "SafetyLimits":
+        """What a bench announces: current, torque and speed."""
+        return cls(math.inf, bench.max_current_a, bench.max_torque_nm, bench.max_speed_hz)
+
+    @classmethod
+    def of_campaign(cls, settings: LimitSettings, bench: BenchLimits, warmup_revolutions: int) -> "SafetyLimits":
+        """The config's [limits], never beyond what the bench accepts."""
+        return cls(settings.max_correction_nm, min(settings.max_current_a, bench.max_current_a),
+                   min(settings.max_torque_nm, bench.max_torque_nm), min(settings.max_speed_hz, bench.max_speed_hz),
+                   settings.max_scale_deviation, settings.max_offset_deviation_a,
+                   settings.max_torque_gain_deviation, settings.max_samples_per_trial,
+                   settings.max_trial_duration_s, warmup_revolutions, from_config=True)
+
+    def text(self, key: str, unit: str) -> str:
+        """Limit ``key`` as a message names it: its value and where it comes from."""
+        value = getattr(self, key)
+        if not self.from_config:
+            return f"the bench limit of {value:g} {unit}"
+        bench = " or the bench's" if key in ("max_current_a", "max_torque_nm", "max_speed_hz") else ""
+        return f"{value:g} {unit} ([limits] {key}{bench})"
 
 
-def torque_bound_nm(backemf_nm_per_a: np.ndarray, limits: SafetyLimits) -> np.ndarray:
-    """Largest |tau_ref| per count that keeps every I*_p = tau_ref K_p / sum K^2 within the current limit."""
-    k = np.abs(backemf_nm_per_a)
-    current_bound = limits.max_current_a * np.sum(backemf_nm_per_a**2, axis=1) / k.max(axis=1)
-    return np.minimum(current_bound, limits.max_torque_nm)
+@dataclass(frozen=True)
+class FlowingCurrent:
+    """The phase currents that flow for references I*: i_p = gain_p I*_p + offset_p (eq. 1.2).
 
-
-def enforce_limits(request: TrialRequest, backemf_nm_per_a: np.ndarray, limits: SafetyLimits) -> TrialRequest:
-    """Clip the feed-forward so that it and the resulting current references stay within ``limits``.
-
-    Raises `ConfigError` when the set point plus excitation alone break the limits.
+    Attributes
+    ----------
+    gain : ndarray, shape (3,)
+        epsilon alpha_p = s*_p / s_p.
+    offset_a : ndarray, shape (3,)
+        beta_p = (o_p - o*_p) / s_p, A.
     """
-    bound = torque_bound_nm(backemf_nm_per_a, limits)
+
+    gain: np.ndarray
+    offset_a: np.ndarray
+
+    @classmethod
+    def at(cls, calibration: SensorCalibration, truth: SensorCalibration) -> "FlowingCurrent":
+        """The currents under controller ``calibration`` (s*, o*) with true sensors ``truth`` (s, o)."""
+        return cls(calibration.current_scale / truth.current_scale,
+                   (truth.current_offset - calibration.current_offset) / truth.current_scale)
+
+
+def identified_truth(identified: Identified) -> SensorCalibration:
+    """The true sensors the identification found: scale 1 / G_s, offset o*_s + beta / G_s, torque gain g_t
+    (the calibration the current-sensor stage starts from)."""
+    gain = identified.sensor_gain
+    if not (np.all(np.isfinite(gain)) and np.all(gain > 0) and np.all(np.isfinite(identified.beta_a))
+            and 0 < identified.torque_gain_v_per_nm < math.inf):
+        raise IdentificationError(
+            "the identified sensors bound the flowing current and need finite positive gains and finite offsets, "
+            f"got epsilon alpha {identified.epsilon * identified.alpha}, beta {identified.beta_a} A, "
+            f"delta {identified.delta}")
+    return SensorCalibration(1.0 / gain, identified.calibration.current_offset + identified.beta_a / gain,
+                             identified.torque_gain_v_per_nm)
+
+
+def trust_edges(limits: SafetyLimits) -> list[FlowingCurrent]:
+    """The currents at the edge of the trust region around the true sensors that bound every other:
+    epsilon alpha = 1 + max_scale_deviation with beta = +-max_offset_deviation_a (none if unbounded)."""
+    if not math.isfinite(limits.max_scale_deviation + limits.max_offset_deviation_a):
+        return []
+    gain = np.full(3, 1.0 + limits.max_scale_deviation)
+    return [FlowingCurrent(gain, np.full(3, sign * limits.max_offset_deviation_a)) for sign in (1.0, -1.0)]
+
+
+# ---------------------------------------------------------------- calibration trust region
+
+
+def _trust_deviation(calibration: SensorCalibration, centre: SensorCalibration, centre_name: str,
+                     limits: SafetyLimits) -> str | None:
+    """Why ``calibration`` lies outside the trust region around ``centre``, or None."""
+    deviations = (("current scale", calibration.current_scale / centre.current_scale - 1.0,
+                   "max_scale_deviation", "%", 100.0),
+                  ("current offset", (calibration.current_offset - centre.current_offset) / centre.current_scale,
+                   "max_offset_deviation_a", "A", 1.0),
+                  ("torque gain", np.array([calibration.torque_gain / centre.torque_gain - 1.0]),
+                   "max_torque_gain_deviation", "%", 100.0))
+    for what, values, key, unit, factor in deviations:
+        p = int(np.argmax(np.abs(values)))
+        if abs(values[p]) > getattr(limits, key) * (1.0 + ROUNDING):
+            phase = f" of phase {'abc'[p]}" if values.size == 3 else ""
+            return (f"{what}{phase} deviates {factor * values[p]:+.4g} {unit} from the {centre_name}, "
+                    f"beyond {factor * getattr(limits, key):g} {unit} ([limits] {key})")
+    return None
+
+
+def calibration_violation(calibration: SensorCalibration, nominal: SensorCalibration,
+                          truth: SensorCalibration | None, limits: SafetyLimits) -> str | None:
+    """Why ``calibration`` is outside the trust regions, or None.
+
+    A calibration is trusted within the region around the bench's ``nominal`` one (what it runs
+    today) or, once identified, around the true sensors ``truth`` (where the stages aim).
+    """
+    near_nominal = _trust_deviation(calibration, nominal, "bench's calibration", limits)
+    if near_nominal is None or truth is None:
+        return near_nominal
+    return _trust_deviation(calibration, truth, "identified sensors", limits)
+
+
+def clip_to_trust_region(calibration: SensorCalibration, nominal: SensorCalibration,
+                         truth: SensorCalibration, limits: SafetyLimits) -> SensorCalibration:
+    """``calibration`` itself when trusted (`calibration_violation`), else clipped into the region around ``truth``."""
+    if calibration_violation(calibration, nominal, truth, limits) is None:
+        return calibration
+    d_scale, d_gain = limits.max_scale_deviation, limits.max_torque_gain_deviation
+    room_a = limits.max_offset_deviation_a * truth.current_scale
+    return SensorCalibration(
+        np.clip(calibration.current_scale, truth.current_scale * (1 - d_scale), truth.current_scale * (1 + d_scale)),
+        np.clip(calibration.current_offset, truth.current_offset - room_a, truth.current_offset + room_a),
+        float(np.clip(calibration.torque_gain, truth.torque_gain * (1 - d_gain), truth.torque_gain * (1 + d_gain))))
+
+
+# ---------------------------------------------------------------- torque and currents
+
+
+def _amperes_per_nm(backemf_nm_per_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """K_p / sum_q K_q^2 per count and phase (I*_p per N m of torque reference), and the counts whose
+    back-EMF row is zero (no current makes torque there: they get 0 A / N m and admit only zero torque)."""
+    norm = np.sum(backemf_nm_per_a**2, axis=1)
+    dead = norm == 0
+    per_nm = np.divide(backemf_nm_per_a, norm[:, None], out=np.zeros_like(backemf_nm_per_a, dtype=float),
+                       where=~dead[:, None])
+    return per_nm, dead
+
+
+def _phase_interval(gain: np.ndarray, offset: np.ndarray, bound: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per count, the tau with |gain_p tau + offset_p| <= bound in every phase (low > high: none)."""
+    zero = gain == 0
+    safe = np.where(zero, 1.0, gain)
+    with np.errstate(over="ignore"):  # a tiny gain: no bound there
+        ends = np.stack([(-bound - offset) / safe, (bound - offset) / safe])
+    room = np.abs(offset) <= bound
+    low = np.where(zero, np.where(room, -np.inf, np.inf), ends.min(axis=0))
+    high = np.where(zero, np.where(room, np.inf, -np.inf), ends.max(axis=0))
+    return low.max(axis=1), high.min(axis=1)
+
+
+def torque_interval_nm(backemf_nm_per_a: np.ndarray, limits: SafetyLimits,
+                       flowing: FlowingCurrent | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per count, the torque references [low, high] within max_torque_nm whose current references
+    I*_p = tau K_p / sum K^2, and flowing currents (when ``flowing`` is known), stay within max_current_a."""
+    per_nm, dead = _amperes_per_nm(backemf_nm_per_a)
+    low, high = _phase_interval(per_nm, np.zeros(3), limits.max_current_a)
+    if flowing is not None:
+        flow_low, flow_high = _phase_interval(per_nm * flowing.gain, flowing.offset_a, limits.max_current_a)
+        low, high = np.maximum(low, flow_low), np.minimum(high, flow_high)
+    low = np.maximum(low, -limits.max_torque_nm)
+    high = np.minimum(high, limits.max_torque_nm)
+    return np.where(dead, np.maximum(low, 0.0), low), np.where(dead, np.minimum(high, 0.0), high)
+
+
+def _peak(values: np.ndarray) -> tuple[int, ...]:
+    return np.unravel_index(int(np.argmax(np.abs(values))), values.shape)
+
+
+def torque_violation(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.ndarray, limits: SafetyLimits,
+                     flowing: FlowingCurrent | None = None) -> str | None:
+    """Why a torque reference per count breaks the torque or current limits, or None."""
+    tau = torque_reference_nm
+    (k,) = _peak(tau)
+    if abs(tau[k]) > limits.max_torque_nm * (1.0 + ROUNDING):
+        return (f"torque reference {tau[k]:.4g} N m at count {k} (set point + feed-forward + excitation) "
+                f"exceeds {limits.text('max_torque_nm', 'N m')}")
+    per_nm, dead = _amperes_per_nm(backemf_nm_per_a)
+    if np.any(dead & (tau != 0)):
+        k = int(np.argmax(dead & (tau != 0)))
+        return (f"torque reference {tau[k]:.4g} N m at count {k}, where the back-EMF table is zero in every "
+                "phase (no current makes torque there)")
+    currents = [("current reference", tau[:, None] * per_nm, "")]
+    if flowing is not None:
+        currents.append(("flowing current", flowing.gain * currents[0][1] + flowing.offset_a,
+                         " (epsilon alpha and beta of the identified sensors at this calibration)"))
+    for what, amperes, why in currents:
+        k, p = _peak(amperes)
+        if abs(amperes[k, p]) > limits.max_current_a * (1.0 + ROUNDING):
+            return (f"{what} {amperes[k, p]:.4g} A in phase {'abc'[p]} at count {k}{why} exceeds "
+                    f"{limits.text('max_current_a', 'A')}")
+    return None
+
+
+def enforce_limits(request: TrialRequest, backemf_nm_per_a: np.ndarray, limits: SafetyLimits,
+                   flowing: FlowingCurrent | None = None) -> TrialRequest:
+    """Clip the feed-forward to max_correction_nm and so that the torque reference stays within
+    `torque_interval_nm`; nothing else changes.
+
+    Raises `SafetyError` when the set point plus excitation alone break the limits.
+    """
     base = request.torque_setpoint_nm + request.excitation_nm
-    if np.any(np.abs(base) > bound):
-        raise ConfigError(
-            f"set point {request.torque_setpoint_nm} N m with its excitation exceeds the limits "
-            f"(max_current_a {limits.max_current_a}, max_torque_nm {limits.max_torque_nm})")
+    why = torque_violation(base, backemf_nm_per_a, limits, flowing)
+    if why is not None:
+        raise SafetyError(f"set point {request.torque_setpoint_nm:g} N m with its excitation: {why}")
+    low, high = torque_interval_nm(backemf_nm_per_a, limits, flowing)
     correction = np.clip(request.feedforward_nm, -limits.max_correction_nm, limits.max_correction_nm)
-    correction = np.clip(base + correction, -bound, bound) - base
+    correction = np.clip(base + correction, low, high) - base
     return request.with_changes(feedforward_nm=correction)
+
+
+# ---------------------------------------------------------------- the check
+
+
+def _is_real(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def _is_integer(x) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def form_violation(request: TrialRequest, counts_per_rev: int) -> str | None:
+    """Why ``request`` is no valid request at all (shapes, types, NaN or infinity anywhere), or None."""
+    for name in ("feedforward_nm", "excitation_nm"):
+        table = getattr(request, name)
+        if not isinstance(table, np.ndarray) or table.dtype.kind not in "fiu":
+            return f"{name} must be an array of real numbers, got {type(table).__name__}"
+        if table.shape != (counts_per_rev,):
+            return f"{name} has shape {table.shape}, the bench needs ({counts_per_rev},)"
+        if not np.all(np.isfinite(table)):
+            return f"{name} holds NaN or infinite values"
+    cal = request.calibration
+    if not isinstance(cal, SensorCalibration):
+        return f"calibration must be a SensorCalibration, got {type(cal).__name__}"
+    if not (np.all(np.isfinite(cal.current_scale)) and np.all(cal.current_scale > 0)
+            and np.all(np.isfinite(cal.current_offset)) and 0 < cal.torque_gain < math.inf):
+        return "calibration needs finite positive current scales and torque gain, and finite offsets"
+    if not (_is_integer(request.revolutions) and 1 <= request.revolutions < 2**32):
+        return f"revolutions must be 1 to 2^32-1, got {request.revolutions!r}"
+    if not (_is_integer(request.seed) and 0 <= request.seed < 2**32):
+        return f"seed must be a 32-bit unsigned integer, got {request.seed!r}"
+    if not (_is_real(request.torque_setpoint_nm) and math.isfinite(request.torque_setpoint_nm)):
+        return f"torque set point must be finite, got {request.torque_setpoint_nm!r}"
+    if not (_is_real(request.speed_setpoint_hz) and 0 < request.speed_setpoint_hz < math.inf):
+        return f"speed set point must be positive, got {request.speed_setpoint_hz!r} Hz"
+    return None
+
+
+def extent_violation(request: TrialRequest, counts_per_rev: int, limits: SafetyLimits) -> str | None:
+    """Why ``request`` (well formed) breaks the speed, sample or duration limit, or None."""
+    speed, revolutions = request.speed_setpoint_hz, request.revolutions
+    if speed > limits.max_speed_hz * (1.0 + ROUNDING):
+        return f"speed set point {speed:g} Hz exceeds {limits.text('max_speed_hz', 'Hz')}"
+    if revolutions * counts_per_rev > limits.max_samples_per_trial:
+        return (f"{revolutions} revolutions of {counts_per_rev} counts ({revolutions * counts_per_rev} samples) "
+                f"exceed {limits.text('max_samples_per_trial', 'samples')}")
+    duration = (limits.warmup_revolutions + revolutions) / speed
+    if duration > limits.max_trial_duration_s * (1.0 + ROUNDING):
+        return (f"the trial lasts {duration:.4g} s ({limits.warmup_revolutions} warm-up and {revolutions} "
+                f"revolutions at {speed:g} Hz), beyond {limits.text('max_trial_duration_s', 's')}")
+    return None
+
+
+@dataclass(frozen=True)
+class Violation:
+    """Why a request must not reach a backend.
+
+    Attributes
+    ----------
+    malformed : bool
+        True: no valid request at all (shape, type, NaN); False: a valid one beyond a limit.
+    message : str
+    """
+
+    malformed: bool
+    message: str
+
+
+def request_violation(request: TrialRequest, description: BenchDescription, limits: SafetyLimits,
+                      truth: SensorCalibration | None = None) -> Violation | None:
+    """Why ``request`` must not reach the bench ``description``, or None: the check of every request.
+
+    Form (`form_violation`), speed, samples and duration (`extent_violation`), the calibration trust
+    region (`calibration_violation`), the torque reference, the current references and, with the
+    identified true sensors ``truth``, the flowing currents (`torque_violation`).
+    """
+    cpr = description.motor.counts_per_rev
+    why = form_violation(request, cpr)
+    if why is not None:
+        return Violation(True, why)
+    flowing = None if truth is None else FlowingCurrent.at(request.calibration, truth)
+    why = (extent_violation(request, cpr, limits)
+           or calibration_violation(request.calibration, description.calibration, truth, limits)
+           or torque_violation(request.torque_reference_nm(), description.backemf_nm_per_a, limits, flowing))
+    return None if why is None else Violation(False, why)
+
+
+def check_plan(plan: Iterable[tuple[str, TrialRequest]], description: BenchDescription,
+               limits: SafetyLimits) -> None:
+    """Check planned requests before any runs: one `ConfigError` for the first beyond the limits.
+
+    ``plan`` pairs each request with what in the config asks for it (the file and keys).
+    """
+    for place, request in plan:
+        violation = request_violation(request, description, limits)
+        if violation is not None:
+            raise ConfigError(f"{place}: {violation.message}")
+
+
+class LimitGuard:
+    """A backend that passes on only the requests `request_violation` accepts.
+
+    The campaign wraps whatever backend it is given in one, so no phase can bypass the limits.
+
+    Parameters
+    ----------
+    backend : the backend that runs the trials.
+    description : the bench.
+    limits : the limits.
+
+    Attributes
+    ----------
+    truth : SensorCalibration or None
+        The identified true sensors, once known (bounds the flowing current and centres the trust region).
+    """
+
+    def __init__(self, backend, description: BenchDescription, limits: SafetyLimits) -> None:
+        self.backend = backend
+        self.description = description
+        self.limits = limits
+        self.truth: SensorCalibration | None = None
+
+    @property
+    def max_parallel_trials(self) -> int:
+        return getattr(self.backend, "max_parallel_trials", 1)
+
+    def describe(self) -> BenchDescription:
+        return self.description
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        violation = request_violation(request, self.description, self.limits, self.truth)
+        if violation is not None:
+            raise SafetyError(f"trial at {request.torque_setpoint_nm!r} N m, {request.speed_setpoint_hz!r} Hz "
+                              f"refused before it reached the backend: {violation.message}")
+        return self.backend.run_trial(request)

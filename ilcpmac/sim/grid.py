@@ -8,8 +8,11 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo, write_bench
+from ilcpmac.backends.base import BenchLimits
+from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.bench.format import Bench, write_bench
 from ilcpmac.config import CampaignConfig
+from ilcpmac.pipeline.safety import SafetyLimits, check_plan
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.simulator import Simulator, trial_seed
@@ -35,8 +38,16 @@ def grid_requests(config: CampaignConfig, seed: int, revolutions: int) -> list[T
     return requests
 
 
+def grid_plan(config: CampaignConfig, requests: list[TrialRequest]) -> list[tuple[str, TrialRequest]]:
+    """The grid's requests, each with the config keys that ask for it (for `check_plan`)."""
+    exc = config.excitation
+    return [(f"{config.path}: [trials] set point {r.torque_setpoint_nm:g} N m at {r.speed_setpoint_hz:g} Hz, "
+             f"revolutions {r.revolutions}, with its [excitation] multisine (fraction {exc.fraction:g} of the set "
+             f"point, harmonics {exc.harmonics})", r) for r in requests]
+
+
 def truth_dict(simulator: Simulator, request: TrialRequest) -> dict:
-    """The true parameters under the result keys of BENCH_FORMAT.md, for ``request``'s calibration."""
+    """The true parameters under the result keys of docs/bench-format.md, for ``request``'s calibration."""
     t = simulator.truth(request.calibration)
     cpr = simulator.model.encoder.counts_per_rev
     return {
@@ -69,16 +80,21 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
     out_dir : the bench folder to write (created if needed).
     seed, revolutions : override the config's ``[trials]`` values.
     on_done : called with (index, trial) as each trial finishes.
+
+    Raises `ConfigError` before any trial runs when a grid request breaks the config's [limits].
     """
     seed = config.grid.seed if seed is None else seed
     revolutions = config.grid.revolutions if revolutions is None else revolutions
-    simulator = Simulator(config.model, config.grid.warmup_revolutions)
+    lim = config.limits
+    backend = SimulatorBackend(config.model, BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz),
+                               config.grid.warmup_revolutions)
+    simulator = backend.simulator
     requests = grid_requests(config, seed, revolutions)
+    check_plan(grid_plan(config, requests), backend.describe(),
+               SafetyLimits.of_campaign(lim, backend.limits, config.grid.warmup_revolutions))
     trials = simulator.run_trials(requests, on_done=on_done)
-    m = config.model
     bench = Bench(
-        motor=MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev,
-                        m.mechanics.inertia_kgm2),
+        motor=backend.describe().motor,
         backemf_nm_per_a=simulator.backemf_counts,
         sensors=requests[0].calibration,
         trials=tuple(trials),
