@@ -1,4 +1,4 @@
-"""Bench folders (BENCH_FORMAT.md): round trip, and every kind of bad input named by file and line or key."""
+"""Bench folders (docs/bench-format.md): round trip, and every kind of bad input named by file and line or key."""
 
 from __future__ import annotations
 
@@ -150,10 +150,13 @@ def test_round_trip_of_simulated_trials(tmp_path, small_simulator, small_model, 
 
 
 def test_round_trip_without_optional_parts(tmp_path):
-    trial = TrialData(torque_setpoint_nm=1.5, speed_setpoint_hz=0.75, count=np.array([0, 1, 3]),
-                      time_s=np.array([0.0, 0.25, 0.75]), i_ref_a=np.arange(9.0).reshape(3, 3) / 7,
+    count = np.array([0, 1, 3])
+    electrical = 2 * np.pi * (count[:, None] / 4 - np.arange(3) / 3)
+    trial = TrialData(torque_setpoint_nm=1.5, speed_setpoint_hz=0.5, count=count,
+                      time_s=np.array([0.0, 0.5, 1.5]), i_ref_a=np.sin(electrical) / 7,
                       torque_nm=np.array([0.1, -0.2, 1.0 / 3.0]))
-    bench = Bench(MotorInfo(2, 6, 3, 0.5), np.eye(3), None, (trial,), ("only.csv",))
+    backemf = np.sin(2 * np.pi * (np.arange(4)[:, None] / 4 - np.arange(3) / 3 + 0.1))
+    bench = Bench(MotorInfo(1, 6, 4, 0.5), backemf, None, (trial,), ("only.csv",))
     write_bench(tmp_path, bench)
     back = read_bench(tmp_path)
     assert back.sensors is None
@@ -177,9 +180,10 @@ def test_round_trip_without_optional_parts(tmp_path):
     # wrong values in bench.toml
     (("bench.toml", "counts_per_rev = 4", "counts_per_rev = 4.0"),
      r"bench\.toml: \[motor\]: key 'counts_per_rev' must be a positive integer"),
-    (("bench.toml", "inertia = 0.01", "inertia = -0.01"), r"bench\.toml: \[motor\]: key 'inertia' must be positive"),
+    (("bench.toml", "inertia = 0.01", "inertia = -0.01"),
+     r"bench\.toml: \[motor\]: key 'inertia' must lie in \[1e-08, 10000\.0\], got -0\.01"),
     (("bench.toml", "[14.0, 14.0, 14.0]", "[14.0, 14.0]"),
-     r"bench\.toml: \[sensors\]: key 'current_scale' must be a list of 3 numbers"),
+     r"bench\.toml: \[sensors\]: key 'current_scale' must be a list of 3 finite numbers"),
     (("bench.toml", "speed_setpoint = 0.5", "speed_setpoint = nan"),
      r"bench\.toml: \[\[trials\]\] #1: key 'speed_setpoint' must be a finite number"),
     # malformed TOML: the parser's line

@@ -1,4 +1,4 @@
-"""Reader and writer of bench folders, exactly as BENCH_FORMAT.md specifies.
+"""Reader and writer of bench folders, exactly as docs/bench-format.md specifies.
 
 A bench folder holds ``bench.toml`` ([motor], optional [sensors], [[trials]]),
 ``backemf.csv`` and one CSV per trial sampled once per encoder count. Every
@@ -10,14 +10,16 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 from dataclasses import dataclass, replace
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.config import read_toml
 from ilcpmac.errors import BenchFormatError
+from ilcpmac.model.motor import MOTOR_RANGES
 from ilcpmac.records import SensorCalibration, TrialData
 
 BENCH_FILE = "bench.toml"
@@ -30,6 +32,25 @@ EXTRA_COLUMNS = {
     "speed_true": ("speed_true_rad_s", 1),
 }
 _PHASES = ("a", "b", "c")
+#: most revolutions of one trial: its rows are at most this many times counts_per_rev ...
+MAX_REVOLUTIONS = 1024
+#: ... and never more than this many
+MAX_TRIAL_ROWS = 2**22
+#: bytes a CSV file may take per row (on average), and in its header line
+MAX_ROW_BYTES = 256
+MAX_HEADER_BYTES = 4096
+#: counts a trial may span per row (a logger skips counts at high speed, never most of them)
+MAX_SPAN_PER_ROW = 4
+#: largest count magnitude (integers beyond are not exact in a double)
+MAX_COUNT = 2**53
+#: how far (a factor) the speed given by counts and time stamps may lie from the speed set point
+SPEED_TOLERANCE = 1.5
+#: largest magnitudes of a bench's quantities, beyond any motor a bench drives: phase current, A;
+#: torque, N m; mechanical speed, Hz; and of a calibration's numbers (counts per ampere, counts, V / N m)
+MAX_CURRENT_A = 1e4
+MAX_TORQUE_NM = 1e5
+MAX_SPEED_HZ = 1e3
+MAX_CALIBRATION = 1e9
 _MOTOR_KEYS = {"pole_pairs": int, "slots": int, "counts_per_rev": int, "inertia": float, "backemf_file": str}
 _SENSOR_KEYS = {"current_scale": list, "current_offset": list, "torque_gain": float}
 _TRIAL_KEYS = {"file": str, "torque_setpoint": float, "speed_setpoint": float}
@@ -93,6 +114,13 @@ def _table_value(table: dict, key: str, kind: type, where: str):
     return value
 
 
+def _positive(table: dict, key: str, where: str, high: float) -> float:
+    value = _table_value(table, key, float, where)
+    if not 0 < value <= high:
+        raise BenchFormatError(f"{where}: key {key!r} must lie in (0, {high:g}], got {value!r}")
+    return value
+
+
 def _check_keys(table, allowed: dict, where: str) -> None:
     if not isinstance(table, dict):
         raise BenchFormatError(f"{where}: must be a table")
@@ -103,25 +131,81 @@ def _check_keys(table, allowed: dict, where: str) -> None:
 
 def _three_numbers(table: dict, key: str, where: str) -> np.ndarray:
     value = _table_value(table, key, list, where)
-    if len(value) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        raise BenchFormatError(f"{where}: key {key!r} must be a list of 3 numbers, got {value!r}")
+    if len(value) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                  for v in value):
+        raise BenchFormatError(f"{where}: key {key!r} must be a list of 3 finite numbers, got {value!r}")
     return np.array(value, float)
 
 
-def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
-    """Header and float rows of a CSV; bad rows raise naming file and line."""
+def _relative_name(table: dict, key: str, where: str) -> str:
+    """The file named by ``key``, normalised ("./a.csv" is "a.csv"); it must be a relative path without "..".
+
+    Nothing outside the bench folder is ever opened.
+    """
+    value = _table_value(table, key, str, where)
+    path = PurePosixPath(value)
+    if not value or "\\" in value or "\0" in value or path.is_absolute() or ".." in path.parts:
+        raise BenchFormatError(f"{where}: key {key!r} must be a relative path inside the bench folder "
+                               f"(no leading '/', no '..'), got {value!r}")
+    return str(path)
+
+
+def _inside(path: Path, root: Path) -> Path:
+    """``path`` with its symbolic links resolved, which must lie in the folder ``root`` (itself resolved)."""
     try:
-        with open(path, newline="") as f:
-            header_line = f.readline()
-            header = [h.strip() for h in header_line.strip().split(",")]
-            try:
-                data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float)
-            except ValueError as e:
-                raise BenchFormatError(f"{path}: {_loadtxt_message(e, len(header))}") from None
+        real = path.resolve()
+    except (OSError, RuntimeError) as e:
+        raise BenchFormatError(f"{path}: cannot resolve ({getattr(e, 'strerror', None) or e})") from None
+    if not real.is_relative_to(root):
+        raise BenchFormatError(f"{path}: is a symbolic link to outside the bench folder (refused)")
+    return real
+
+
+def _regular_file(path: Path, max_bytes: int | None) -> None:
+    """``path`` must be a regular file of at most ``max_bytes``: FIFOs, devices and folders are refused unopened."""
+    try:
+        info = os.stat(path)
     except FileNotFoundError:
         raise BenchFormatError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise BenchFormatError(f"{path}: cannot read ({e})") from None
+    except (OSError, ValueError) as e:
+        raise BenchFormatError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise BenchFormatError(f"{path}: not a regular file (a folder, FIFO or device is refused)")
+    if max_bytes is not None and info.st_size > max_bytes:
+        raise BenchFormatError(f"{path}: {info.st_size} bytes, more than the {max_bytes} its rows may take "
+                               f"(at most {MAX_ROW_BYTES} bytes per row, see docs/bench-format.md)")
+
+
+def _shortened(text: str, limit: int = 120) -> str:
+    """``text`` cut to ``limit`` characters, so that a message stays one short line."""
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
+    """Header and float rows of a CSV of at most ``max_rows`` rows; bad rows raise naming file and line.
+
+    The file's size is checked against ``max_rows`` before it is opened, the
+    header line is read with a bounded readline and no more than ``max_rows``
+    + 1 rows are ever parsed.
+    """
+    _regular_file(path, MAX_HEADER_BYTES + max_rows * MAX_ROW_BYTES)
+    try:
+        with open(path, "rb") as f:
+            header_line = f.readline(MAX_HEADER_BYTES)
+            if len(header_line) == MAX_HEADER_BYTES and not header_line.endswith(b"\n"):
+                raise BenchFormatError(f"{path}: line 1: no end of the header line in {MAX_HEADER_BYTES} bytes")
+            try:
+                header = [h.strip() for h in header_line.decode().strip().split(",")]
+            except UnicodeDecodeError as e:
+                raise BenchFormatError(f"{path}: cannot read ({e})") from None
+            try:
+                data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float, max_rows=max_rows + 1)
+            except ValueError as e:
+                raise BenchFormatError(f"{path}: {_shortened(_loadtxt_message(e, len(header)), 200)}") from None
+    except OSError as e:
+        raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
+    if data.shape[0] > max_rows:
+        raise BenchFormatError(f"{path}: more than {max_rows} rows (docs/bench-format.md)")
     if data.size and data.shape[1] != len(header):
         raise BenchFormatError(f"{path}: line 2 has {data.shape[1]} fields, the header has {len(header)}")
     if data.size == 0:
@@ -129,7 +213,7 @@ def _read_csv(path: Path) -> tuple[list[str], np.ndarray]:
     bad = np.argwhere(~np.isfinite(data))
     if bad.size:
         row, col = bad[0]
-        raise BenchFormatError(f"{path}: line {row + 2}: {header[col]} is not a finite number")
+        raise BenchFormatError(f"{path}: line {row + 2}: {_shortened(header[col])} is not a finite number")
     return header, data
 
 
@@ -153,39 +237,75 @@ def _loadtxt_message(e: ValueError, n_header: int) -> str:
     return text
 
 
-def _read_backemf(path: Path, counts_per_rev: int) -> np.ndarray:
-    header, data = _read_csv(path)
+def _dominant_harmonic(table: np.ndarray) -> int:
+    """The harmonic (of one revolution) with the largest amplitude, summed over the table's columns."""
+    spectrum = np.abs(np.fft.rfft(table, axis=0)).sum(axis=1)
+    spectrum[0] = 0.0
+    return int(np.argmax(spectrum))
+
+
+def _read_backemf(path: Path, motor: MotorInfo) -> np.ndarray:
+    header, data = _read_csv(path, motor.counts_per_rev)
     if header != ["count", "k_a", "k_b", "k_c"]:
-        raise BenchFormatError(f"{path}: line 1: header must be count,k_a,k_b,k_c, got {','.join(header)}")
-    if data.shape[0] != counts_per_rev:
-        raise BenchFormatError(f"{path}: has {data.shape[0]} rows, expected counts_per_rev = {counts_per_rev}")
-    wrong = np.flatnonzero(data[:, 0] != np.arange(counts_per_rev))
+        raise BenchFormatError(f"{path}: line 1: header must be count,k_a,k_b,k_c, got {_shortened(','.join(header))}")
+    if data.shape[0] != motor.counts_per_rev:
+        raise BenchFormatError(f"{path}: has {data.shape[0]} rows, expected counts_per_rev = {motor.counts_per_rev}")
+    wrong = np.flatnonzero(data[:, 0] != np.arange(motor.counts_per_rev))
     if wrong.size:
         raise BenchFormatError(f"{path}: line {wrong[0] + 2}: count must be {wrong[0]}, got {data[wrong[0], 0]:g}")
-    return np.ascontiguousarray(data[:, 1:])
+    backemf = np.ascontiguousarray(data[:, 1:])
+    check_backemf(backemf, motor, str(path))
+    return backemf
 
 
-def read_trial_csv(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: float) -> TrialData:
-    """Read one trial CSV (required columns in any order; others ignored unless known extras)."""
-    header, data = _read_csv(path)
-    required = ["count", "time", "i_ref_a", "i_ref_b", "i_ref_c", "torque"]
-    missing = [c for c in required if c not in header]
+def check_backemf(backemf_nm_per_a: np.ndarray, motor: MotorInfo, where: str) -> None:
+    """Each phase's K must be non-zero and its fundamental at ``pole_pairs`` per revolution.
+
+    Raises
+    ------
+    BenchFormatError
+        Naming ``where`` (the file) and the column or key.
+    """
+    for p, phase in enumerate(_PHASES):
+        if not np.any(backemf_nm_per_a[:, p]):
+            raise BenchFormatError(f"{where}: k_{phase} is zero at every count")
+    dominant = _dominant_harmonic(backemf_nm_per_a)
+    if dominant != motor.pole_pairs:
+        raise BenchFormatError(f"{where}: the back-EMF repeats {dominant} times per revolution of "
+                               f"{motor.counts_per_rev} counts, but [motor] pole_pairs = {motor.pole_pairs}")
+
+
+def read_trial_csv(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: float,
+                   max_rows: int = MAX_TRIAL_ROWS) -> TrialData:
+    """Read one trial CSV (required columns in any order; others ignored unless known extras).
+
+    A file larger than ``max_rows`` rows may take is refused before it is read.
+    """
+    header, data = _read_csv(path, max_rows)
+    missing = [c for c in TRIAL_COLUMNS if c not in header]
     if missing:
         raise BenchFormatError(f"{path}: line 1: missing column {missing[0]!r}")
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:
-        raise BenchFormatError(f"{path}: line 1: column {dup[0]!r} appears twice")
+        raise BenchFormatError(f"{path}: line 1: column {_shortened(dup[0])!r} appears twice")
     col = {name: data[:, header.index(name)] for name in header}
     if data.shape[0] < 2:
         raise BenchFormatError(f"{path}: needs at least 2 rows, has {data.shape[0]}")
     count = col["count"]
-    if np.any(count != np.round(count)):
-        line = int(np.flatnonzero(count != np.round(count))[0]) + 2
-        raise BenchFormatError(f"{path}: line {line}: count must be an integer")
-    steps = np.diff(count)
-    if np.any(steps <= 0):
-        line = int(np.flatnonzero(steps <= 0)[0]) + 3
-        raise BenchFormatError(f"{path}: line {line}: count does not increase")
+    bad = (count != np.round(count)) | (np.abs(count) > MAX_COUNT)
+    if np.any(bad):
+        line = int(np.flatnonzero(bad)[0]) + 2
+        raise BenchFormatError(f"{path}: line {line}: count must be an integer of magnitude at most 2^53")
+    for name in ("count", "time"):
+        steps = np.diff(col[name])
+        if np.any(steps <= 0):
+            line = int(np.flatnonzero(steps <= 0)[0]) + 3
+            raise BenchFormatError(f"{path}: line {line}: {name} does not increase")
+    span = count[-1] - count[0]
+    if span > MAX_SPAN_PER_ROW * (count.size - 1):
+        line = int(np.argmax(np.diff(count))) + 3
+        raise BenchFormatError(f"{path}: line {line}: count jumps by {np.diff(count).max():.0f}; a trial's counts "
+                               f"may span at most {MAX_SPAN_PER_ROW} per row ({count.size} rows span {span:.0f})")
     extras = {}
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
         names = [prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix]
@@ -197,49 +317,129 @@ def read_trial_csv(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: flo
         i_ref_a=np.column_stack([col[f"i_ref_{ph}"] for ph in _PHASES]), torque_nm=col["torque"], **extras)
 
 
+def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
+    """A trial must carry data and fit the declared motor: its speed and its electrical period.
+
+    Every value must be finite; no current reference may be zero throughout,
+    nor the torque constant. The counts and time stamps give the mean speed at
+    ``counts_per_rev``; it must lie within a factor SPEED_TOLERANCE of the
+    speed set point (a wrong counts_per_rev or time unit does not). Over a
+    revolution or more, the current references' largest harmonic must be the
+    electrical one, ``pole_pairs`` per revolution.
+
+    Raises
+    ------
+    BenchFormatError
+        Naming ``where`` (the file) and the column or key at odds with the data.
+    """
+    for name, values in (("time", trial.time_s), ("i_ref", trial.i_ref_a), ("torque", trial.torque_nm)):
+        bad = np.flatnonzero(~np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1))
+        if bad.size:
+            raise BenchFormatError(f"{where}: sample {bad[0]}: {name} is not a finite number")
+    for name, values, bound, unit in (("i_ref", trial.i_ref_a, MAX_CURRENT_A, "A"),
+                                      ("torque", trial.torque_nm, MAX_TORQUE_NM, "N m")):
+        big = np.flatnonzero(np.abs(values.reshape(values.shape[0], -1)).max(axis=1) > bound)
+        if big.size:
+            raise BenchFormatError(f"{where}: sample {big[0]}: {name} beyond {bound:g} {unit}, more than any "
+                                   "motor a bench drives (wrong unit or scale?)")
+    for p, phase in enumerate(_PHASES):
+        if not np.any(trial.i_ref_a[:, p]):
+            raise BenchFormatError(f"{where}: i_ref_{phase} is zero on every line")
+    if np.all(trial.torque_nm == trial.torque_nm[0]):
+        raise BenchFormatError(f"{where}: torque is {trial.torque_nm[0]:g} on every line (the sensor recorded "
+                               "nothing)")
+    cpr = motor.counts_per_rev
+    span = int(trial.count[-1] - trial.count[0])
+    speed_hz = span / cpr / (trial.time_s[-1] - trial.time_s[0])
+    ratio = speed_hz / trial.speed_setpoint_hz
+    if not 1.0 / SPEED_TOLERANCE <= ratio <= SPEED_TOLERANCE:
+        raise BenchFormatError(
+            f"{where}: counts and time stamps give {speed_hz:.4g} revolutions per second at [motor] counts_per_rev "
+            f"= {cpr}, but speed_setpoint = {trial.speed_setpoint_hz:g} Hz (wrong counts_per_rev or time unit?)")
+    if span + 1 < cpr:
+        return
+    position = trial.count % cpr
+    hits = np.maximum(np.bincount(position, minlength=cpr), 1)
+    table = np.stack([np.bincount(position, weights=trial.i_ref_a[:, p], minlength=cpr) / hits
+                      for p in range(3)], axis=1)
+    dominant = _dominant_harmonic(table)
+    if dominant != motor.pole_pairs:
+        raise BenchFormatError(
+            f"{where}: the current references repeat {dominant} times per revolution of {cpr} counts, but "
+            f"[motor] pole_pairs = {motor.pole_pairs} (wrong pole_pairs or counts_per_rev?)")
+
+
+def _motor(table, where: str) -> tuple[MotorInfo, str]:
+    """The [motor] table: each value within MOTOR_RANGES; and the back-EMF file's name."""
+    _check_keys(table, _MOTOR_KEYS, where)
+    values = {k: _table_value(table, k, kind, where) for k, kind in _MOTOR_KEYS.items() if kind is not str}
+    for key, (low, high) in MOTOR_RANGES.items():
+        if not low <= values[key] <= high:
+            raise BenchFormatError(f"{where}: key {key!r} must lie in [{low}, {high}], got {values[key]!r}")
+    if values["counts_per_rev"] < 4 * values["pole_pairs"]:
+        raise BenchFormatError(f"{where}: key 'counts_per_rev' must be at least 4 per electrical period "
+                               f"(4 x pole_pairs = {4 * values['pole_pairs']}), got {values['counts_per_rev']}")
+    motor = MotorInfo(values["pole_pairs"], values["slots"], values["counts_per_rev"], values["inertia"])
+    return motor, _relative_name(table, "backemf_file", where)
+
+
+def _sensors(table, where: str) -> SensorCalibration:
+    """The [sensors] table: finite values, positive scales and gain."""
+    _check_keys(table, _SENSOR_KEYS, where)
+    scale = _three_numbers(table, "current_scale", where)
+    if not np.all((scale > 0) & (scale <= MAX_CALIBRATION)):
+        raise BenchFormatError(f"{where}: key 'current_scale' must lie in (0, {MAX_CALIBRATION:g}], "
+                               f"got {scale.tolist()}")
+    offset = _three_numbers(table, "current_offset", where)
+    if not np.all(np.abs(offset) <= MAX_CALIBRATION):
+        raise BenchFormatError(f"{where}: key 'current_offset' must lie in [-{MAX_CALIBRATION:g}, "
+                               f"{MAX_CALIBRATION:g}], got {offset.tolist()}")
+    return SensorCalibration(scale, offset, _positive(table, "torque_gain", where, MAX_CALIBRATION))
+
+
 def read_bench(folder: str | Path) -> Bench:
-    """Read and validate a bench folder."""
+    """Read and validate a bench folder (docs/bench-format.md).
+
+    Every file is a regular file inside the folder (symbolic links resolved),
+    no larger than its rows may take; each trial is checked against the motor
+    (`check_trial`) and the back-EMF against the pole pairs (`check_backemf`).
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise BenchFormatError(f"{folder}: not a folder")
+    root = folder.resolve()
     toml_path = folder / BENCH_FILE
-    if not toml_path.is_file():
+    if not toml_path.exists():
         raise BenchFormatError(f"{toml_path}: no such file (a bench folder needs {BENCH_FILE})")
+    _regular_file(_inside(toml_path, root), None)
     data = read_toml(toml_path, BenchFormatError)
     _check_keys(data, {"motor": 0, "sensors": 0, "trials": 0}, str(toml_path))
     if "motor" not in data:
         raise BenchFormatError(f"{toml_path}: missing table [motor]")
-    where = f"{toml_path}: [motor]"
-    _check_keys(data["motor"], _MOTOR_KEYS, where)
-    values = {k: _table_value(data["motor"], k, kind, where) for k, kind in _MOTOR_KEYS.items()}
-    if values["inertia"] <= 0:
-        raise BenchFormatError(f"{where}: key 'inertia' must be positive, got {values['inertia']}")
-    motor = MotorInfo(values["pole_pairs"], values["slots"], values["counts_per_rev"], values["inertia"])
-    backemf = _read_backemf(folder / values["backemf_file"], motor.counts_per_rev)
-    sensors = None
-    if "sensors" in data:
-        where = f"{toml_path}: [sensors]"
-        _check_keys(data["sensors"], _SENSOR_KEYS, where)
-        scale = _three_numbers(data["sensors"], "current_scale", where)
-        if np.any(scale <= 0):
-            raise BenchFormatError(f"{where}: key 'current_scale' must be positive, got {scale.tolist()}")
-        gain = _table_value(data["sensors"], "torque_gain", float, where)
-        if gain <= 0:
-            raise BenchFormatError(f"{where}: key 'torque_gain' must be positive, got {gain}")
-        sensors = SensorCalibration(scale, _three_numbers(data["sensors"], "current_offset", where), gain)
+    motor, backemf_file = _motor(data["motor"], f"{toml_path}: [motor]")
+    backemf_path = folder / backemf_file
+    _inside(backemf_path, root)
+    backemf = _read_backemf(backemf_path, motor)
+    sensors = _sensors(data["sensors"], f"{toml_path}: [sensors]") if "sensors" in data else None
     entries = data.get("trials")
     if not isinstance(entries, list) or not entries:
         raise BenchFormatError(f"{toml_path}: needs at least one [[trials]] entry")
-    trials, files = [], []
+    max_rows = min(MAX_REVOLUTIONS * motor.counts_per_rev, MAX_TRIAL_ROWS)
+    trials, files, seen = [], [], {}
     for i, entry in enumerate(entries, start=1):
         where = f"{toml_path}: [[trials]] #{i}"
         _check_keys(entry, _TRIAL_KEYS, where)
-        name = _table_value(entry, "file", str, where)
-        torque = _table_value(entry, "torque_setpoint", float, where)
-        speed = _table_value(entry, "speed_setpoint", float, where)
-        if name in files:
-            raise BenchFormatError(f"{where}: file {name!r} is listed twice")
-        trials.append(read_trial_csv(folder / name, torque, speed))
+        name = _relative_name(entry, "file", where)
+        torque = _positive(entry, "torque_setpoint", where, MAX_TORQUE_NM)
+        speed = _positive(entry, "speed_setpoint", where, MAX_SPEED_HZ)
+        path = folder / name
+        real = _inside(path, root)
+        if real in seen:
+            raise BenchFormatError(f"{where}: file {name!r} is listed twice (also [[trials]] #{seen[real]})")
+        seen[real] = i
+        trial = read_trial_csv(path, torque, speed, max_rows)
+        check_trial(trial, motor, str(path))
+        trials.append(trial)
         files.append(name)
     return Bench(motor, backemf, sensors, tuple(trials), tuple(files))
 

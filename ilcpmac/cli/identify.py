@@ -16,7 +16,7 @@ def _cell(value, std, digits: int = 4) -> str:
     if value is None:
         return "-"
     if hasattr(value, "__len__"):
-        return ", ".join(_cell(v, s, digits) for v, s in zip(value, std))
+        return ", ".join(_cell(v, s, digits) for v, s in zip(value, [None] * len(value) if std is None else std))
     return f"{value:.{digits}g} ± {std:.2g}" if std is not None else f"{value:.{digits}g}"
 
 
@@ -40,7 +40,7 @@ def estimates_table(result) -> Table:
 @main.command()
 @click.argument("bench_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--output", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
-              help="Result JSON to write (BENCH_FORMAT.md).")
+              help="Result JSON to write (docs/bench-format.md).")
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder for the report-style figures (PNG).")
 def identify(bench_dir: Path, output: Path, plots_dir: Path | None) -> None:
@@ -60,7 +60,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None) -> None:
     for message in result.messages:
         console.print(f"[yellow]warning:[/yellow] {message}")
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(result.to_json(), indent=1))
+    output.write_text(json.dumps(result.to_json(), indent=1, allow_nan=False))
     console.print(f"wrote {output}")
     if plots_dir is not None:
         from ilcpmac.identify.plots import write_plots

@@ -16,7 +16,7 @@ in its main fields, the better one of each.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -26,7 +26,7 @@ from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.joint import JointEstimate, fit_joint
 from ilcpmac.identify.loop import CurrentLoop
-from ilcpmac.identify.reduction import BenchTables, reduce_bench
+from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
 from ilcpmac.identify.result import IdentificationResult, MethodEstimates, corrected_calibration
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
@@ -51,13 +51,16 @@ class IdentificationDetails:
     decoupling: DecouplingEstimate | None
 
 
-def _attempt(messages: list, compute: Callable):
-    """``compute()``, or None with its IdentificationError's message kept."""
+def _attempt(messages: list, step: str, compute: Callable):
+    """``compute()``, or None with the reason in ``messages``: its IdentificationError, or ``step``'s
+    numerical failure on degenerate data (`NUMERICAL_FAILURES`)."""
     try:
         return compute()
     except IdentificationError as e:
         messages.append(str(e))
-        return None
+    except NUMERICAL_FAILURES as e:
+        messages.append(f"{step}: {degenerate(e)}")
+    return None
 
 
 def _ratio(numerator: float | None, numerator_std: float | None, denominator: float | None,
@@ -137,28 +140,34 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
     tables = reduce_bench(bench)
     messages = list(tables.messages)
     step(1)
-    system = _attempt(messages, lambda: estimate_system_gain(tables))
+    system = _attempt(messages, STEPS[1], lambda: estimate_system_gain(tables))
     step(2)
-    joint = _attempt(messages, lambda: fit_joint(tables, system.loop if system is not None else DEFAULT_LOOP))
+    joint = _attempt(messages, STEPS[2],
+                     lambda: fit_joint(tables, system.loop if system is not None else DEFAULT_LOOP))
     step(3)
     band = joint.sets.fit.max() if joint else (system.harmonics.max() if system else 2 * bench.motor.cogging_order)
-    sensor = _attempt(messages, lambda: estimate_sensor_gain(
+    sensor = _attempt(messages, STEPS[3], lambda: estimate_sensor_gain(
         tables, int(band), None if joint is None else joint.sensor_response))
     step(4)
-    decoupling = None if system is None else decouple(tables, system.delta_epsilon)
+    decoupling = None if system is None else _attempt(messages, STEPS[4],
+                                                      lambda: decouple(tables, system.delta_epsilon))
     if system is None and joint is None and sensor is None:
         raise IdentificationError("nothing can be estimated: " + "; ".join(messages))
 
-    report = _report_method(system, sensor, decoupling)
-    joint_estimates = _joint_method(joint, sensor, bench.motor.counts_per_rev)
+    report = _finite_estimates(_report_method(system, sensor, decoupling), "report method", messages)
+    joint_estimates = _finite_estimates(_joint_method(joint, sensor, bench.motor.counts_per_rev), "joint method",
+                                        messages)
     best = {name: getattr(joint_estimates, name) if getattr(joint_estimates, name) is not None
             else getattr(report, name) for name in MethodEstimates.__dataclass_fields__}
     calibration = None
     if bench.sensors is not None and all(best[k] is not None for k in ("epsilon", "alpha", "beta", "delta")):
         calibration = corrected_calibration(bench.sensors, best["epsilon"], best["alpha"], best["beta"],
                                             best["delta"])
+        if not all(np.all(np.isfinite(v)) for v in vars(calibration).values()):
+            messages.append("calibration: not finite (a gain estimate is zero) - not reported")
+            calibration = None
     bandwidth = per_phase = None
-    if joint is not None and not joint.loop.is_ideal:
+    if joint is not None and not joint.loop.is_ideal and np.all(np.isfinite(joint.loop.bandwidth_hz)):
         per_phase = tuple(float(b) for b in joint.loop.bandwidth_hz)
         bandwidth = float(np.mean(per_phase))
     return IdentificationResult(
@@ -166,6 +175,17 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         methods={"report": report, "joint": joint_estimates}, calibration=calibration, messages=tuple(messages),
         diagnostics=_diagnostics(tables, system, joint, sensor),
         details=IdentificationDetails(tables, system, joint, sensor, decoupling))
+
+
+def _finite_estimates(estimates: MethodEstimates, method: str, messages: list) -> MethodEstimates:
+    """``estimates`` with every value that is not finite made None (null in JSON), the reason in ``messages``."""
+    bad = [name for name, value in vars(estimates).items()
+           if value is not None and not np.all(np.isfinite(value))]
+    if not bad:
+        return estimates
+    messages.append(f"{method}: {', '.join(bad)} not finite (degenerate data or a single set point) - "
+                    "reported as null")
+    return replace(estimates, **dict.fromkeys(bad))
 
 
 def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: JointEstimate | None,

@@ -15,13 +15,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo
-from ilcpmac.errors import IdentificationError
+from ilcpmac.bench.format import Bench, MotorInfo, check_backemf, check_trial
+from ilcpmac.errors import BenchFormatError, IdentificationError
 from ilcpmac.records import TrialData
 from ilcpmac.signals.harmonics import slow_trend, synchronous_table, whole_revolutions
 
 #: Highest Legendre degree of the torque sensor's slow trend (linear drift and slow settling).
 TREND_DEGREE = 5
+#: what numpy and scipy raise on degenerate data (collinear or constant columns, NaN from a division by zero)
+NUMERICAL_FAILURES = (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError)
+
+
+def degenerate(error: Exception) -> str:
+    """One line for a numerical failure (`NUMERICAL_FAILURES`) on degenerate data."""
+    first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+    return f"degenerate data - constant, collinear or non-finite columns ({first[:120]})"
 
 
 @dataclass(frozen=True)
@@ -135,20 +143,29 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
 def reduce_bench(bench: Bench) -> BenchTables:
     """Reduce every trial of ``bench``; trials that cannot be reduced are left out with a message.
 
+    The data are checked first (`ilcpmac.bench.format.check_trial` and
+    `check_backemf`), so that a bench built in memory gets the reader's messages.
+
     Raises
     ------
     IdentificationError
-        When no trial can be reduced.
+        When no trial can be reduced, or the back-EMF is zero or at odds with the pole pairs.
     """
     cpr = bench.motor.counts_per_rev
-
+    try:
+        check_backemf(bench.backemf_nm_per_a, bench.motor, "back-EMF")
+    except BenchFormatError as e:
+        raise IdentificationError(str(e)) from None
     trials, files, messages = [], [], []
     for name, trial in zip(bench.trial_files, bench.trials):
         try:
+            check_trial(trial, bench.motor, name)
             trials.append(reduce_trial(trial, cpr))
             files.append(name)
-        except IdentificationError as e:
-            messages.append(f"{name} left out: {e}")
+        except (IdentificationError, BenchFormatError) as e:
+            messages.append(f"{name} left out: {str(e).removeprefix(name + ': ')}")
+        except NUMERICAL_FAILURES as e:
+            messages.append(f"{name} left out: {degenerate(e)}")
     if not trials:
         raise IdentificationError("no trial can be used: " + "; ".join(messages))
     return BenchTables(bench.motor, np.asarray(bench.backemf_nm_per_a, float), tuple(trials), tuple(files),

@@ -1,16 +1,28 @@
-"""The identification result: estimates, standard errors, calibration and the JSON of BENCH_FORMAT.md."""
+"""The identification result: estimates, standard errors, calibration and the JSON of docs/bench-format.md."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ilcpmac.records import SensorCalibration
 
-#: the scalar and vector keys of the result JSON (BENCH_FORMAT.md) and the fields that hold them
+#: the scalar and vector keys of the result JSON (docs/bench-format.md) and the fields that hold them
 RESULT_KEYS = (("total_system_gain", "delta_epsilon"), ("torque_sensor_gain", "delta"), ("epsilon", "epsilon"),
                ("alpha", "alpha"), ("beta", "beta"), ("inertia_estimate", "inertia_estimate"))
+
+
+def finite_json(value):
+    """``value`` (dicts, lists and numbers) with every NaN and infinity made None: JSON has no such numbers."""
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _json_value(value):
@@ -54,7 +66,7 @@ class MethodEstimates:
     cogging_nm: np.ndarray | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
-        """The result keys of BENCH_FORMAT.md (null where unknown), with ``_std`` keys and the cogging."""
+        """The result keys of docs/bench-format.md (null where unknown), with ``_std`` keys and the cogging."""
         out = {}
         for key, name in RESULT_KEYS:
             out[key] = _json_value(getattr(self, name))
@@ -113,7 +125,11 @@ class IdentificationResult:
     details: object = field(default=None, compare=False, repr=False)
 
     def to_json(self) -> dict:
-        """The result object of BENCH_FORMAT.md, with ``_std`` keys, "methods", "diagnostics" and "messages"."""
+        """The result object of docs/bench-format.md, with ``_std`` keys, "methods", "diagnostics" and "messages".
+
+        Never a NaN or infinity: `identify_bench` makes such estimates None with
+        a message; anything else not finite (a diagnostic) becomes None too.
+        """
         best = MethodEstimates(**{name: getattr(self, name) for name in MethodEstimates.__dataclass_fields__})
         out = best.to_json()
         if self.calibration is not None:
@@ -126,7 +142,7 @@ class IdentificationResult:
                           for name, estimates in self.methods.items()}
         out["diagnostics"] = self.diagnostics
         out["messages"] = list(self.messages)
-        return out
+        return finite_json(out)
 
 
 def corrected_calibration(sensors: SensorCalibration, epsilon: float, alpha: np.ndarray, beta_a: np.ndarray,
