@@ -51,9 +51,9 @@ class FixedTrial:
 
 
 def synthetic_trial(n: int, seed: int = 0) -> TrialData:
-    """n samples with every TrialData column filled with random numbers."""
+    """n samples with every TrialData column filled with random numbers (time stamps increasing)."""
     rng = np.random.default_rng(seed)
-    return TrialData(1.0, 1.0, count=np.arange(n, dtype=np.int64), time_s=rng.random(n),
+    return TrialData(1.0, 1.0, count=np.arange(n, dtype=np.int64), time_s=np.cumsum(0.5 + rng.random(n)),
                      i_ref_a=rng.standard_normal((n, 3)), torque_nm=rng.standard_normal(n),
                      i_meas_a=rng.standard_normal((n, 3)), torque_true_nm=rng.standard_normal(n),
                      i_true_a=rng.standard_normal((n, 3)), speed_true_rad_s=rng.standard_normal(n))

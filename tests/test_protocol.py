@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import socket
 import struct
+import threading
+import time
+import tracemalloc
 import zlib
 from pathlib import Path
 
@@ -18,19 +22,23 @@ from ilcpmac.backends.protocol import (
     COLUMNS,
     HEADER,
     MAX_PAYLOAD,
+    PAYLOAD_BOUNDS,
     PROTOCOL_VERSION,
     Accept,
     Channel,
     Column,
     EndOfTrial,
     ErrorCode,
+    FrameTimeout,
     FrameType,
     PeerClosed,
     ProtocolError,
     ProtocolVersionError,
+    SampleBounds,
     TargetError,
     TrialAssembler,
     check_request,
+    data_bound,
     decode_accept,
     decode_describe,
     decode_end,
@@ -44,12 +52,17 @@ from ilcpmac.backends.protocol import (
     encode_heartbeat,
     encode_request,
     encode_trial,
+    target_bounds,
 )
 from ilcpmac.bench.format import MotorInfo
+from ilcpmac.errors import BackendError
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 CAL = SensorCalibration([14.0, 14.0, 14.0], [0.0, 0.0, 0.0], 0.908)
+#: sample bounds no toy trial reaches
+LOOSE = SampleBounds(10**6, dict.fromkeys(["i_ref_a", "i_meas_a", "i_true_a", "torque_nm", "torque_true_nm",
+                                           "speed_true_rad_s"], 100.0))
 
 
 @pytest.fixture
@@ -76,7 +89,7 @@ def toy_trial(n: int, flags: Column, seed: int = 0) -> TrialData:
     rng = np.random.default_rng(seed)
     optional = {name: (rng.standard_normal((n, 3)) if width == 3 else rng.standard_normal(n))
                 for name, width, _, flag in COLUMNS if flag is not None and flags & flag}
-    return TrialData(1.5, 0.7, count=np.cumsum(rng.integers(1, 3, n)), time_s=rng.random(n),
+    return TrialData(1.5, 0.7, count=np.cumsum(rng.integers(1, 3, n)), time_s=np.cumsum(0.1 + rng.random(n)),
                      i_ref_a=rng.standard_normal((n, 3)), torque_nm=rng.standard_normal(n), **optional)
 
 
@@ -93,13 +106,24 @@ def stream(trial: TrialData, chunk: int, trial_id: int = 7) -> tuple[list[memory
 @pytest.mark.parametrize("ftype", list(FrameType))
 def test_frame_round_trip(pair, ftype):
     sender, receiver = pair
-    payload = bytes(range(256)) * 3
-    sender.send(ftype, [payload[:100], np.arange(4.0), payload[100:]])
+    payload = (bytes(range(100)) + np.arange(4.0).astype("<f8").tobytes() + bytes(range(256)) * 3)
+    payload = payload[:PAYLOAD_BOUNDS[ftype]]
+    sender.send(ftype, [payload[:3], np.frombuffer(payload[3:], np.uint8)])
     sender.send(ftype)
     first, second = receiver.recv(), receiver.recv()
     assert (first.type, first.seq, first.version) == (ftype, 0, PROTOCOL_VERSION)
-    assert bytes(first.payload) == payload[:100] + np.arange(4.0).astype("<f8").tobytes() + payload[100:]
+    assert bytes(first.payload) == payload
     assert (second.seq, bytes(second.payload)) == (1, b"")
+
+
+def test_large_frames_round_trip(pair):
+    sender, receiver = pair
+    payload = np.random.default_rng(5).integers(0, 256, 3 * 1024 * 1024 + 5, dtype=np.uint8)
+    thread = threading.Thread(target=sender.send, args=(FrameType.DATA, [payload]))
+    thread.start()
+    frame = receiver.recv()
+    thread.join()
+    assert np.array_equal(np.frombuffer(frame.payload, np.uint8), payload)
 
 
 def test_frame_layout_is_header_payload_crc(pair):
@@ -134,6 +158,65 @@ def test_oversized_length_is_rejected_before_reading(pair):
     sender.send_bytes(HEADER.pack(b"ILCP", PROTOCOL_VERSION, FrameType.DATA, 0, MAX_PAYLOAD + 1))
     with pytest.raises(ProtocolError, match="announces 16777217 payload bytes"):
         receiver.recv()
+
+
+@pytest.mark.parametrize("bounds", [PAYLOAD_BOUNDS, target_bounds(4096)], ids=["any", "target"])
+@pytest.mark.parametrize("ftype", list(FrameType))
+def test_a_length_beyond_its_frame_types_bound_is_rejected_before_reading(pair, bounds, ftype):
+    sender, receiver = pair
+    receiver.bounds = dict(bounds)
+    sender.send_bytes(HEADER.pack(b"ILCP", PROTOCOL_VERSION, ftype, 0, bounds[ftype] + 1))
+    with pytest.raises(ProtocolError, match=rf"^{ftype.name} frame from the sender announces {bounds[ftype] + 1} "
+                                            rf"payload bytes \(at most {bounds[ftype]}\)$"):
+        receiver.recv()
+
+
+def test_the_target_bounds_follow_the_protocol():
+    bounds = target_bounds(4096)
+    assert bounds[FrameType.REQUEST] == 88 + 16 * 4096 and bounds[FrameType.ERROR] == 8 + 1024
+    assert {t for t, b in bounds.items() if b == 0} == set(FrameType) - {FrameType.REQUEST, FrameType.ERROR}
+    assert (data_bound(2), data_bound(10**9)) == (24 + 2 * 112, MAX_PAYLOAD)
+
+
+def test_a_half_sent_frame_costs_only_what_arrived(pair):
+    sender, receiver = pair
+    sender.send_bytes(HEADER.pack(b"ILCP", PROTOCOL_VERSION, FrameType.DATA, 0, MAX_PAYLOAD) + bytes(1000))
+    sender.sock.shutdown(socket.SHUT_WR)
+    tracemalloc.start()
+    try:
+        with pytest.raises(ProtocolError, match="closed the connection mid-frame"):
+            receiver.recv()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2 * 1024 * 1024
+
+
+def test_a_dribbled_frame_times_out(pair):
+    sender, receiver = pair
+    receiver.frame_timeout_s = 0.05
+    sender.send_bytes(sender.frame_bytes(FrameType.HELLO)[:10])
+    with pytest.raises(FrameTimeout, match="the sender sent no complete frame in time"):
+        receiver.recv()
+
+
+def test_a_deadline_cuts_the_wait_for_a_frame(pair):
+    sender, receiver = pair
+    with pytest.raises(FrameTimeout, match="the sender sent no complete frame in time"):
+        receiver.recv(deadline=time.monotonic() + 0.05)
+    assert receiver.sock.gettimeout() == 2.0  # the socket's own timeout again
+    sender.send(FrameType.HELLO)
+    assert receiver.recv(deadline=time.monotonic() + 30.0).type is FrameType.HELLO
+
+
+def test_peer_closed_sees_a_closed_connection_without_reading(pair):
+    sender, receiver = pair
+    sender.send(FrameType.HELLO)
+    assert not receiver.peer_closed() and not sender.peer_closed()
+    sender.close()
+    assert not receiver.peer_closed()  # a frame is still waiting
+    assert receiver.recv().type is FrameType.HELLO
+    assert receiver.peer_closed()
 
 
 def test_oversized_payload_is_not_sent(pair):
@@ -206,6 +289,24 @@ def test_describe_round_trip():
     assert back.calibration.torque_gain == CAL.torque_gain
 
 
+@pytest.mark.parametrize("change, message", [
+    (lambda d: dataclasses.replace(d, motor=MotorInfo(8, 48, 64, -1.0)), r"inertia must lie in \[1e-08, .*got -1.0$"),
+    (lambda d: dataclasses.replace(d, motor=MotorInfo(10**6, 48, 64, 0.01)), r"pole_pairs must lie in \[1, "),
+    (lambda d: dataclasses.replace(d, motor=MotorInfo(8, 48, 0, 0.01), backemf_nm_per_a=np.zeros((0, 3))),
+     r"counts_per_rev must lie in \[4, "),
+    (lambda d: dataclasses.replace(d, limits=BenchLimits(np.nan, 8.0, 1.5)), r"max_current_a must be positive"),
+    (lambda d: dataclasses.replace(d, calibration=SensorCalibration([14, 0, 14], [0, 0, 0], 0.9)),
+     r"current_scale must be positive and finite"),
+    (lambda d: dataclasses.replace(d, backemf_nm_per_a=np.where(np.arange(192).reshape(64, 3) == 7, np.inf,
+                                                                  d.backemf_nm_per_a)),
+     r"current_offset and back-EMF table must be finite"),
+])
+def test_a_describe_no_bench_can_send_is_refused(change, message):
+    head, backemf = encode_describe(change(toy_description(64)))
+    with pytest.raises(BackendError, match="^DESCRIBE " + message):
+        decode_describe(memoryview(head + backemf.tobytes()))
+
+
 def test_request_round_trip_keeps_every_field_and_the_seed():
     rng = np.random.default_rng(3)
     request = TrialRequest(2.5, 0.75, 3, rng.standard_normal(32), rng.standard_normal(32),
@@ -240,7 +341,7 @@ def test_small_messages_round_trip():
 def test_trial_round_trip(n, chunk, flags):
     trial = toy_trial(n, Column(flags), seed=n)
     data, end = stream(trial, chunk)
-    assembler = TrialAssembler(7, n)
+    assembler = TrialAssembler(7, n, LOOSE)
     for payload in data:
         assembler.add(payload)
     columns = assembler.finish(end)
@@ -252,8 +353,8 @@ def test_trial_round_trip(n, chunk, flags):
             assert name not in columns
 
 
-def _assemble(data, end, trial_id: int = 7, max_samples: int = 100):
-    assembler = TrialAssembler(trial_id, max_samples)
+def _assemble(data, end, trial_id: int = 7, max_samples: int = 100, bounds: SampleBounds = LOOSE):
+    assembler = TrialAssembler(trial_id, max_samples, bounds)
     for payload in data:
         assembler.add(payload)
     return assembler.finish(end)
@@ -315,7 +416,7 @@ def test_trial_whose_counts_do_not_increase_is_rejected():
     trial = toy_trial(20, Column(0))
     data, end = stream(TrialData(1.0, 1.0, trial.count[::-1].copy(), trial.time_s, trial.i_ref_a,
                                  trial.torque_nm), 20)
-    with pytest.raises(ProtocolError, match="counts do not increase"):
+    with pytest.raises(ProtocolError, match=r"DATA sample 1: count \d+ after \d+ \(must be finite and increase"):
         _assemble(data, end)
 
 

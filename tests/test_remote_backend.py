@@ -210,7 +210,8 @@ def test_a_busy_target_is_tried_again(request, remote, simulator, requests):
                 if busy:
                     channel.send(FrameType.ERROR, encode_error(ErrorCode.BUSY, trial_id, "another client"))
                     continue
-                channel.send(FrameType.ACCEPT, encode_accept(Accept(trial_id, 10**6)))
+                cpr = simulator.describe().motor.counts_per_rev
+                channel.send(FrameType.ACCEPT, encode_accept(Accept(trial_id, trial_request.revolutions * cpr)))
                 for ftype, parts in encode_trial(trial_id, simulator.run_trial(trial_request), 64):
                     channel.send(ftype, parts)
 
@@ -248,7 +249,7 @@ def test_a_target_that_changes_after_reconnecting_is_refused(emulator, remote, s
 @pytest.mark.parametrize("changes, message", [
     ({"speed_setpoint_hz": 2.0}, r"speed set point 2 Hz exceeds the bench limit of 1.5 Hz"),
     ({"torque_setpoint_nm": 8.5}, r"torque reference 8.\d+ N m at count \d+ .* limit of 8 N m"),
-    ({"torque_setpoint_nm": 6.0}, r"current reference \d+.\d+ A in phase [abc] at count \d+ .* limit of 15 A"),
+    ({"torque_setpoint_nm": 6.0}, r"current reference -?\d+.\d+ A in phase [abc] at count \d+ .* limit of 15 A"),
     ({"excitation_nm": np.zeros(10)}, r"BAD_REQUEST.*excitation_nm has shape \(10,\)"),
 ])
 def test_requests_beyond_the_limits_are_refused_before_sending(emulator, remote, simulator, requests, changes,

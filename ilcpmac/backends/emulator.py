@@ -4,11 +4,15 @@ For tests, and for developing target firmware against: it speaks exactly
 docs/protocol.md, and can inject the faults a client must survive (a
 connection dropped mid-trial, a stall, a corrupted frame, a wrong protocol
 version, a restart of the target), each on a chosen trial so that tests are
-deterministic.
+deterministic. Like a real bench it has one controlling client at a time
+(another gets ERROR BUSY), a bounded number of connections, bounded frames,
+and drops idle or slow clients; whatever the backend raises is answered
+with an ERROR, and it keeps serving.
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import os
 import socket
@@ -16,6 +20,7 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, fields
+from typing import Iterator
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.backends.protocol import (
@@ -26,6 +31,7 @@ from ilcpmac.backends.protocol import (
     Accept,
     Channel,
     ErrorCode,
+    FrameTimeout,
     FrameType,
     PeerClosed,
     ProtocolError,
@@ -37,8 +43,11 @@ from ilcpmac.backends.protocol import (
     encode_error,
     encode_heartbeat,
     encode_trial,
+    target_bounds,
 )
+from ilcpmac.bench.format import MAX_TRIAL_ROWS
 from ilcpmac.errors import BackendError, IlcpmacError
+from ilcpmac.records import TrialRequest
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +118,7 @@ class FaultPlan:
 
 
 class BenchEmulator:
-    """A bench target on TCP serving ``backend`` over the bench protocol, one thread per client.
+    """A bench target on TCP serving ``backend`` over the bench protocol, one thread per connection.
 
     Start with `start` (or ``with``), stop with `stop`; ``port=0`` picks a
     free port, read back from `port` / `address`.
@@ -131,13 +140,29 @@ class BenchEmulator:
         HEARTBEAT interval while a trial runs, s.
     restart_delay_s : float
         How long a restarting target stays unreachable, s.
+    idle_timeout_s : float
+        A client that sends no frame for this long (before its HELLO or
+        between trials) is disconnected, s.
+    frame_timeout_s : float
+        A frame must arrive complete within this many seconds of its first
+        byte, and the client must take each frame sent to it within it;
+        otherwise it is disconnected.
+    max_connections : int
+        Connections open at once; one more is answered ERROR BUSY and closed.
+    max_trial_samples : int
+        Largest trial (revolutions x counts_per_rev) run; a larger request
+        is refused with LIMIT_EXCEEDED.
     """
 
     def __init__(self, backend: Backend, host: str = "127.0.0.1", port: int = 0, faults: FaultPlan = FaultPlan(),
                  chunk_samples: int = 8192, heartbeat_s: float = HEARTBEAT_INTERVAL_S,
-                 restart_delay_s: float = 0.5) -> None:
-        if chunk_samples < 1 or heartbeat_s <= 0 or restart_delay_s < 0:
-            raise BackendError("emulator needs chunk_samples >= 1, heartbeat_s > 0 and restart_delay_s >= 0")
+                 restart_delay_s: float = 0.5, idle_timeout_s: float = 20.0, frame_timeout_s: float = 10.0,
+                 max_connections: int = 4, max_trial_samples: int = MAX_TRIAL_ROWS) -> None:
+        if (chunk_samples < 1 or heartbeat_s <= 0 or restart_delay_s < 0 or idle_timeout_s <= 0
+                or frame_timeout_s <= 0 or max_connections < 1 or max_trial_samples < 2):
+            raise BackendError("emulator needs chunk_samples >= 1, heartbeat_s, idle_timeout_s and "
+                               "frame_timeout_s > 0, restart_delay_s >= 0, max_connections >= 1 and "
+                               "max_trial_samples >= 2")
         self.backend = backend
         self._description = backend.describe()
         self.host = host
@@ -146,6 +171,10 @@ class BenchEmulator:
         self.chunk_samples = chunk_samples
         self.heartbeat_s = heartbeat_s
         self.restart_delay_s = restart_delay_s
+        self.idle_timeout_s = idle_timeout_s
+        self.frame_timeout_s = frame_timeout_s
+        self.max_connections = max_connections
+        self.max_trial_samples = max_trial_samples
         #: (fault name, trial number) of every fault fired, in order
         self.faults_fired: list[tuple[str, int]] = []
         self._requests = 0
@@ -154,6 +183,7 @@ class BenchEmulator:
         self._stopping = threading.Event()
         self._generation = 0
         self._channels: set[Channel] = set()
+        self._controller: Channel | None = None
         self._threads: set[threading.Thread] = set()
         self._accept_thread: threading.Thread | None = None
         self._pool: ThreadPoolExecutor | None = None
@@ -186,7 +216,7 @@ class BenchEmulator:
             channels = list(self._channels)
             threads = list(self._threads)
         for channel in channels:
-            channel.close()
+            channel.shutdown()  # its thread closes it
         for thread in threads:
             if thread is not threading.current_thread():
                 thread.join(timeout_s)
@@ -220,14 +250,23 @@ class BenchEmulator:
                     conn, peer = listener.accept()
                 except TimeoutError:
                     continue
-                conn.settimeout(None)
+                conn.settimeout(self.idle_timeout_s)
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                channel = Channel(conn, f"client {peer[0]}:{peer[1]}")
+                channel = Channel(conn, f"client {peer[0]}:{peer[1]}",
+                                  target_bounds(self._description.motor.counts_per_rev), self.frame_timeout_s)
                 thread = threading.Thread(target=self._serve, args=(channel,), name="emulator-client",
                                           daemon=True)
                 with self._lock:
-                    self._channels.add(channel)
-                    self._threads.add(thread)
+                    full = len(self._channels) >= self.max_connections
+                    if not full:
+                        self._channels.add(channel)
+                        self._threads.add(thread)
+                if full:
+                    log.warning("%s refused: %d connections open", channel.peer, self.max_connections)
+                    self._send_error(channel, ErrorCode.BUSY, 0,
+                                     f"this target serves at most {self.max_connections} connections")
+                    channel.close()
+                    continue
                 thread.start()
 
     def _restart(self) -> None:
@@ -235,10 +274,11 @@ class BenchEmulator:
         with self._restart_lock:
             with self._lock:
                 self._generation += 1
+                self._controller = None
                 channels = list(self._channels)
                 old = self._accept_thread
             for channel in channels:
-                channel.close()
+                channel.shutdown()  # its thread closes it
             if old is not None:
                 old.join()
             if not self._stopping.wait(self.restart_delay_s):
@@ -247,11 +287,25 @@ class BenchEmulator:
 
     # -------------------------------------------------------- one client
 
+    def _take_control(self, channel: Channel) -> bool:
+        """Make ``channel`` the controlling client, unless another one is still connected."""
+        with self._lock:
+            current = self._controller
+            if current is not None and not current.peer_closed():
+                return False
+            if current is not None:
+                current.shutdown()  # its client has gone: wake its thread, which closes it
+            self._controller = channel
+            return True
+
     def _serve(self, channel: Channel) -> None:
         log.info("%s connected", channel.peer)
         try:
             expected = FrameType.HELLO
             if (frame := channel.recv()).type is FrameType.HELLO:
+                if not self._take_control(channel):
+                    self._send_error(channel, ErrorCode.BUSY, 0, "another client controls this bench target")
+                    return
                 channel.send(FrameType.DESCRIBE, encode_describe(self._description))
                 expected = FrameType.REQUEST
                 while (frame := channel.recv()).type is FrameType.REQUEST:
@@ -262,6 +316,10 @@ class BenchEmulator:
                                  f"expected {expected.name}, got {frame.type.name}")
         except PeerClosed:
             pass
+        except FrameTimeout as e:
+            log.info("%s: dropped (%s)", channel.peer, e)
+        except TimeoutError:
+            log.info("%s: dropped after %g s without a frame", channel.peer, self.idle_timeout_s)
         except ProtocolVersionError:
             self._send_error(channel, ErrorCode.VERSION_MISMATCH, 0,
                              f"this target speaks protocol version {PROTOCOL_VERSION}")
@@ -269,19 +327,24 @@ class BenchEmulator:
             self._send_error(channel, ErrorCode.MALFORMED_FRAME, 0, str(e))
         except OSError:
             pass  # the client went away, or stop/restart closed the connection
+        except Exception as e:  # a bug in the target: tell the client, keep serving the next one
+            log.exception("%s: internal error", channel.peer)
+            self._send_error(channel, ErrorCode.INTERNAL, 0, f"{type(e).__name__}: {e}")
         finally:
-            channel.close()
             with self._lock:
+                if self._controller is channel:
+                    self._controller = None
                 self._channels.discard(channel)
                 self._threads.discard(threading.current_thread())
+            channel.close()
             log.info("%s disconnected", channel.peer)
 
     @staticmethod
     def _send_error(channel: Channel, code: ErrorCode, trial_id: int, message: str) -> None:
         try:
             channel.send(FrameType.ERROR, encode_error(code, trial_id, message))
-        except OSError:
-            pass  # the connection is gone: nobody to tell
+        except (OSError, FrameTimeout):
+            pass  # the connection is gone or stuck: nobody to tell
 
     def _trial(self, channel: Channel, payload: memoryview) -> bool:
         """Serve one REQUEST; False when the connection must end (a fault fired)."""
@@ -289,7 +352,11 @@ class BenchEmulator:
         with self._lock:
             self._requests += 1
             number = self._requests
+        max_samples = request.revolutions * self._description.motor.counts_per_rev
         refusal = check_request(request, self._description)
+        if refusal is None and max_samples > self.max_trial_samples:
+            refusal = (ErrorCode.LIMIT_EXCEEDED, f"{max_samples} samples (revolutions x counts_per_rev) exceed "
+                                                 f"the {self.max_trial_samples} this target records per trial")
         if refusal is not None:
             self._send_error(channel, refusal[0], trial_id, refusal[1])
             return True
@@ -299,16 +366,18 @@ class BenchEmulator:
             with self._lock:
                 self.faults_fired.append((name, number))
         version = PROTOCOL_VERSION + 1 if "wrong_version" in faults else PROTOCOL_VERSION
-        max_samples = request.revolutions * self._description.motor.counts_per_rev
-        channel.send_bytes(channel.frame_bytes(FrameType.ACCEPT, encode_accept(Accept(trial_id, max_samples)),
-                                               version))
-        future = self._pool.submit(self.backend.run_trial, request)
+        accept = encode_accept(Accept(trial_id, max_samples))
+        future = self._pool.submit(self._run, trial_id, request, max_samples)
+        # ACCEPT waits one heartbeat interval: a request the backend refuses at once gets an ERROR alone
+        accepted = False
         while True:
             try:
-                data = future.result(timeout=self.heartbeat_s)
+                frames = future.result(timeout=self.heartbeat_s)
                 break
             except FutureTimeout:
-                channel.send_bytes(channel.frame_bytes(FrameType.HEARTBEAT, encode_heartbeat(trial_id), version))
+                channel.send_bytes(channel.frame_bytes(FrameType.HEARTBEAT, encode_heartbeat(trial_id), version)
+                                   if accepted else channel.frame_bytes(FrameType.ACCEPT, accept, version))
+                accepted = True
             except IlcpmacError as e:
                 self._send_error(channel, ErrorCode.TRIAL_FAILED, trial_id, str(e))
                 return True
@@ -316,7 +385,9 @@ class BenchEmulator:
                 log.exception("trial %d failed", number)
                 self._send_error(channel, ErrorCode.INTERNAL, trial_id, f"{type(e).__name__}: {e}")
                 return True
-        for i, (ftype, parts) in enumerate(encode_trial(trial_id, data, self.chunk_samples)):
+        if not accepted:
+            channel.send_bytes(channel.frame_bytes(FrameType.ACCEPT, accept, version))
+        for i, (ftype, parts) in enumerate(frames):
             frame = channel.frame_bytes(ftype, parts, version)
             if i == 0 and "corrupt" in faults:
                 frame[HEADER.size + (len(frame) - HEADER.size - CRC.size) // 2] ^= 0xFF
@@ -330,3 +401,12 @@ class BenchEmulator:
                 if "stall" in faults:
                     self._stopping.wait(self.faults.stall_s)
         return True
+
+    def _run(self, trial_id: int, request: TrialRequest, max_samples: int) -> Iterator[tuple[FrameType, list]]:
+        """Run ``request`` on the backend; the (type, parts) of its DATA frames and END_OF_TRIAL."""
+        data = self.backend.run_trial(request)
+        if not 2 <= data.n_samples <= max_samples:
+            raise BackendError(f"the backend returned {data.n_samples} samples for a trial of 2 to "
+                               f"{max_samples} samples")
+        frames = encode_trial(trial_id, data, self.chunk_samples)
+        return itertools.chain([next(frames)], frames)  # the first frame checks the shape of every column

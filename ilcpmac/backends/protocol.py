@@ -10,17 +10,21 @@ as raw float64/int64 blocks of known length, decoded with `numpy.frombuffer`
 
 from __future__ import annotations
 
+import select
 import socket
 import struct
+import time
 import zlib
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
-from typing import Iterator, Sequence
+from types import MappingProxyType
+from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.bench.format import MotorInfo
+from ilcpmac.model.motor import MOTOR_RANGES
 from ilcpmac.errors import BackendError
 from ilcpmac.model.tables import current_references
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
@@ -29,7 +33,7 @@ from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 PROTOCOL_VERSION = 1
 #: The first four bytes of every frame (ASCII "ILCP").
 MAGIC = b"ILCP"
-#: Largest accepted payload, bytes (a larger length field is a malformed frame).
+#: Largest payload of any frame, bytes (each frame type has its own, smaller or equal bound: PAYLOAD_BOUNDS).
 MAX_PAYLOAD = 16 * 1024 * 1024
 #: Largest ERROR message, bytes of UTF-8 (longer ones are truncated by the sender).
 MAX_ERROR_MESSAGE = 1024
@@ -60,9 +64,6 @@ class FrameType(IntEnum):
     HEARTBEAT = 6
     END_OF_TRIAL = 7
     ERROR = 8
-
-
-_FRAME_TYPES = {t.value for t in FrameType}
 
 
 class ErrorCode(IntEnum):
@@ -99,6 +100,35 @@ COLUMNS: tuple[tuple[str, int, np.dtype, Column | None], ...] = (
     ("speed_true_rad_s", 1, _F64, Column.SPEED_TRUE),
 )
 _ALL_COLUMNS = int(Column.I_MEAS | Column.TORQUE_TRUE | Column.I_TRUE | Column.SPEED_TRUE)
+_MAX_WIDTH = sum(width for _, width, _, _ in COLUMNS)
+
+#: Largest payload of each frame type, bytes, as far as the frame type alone fixes it (docs/protocol.md,
+#: section 3). A receiver may tighten a bound once it knows more (`Channel.bounds`, `target_bounds`,
+#: `data_bound`).
+PAYLOAD_BOUNDS: Mapping[FrameType, int] = MappingProxyType({
+    FrameType.HELLO: 0,
+    FrameType.DESCRIBE: MAX_PAYLOAD,
+    FrameType.REQUEST: MAX_PAYLOAD,
+    FrameType.ACCEPT: _ACCEPT.size,
+    FrameType.DATA: MAX_PAYLOAD,
+    FrameType.HEARTBEAT: _HEARTBEAT.size,
+    FrameType.END_OF_TRIAL: _END.size,
+    FrameType.ERROR: _ERROR_HEAD.size + MAX_ERROR_MESSAGE,
+})
+#: Payload bytes read before the receive buffer grows with what arrives (larger frames grow it by doubling).
+_FIRST_READ = 1024 * 1024
+
+
+def target_bounds(counts_per_rev: int) -> dict[FrameType, int]:
+    """Payload bounds of the frames a target of ``counts_per_rev`` counts accepts: HELLO (empty), REQUEST
+    (exactly its table length) and ERROR; 0 for the frame types only a target sends."""
+    return {**dict.fromkeys(FrameType, 0), FrameType.REQUEST: _REQUEST_HEAD.size + 16 * counts_per_rev,
+            FrameType.ERROR: PAYLOAD_BOUNDS[FrameType.ERROR]}
+
+
+def data_bound(max_samples: int) -> int:
+    """Largest DATA payload of a trial of at most ``max_samples`` samples (every column present), bytes."""
+    return min(_DATA_HEAD.size + 8 * _MAX_WIDTH * max_samples, MAX_PAYLOAD)
 
 
 class ProtocolError(BackendError):
@@ -111,6 +141,10 @@ class ProtocolError(BackendError):
 
 class PeerClosed(ProtocolError):
     """The peer closed the connection between two frames."""
+
+
+class FrameTimeout(ProtocolError):
+    """A frame was not complete in time: the peer dribbles it, or a deadline passed."""
 
 
 class ProtocolVersionError(BackendError):
@@ -168,14 +202,25 @@ class Channel:
     Parameters
     ----------
     sock : socket.socket
-        A connected stream socket; its timeout applies to every read.
+        A connected stream socket; its timeout (set it before) applies to every read: the longest
+        silence accepted.
     peer : str
         How to name the peer in error messages.
+    bounds : mapping of FrameType to int
+        Largest payload accepted per frame type, bytes; kept (as a dict the owner may tighten) in
+        `bounds`. A frame announcing more is refused before its payload is read.
+    frame_timeout_s : float or None
+        If given, a frame must arrive complete within this many seconds of its first byte, and a
+        frame must be sent within it (a peer that dribbles a frame, or does not read, is cut off).
     """
 
-    def __init__(self, sock: socket.socket, peer: str) -> None:
+    def __init__(self, sock: socket.socket, peer: str, bounds: Mapping[FrameType, int] = PAYLOAD_BOUNDS,
+                 frame_timeout_s: float | None = None) -> None:
         self.sock = sock
         self.peer = peer
+        self.bounds = dict(bounds)
+        self.frame_timeout_s = frame_timeout_s
+        self._timeout_s = sock.gettimeout()
         self._send_seq = 0
         self._recv_seq = 0
 
@@ -205,72 +250,131 @@ class Channel:
         return buf
 
     def send_bytes(self, frame: bytes | bytearray) -> None:
-        """Send a frame made by `frame_bytes`."""
-        self.sock.sendall(frame)
+        """Send a frame made by `frame_bytes` (within ``frame_timeout_s`` if set)."""
+        if self.frame_timeout_s is None:
+            self.sock.sendall(frame)
+            return
+        self.sock.settimeout(self.frame_timeout_s)
+        try:
+            self.sock.sendall(frame)
+        except TimeoutError:
+            raise FrameTimeout(f"{self.peer} did not take a frame within {self.frame_timeout_s:g} s") from None
+        finally:
+            self.sock.settimeout(self._timeout_s)
 
     def send(self, ftype: FrameType, parts: Sequence = ()) -> None:
         """Build and send one frame."""
         self.send_bytes(self.frame_bytes(ftype, parts))
 
-    def _read_exact(self, n: int, frame_start: bool) -> bytearray:
-        buf = bytearray(n)
-        view = memoryview(buf)
-        got = 0
-        while got < n:
-            k = self.sock.recv_into(view[got:], n - got)
+    def _receive(self, view: memoryview, deadline: float | None) -> int:
+        """One read into ``view`` (0 when the peer closed), cut short at ``deadline`` (time.monotonic)."""
+        if deadline is None:
+            return self.sock.recv_into(view)
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            raise FrameTimeout(f"{self.peer} sent no complete frame in time")
+        self.sock.settimeout(remaining if self._timeout_s is None else min(remaining, self._timeout_s))
+        try:
+            return self.sock.recv_into(view)
+        except TimeoutError:
+            if time.monotonic() >= deadline:
+                raise FrameTimeout(f"{self.peer} sent no complete frame in time") from None
+            raise
+
+    def _fill(self, view: memoryview, got: int, deadline: float | None) -> None:
+        """Read until ``view`` is full (``got`` bytes of it are already there)."""
+        while got < view.nbytes:
+            k = self._receive(view[got:], deadline)
             if k == 0:
-                if frame_start and got == 0:
-                    raise PeerClosed(f"{self.peer} closed the connection")
                 raise ProtocolError(f"{self.peer} closed the connection mid-frame")
             got += k
-        return buf
 
-    def recv(self) -> Frame:
-        """Read one frame and verify magic, length, CRC, sequence number and version.
+    def recv(self, deadline: float | None = None) -> Frame:
+        """Read one frame and verify magic, type, length, CRC, sequence number and version.
+
+        The payload buffer is allocated only once the length passed its type's bound, and beyond
+        1 MiB grows only as bytes arrive.
+
+        Parameters
+        ----------
+        deadline : float or None
+            ``time.monotonic()`` by which the whole frame must have arrived.
 
         Raises
         ------
         PeerClosed
             The peer closed the connection before the frame's first byte.
+        FrameTimeout
+            The frame was not complete by ``deadline`` or within ``frame_timeout_s`` of its first byte.
         ProtocolError
-            Bad magic, oversized length, truncated frame, CRC mismatch,
-            sequence gap or unknown frame type.
+            Bad magic, unknown frame type, a length beyond the type's bound, truncated frame, CRC
+            mismatch or sequence gap.
         ProtocolVersionError
             A frame other than ERROR with another protocol version.
         TimeoutError
             No byte within the socket's timeout.
         """
-        header = self._read_exact(HEADER.size, frame_start=True)
-        magic, version, ftype, seq, length = HEADER.unpack(header)
-        if magic != MAGIC:
-            raise ProtocolError(f"bad magic {bytes(magic)!r} in a frame header from {self.peer}")
-        if length > MAX_PAYLOAD:
-            raise ProtocolError(f"frame from {self.peer} announces {length} payload bytes "
-                                f"(maximum {MAX_PAYLOAD})")
-        body = self._read_exact(length + CRC.size, frame_start=False)
+        try:
+            header = bytearray(HEADER.size)
+            view = memoryview(header)
+            got = self._receive(view, deadline)
+            if got == 0:
+                raise PeerClosed(f"{self.peer} closed the connection")
+            if self.frame_timeout_s is not None:
+                cut = time.monotonic() + self.frame_timeout_s
+                deadline = cut if deadline is None else min(deadline, cut)
+            self._fill(view, got, deadline)
+            magic, version, ftype, seq, length = HEADER.unpack(header)
+            if magic != MAGIC:
+                raise ProtocolError(f"bad magic {bytes(magic)!r} in a frame header from {self.peer}")
+            try:
+                kind = FrameType(ftype)
+            except ValueError:
+                raise ProtocolError(f"unknown frame type {ftype} from {self.peer}") from None
+            if length > self.bounds[kind]:
+                raise ProtocolError(f"{kind.name} frame from {self.peer} announces {length} payload bytes "
+                                    f"(at most {self.bounds[kind]})")
+            body = bytearray(min(length + CRC.size, _FIRST_READ))
+            got = 0
+            while True:
+                self._fill(memoryview(body), got, deadline)
+                if len(body) == length + CRC.size:
+                    break
+                got = len(body)
+                body.extend(bytes(min(got, length + CRC.size - got)))
+        finally:
+            if deadline is not None:
+                self.sock.settimeout(self._timeout_s)
         view = memoryview(body)
         (crc,) = CRC.unpack_from(body, length)
         if zlib.crc32(view[:length], zlib.crc32(header)) != crc:
-            kind = FrameType(ftype).name if ftype in _FRAME_TYPES else f"type {ftype}"
-            raise ProtocolError(f"CRC mismatch in frame {seq} ({kind}) from {self.peer}")
+            raise ProtocolError(f"CRC mismatch in frame {seq} ({kind.name}) from {self.peer}")
         if seq != self._recv_seq:
             raise ProtocolError(f"sequence gap from {self.peer}: expected frame {self._recv_seq}, got {seq}")
         self._recv_seq = (self._recv_seq + 1) & 0xFFFFFFFF
-        try:
-            kind = FrameType(ftype)
-        except ValueError:
-            raise ProtocolError(f"unknown frame type {ftype} from {self.peer}") from None
         if version != PROTOCOL_VERSION and kind is not FrameType.ERROR:
             raise ProtocolVersionError(f"{self.peer} speaks protocol version {version}, "
                                        f"this end speaks version {PROTOCOL_VERSION}")
         return Frame(kind, version, seq, view[:length])
 
-    def close(self) -> None:
-        """Shut the connection down (wakes a thread blocked reading it) and close it."""
+    def peer_closed(self) -> bool:
+        """Whether the peer has closed or reset the connection (nothing is read from it)."""
+        try:
+            readable, _, _ = select.select([self.sock], [], [], 0)
+            return bool(readable) and self.sock.recv(1, socket.MSG_PEEK) == b""
+        except (OSError, ValueError):  # reset, or already closed here
+            return True
+
+    def shutdown(self) -> None:
+        """Shut the connection down: wakes a thread blocked on it, which then fails (and closes it)."""
         try:
             self.sock.shutdown(socket.SHUT_RDWR)
         except OSError:
             pass  # already closed by the peer
+
+    def close(self) -> None:
+        """Shut the connection down and close it."""
+        self.shutdown()
         self.sock.close()
 
 
@@ -299,13 +403,33 @@ def encode_describe(description: BenchDescription) -> list:
 
 
 def decode_describe(payload: memoryview) -> BenchDescription:
-    """BenchDescription from a DESCRIBE payload."""
+    """BenchDescription from a DESCRIBE payload.
+
+    Raises
+    ------
+    ProtocolError
+        The payload's size does not match its counts_per_rev.
+    BackendError
+        A value no bench has: [motor] data outside the bench format's MOTOR_RANGES, a
+        non-finite or non-positive scale, gain or limit, non-finite offsets or back-EMF.
+    """
     if payload.nbytes < _DESCRIBE_HEAD.size:
         raise ProtocolError(f"DESCRIBE payload is {payload.nbytes} bytes, shorter than its "
                             f"{_DESCRIBE_HEAD.size}-byte head")
     pole_pairs, slots, cpr, _, inertia, *v = _DESCRIBE_HEAD.unpack_from(payload)
     _expect_size(payload, _DESCRIBE_HEAD.size + 24 * cpr, f"DESCRIBE (counts_per_rev = {cpr})")
+    motor = {"pole_pairs": pole_pairs, "slots": slots, "counts_per_rev": cpr, "inertia": inertia}
+    for key, (low, high) in MOTOR_RANGES.items():
+        if not low <= motor[key] <= high:
+            raise BackendError(f"DESCRIBE {key} must lie in [{low}, {high}], got {motor[key]!r}")
+    positive = {"current_scale": v[0:3], "torque_gain": v[6:7], "max_current_a": v[7:8], "max_torque_nm": v[8:9],
+                "max_speed_hz": v[9:10]}
+    for key, values in positive.items():
+        if not all(0 < x < np.inf for x in values):
+            raise BackendError(f"DESCRIBE {key} must be positive and finite, got {values}")
     backemf = np.frombuffer(payload, _F64, 3 * cpr, _DESCRIBE_HEAD.size).reshape(cpr, 3).astype(float)
+    if not (np.isfinite(v[3:6]).all() and np.isfinite(backemf).all()):
+        raise BackendError("DESCRIBE current_offset and back-EMF table must be finite")
     return BenchDescription(
         motor=MotorInfo(pole_pairs, slots, cpr, inertia),
         backemf_nm_per_a=backemf,
@@ -443,28 +567,71 @@ def encode_trial(trial_id: int, trial: TrialData, chunk_samples: int) -> Iterato
     yield FrameType.END_OF_TRIAL, encode_end(EndOfTrial(trial_id, frames, trial.n_samples, crc))
 
 
+#: Samples may exceed the bench's announced limits by this factor at most (noise, overshoot, sensor
+#: offsets); a value beyond it is not a measurement of that bench.
+SAMPLE_MARGIN = 4.0
+
+
+@dataclass(frozen=True)
+class SampleBounds:
+    """What the samples of one requested trial may hold (docs/protocol.md, section 5.4).
+
+    Attributes
+    ----------
+    max_samples : int
+        revolutions x counts_per_rev of the request: the most samples the trial may have, and the
+        largest span of its counts (last - first + 1).
+    max_abs : mapping of str to float
+        Largest |value| of each bounded column (TrialData attribute); a NaN or infinite value is beyond it.
+    """
+
+    max_samples: int
+    max_abs: Mapping[str, float]
+
+    @classmethod
+    def of(cls, request: TrialRequest, description: BenchDescription) -> SampleBounds:
+        """The bounds of ``request`` on the described bench: SAMPLE_MARGIN x max_current_a for the current
+        references and true currents, x max_torque_nm for the true torque, x 2 pi max_speed_hz for the true
+        speed (rad/s); the measured currents and torque get these bounds as the request's calibration
+        converts them from the described one (its scale ratio, plus its offset change)."""
+        limits, now, cal = description.limits, description.calibration, request.calibration
+        current = SAMPLE_MARGIN * limits.max_current_a
+        torque = SAMPLE_MARGIN * limits.max_torque_nm
+        offset = np.abs(cal.current_offset - now.current_offset)
+        measured = (now.current_scale * current + offset) / cal.current_scale
+        return cls(request.revolutions * description.motor.counts_per_rev, {
+            "i_ref_a": current, "i_meas_a": float(np.max(measured)), "i_true_a": current,
+            "torque_nm": torque * now.torque_gain / cal.torque_gain, "torque_true_nm": torque,
+            "speed_true_rad_s": SAMPLE_MARGIN * 2 * np.pi * limits.max_speed_hz})
+
+
 class TrialAssembler:
-    """Collects the DATA frames of one trial and verifies them against its END_OF_TRIAL.
+    """Collects the DATA frames of one trial, validating every sample, and verifies them against its END_OF_TRIAL.
 
     Parameters
     ----------
     trial_id : int
         The trial the frames must belong to.
     max_samples : int
-        The most samples the target announced in ACCEPT.
+        The most samples the target announced in ACCEPT (at most ``bounds.max_samples``).
+    bounds : SampleBounds
+        What the samples may hold: counts strictly increasing within the requested span, time
+        stamps finite and strictly increasing, bounded columns within their bounds.
     """
 
-    def __init__(self, trial_id: int, max_samples: int) -> None:
+    def __init__(self, trial_id: int, max_samples: int, bounds: SampleBounds) -> None:
         self.trial_id = trial_id
         self.max_samples = max_samples
+        self.bounds = bounds
         self.flags: Column | None = None
         self.n_samples = 0
         self.data_frames = 0
         self._crc = 0
-        self._chunks: list[list[np.ndarray]] = []
+        self._chunks: list[dict[str, np.ndarray]] = []
+        self._first_count = 0
 
     def add(self, payload: memoryview) -> None:
-        """Decode one DATA payload; raise ProtocolError unless it continues this trial."""
+        """Decode one DATA payload; raise ProtocolError unless it continues this trial with valid samples."""
         if payload.nbytes < _DATA_HEAD.size:
             raise ProtocolError(f"DATA payload is {payload.nbytes} bytes, shorter than its "
                                 f"{_DATA_HEAD.size}-byte head")
@@ -481,17 +648,50 @@ class TrialAssembler:
             raise ProtocolError(f"DATA frame of {n} samples at {first} (at most {self.max_samples} announced)")
         widths = [w for _, w, _, flag in COLUMNS if flag is None or flags & flag]
         _expect_size(payload, _DATA_HEAD.size + 8 * n * sum(widths), f"DATA ({n} samples, flags {flags:#x})")
-        chunk, offset = [], _DATA_HEAD.size
-        for (_, width, dtype, flag) in COLUMNS:
+        chunk, offset = {}, _DATA_HEAD.size
+        for (name, width, dtype, flag) in COLUMNS:
             if flag is None or flags & flag:
                 array = np.frombuffer(payload, dtype, n * width, offset)
-                chunk.append(array.reshape(n, 3) if width == 3 else array)
+                chunk[name] = array.reshape(n, 3) if width == 3 else array
                 offset += 8 * n * width
+        self._check(first, chunk)
         self.flags = Column(flags)
         self._crc = zlib.crc32(payload, self._crc)
         self._chunks.append(chunk)
         self.n_samples += n
         self.data_frames += 1
+
+    def _check(self, first: int, chunk: dict[str, np.ndarray]) -> None:
+        """Raise ProtocolError naming the first sample of ``chunk`` (trial samples from ``first``) at fault."""
+        for name in ("count", "time_s"):
+            self._check_rising(first, name, chunk[name])
+        count = chunk["count"]
+        if first == 0:
+            self._first_count = int(count[0])
+        last = min(self._first_count + self.bounds.max_samples - 1, np.iinfo(np.int64).max)
+        if count[-1] > last:
+            bad = int(np.argmax(count > last))
+            raise ProtocolError(f"DATA sample {first + bad}: count {count[bad]} lies beyond the "
+                                f"{self.bounds.max_samples} requested counts from the first ({self._first_count})")
+        for name, bound in self.bounds.max_abs.items():
+            column = chunk.get(name)
+            if column is not None and not (column.max() <= bound and column.min() >= -bound):
+                within = np.abs(column) <= bound
+                bad = int(np.argmin(within.all(axis=1) if column.ndim == 2 else within))
+                raise ProtocolError(f"DATA sample {first + bad}: {name} {column[bad]} is not finite or beyond "
+                                    f"+-{bound:.4g} (bound from the bench's limits)")
+
+    def _check_rising(self, first: int, name: str, column: np.ndarray) -> None:
+        previous = self._chunks[-1][name][-1] if self._chunks else None
+        rising = column[1:] > column[:-1]
+        if (rising.all() and np.isfinite(column[[0, -1]]).all()
+                and (previous is None or column[0] > previous)):
+            return
+        ok = np.isfinite(column) & np.concatenate([[previous is None or column[0] > previous], rising])
+        bad = int(np.argmin(ok))
+        before = column[bad - 1] if bad else previous
+        raise ProtocolError(f"DATA sample {first + bad}: {name} {column[bad]}"
+                            f"{'' if before is None else f' after {before}'} (must be finite and increase strictly)")
 
     def finish(self, payload: memoryview) -> dict[str, np.ndarray]:
         """Verify the END_OF_TRIAL payload; return the trial's columns by TrialData attribute."""
@@ -506,12 +706,9 @@ class TrialAssembler:
                                 f"received data gives {self._crc:#010x}")
         if self.n_samples < 2:
             raise ProtocolError(f"trial has {self.n_samples} samples, at least 2 are needed")
-        present = [(name, dtype) for name, _, dtype, flag in COLUMNS if flag is None or self.flags & flag]
-        columns = {name: np.concatenate([c[i] for c in self._chunks]).astype(dtype.newbyteorder("="), copy=False)
-                   for i, (name, dtype) in enumerate(present)}
-        if np.any(np.diff(columns["count"]) <= 0):
-            raise ProtocolError("trial data counts do not increase")
-        return columns
+        return {name: np.concatenate([c[name] for c in self._chunks]).astype(array.dtype.newbyteorder("="),
+                                                                               copy=False)
+                for name, array in self._chunks[0].items()}
 
 
 # ---------------------------------------------------------------- requests a target accepts
@@ -520,45 +717,16 @@ class TrialAssembler:
 def check_request(request: TrialRequest, description: BenchDescription) -> tuple[ErrorCode, str] | None:
     """Why a target described by ``description`` must refuse ``request``, or None.
 
-    BAD_REQUEST: table lengths other than counts_per_rev, non-finite values,
-    revolutions below 1, a seed outside 32 bits, a non-positive speed or
-    calibration. LIMIT_EXCEEDED: speed above max_speed_hz, peak
-    |set point + feed-forward + excitation| above max_torque_nm, or a peak
-    current reference i*_p = tau_ref K_p / sum_q K_q^2 (the minimum-copper-loss
-    references from the described back-EMF table) above max_current_a.
+    `ilcpmac.pipeline.safety.request_violation` against the described limits: BAD_REQUEST for a
+    malformed request (table lengths other than counts_per_rev, wrong types, NaN or infinity, revolutions
+    below 1, a seed outside 32 bits, a non-positive speed or calibration); LIMIT_EXCEEDED for a speed
+    above max_speed_hz, a peak |set point + feed-forward + excitation| above max_torque_nm, or a peak
+    current reference i*_p = tau_ref K_p / sum_q K_q^2 (the minimum-copper-loss references from the
+    described back-EMF table) above max_current_a.
     """
-    cpr = description.motor.counts_per_rev
-    limits = description.limits
-    for name in ("feedforward_nm", "excitation_nm"):
-        table = np.asarray(getattr(request, name))
-        if table.shape != (cpr,):
-            return ErrorCode.BAD_REQUEST, f"{name} has shape {table.shape}, the target needs ({cpr},)"
-        if not np.all(np.isfinite(table)):
-            return ErrorCode.BAD_REQUEST, f"{name} holds NaN or infinite values"
-    cal = request.calibration
-    if not (np.all(cal.current_scale > 0) and np.all(np.isfinite(cal.current_scale))
-            and np.all(np.isfinite(cal.current_offset)) and 0 < cal.torque_gain < np.inf):
-        return ErrorCode.BAD_REQUEST, "calibration needs finite positive current scales and torque gain"
-    if not 1 <= request.revolutions < 2**32:
-        return ErrorCode.BAD_REQUEST, f"revolutions must be 1 to 2^32-1, got {request.revolutions}"
-    if not 0 <= request.seed < 2**32:
-        return ErrorCode.BAD_REQUEST, f"seed must be a 32-bit unsigned integer, got {request.seed}"
-    if not np.isfinite(request.torque_setpoint_nm):
-        return ErrorCode.BAD_REQUEST, f"torque set point must be finite, got {request.torque_setpoint_nm}"
-    if not 0 < request.speed_setpoint_hz < np.inf:
-        return ErrorCode.BAD_REQUEST, f"speed set point must be positive, got {request.speed_setpoint_hz} Hz"
-    if request.speed_setpoint_hz > limits.max_speed_hz:
-        return ErrorCode.LIMIT_EXCEEDED, (f"speed set point {request.speed_setpoint_hz:g} Hz exceeds "
-                                          f"the bench limit of {limits.max_speed_hz:g} Hz")
-    tau_ref = request.torque_reference_nm()
-    k = int(np.argmax(np.abs(tau_ref)))
-    if abs(tau_ref[k]) > limits.max_torque_nm:
-        return ErrorCode.LIMIT_EXCEEDED, (f"torque reference {tau_ref[k]:.4g} N m at count {k} (set point + "
-                                          f"feed-forward + excitation) exceeds the bench limit of "
-                                          f"{limits.max_torque_nm:g} N m")
-    i_ref = np.abs(current_references(tau_ref, description.backemf_nm_per_a))
-    k, p = np.unravel_index(int(np.argmax(i_ref)), i_ref.shape)
-    if i_ref[k, p] > limits.max_current_a:
-        return ErrorCode.LIMIT_EXCEEDED, (f"current reference {i_ref[k, p]:.4g} A in phase {'abc'[p]} at count "
-                                          f"{k} exceeds the bench limit of {limits.max_current_a:g} A")
-    return None
+    from ilcpmac.pipeline.safety import SafetyLimits, request_violation
+
+    violation = request_violation(request, description, SafetyLimits.of_bench(description.limits))
+    if violation is None:
+        return None
+    return (ErrorCode.BAD_REQUEST if violation.malformed else ErrorCode.LIMIT_EXCEEDED), violation.message

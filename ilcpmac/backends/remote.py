@@ -1,11 +1,14 @@
 """A real test bench (or its emulator) as a backend: the bench protocol over TCP.
 
 `RemoteBackend` keeps one connection to the bench target, re-established as
-needed. A trial that fails in transit (connection lost, read timeout, CRC
-error, sequence gap, incomplete or inconsistent data) is run again from
-scratch on a new connection, up to ``retries`` times with exponential
-back-off; only a complete, verified trial is ever returned. Requests beyond
-the target's limits are refused before anything is sent.
+needed. Nothing the target sends is trusted: a trial buffers at most what was
+requested, must end by a deadline that heartbeats cannot extend, and every
+sample is validated. A trial that fails in transit (connection lost, read
+timeout, deadline passed, CRC error, sequence gap, incomplete, inconsistent
+or invalid data) is run again from scratch on a new connection, up to
+``retries`` times with exponential back-off; only a complete, verified trial
+is ever returned. Requests beyond the target's limits are refused before
+anything is sent.
 """
 
 from __future__ import annotations
@@ -22,11 +25,14 @@ from ilcpmac.backends.protocol import (
     Channel,
     ErrorCode,
     Frame,
+    FrameTimeout,
     FrameType,
     ProtocolError,
+    SampleBounds,
     TargetError,
     TrialAssembler,
     check_request,
+    data_bound,
     decode_accept,
     decode_describe,
     decode_error,
@@ -40,6 +46,8 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 #: ERROR codes after which the trial is tried again (the others fail it at once)
 _TRANSIENT = {ErrorCode.MALFORMED_FRAME, ErrorCode.UNEXPECTED_FRAME, ErrorCode.BUSY}
+#: A trial attempt must end within this many times its recording time (revolutions / speed), plus the margin.
+TRIAL_TIME_FACTOR = 2.0
 
 
 def parse_address(address: str) -> tuple[str, int]:
@@ -74,23 +82,30 @@ class RemoteBackend:
     read_timeout_s : float
         Timeout of every read, s: the longest silence accepted from the
         target. Keep it several times the target's heartbeat interval
-        (HEARTBEAT_INTERVAL_S, 1 s).
+        (HEARTBEAT_INTERVAL_S, 1 s). The handshake must also be complete
+        within it.
     retries : int
         How many times a failed connection or trial is tried again.
     backoff_s : float
         Wait before the first retry, s; doubled before each further one.
+    trial_margin_s : float
+        Each trial attempt must end (END_OF_TRIAL) within TRIAL_TIME_FACTOR
+        (2) x its recording time (revolutions / speed set point) plus this
+        margin, s, from its REQUEST: the target's warm-up and transfer time.
     """
 
     def __init__(self, address: str, connect_timeout_s: float = 5.0, read_timeout_s: float = 10.0,
-                 retries: int = 3, backoff_s: float = 0.5) -> None:
-        if connect_timeout_s <= 0 or read_timeout_s <= 0 or retries < 0 or backoff_s < 0:
-            raise BackendError("remote backend needs positive timeouts and non-negative retries and back-off")
+                 retries: int = 3, backoff_s: float = 0.5, trial_margin_s: float = 20.0) -> None:
+        if min(connect_timeout_s, read_timeout_s, trial_margin_s) <= 0 or retries < 0 or backoff_s < 0:
+            raise BackendError("remote backend needs positive timeouts and margin, and non-negative retries "
+                               "and back-off")
         self.address = address
         self.host, self.port = parse_address(address)
         self.connect_timeout_s = connect_timeout_s
         self.read_timeout_s = read_timeout_s
         self.retries = retries
         self.backoff_s = backoff_s
+        self.trial_margin_s = trial_margin_s
         self._channel: Channel | None = None
         self._description: BenchDescription | None = None
         self._trials = 0
@@ -99,23 +114,25 @@ class RemoteBackend:
     # -------------------------------------------------------- connection
 
     def _connect(self) -> Channel:
-        """The open channel, connecting and shaking hands first if there is none."""
+        """The open channel, connecting and shaking hands first if there is none (or the target closed it)."""
+        if self._channel is not None and self._channel.peer_closed():
+            self.close()  # e.g. the target's idle timeout: reconnect without counting a failure
         if self._channel is not None:
             return self._channel
         sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout_s)
-        channel = Channel(sock, f"bench target {self.address}")
         try:
             sock.settimeout(self.read_timeout_s)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            channel = Channel(sock, f"bench target {self.address}")
             channel.send(FrameType.HELLO)
-            frame = channel.recv()
+            frame = channel.recv(deadline=time.monotonic() + self.read_timeout_s)
             if frame.type is FrameType.ERROR:
                 raise decode_error(frame.payload)
             if frame.type is not FrameType.DESCRIBE:
                 raise ProtocolError(f"target answered HELLO with {frame.type.name}, expected DESCRIBE")
             description = decode_describe(frame.payload)
         except BaseException:
-            channel.close()
+            sock.close()
             raise
         if self._description is None:
             self._description = description
@@ -197,28 +214,42 @@ class RemoteBackend:
 
     def _attempt(self, request: TrialRequest) -> TrialData:
         channel = self._connect()
+        bounds = SampleBounds.of(request, self._description)
+        recording_s = request.revolutions / request.speed_setpoint_hz
+        budget_s = TRIAL_TIME_FACTOR * recording_s + self.trial_margin_s
         trial_id = self._next_trial_id
         self._next_trial_id = self._next_trial_id % 0xFFFFFFFF + 1
         channel.send(FrameType.REQUEST, encode_request(trial_id, request))
-        frame = self._next(channel, trial_id)
-        if frame.type is not FrameType.ACCEPT:
-            raise ProtocolError(f"target answered REQUEST with {frame.type.name}, expected ACCEPT")
-        accept = decode_accept(frame.payload)
-        if accept.trial_id != trial_id:
-            raise ProtocolError(f"ACCEPT of trial {accept.trial_id}, expected trial {trial_id}")
-        assembler = TrialAssembler(trial_id, accept.max_samples)
-        while (frame := self._next(channel, trial_id)).type is FrameType.DATA:
-            assembler.add(frame.payload)
+        deadline = time.monotonic() + budget_s
+        try:
+            frame = self._next(channel, trial_id, deadline)
+            if frame.type is not FrameType.ACCEPT:
+                raise ProtocolError(f"target answered REQUEST with {frame.type.name}, expected ACCEPT")
+            accept = decode_accept(frame.payload)
+            if accept.trial_id != trial_id:
+                raise ProtocolError(f"ACCEPT of trial {accept.trial_id}, expected trial {trial_id}")
+            if accept.max_samples > bounds.max_samples:
+                raise ProtocolError(f"ACCEPT announces {accept.max_samples} samples, the request asks for "
+                                    f"{bounds.max_samples} (revolutions x counts_per_rev)")
+            channel.bounds[FrameType.DATA] = data_bound(accept.max_samples)
+            assembler = TrialAssembler(trial_id, accept.max_samples, bounds)
+            while (frame := self._next(channel, trial_id, deadline)).type is FrameType.DATA:
+                assembler.add(frame.payload)
+        except FrameTimeout:
+            raise ProtocolError(f"trial not complete within its deadline of {budget_s:.4g} s "
+                                f"({TRIAL_TIME_FACTOR:g} x {recording_s:.4g} s of recording + "
+                                f"{self.trial_margin_s:g} s margin)") from None
         if frame.type is not FrameType.END_OF_TRIAL:
             raise ProtocolError(f"unexpected {frame.type.name} frame during trial data")
         columns = assembler.finish(frame.payload)
         return TrialData(torque_setpoint_nm=request.torque_setpoint_nm,
                          speed_setpoint_hz=request.speed_setpoint_hz, request=request, **columns)
 
-    def _next(self, channel: Channel, trial_id: int) -> Frame:
-        """The next frame of trial ``trial_id`` other than HEARTBEAT; ERROR frames are raised."""
+    def _next(self, channel: Channel, trial_id: int, deadline: float) -> Frame:
+        """The next frame of trial ``trial_id`` other than HEARTBEAT, complete by ``deadline``
+        (time.monotonic); ERROR frames are raised."""
         while True:
-            frame = channel.recv()
+            frame = channel.recv(deadline)
             if frame.type is FrameType.ERROR:
                 raise decode_error(frame.payload)
             if frame.type is not FrameType.HEARTBEAT:

@@ -41,13 +41,26 @@ _FAULT_HELP = "N: on trial N only; N+: on trial N and every later one (trials co
               help=f"Reboot mid-trial: close all connections, forget them, listen again. {_FAULT_HELP}")
 @click.option("--restart-delay", "restart_delay_s", default=0.5, show_default=True, type=click.FloatRange(min=0),
               help="How long a restart keeps the target unreachable, s.")
+@click.option("--idle-timeout", "idle_timeout_s", default=20.0, show_default=True,
+              type=click.FloatRange(min=0, min_open=True),
+              help="Disconnect a client that sends no frame for this long (before HELLO or between trials), s.")
+@click.option("--frame-timeout", "frame_timeout_s", default=10.0, show_default=True,
+              type=click.FloatRange(min=0, min_open=True),
+              help="Disconnect a client that takes longer to send a frame, or to take one sent to it, s.")
+@click.option("--max-connections", default=4, show_default=True, type=click.IntRange(min=1),
+              help="Connections open at once; more are answered ERROR BUSY and closed.")
+@click.option("--max-samples", "max_trial_samples", default=None, type=click.IntRange(min=2),
+              help="Largest trial (revolutions x counts per revolution); larger requests get LIMIT_EXCEEDED "
+                   "[default: the bench format's 4194304 rows].")
 def emulate(port: int, host: str, config: Path, max_current: float, max_torque: float, max_speed: float,
             chunk_samples: int, heartbeat_s: float, drop: str | None, stall: str | None, stall_s: float,
-            corrupt: str | None, wrong_version: str | None, restart: str | None, restart_delay_s: float) -> None:
+            corrupt: str | None, wrong_version: str | None, restart: str | None, restart_delay_s: float,
+            idle_timeout_s: float, frame_timeout_s: float, max_connections: int, max_trial_samples: int | None) -> None:
     """Serve the simulated drive of --config as a bench target (docs/protocol.md).
 
     Prints "listening on HOST:PORT" on stdout once it accepts connections;
-    runs until Ctrl-C or SIGTERM.
+    runs until Ctrl-C or SIGTERM. One client controls it at a time: another
+    gets ERROR BUSY.
     """
     from rich.logging import RichHandler
 
@@ -66,8 +79,10 @@ def emulate(port: int, host: str, config: Path, max_current: float, max_torque: 
                                cfg.grid.warmup_revolutions)
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])
+    limits = {} if max_trial_samples is None else {"max_trial_samples": max_trial_samples}
     emulator = BenchEmulator(backend, host, port, faults=faults, chunk_samples=chunk_samples,
-                             heartbeat_s=heartbeat_s, restart_delay_s=restart_delay_s).start()
+                             heartbeat_s=heartbeat_s, restart_delay_s=restart_delay_s, idle_timeout_s=idle_timeout_s,
+                             frame_timeout_s=frame_timeout_s, max_connections=max_connections, **limits).start()
     stopped = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stopped.set())
     click.echo(f"listening on {emulator.address}")
