@@ -7,25 +7,47 @@ Layout::
       bench.toml           [motor], [sensors] and the complete trials so far
       backemf.csv
       trial_001.csv ...    one CSV per trial
+      states/run.json      the run's settings (seed, trials, config)
       states/trial_001.json  after each trial: the request, every stage's state,
                            the campaign's own state and the trial's ripple figures
       states/identification.json
       summary.json
+      .lock, .lock.holder  the run's lock, and which process holds it
+
+Creation writes states/run.json, backemf.csv and bench.toml first and
+campaign.toml last: a directory is a run (resumable) exactly when it holds
+campaign.toml. One that holds only what an interrupted creation writes is
+*debris*, which a new run may reuse.
 
 Each trial is committed in this order: its CSV, its state file, then
 bench.toml (the commit point: a trial is complete once bench.toml lists it),
 then summary.json; every file is written to a temporary name, fsynced
 (summary.json, derived from the states, is not) and renamed. A background
-thread commits trials in order while the campaign runs the next one. After a
-crash, files of trials bench.toml does not list are removed.
+thread commits trials in order while the campaign runs the next one; after a
+failed write (a full disk) nothing more is committed. After a crash, files of
+trials bench.toml does not list, and temporary files, are removed.
+
+A run holds an exclusive lock on its directory from before creation (or
+resume) to its end: a second run on it fails at once, saying which process
+holds it. The operating system releases the lock when its process dies, kill
+-9 included. JSON files never hold a non-finite number.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import os
+import socket
+import tempfile
+import time
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager, suppress
 from dataclasses import replace
 from pathlib import Path
+
+from filelock import FileLock, Timeout
 
 from ilcpmac.backends.base import BenchDescription
 from ilcpmac.bench.format import (
@@ -42,10 +64,17 @@ from ilcpmac.records import TrialData
 
 CONFIG_FILE = "campaign.toml"
 STATES = "states"
+RUN_FILE = "run.json"
+BACKEMF_FILE = "backemf.csv"
+LOCK_FILE = ".lock"
+HOLDER_FILE = ".lock.holder"
+#: what creation writes before campaign.toml, at the top and in states/ (each also as NAME.tmp)
+_CREATION_FILES = {LOCK_FILE, HOLDER_FILE, BACKEMF_FILE, BENCH_FILE, CONFIG_FILE}
+_CREATION_STATES = {RUN_FILE}
 
 
 class RunDirError(IlcpmacError):
-    """A run directory cannot be created or resumed."""
+    """A run directory cannot be created, resumed, locked or written."""
 
 
 def trial_file(index: int) -> str:
@@ -53,45 +82,230 @@ def trial_file(index: int) -> str:
     return f"trial_{index:03d}.csv"
 
 
+def _non_finite(data, where: str = "") -> tuple[str, float] | None:
+    """The first key path in ``data`` holding a non-finite float, and that float."""
+    if isinstance(data, float):
+        return None if math.isfinite(data) else (where, data)
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list | tuple) else ()
+    for key, value in items:
+        found = _non_finite(value, f"{where}.{key}" if where else str(key))
+        if found is not None:
+            return found
+    return None
+
+
+def _json_text(data, target: Path, indent: int | None = None) -> str:
+    """``data`` as JSON for ``target``; a non-finite number is a `RunDirError` naming its key."""
+    try:
+        return json.dumps(data, allow_nan=False, indent=indent)
+    except ValueError:
+        found = _non_finite(data)
+        if found is None:
+            raise
+        raise RunDirError(f"{target}: {found[0]} is {found[1]}, not a finite number; not written") from None
+
+
+@contextmanager
+def _writing(target: Path, then: str) -> Iterator[None]:
+    """Turn a failed write of ``target`` (full disk, quota, read-only) into one line; remove its temporary file."""
+    try:
+        yield
+    except OSError as e:
+        with suppress(OSError):
+            target.with_name(target.name + ".tmp").unlink(missing_ok=True)
+        raise RunDirError(f"{target}: cannot write ({e.strerror or e}); {then}") from None
+
+
+def _left_by_creation(names: set[str], allowed: set[str]) -> bool:
+    return all(n in allowed or (n.endswith(".tmp") and n[:-4] in allowed) for n in names)
+
+
+def _contents(path: Path) -> str:
+    """What ``path`` holds: "nothing", "debris" (of an interrupted creation), "run" or "other"."""
+    if not path.exists():
+        return "nothing"
+    if not path.is_dir():
+        return "other"
+    names = {p.name for p in path.iterdir()}
+    if CONFIG_FILE in names:
+        return "run"
+    states = path / STATES
+    if not _left_by_creation(names - {STATES}, _CREATION_FILES) or (
+            STATES in names and not (states.is_dir() and _left_by_creation({p.name for p in states.iterdir()},
+                                                                           _CREATION_STATES))):
+        return "other"
+    return "debris" if names else "nothing"
+
+
+def _refuse_other(path: Path, kind: str) -> None:
+    if kind == "other":
+        raise RunDirError(f"{path}: exists and is not empty (and is not a run to --resume); use another --out")
+
+
+class RunLock:
+    """An exclusive lock on a run directory (``.lock``), with its holder's pid, host and start time
+    beside it (``.lock.holder``). Use `RunDir.lock` to take one; `release` (or leaving a ``with``
+    block) gives it back."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._lock = FileLock(path / LOCK_FILE, thread_local=False)
+
+    def acquire(self) -> "RunLock":
+        """Take the lock at once or fail saying who holds it; check the directory can be written."""
+        then = "a run needs a writable directory"
+        with _writing(self.path / LOCK_FILE, then):
+            try:
+                self._lock.acquire(timeout=0)
+            except Timeout:
+                raise RunDirError(f"{self.path}: in use by {self._holder()}; wait for that run to end, "
+                                  "or stop it") from None
+        try:
+            holder = self.path / HOLDER_FILE
+            with _writing(holder, then):
+                atomic_write(holder, json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                                                 "started": time.strftime("%Y-%m-%d %H:%M:%S")}), durable=False)
+            states = self.path / STATES
+            if states.is_dir():
+                with _writing(states, then), tempfile.TemporaryFile(dir=states):
+                    pass
+        except BaseException:
+            self._lock.release()
+            raise
+        return self
+
+    def _holder(self) -> str:
+        """Who holds the lock, from .lock.holder; a dead process's record (kill -9) is not believed."""
+        try:
+            h = json.loads((self.path / HOLDER_FILE).read_text())
+            pid, host, started = int(h["pid"]), str(h["host"]), str(h["started"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return "another process (not yet recorded)"
+        if host == socket.gethostname():
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return "another process (not yet recorded)"
+            except PermissionError:
+                pass
+        return f"pid {pid} on {host} since {started}"
+
+    def release(self) -> None:
+        """Give the lock back (a no-op when not held)."""
+        if self._lock.is_locked:
+            with suppress(OSError):
+                (self.path / HOLDER_FILE).unlink(missing_ok=True)
+            self._lock.release()
+
+    def __enter__(self) -> "RunLock":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
 class RunDir:
     """A run directory (see the module docstring)."""
 
-    def __init__(self, path: Path, description: BenchDescription, entries: list[tuple[str, float, float]]) -> None:
+    def __init__(self, path: Path, description: BenchDescription, entries: list[tuple[str, float, float]],
+                 lock: RunLock | None = None) -> None:
+        """``lock``: one the run releases on `close`."""
         self.path = path
         self.description = description
         self._entries = entries
         self._states: dict[int, dict] = {}
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rundir")
         self._pending: list[Future] = []
+        self._failed = False
+        self._lock = lock
+        self._resumable = f"the run stays resumable: make room or allow writing, then ilcpmac run --resume {path}"
+
+    @staticmethod
+    def lock(path: str | Path, new: bool) -> RunLock:
+        """Lock ``path`` for a new run (``new``: it must hold nothing, or debris) or to resume the run it holds.
+
+        Nothing is written into a directory that is not fit; the lock is taken before any trial, so a
+        second run on ``path`` fails at once, and so does a directory that cannot be written.
+        """
+        path = Path(path)
+        kind = _contents(path)
+        if new:
+            _refuse_other(path, kind)
+        elif kind != "run":
+            why = f"; its creation was interrupted: start it again with --out {path}" if kind == "debris" else ""
+            raise RunDirError(f"{path}: not a run directory (no {CONFIG_FILE}){why}")
+        with _writing(path, "a run needs a writable directory"):
+            path.mkdir(parents=True, exist_ok=True)
+        return RunLock(path).acquire()
 
     @classmethod
-    def create(cls, path: str | Path, description: BenchDescription, config_text: str) -> "RunDir":
-        """Start a new run in ``path``, which must not hold a run already."""
+    def create(cls, path: str | Path, description: BenchDescription, config_text: str, settings: dict | None = None,
+               lock: RunLock | None = None) -> "RunDir":
+        """Start a new run in ``path``, which must hold nothing or the debris of an interrupted creation.
+
+        ``settings`` (states/run.json) are what ``ilcpmac run --resume`` needs besides the config;
+        ``lock`` is `lock` (path, new=True) when the caller took it, else the run takes and keeps it
+        until `close`.
+        """
         path = Path(path)
-        if path.exists() and any(path.iterdir()):
-            raise RunDirError(f"{path}: exists and is not empty; use --resume {path} or another --out")
-        (path / STATES).mkdir(parents=True, exist_ok=True)
-        atomic_write(path / CONFIG_FILE, config_text)
-        write_backemf_csv(path / "backemf.csv", description.backemf_nm_per_a)
-        run = cls(path, description, [])
-        run._write_bench_toml()
+        run = cls(path, description, [], None if lock else cls.lock(path, new=True))
+        try:
+            kind = _contents(path)
+            if kind == "run":
+                raise RunDirError(f"{path}: exists and is not empty: it holds a run; continue it with "
+                                  f"--resume {path}, or use another --out")
+            _refuse_other(path, kind)
+            for f in [*path.iterdir(), *((path / STATES).iterdir() if (path / STATES).is_dir() else ())]:
+                if f.name not in (LOCK_FILE, HOLDER_FILE, STATES):
+                    f.unlink()
+            then = f"nothing was created; {path} can be given to --out again"
+            with _writing(path / STATES, then):
+                (path / STATES).mkdir(exist_ok=True)
+            target = path / STATES / RUN_FILE
+            with _writing(target, then):
+                atomic_write(target, _json_text(settings or {}, target))
+            with _writing(path / BACKEMF_FILE, then):
+                write_backemf_csv(path / BACKEMF_FILE, description.backemf_nm_per_a)
+            with _writing(path / BENCH_FILE, then):
+                run._write_bench_toml()
+            with _writing(path / CONFIG_FILE, then):
+                atomic_write(path / CONFIG_FILE, config_text)
+        except BaseException:
+            run.close()
+            raise
         return run
 
     @classmethod
-    def resume(cls, path: str | Path, description: BenchDescription) -> "RunDir":
-        """Reopen ``path``: its complete trials are those bench.toml lists; the rest is removed."""
+    def resume(cls, path: str | Path, description: BenchDescription, lock: RunLock | None = None) -> "RunDir":
+        """Reopen ``path``: its complete trials are those bench.toml lists; the rest is removed.
+
+        ``lock`` as in `create` (with new=False).
+        """
         path = Path(path)
-        if not (path / CONFIG_FILE).is_file():
-            raise RunDirError(f"{path}: not a run directory (no {CONFIG_FILE})")
-        data = read_toml(path / BENCH_FILE, RunDirError)
-        entries = [(t["file"], float(t["torque_setpoint"]), float(t["speed_setpoint"]))
-                   for t in data.get("trials", [])]
-        for i, (name, _, _) in enumerate(entries, start=1):
-            if name != trial_file(i) or not (path / name).is_file() or not cls._state_path(path, i).is_file():
-                raise RunDirError(f"{path}: trial {i} is listed in {BENCH_FILE} but {name} or its state is missing")
-        run = cls(path, description, entries)
-        run._remove_incomplete()
+        run = cls(path, description, [], None if lock else cls.lock(path, new=False))
+        try:
+            data = read_toml(path / BENCH_FILE, RunDirError)
+            run._entries = [(t["file"], float(t["torque_setpoint"]), float(t["speed_setpoint"]))
+                            for t in data.get("trials", [])]
+            for i, (name, _, _) in enumerate(run._entries, start=1):
+                if name != trial_file(i) or not (path / name).is_file() or not cls._state_path(path, i).is_file():
+                    raise RunDirError(f"{path}: trial {i} is listed in {BENCH_FILE} but {name} or its state "
+                                      "is missing")
+            with _writing(path, run._resumable):
+                run._remove_incomplete()
+        except BaseException:
+            run.close()
+            raise
         return run
+
+    @staticmethod
+    def read_settings(path: str | Path) -> dict:
+        """The settings a run was created with (states/run.json; empty when there are none)."""
+        f = Path(path) / STATES / RUN_FILE
+        try:
+            return json.loads(f.read_text()) if f.is_file() else {}
+        except (OSError, ValueError) as e:
+            raise RunDirError(f"{f}: unreadable ({e})") from None
 
     @staticmethod
     def _state_path(path: Path, index: int) -> Path:
@@ -122,11 +336,13 @@ class RunDir:
             future.result()
 
     def close(self) -> None:
-        """Commit what is pending and stop the writer."""
+        """Commit what is pending, stop the writer and release the lock the run took itself."""
         try:
             self.flush()
         finally:
             self._writer.shutdown(wait=True)
+            if self._lock is not None:
+                self._lock.release()
 
     def config_text(self) -> str:
         """The campaign config the run started with."""
@@ -145,12 +361,22 @@ class RunDir:
 
     def _commit(self, index: int, trial: TrialData, state: dict, summary: dict,
                 entries: list[tuple[str, float, float]]) -> None:
-        # the simulator's true currents and speed are not kept (the true torque is, for honest
-        # ripple figures): a 64-revolution trial is 30 % smaller and quicker to write
-        write_trial_csv(self.path / trial_file(index), replace(trial, i_true_a=None, speed_true_rad_s=None))
-        atomic_write(self._state_path(self.path, index), json.dumps(state))
-        self._write_bench_toml(entries)
-        self.write_summary(summary)
+        if self._failed:  # a later trial must not be listed in bench.toml before the one that failed
+            return
+        try:
+            csv, state_file = self.path / trial_file(index), self._state_path(self.path, index)
+            # the simulator's true currents and speed are not kept (the true torque is, for honest
+            # ripple figures): a 64-revolution trial is 30 % smaller and quicker to write
+            with _writing(csv, self._resumable):
+                write_trial_csv(csv, replace(trial, i_true_a=None, speed_true_rad_s=None))
+            with _writing(state_file, self._resumable):
+                atomic_write(state_file, _json_text(state, state_file))
+            with _writing(self.path / BENCH_FILE, self._resumable):
+                self._write_bench_toml(entries)
+            self.write_summary(summary)
+        except BaseException:
+            self._failed = True
+            raise
 
     def state(self, index: int) -> dict:
         """The state saved with trial ``index``."""
@@ -160,7 +386,9 @@ class RunDir:
 
     def write_json(self, name: str, data: dict) -> None:
         """Write ``states/NAME`` atomically."""
-        atomic_write(self.path / STATES / name, json.dumps(data))
+        target = self.path / STATES / name
+        with _writing(target, self._resumable):
+            atomic_write(target, _json_text(data, target))
 
     def read_json(self, name: str) -> dict | None:
         """``states/NAME``, or None when it does not exist."""
@@ -169,7 +397,9 @@ class RunDir:
 
     def write_summary(self, summary: dict) -> None:
         """Write summary.json atomically (not fsynced: it is rebuilt from the states on resume)."""
-        atomic_write(self.path / "summary.json", json.dumps(summary, indent=1), durable=False)
+        target = self.path / "summary.json"
+        with _writing(target, self._resumable):
+            atomic_write(target, _json_text(summary, target, indent=1), durable=False)
 
     def read_trials(self, indices: list[int]) -> list[TrialData]:
         """Read complete trials back from their CSVs."""

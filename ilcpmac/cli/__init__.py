@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import sys
 
 import click
@@ -14,14 +15,24 @@ from ilcpmac.errors import IlcpmacError
 console = Console(stderr=True)
 
 
+#: errors of the file system rather than of the program: a full disk, a quota, a read-only place
+_FILE_SYSTEM_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
+
+
 class _Group(click.Group):
-    """Reports an `IlcpmacError` as one line on stderr and exit status 2, never a traceback."""
+    """Reports an `IlcpmacError`, or a file system's refusal (a path that cannot be made or written, a full
+    disk, a quota, a read-only place), as one line on stderr and exit status 2, never a traceback."""
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
         except IlcpmacError as e:
             click.echo(f"error: {e}", err=True)
+            sys.exit(2)
+        except OSError as e:
+            if e.filename is None and e.errno not in _FILE_SYSTEM_ERRORS:
+                raise
+            click.echo(f"error: {e.filename}: {e.strerror}" if e.filename else f"error: {e.strerror}", err=True)
             sys.exit(2)
         except KeyboardInterrupt:
             click.echo("error: interrupted (a run directory can be continued with ilcpmac run --resume)",

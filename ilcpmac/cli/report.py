@@ -31,16 +31,19 @@ def report(run_dir: Path, out_dir: Path | None) -> None:
     cfg = load_config(run_dir / "campaign.toml")
     cpr = int(read_toml(run_dir / "bench.toml", RunDirError)["motor"]["counts_per_rev"])
     out_dir = out_dir or run_dir / "plots"
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = [out_dir / "ripple_per_trial.png"]
-    plots.ripple_per_trial(records, written[0])
-    written += plots.before_after(run_dir, records, cpr, cfg.campaign.ripple_harmonics, out_dir)
-    feedforward = {}
-    for r in records:
-        if r["role"] in ("compensate", "ilc"):
-            state = json.loads((run_dir / "states" / f"trial_{r['index']:03d}.json").read_text())
-            feedforward[r["torque_setpoint"]] = state["request"]["feedforward_nm"]
-    if feedforward:
-        written.append(plots.learned_correction(feedforward, out_dir))
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written = [out_dir / "ripple_per_trial.png"]
+        plots.ripple_per_trial(records, written[0])
+        written += plots.before_after(run_dir, records, cpr, cfg.campaign.ripple_harmonics, out_dir)
+        feedforward = {}
+        for r in records:
+            if r["role"] in ("compensate", "ilc"):
+                state = json.loads((run_dir / "states" / f"trial_{r['index']:03d}.json").read_text())
+                feedforward[r["torque_setpoint"]] = state["request"]["feedforward_nm"]
+        if feedforward:
+            written.append(plots.learned_correction(feedforward, out_dir))
+    except OSError as e:
+        raise RunDirError(f"{e.filename or out_dir}: {e.strerror or e}") from None
     for path in written:
         console.print(f"wrote {path}")

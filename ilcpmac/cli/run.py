@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+import shutil
 import time
 from pathlib import Path
 
@@ -12,7 +12,17 @@ from rich.live import Live
 from ilcpmac.cli import console, main
 
 DEFAULT_CONFIG = Path("configs/seed-bench.toml")
-RUN_FILE = "run.json"
+
+
+class LiveTable(Live):
+    """The live table of trials; like rich's Progress, it ends its last line when the console is not a
+    terminal, so that what follows (an error too) starts on a line of its own."""
+
+    def stop(self) -> None:
+        started = self.is_started
+        super().stop()
+        if started and not self.console.is_terminal:
+            self.console.line()
 
 
 def _backend(kind: str, address: str | None, config, limits):
@@ -55,57 +65,71 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     """
     import dataclasses
 
-    from ilcpmac.campaign.rundir import RunDir, RunDirError
-    from ilcpmac.campaign.runner import CampaignRunner
-    from ilcpmac.config import load_config
+    from ilcpmac.campaign.rundir import CONFIG_FILE, RunDir
+    from ilcpmac.campaign.runner import CampaignPlan, CampaignRunner
+    from ilcpmac.config import check_config, load_config
     from ilcpmac.errors import ConfigError
     from ilcpmac.identify import identify_bench
     from ilcpmac.report.table import summary_table, trials_table
 
-    if resume_dir is not None:
-        if config is not None or out_dir is not None:
-            raise ConfigError("--resume continues a run with its own config: give no CONFIG or --out")
-        settings = json.loads((resume_dir / "states" / RUN_FILE).read_text()) \
-            if (resume_dir / "states" / RUN_FILE).is_file() else None
-        if settings is None:
-            raise RunDirError(f"{resume_dir}: not a run directory (no states/{RUN_FILE})")
-        config_path = resume_dir / "campaign.toml"
-        seed, trials = settings["seed"], settings["trials"]
-    else:
-        config_path = config or DEFAULT_CONFIG
-        if config is None and not config_path.is_file():
-            raise ConfigError(f"no CONFIG given and {DEFAULT_CONFIG} is not here; give a campaign config")
-    cfg = load_config(config_path)
-    if trials is not None:
-        cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, ilc_trials=trials))
-    seed = cfg.grid.seed if seed is None else seed
-    backend = _backend(backend_kind, address, cfg, cfg.limits)
+    if resume_dir is not None and (config is not None or out_dir is not None):
+        raise ConfigError("--resume continues a run with its own config: give no CONFIG or --out")
+    # the run directory is locked before the backend is built: a second run on it, or one that cannot
+    # write there, stops before the bench moves
+    lock = RunDir.lock(resume_dir, new=False) if resume_dir is not None else None
+    made_out_dir, run_dir = False, None
     try:
-        description = backend.describe()
         if resume_dir is not None:
-            run_dir = RunDir.resume(resume_dir, description)
+            settings = RunDir.read_settings(resume_dir)
+            config_path = resume_dir / CONFIG_FILE
+            seed, trials = settings.get("seed"), settings.get("trials")
         else:
+            config_path = config or DEFAULT_CONFIG
+            if config is None and not config_path.is_file():
+                raise ConfigError(f"no CONFIG given and {DEFAULT_CONFIG} is not here; give a campaign config")
+        cfg = load_config(config_path)
+        if trials is not None:
+            cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, ilc_trials=trials))
+        if seed is not None:
+            cfg = dataclasses.replace(cfg, grid=dataclasses.replace(cfg.grid, seed=seed))
+        check_config(cfg)  # the overrides obey the same ranges as the file
+        seed = cfg.grid.seed
+        if lock is None:
             out_dir = out_dir or Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-            run_dir = RunDir.create(out_dir, description, config_path.read_text())
-            run_dir.write_json(RUN_FILE, {"seed": seed, "trials": trials, "config": str(config_path)})
-        records: list[dict] = []
+            made_out_dir = not out_dir.exists()
+            lock = RunDir.lock(out_dir, new=True)
+        backend = _backend(backend_kind, address, cfg, cfg.limits)
+        try:
+            description = backend.describe()
+            CampaignPlan.build(cfg, description, seed)  # before anything is written
+            if resume_dir is not None:
+                run_dir = RunDir.resume(resume_dir, description, lock)
+            else:
+                run_dir = RunDir.create(out_dir, description, config_path.read_text(),
+                                        {"seed": seed, "trials": trials, "config": str(config_path)}, lock)
+            records: list[dict] = []
 
-        class Events:
-            def trial(self, record: dict, all_records: list[dict]) -> None:
-                records[:] = all_records
-                live.update(trials_table(records, f"ilcpmac run  {run_dir.path}"))
+            class Events:
+                def trial(self, record: dict, all_records: list[dict]) -> None:
+                    records[:] = all_records
+                    live.update(trials_table(records, f"ilcpmac run  {run_dir.path}"))
 
-            def message(self, text: str) -> None:
-                live.console.print(f"[bold]{text}[/bold]")
+                def message(self, text: str) -> None:
+                    live.console.print(f"[bold]{text}[/bold]")
 
-        with Live(trials_table([], f"ilcpmac run  {run_dir.path}"), console=console, refresh_per_second=4,
-                  vertical_overflow="visible") as live:
-            runner = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, Events())
-            summary = runner.run()
+            with LiveTable(trials_table([], f"ilcpmac run  {run_dir.path}"), console=console, refresh_per_second=4,
+                           vertical_overflow="visible") as live:
+                runner = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, Events())
+                summary = runner.run()
+        finally:
+            close = getattr(backend, "close", None)
+            if close is not None:
+                close()
     finally:
-        close = getattr(backend, "close", None)
-        if close is not None:
-            close()
+        if lock is not None:
+            lock.release()
+        if made_out_dir and run_dir is None:  # nothing was created: leave no empty directory behind
+            shutil.rmtree(out_dir, ignore_errors=True)
     console.print(summary_table(summary, list(cfg.campaign.ilc_torque_setpoints_nm)))
     final = summary["final"]
     if final:
