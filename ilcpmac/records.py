@@ -3,7 +3,7 @@
 `TrialRequest` describes a trial before it runs; `TrialData` is what comes
 back, sampled once per encoder count (position-triggered, report sec. 2.3).
 Both are plain frozen dataclasses of numpy arrays and round-trip through the
-bench format (BENCH_FORMAT.md).
+bench format (docs/bench-format.md).
 """
 
 from __future__ import annotations

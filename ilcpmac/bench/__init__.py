@@ -1,4 +1,4 @@
-"""Bench folders (BENCH_FORMAT.md): the interchange format with real test benches."""
+"""Bench folders (docs/bench-format.md): the interchange format with real test benches."""
 
 from ilcpmac.bench.format import Bench, MotorInfo, read_bench, read_trial_csv, write_bench, write_trial_csv
 

@@ -232,7 +232,7 @@ def _trial(motor: SyntheticMotor, sensors: SyntheticSensors, campaign: Synthetic
 
 def synthetic_bench(motor: SyntheticMotor = SyntheticMotor(), sensors: SyntheticSensors = SyntheticSensors(),
                     campaign: SyntheticCampaign = SyntheticCampaign()) -> tuple[Bench, dict]:
-    """A bench folder in memory and its truth (the result keys of BENCH_FORMAT.md).
+    """A bench folder in memory and its truth (the result keys of docs/bench-format.md).
 
     The controller's calibration ([sensors]) is 10 counts per ampere, no
     offset and a torque gain of 1 V / N m, so that the truth's calibration

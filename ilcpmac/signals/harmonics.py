@@ -2,7 +2,7 @@
 
 Data sampled once per encoder count are periodic in the mechanical angle; a DFT
 over whole revolutions gives harmonics of the mechanical revolution, not
-frequencies. Ripple figures follow DESIGN.md: the synchronous average over the
+frequencies. Ripple figures (docs/campaign.md) come from the synchronous average over the
 trial's whole revolutions, limited to harmonics 1..H.
 """
 
@@ -74,7 +74,7 @@ def harmonic_columns(theta_rad: np.ndarray, orders) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RippleFigures:
-    """Ripple of one trial (DESIGN.md): fractions of the mean torque, amplitudes in N m.
+    """Ripple of one trial (docs/campaign.md): fractions of the mean torque, amplitudes in N m.
 
     Attributes
     ----------
@@ -104,7 +104,7 @@ class RippleFigures:
 
 def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int, mean_torque_nm: float,
                    pole_pairs: int, cogging_order: int, max_harmonic: int = 150) -> RippleFigures:
-    """Ripple figures of a position-sampled torque, as DESIGN.md defines them.
+    """Ripple figures of a position-sampled torque, as docs/campaign.md defines them.
 
     The torque's mean and linear drift are removed first (a piezo sensor
     cannot measure them); ``mean_torque_nm`` is the mean torque the fractions

@@ -23,7 +23,7 @@ from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 class Identified:
     """What the identification phase found, at the calibration its data were recorded with.
 
-    Attributes follow the result keys of BENCH_FORMAT.md (eqs. 1.4-1.7, 3.3).
+    Attributes follow the result keys of docs/bench-format.md (eqs. 1.4-1.7, 3.3).
     """
 
     delta: float
@@ -40,7 +40,7 @@ class Identified:
 
     @classmethod
     def from_result(cls, result: dict, calibration: SensorCalibration) -> "Identified":
-        """Build from an identification result JSON (BENCH_FORMAT.md keys, plus the current loop's
+        """Build from an identification result JSON (docs/bench-format.md keys, plus the current loop's
         ``current_loop_bandwidth_per_phase_hz`` or ``current_loop_bandwidth_hz`` when identified)."""
 
         def std(key, default):
@@ -101,7 +101,7 @@ class StageSetup:
     description : BenchDescription
     identified : Identified
     max_harmonic : int
-        H, the ripple band 1..H (DESIGN.md).
+        H, the ripple band 1..H (docs/campaign.md).
     options : dict
         The stage's own ``[stages.NAME]`` table from the campaign config.
     """
