@@ -1,16 +1,21 @@
-"""The two records that flow between campaign, stages and backends.
+"""The records that flow between identification, campaign, stages and backends.
 
 `TrialRequest` describes a trial before it runs; `TrialData` is what comes
 back, sampled once per encoder count (position-triggered, report sec. 2.3).
 Both are plain frozen dataclasses of numpy arrays and round-trip through the
-bench format (docs/bench-format.md).
+bench format (docs/bench-format.md). `IdentificationResult` is what the
+identification found (`ilcpmac.identify.identify_bench`); it round-trips
+through the result JSON of docs/bench-format.md (`to_json`, `from_json`).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from ilcpmac.model.current_loop import CurrentLoop
 
 
 @dataclass(frozen=True)
@@ -37,6 +42,16 @@ class SensorCalibration:
         object.__setattr__(self, "current_scale", np.asarray(self.current_scale, float).reshape(3))
         object.__setattr__(self, "current_offset", np.asarray(self.current_offset, float).reshape(3))
         object.__setattr__(self, "torque_gain", float(self.torque_gain))
+
+    def to_json(self) -> dict:
+        """``{"current_scale": [3], "current_offset": [3], "torque_gain": float}`` (bench.toml's [sensors] keys)."""
+        return {"current_scale": self.current_scale.tolist(), "current_offset": self.current_offset.tolist(),
+                "torque_gain": self.torque_gain}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "SensorCalibration":
+        """The calibration `to_json` wrote."""
+        return cls(data["current_scale"], data["current_offset"], data["torque_gain"])
 
 
 @dataclass(frozen=True)
@@ -71,6 +86,11 @@ class TrialRequest:
     def torque_reference_nm(self) -> np.ndarray:
         """tau_ref per encoder count over one mechanical revolution, N m."""
         return self.torque_setpoint_nm + self.feedforward_nm + self.excitation_nm
+
+    @property
+    def setpoint_key(self) -> str:
+        """The per-set-point memory key of the stages and the campaign, e.g. ``"3@0.75"`` (N m @ Hz)."""
+        return f"{self.torque_setpoint_nm:g}@{self.speed_setpoint_hz:g}"
 
     def with_changes(self, **changes) -> "TrialRequest":
         """A copy with some fields replaced."""
@@ -118,3 +138,186 @@ class TrialData:
     def n_samples(self) -> int:
         """Number of recorded encoder counts."""
         return int(self.count.size)
+
+    def mean_speed_hz(self, counts_per_rev: int) -> float:
+        """Mean mechanical speed over the trial, Hz."""
+        return float((self.count[-1] - self.count[0]) / counts_per_rev / (self.time_s[-1] - self.time_s[0]))
+
+
+# ---------------------------------------------------------------- identification
+
+#: the scalar and vector keys of the result JSON (docs/bench-format.md) and the fields that hold them
+RESULT_KEYS = (("total_system_gain", "delta_epsilon"), ("torque_sensor_gain", "delta"), ("epsilon", "epsilon"),
+               ("alpha", "alpha"), ("beta", "beta"), ("inertia_estimate", "inertia_estimate"))
+
+
+def finite_json(value):
+    """``value`` (dicts, lists and numbers) with every NaN and infinity made None: JSON has no such numbers."""
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _json_value(value):
+    """Floats and float lists for JSON; None stays None."""
+    if value is None:
+        return None
+    if isinstance(value, (np.ndarray, list, tuple)):
+        return [float(v) for v in value]
+    return float(value)
+
+
+def _from_json_value(value, vector: bool):
+    """A float or a float array from JSON; None stays None."""
+    if value is None:
+        return None
+    return np.asarray(value, float) if vector else float(value)
+
+
+@dataclass(frozen=True)
+class MethodEstimates:
+    """One method's estimates with their standard errors; None where the method gives none.
+
+    Attributes
+    ----------
+    delta_epsilon, delta, epsilon : float or None
+        delta*eps, delta = g_t / g*_t, eps (eqs. 1.4, 1.5).
+    alpha, beta : ndarray, shape (3,), or None
+        Scale imbalance (mean 1) and offsets beta, A (eqs. 1.6, 1.7).
+    inertia_estimate : float or None
+        J* = delta J, kg m^2 (eq. 3.3).
+    cogging_nm : ndarray, shape (counts_per_rev,), or None
+        tau_c per count in true torque units, N m.
+    *_std : the standard errors.
+    """
+
+    delta_epsilon: float | None = None
+    delta_epsilon_std: float | None = None
+    delta: float | None = None
+    delta_std: float | None = None
+    epsilon: float | None = None
+    epsilon_std: float | None = None
+    alpha: np.ndarray | None = None
+    alpha_std: np.ndarray | None = None
+    beta: np.ndarray | None = None
+    beta_std: np.ndarray | None = None
+    inertia_estimate: float | None = None
+    inertia_estimate_std: float | None = None
+    cogging_nm: np.ndarray | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        """The result keys of docs/bench-format.md (null where unknown), with ``_std`` keys and the cogging."""
+        out = {}
+        for key, name in RESULT_KEYS:
+            out[key] = _json_value(getattr(self, name))
+            out[key + "_std"] = _json_value(getattr(self, name + "_std"))
+        cogging = self.cogging_nm
+        out["cogging"] = None if cogging is None else {"count": list(range(cogging.size)),
+                                                       "torque": _json_value(cogging)}
+        return out
+
+    @staticmethod
+    def fields_from_json(data: dict) -> dict:
+        """The estimates' fields from the keys `to_json` writes (a missing key is None)."""
+        out = {}
+        for key, name in RESULT_KEYS:
+            vector = name in ("alpha", "beta")
+            out[name] = _from_json_value(data.get(key), vector)
+            out[name + "_std"] = _from_json_value(data.get(key + "_std"), vector)
+        cogging = data.get("cogging")
+        out["cogging_nm"] = None if cogging is None else np.asarray(cogging["torque"], float)
+        return out
+
+    @classmethod
+    def from_json(cls, data: dict) -> MethodEstimates:
+        """The estimates `to_json` wrote."""
+        return cls(**cls.fields_from_json(data))
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentificationResult(MethodEstimates):
+    """What `ilcpmac.identify.identify_bench` found.
+
+    Its `MethodEstimates` fields hold the better of the two methods for each
+    estimate: the joint fit where it succeeded, the report's method otherwise.
+
+    Attributes
+    ----------
+    current_loop : CurrentLoop or None
+        The identified current loop at the bench's calibration (None: no lag identified).
+    methods : dict
+        ``"report"`` and ``"joint"``: `MethodEstimates` of each method.
+    calibration : SensorCalibration or None
+        Corrected sensor calibration, when bench.toml has [sensors] and the estimates allow it.
+    messages : tuple of str
+        Why an estimate could not be made (the others are still reported).
+    diagnostics : dict
+        JSON-able details: residue, reduced chi-square, identified sensor and loop dynamics.
+    details : object
+        The intermediate estimates (reduction, ch. 2, ch. 3, ch. 4, joint fit), for plots; not in the JSON.
+    """
+
+    current_loop: CurrentLoop | None = None
+    methods: dict = field(default_factory=dict)
+    calibration: SensorCalibration | None = None
+    messages: tuple = ()
+    diagnostics: dict = field(default_factory=dict)
+    details: object = field(default=None, compare=False, repr=False)
+
+    @property
+    def current_loop_bandwidth_per_phase_hz(self) -> tuple | None:
+        """Each phase's current-loop corner, Hz (None: no lag identified)."""
+        return None if self.current_loop is None else tuple(float(b) for b in self.current_loop.bandwidth_hz)
+
+    @property
+    def current_loop_bandwidth_hz(self) -> float | None:
+        """The phases' mean current-loop corner, Hz (None: no lag identified)."""
+        per_phase = self.current_loop_bandwidth_per_phase_hz
+        return None if per_phase is None else float(np.mean(per_phase))
+
+    def missing(self, names) -> list[str]:
+        """Those of the field ``names`` the identification could not estimate (None)."""
+        return [name for name in names if getattr(self, name) is None]
+
+    def to_json(self) -> dict:
+        """The result object of docs/bench-format.md, with ``_std`` keys, "methods", "diagnostics" and "messages".
+
+        Never a NaN or infinity: `identify_bench` makes such estimates None with
+        a message; anything else not finite (a diagnostic) becomes None too.
+        """
+        out = super().to_json()
+        if self.calibration is not None:
+            out["calibration"] = self.calibration.to_json()
+        out["current_loop_bandwidth_hz"] = _json_value(self.current_loop_bandwidth_hz)
+        out["current_loop_bandwidth_per_phase_hz"] = _json_value(self.current_loop_bandwidth_per_phase_hz)
+        loop = self.current_loop
+        out["current_loop_time_constant_s"] = None if loop is None else _json_value(loop.time_constant_s)
+        out["current_loop_delay_s"] = None if loop is None else loop.delay_s
+        out["methods"] = {name: {k: v for k, v in estimates.to_json().items() if k != "cogging"}
+                          for name, estimates in self.methods.items()}
+        out["diagnostics"] = self.diagnostics
+        out["messages"] = list(self.messages)
+        return finite_json(out)
+
+    @classmethod
+    def from_json(cls, data: dict) -> IdentificationResult:
+        """The result `to_json` wrote (or a truth under the same keys); ``details`` is None.
+
+        The current loop is ``current_loop_time_constant_s``, else 1 / (2 pi corner) with the corner
+        ``current_loop_bandwidth_per_phase_hz`` (or the mean ``current_loop_bandwidth_hz`` in every
+        phase), with ``current_loop_delay_s`` (0 when absent).
+        """
+        tau = data.get("current_loop_time_constant_s")
+        bandwidth = data.get("current_loop_bandwidth_per_phase_hz") or data.get("current_loop_bandwidth_hz")
+        if tau is None and bandwidth is not None:
+            tau = 1.0 / (2.0 * np.pi * np.broadcast_to(np.asarray(bandwidth, float), (3,)))
+        loop = None if tau is None else CurrentLoop(tau, data.get("current_loop_delay_s") or 0.0)
+        calibration = data.get("calibration")
+        return cls(**cls.fields_from_json(data), current_loop=loop,
+                   methods={name: MethodEstimates.from_json(m) for name, m in (data.get("methods") or {}).items()},
+                   calibration=None if calibration is None else SensorCalibration.from_json(calibration),
+                   messages=tuple(data.get("messages") or ()), diagnostics=data.get("diagnostics") or {})

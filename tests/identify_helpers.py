@@ -5,13 +5,14 @@ Not a conftest: the tests import what they need from here.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
 
 from ilcpmac.bench.format import Bench, MotorInfo
 from ilcpmac.identify import IdentificationResult, identify_bench
-from ilcpmac.identify.synthetic import SyntheticCampaign, SyntheticMotor, SyntheticSensors, synthetic_bench
+from ilcpmac.sim.reduced import ReducedCampaign, ReducedMotor, ReducedSensors, reduced_bench
 
 SEED_CONFIG = "configs/seed-bench.toml"
 
@@ -27,7 +28,8 @@ def seed_bench() -> tuple[Bench, dict]:
 
     config = load_config(Path(__file__).resolve().parents[1] / SEED_CONFIG)
     simulator = Simulator(config.model, config.grid.warmup_revolutions)
-    requests = grid_requests(config, config.grid.seed, config.grid.revolutions)
+    requests = grid_requests(config, config.model.controller.calibration(), config.grid.seed,
+                             config.grid.revolutions)
     trials = simulator.run_trials(requests)
     m = config.model
     bench = Bench(MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
@@ -37,17 +39,25 @@ def seed_bench() -> tuple[Bench, dict]:
 
 
 #: a motor unlike the seed bench: 4 pole pairs, 36 slots (cogging order 72), 2048 counts
-OTHER_MOTOR = SyntheticMotor()
-OTHER_SENSORS = SyntheticSensors(delta=0.9, epsilon=0.8, alpha=(0.9, 1.05, 1.05), beta_a=(0.3, -0.2, 0.1))
+OTHER_MOTOR = ReducedMotor()
+#: delta 0.9, epsilon 0.8, alpha (0.9, 1.05, 1.05) normalised, beta (0.3, -0.2, 0.1) A
+OTHER_SENSORS = ReducedSensors()
+
+
+def other_campaign(seed: int, **changes) -> ReducedCampaign:
+    """The default reduced campaign with ``seed`` and some of its fields (or its grid's) changed."""
+    campaign = ReducedCampaign()
+    grid = replace(campaign.grid, seed=seed, **{k: changes.pop(k) for k in list(changes) if hasattr(campaign.grid, k)})
+    return replace(campaign, grid=grid, **changes)
 
 
 @lru_cache(maxsize=None)
 def other_bench(loop_hz: float | None = None, skip_fraction: float = 0.0, highpass_hz: float = 0.0,
                 seed: int = 1) -> tuple[Bench, dict]:
     """A synthetic bench of OTHER_MOTOR (3 torques x 2 speeds, 4 revolutions)."""
-    campaign = SyntheticCampaign(current_loop_hz=loop_hz, skip_fraction=skip_fraction,
-                                 torque_highpass_hz=highpass_hz, seed=seed)
-    return synthetic_bench(OTHER_MOTOR, OTHER_SENSORS, campaign)
+    sensors = replace(OTHER_SENSORS, torque=replace(OTHER_SENSORS.torque, highpass_hz=highpass_hz))
+    return reduced_bench(OTHER_MOTOR, sensors, other_campaign(seed, current_loop_hz=loop_hz,
+                                                              skip_fraction=skip_fraction))
 
 
 @lru_cache(maxsize=None)

@@ -8,13 +8,13 @@ import json
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from identify_helpers import OTHER_MOTOR, OTHER_SENSORS, other_bench
+from identify_helpers import OTHER_MOTOR, OTHER_SENSORS, other_bench, other_campaign
 
 from ilcpmac.bench.format import write_bench
 from ilcpmac.cli import main
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify import identify_bench
-from ilcpmac.identify.synthetic import SyntheticCampaign, synthetic_bench
+from ilcpmac.sim.reduced import ReducedCampaign, reduced_bench
 
 
 def _shortened(bench, keep_counts: int, indices):
@@ -43,7 +43,8 @@ def test_no_trial_long_enough_is_an_error():
 
 
 def test_no_excitation_keeps_the_inertia_estimate():
-    bench, truth = synthetic_bench(OTHER_MOTOR, OTHER_SENSORS, SyntheticCampaign(excitation_fraction=0.0, seed=3))
+    bench, truth = reduced_bench(OTHER_MOTOR, OTHER_SENSORS, other_campaign(
+        3, excitation=dataclasses.replace(ReducedCampaign().excitation, fraction=0.0)))
     result = identify_bench(bench)
     assert any("total system gain" in m and "no excitation" in m for m in result.messages)
     assert result.delta_epsilon is None and result.alpha is None
@@ -52,8 +53,8 @@ def test_no_excitation_keeps_the_inertia_estimate():
 
 def test_single_set_point_falls_back_to_the_report():
     """One trial: no inertia average and no joint fit; the report's ch. 2 and ch. 4 still answer."""
-    bench, truth = synthetic_bench(OTHER_MOTOR, OTHER_SENSORS, SyntheticCampaign(
-        torque_setpoints_nm=(2.0,), speed_setpoints_hz=(0.8,), seed=4))
+    bench, truth = reduced_bench(OTHER_MOTOR, OTHER_SENSORS, other_campaign(
+        4, torque_setpoints_nm=(2.0,), speed_setpoints_hz=(0.8,)))
     result = identify_bench(bench)
     assert any("torque-sensor gain" in m and "single set point" in m for m in result.messages)
     assert any("joint fit" in m and "single trial" in m for m in result.messages)

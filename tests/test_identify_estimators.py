@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ilcpmac.bench.format import MotorInfo
+from ilcpmac.identify import corrected_calibration
 from ilcpmac.identify.decoupling import cogging_band, decouple
-from ilcpmac.identify.joint import table_from_harmonics, time_shifted
-from ilcpmac.identify.loop import CurrentLoop, lagged, trial_amplitudes
-from ilcpmac.identify.reduction import BenchTables, TrialTables
-from ilcpmac.identify.result import corrected_calibration
+from ilcpmac.identify.joint import time_shifted
+from ilcpmac.identify.reduction import BenchTables, TrialTables, trial_amplitudes
 from ilcpmac.identify.sensor_gain import TrialResponse, fit_inertia
 from ilcpmac.identify.system_gain import excluded_harmonics
-from ilcpmac.bench.format import MotorInfo
+from ilcpmac.model.current_loop import CurrentLoop, lagged
 from ilcpmac.records import SensorCalibration
-from ilcpmac.signals.harmonics import slow_trend, synchronous_table
+from ilcpmac.signals.harmonics import harmonic_amplitudes, slow_trend, synchronous_table, table_from_amplitudes
 
 CPR = 512
 
@@ -113,10 +113,21 @@ def test_cogging_band_keeps_only_multiples_of_the_order():
     np.testing.assert_allclose(cogging_band(table, 24), np.sin(24 * theta) + np.cos(48 * theta), atol=1e-12)
 
 
-def test_table_from_harmonics_inverts_the_amplitudes():
+def test_table_from_amplitudes_builds_the_cosines():
     theta = 2 * np.pi * np.arange(CPR) / CPR
-    table = table_from_harmonics({3: 0.5 - 0.2j, 10: 1.0}, CPR)
-    np.testing.assert_allclose(table, 0.5 * np.cos(3 * theta) + 0.2 * np.sin(3 * theta) + np.cos(10 * theta),
+    amplitudes = np.zeros(11, complex)
+    amplitudes[[0, 3, 10]] = 0.25, 0.5 - 0.2j, 1.0
+    np.testing.assert_allclose(table_from_amplitudes(amplitudes, CPR),
+                               0.25 + 0.5 * np.cos(3 * theta) + 0.2 * np.sin(3 * theta) + np.cos(10 * theta),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize("n_points", [7, 8, 64, 65])
+def test_table_from_amplitudes_inverts_harmonic_amplitudes(n_points):
+    """Mean, every harmonic and the Nyquist one, for even and odd lengths, one or more columns."""
+    table = np.random.default_rng(n_points).standard_normal((n_points, 3))
+    np.testing.assert_allclose(table_from_amplitudes(harmonic_amplitudes(table), n_points), table, atol=1e-12)
+    np.testing.assert_allclose(table_from_amplitudes(harmonic_amplitudes(table[:, 0]), n_points), table[:, 0],
                                atol=1e-12)
 
 

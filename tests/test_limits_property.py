@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.backends.base import BenchLimits
+from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.model.tables import current_references
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import LimitGuard, SafetyError, SafetyLimits, identified_truth
@@ -210,8 +210,8 @@ def test_a_calibration_ten_times_too_large_is_clipped_and_the_current_stays_boun
     pipeline = Pipeline([ten_times], description, identified, limits, 40, notes.append)
     request = pipeline.shape(base_request(description.calibration, torque_nm=5.0))
     np.testing.assert_allclose(request.calibration.current_scale, 1.1 * truth.current_scale)
-    assert notes == [f"limits: stage 'hostile' set a calibration outside the trust region: current scale of "
-                     f"phase a deviates +900 % from the identified sensors, beyond 10 % ([limits] "
-                     f"max_scale_deviation); clipped to the region around the identified sensors"]
+    assert notes == ["limits: stage 'hostile' set a calibration outside the trust region: current scale of "
+                     "phase a deviates +900 % from the identified sensors, beyond 10 % ([limits] "
+                     "max_scale_deviation); clipped to the region around the identified sensors"]
     trial = backend.run_trial(request)
     assert np.abs(trial.i_true_a).max() <= 1.1 * 5.0 / 0.3 + 0.5 + CURRENT_TOLERANCE_A  # < 30 A, not ~90 A

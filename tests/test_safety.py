@@ -8,11 +8,11 @@ import re
 
 import numpy as np
 import pytest
+from conftest import SEED_CONFIG
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from conftest import SEED_CONFIG
 from ilcpmac.config import load_config
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.pipeline.safety import (

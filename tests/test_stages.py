@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import MotorInfo
 from ilcpmac.errors import ConfigError
+from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
@@ -28,10 +30,10 @@ from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.grid import truth_dict
 from ilcpmac.sim.simulator import trial_seed
 from ilcpmac.stages import Stage
-from ilcpmac.stages.base import Identified, StageSetup, plant_response, read_options
+from ilcpmac.stages.base import Identified, StageSetup, read_options
 from ilcpmac.stages.cogging import CoggingFeedForward
 from ilcpmac.stages.ilc import DEFAULTS as ILC_DEFAULTS
-from ilcpmac.stages.ilc import IterativeLearningControl, setpoint_key
+from ilcpmac.stages.ilc import IterativeLearningControl
 from ilcpmac.stages.registry import build_stages, installed_stages
 from ilcpmac.stages.sensor import CurrentSensorCorrection
 
@@ -297,8 +299,8 @@ def test_cogging_stage_state_restores(fast):
 
 
 def test_cogging_feedforward_is_minus_the_cogging_through_the_inverse_response(fast):
-    """The table is -cogging at each order divided by the hold exp(-j pi h / cpr) and the loop
-    1 / (1 + j h f / f_bw) (the corrected calibration closes the loop at the controller's 140 Hz),
+    """The table is -cogging at each order divided by the current loop's response to the reference
+    staircase (the corrected calibration closes the loop at the controller's 140 Hz in every phase),
     and has zero mean."""
     ident = identified(fast)
     cogging = CoggingFeedForward(StageSetup(fast.describe(), ident, H))
@@ -308,7 +310,7 @@ def test_cogging_feedforward_is_minus_the_cogging_through_the_inverse_response(f
     ff = harmonic_amplitudes(cogging.feedforward_nm(base_request(fast).with_changes(calibration=corrected)))
     cpr = fast.describe().motor.counts_per_rev
     for h in (48, 96, 144):
-        response = np.exp(-1j * np.pi * h / cpr) / (1 + 1j * h * SPEED_HZ / BANDWIDTH_HZ)
+        response = CurrentLoop(np.full(3, 1 / (2 * np.pi * BANDWIDTH_HZ)), 0.0).response([h], SPEED_HZ, cpr)[0, 0]
         np.testing.assert_allclose(ff[h], -c[h] / response, rtol=1e-6, atol=1e-9)
     others = np.ones(ff.size, bool)
     others[[48, 96, 144]] = False
@@ -367,7 +369,7 @@ def test_ilc_feedforward_has_zero_mean_and_leaves_the_mean_torque(fast):
     baseline = fast.run_trial(base_request(fast, calibration=ideal).with_changes(seed=trial_seed(111, 0)))
     requests = []
     trials = run_trials(fast, pipeline, 4, seed=111, calibration=ideal, after=lambda t: requests.append(t.request))
-    key = setpoint_key(base_request(fast))
+    key = base_request(fast).setpoint_key
     ff = ilc.feedforward_nm(key)
     assert np.abs(ff).max() > 0.3  # it learned something substantial (cogging is 0.5 N m)
     assert abs(ff.mean()) < 1e-12
@@ -390,13 +392,14 @@ def test_ilc_convergence_check(fast):
     trial = fast.run_trial(request.with_changes(seed=trial_seed(112, 1)))
     with pytest.raises(ConfigError, match="learning_gain 2.5"):
         pipeline.learn(trial)
-    assert bad.feedforward_nm(setpoint_key(request)) is None
+    assert bad.feedforward_nm(request.setpoint_key) is None
 
 
 def test_ilc_convergence_check_depends_on_the_model_uncertainty(fast):
     """|1 - gamma (1 +- u)| < 1: gamma 1.8 passes with 5 % uncertainty and fails with 20 %."""
     ident, request = identified(fast), base_request(fast)
-    setup = lambda u: StageSetup(fast.describe(), ident, H, {"learning_gain": 1.8, "model_uncertainty": u})
+    def setup(u):
+        return StageSetup(fast.describe(), ident, H, {"learning_gain": 1.8, "model_uncertainty": u})
     IterativeLearningControl(setup(0.05)).check_convergence(request)
     with pytest.raises(ConfigError, match="20%"):
         IterativeLearningControl(setup(0.2)).check_convergence(request)
@@ -431,7 +434,7 @@ def test_read_options_merges_defaults_and_accepts_ints_for_floats():
 def test_ilc_state_restores(fast, kalman_ilc):
     pipeline, _, trials = kalman_ilc
     ilc = stage(pipeline, "ilc")
-    key = setpoint_key(trials[0].request)
+    key = trials[0].request.setpoint_key
     state = json_round_trip(ilc.state())  # P holds infinities before the first estimate: JSON has none
     assert state[key]["trials"] == len(trials)
     fresh = IterativeLearningControl(StageSetup(fast.describe(), identified(fast), H))
@@ -459,13 +462,25 @@ def test_ilc_state_with_unestimated_harmonics_is_json():
 # ---------------------------------------------------------------- the pipeline
 
 
-def test_plant_response_is_the_reference_hold_and_the_first_order_loop():
+def test_torque_response_is_the_identified_loop_at_the_calibration(fast):
+    """The stages' plant is the identification's loop model: per-phase time constants scaled by
+    epsilon alpha_p at the calibration, its delay, the per-count reference staircase."""
+    ident = replace(identified(fast), current_loop=CurrentLoop(np.array([1.0, 1.1, 1.2]) * 1e-3, 50e-6))
+    setup = StageSetup(fast.describe(), ident, H)
+    cpr = fast.describe().motor.counts_per_rev
     h = np.array([1, 48, 150])
-    hold = np.exp(-1j * np.pi * h / 4096)
-    np.testing.assert_allclose(plant_response(h, 0.75, None, 4096), hold, rtol=1e-15)
-    np.testing.assert_allclose(plant_response(h, 0.75, 140.0, 4096), hold / (1.0 + 1j * h * 0.75 / 140.0),
-                               rtol=1e-15)
-    assert abs(plant_response(np.array([48]), 0.75, 140.0, 4096)[0]) == pytest.approx(0.96849, abs=1e-5)
+    cal = SensorCalibration(ident.calibration.current_scale * [1.1, 1.0, 0.9], ident.calibration.current_offset,
+                            ident.calibration.torque_gain)
+    ea = ident.epsilon_alpha_at(cal)
+    loop = CurrentLoop(ident.current_loop.time_constant_s * ea / ident.epsilon_alpha_at(ident.calibration), 50e-6)
+    expected = np.mean(ea * loop.response(h, 0.75, cpr), axis=1)
+    np.testing.assert_allclose(setup.torque_response(h, 0.75, cal), expected, rtol=1e-14)
+    # the identified delay reaches the stages: a longer one lags every harmonic further
+    later = StageSetup(fast.describe(), replace(ident, current_loop=CurrentLoop(loop.time_constant_s, 2e-4)), H)
+    assert np.all(np.angle(later.torque_response(h, 0.75, cal) / setup.torque_response(h, 0.75, cal)) < 0)
+    # no identified lag: the currents equal the references at each count
+    ideal = StageSetup(fast.describe(), replace(ident, current_loop=CurrentLoop()), H)
+    np.testing.assert_allclose(ideal.torque_response(h, 0.75, cal), np.mean(ea), rtol=1e-14)
 
 
 def test_frame_holds_the_torque_harmonics_in_true_units(fast):
@@ -544,3 +559,24 @@ def test_build_stages_with_an_unknown_name_raises_naming_it(fast):
     setups = {"cogging": StageSetup(fast.describe(), identified(fast), H)}
     with pytest.raises(ConfigError, match=r"no stage named 'coging' is installed \(installed: .*cogging"):
         build_stages(["cogging", "coging"], setups)
+
+
+def test_one_minimum_copper_loss_law_for_the_references_and_the_limits():
+    """The limits bound the very currents the controller is asked for, and a count with no back-EMF
+    gets no current (it used to be 0 / 0 in the references)."""
+    from ilcpmac.model.tables import current_references, dead_counts
+    from ilcpmac.pipeline.safety import torque_interval_nm
+
+    backemf = np.random.default_rng(5).standard_normal((64, 3))
+    backemf[7] = 0.0
+    tau = np.linspace(-2.0, 2.0, 64)
+    currents = current_references(tau, backemf)
+    assert np.array_equal(dead_counts(backemf), np.arange(64) == 7)
+    np.testing.assert_array_equal(currents[7], 0.0)
+    live = np.arange(64) != 7
+    np.testing.assert_allclose(np.sum(currents[live] * backemf[live], axis=1), tau[live], rtol=1e-12)
+    limits = SafetyLimits(max_correction_nm=1.0, max_current_a=0.5, max_torque_nm=100.0)
+    low, high = torque_interval_nm(backemf, limits)
+    peak = np.abs(current_references(np.ones(64), backemf)).max(axis=1)
+    np.testing.assert_allclose(high[live], 0.5 / peak[live], rtol=1e-12)
+    assert low[7] == high[7] == 0.0

@@ -26,8 +26,8 @@ import numpy as np
 
 from ilcpmac.backends.base import Backend, BenchDescription
 from ilcpmac.bench.format import Bench, as_written
-from ilcpmac.campaign.rundir import RunDir
-from ilcpmac.config import CampaignConfig
+from ilcpmac.campaign.rundir import RunDir, trial_file
+from ilcpmac.config import CampaignConfig, check_bench
 from ilcpmac.errors import ConfigError, IdentificationError
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import (
@@ -38,13 +38,12 @@ from ilcpmac.pipeline.safety import (
     torque_violation,
     trust_edges,
 )
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.records import IdentificationResult, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import RippleFigures, ripple_figures
 from ilcpmac.sim.grid import grid_plan, grid_requests
 from ilcpmac.sim.simulator import trial_seed
-from ilcpmac.stages.base import Identified, StageSetup
-from ilcpmac.stages.ilc import setpoint_key
-from ilcpmac.stages.registry import build_stages
+from ilcpmac.stages.base import PIPELINE_NEEDS, Identified, StageSetup
+from ilcpmac.stages.registry import build_stages, stage_needs
 
 
 class CampaignEvents(Protocol):
@@ -64,12 +63,6 @@ class Step:
     phase: str
     role: str
     request: TrialRequest
-
-
-class Identification(Protocol):
-    """What the identification returns (ilcpmac.identify.IdentificationResult)."""
-
-    def to_json(self) -> dict: ...
 
 
 def _figures(prefix: str, f: RippleFigures | None) -> dict:
@@ -105,14 +98,13 @@ class CampaignPlan:
 
     @classmethod
     def build(cls, config: CampaignConfig, description: BenchDescription, seed: int) -> "CampaignPlan":
-        """Check every request the campaign will make: the grid, each ILC set point as its baseline runs it,
-        and as the stages may run it (any calibration of the trust region); raise `ConfigError` naming the keys."""
-        if description.motor.counts_per_rev != config.model.encoder.counts_per_rev:
-            raise ConfigError(f"{config.path}: [encoder] counts_per_rev {config.model.encoder.counts_per_rev} "
-                              f"differs from the bench's {description.motor.counts_per_rev}")
+        """Check the bench against [bench] (`check_bench`) and every request the campaign will make: the grid,
+        each ILC set point as its baseline runs it, and as the stages may run it (any calibration of the trust
+        region); raise `ConfigError` naming the keys."""
+        check_bench(config, description)
         limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
-        grid = [replace(r, calibration=description.calibration, seed=trial_seed(seed, i + 1))
-                for i, r in enumerate(grid_requests(config, seed, config.grid.revolutions))]
+        grid = [replace(r, seed=trial_seed(seed, i + 1))
+                for i, r in enumerate(grid_requests(config, description.calibration, seed, config.grid.revolutions))]
         c = config.campaign
         baselines = [(f"{config.path}: [campaign] ilc_torque_setpoints_nm {torque:g} N m at ilc_speed_setpoint_hz "
                       f"{c.ilc_speed_setpoint_hz:g} Hz, ilc_revolutions {c.revolutions_at(torque)}",
@@ -142,7 +134,7 @@ class CampaignRunner:
     """
 
     def __init__(self, config: CampaignConfig, backend: Backend, run_dir: RunDir, seed: int,
-                 identify: Callable[[Bench], Identification], events: CampaignEvents,
+                 identify: Callable[[Bench], IdentificationResult], events: CampaignEvents,
                  extra_stages: dict[str, Callable[[StageSetup], object]] | None = None) -> None:
         self.extra_stages = extra_stages
         self.config = config
@@ -241,7 +233,7 @@ class CampaignRunner:
 
     def _finish(self, step: Step, trial: TrialData) -> None:
         """Learn from a finished trial, measure its ripple, persist it, tell the user."""
-        key = setpoint_key(step.request)
+        key = step.request.setpoint_key
         record = {"index": len(self.records) + 1, "phase": step.phase, "role": step.role,
                   "torque_setpoint": step.request.torque_setpoint_nm, "speed_setpoint": step.request.speed_setpoint_hz}
         guard = None
@@ -259,9 +251,7 @@ class CampaignRunner:
             guard = self._guard(step.request.torque_setpoint_nm, key)
         state = {"record": record, "pipeline": self.pipeline.state() if self.pipeline else None,
                  "gains": dict(self.gains), "guard": guard,
-                 "request": {"calibration": {"current_scale": step.request.calibration.current_scale.tolist(),
-                                             "current_offset": step.request.calibration.current_offset.tolist(),
-                                             "torque_gain": step.request.calibration.torque_gain},
+                 "request": {"calibration": step.request.calibration.to_json(),
                              "feedforward_nm": trial.request.feedforward_nm.tolist(),
                              "revolutions": step.request.revolutions, "seed": step.request.seed}}
         self.run_dir.add_trial(trial, state, self.summary())
@@ -304,16 +294,12 @@ class CampaignRunner:
         self.run_dir.flush()  # the grid records change below; nothing may be serialising them
         self.events.message("identify: estimating delta*epsilon, delta, alpha, beta and cogging")
         bench = Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
-                      tuple(grid_trials), tuple(f"trial_{i:03d}.csv" for i in range(1, len(grid_trials) + 1)))
+                      tuple(grid_trials), tuple(trial_file(i) for i in range(1, len(grid_trials) + 1)))
         result = self.identify(bench)
         self.identification_json = result.to_json()
-        missing = [key for key in ("torque_sensor_gain", "epsilon", "alpha", "beta", "cogging")
-                   if self.identification_json.get(key) is None]
-        if missing:
-            why = "; ".join(self.identification_json.get("messages", [])) or "no reason given"
-            raise IdentificationError(f"the compensation needs {', '.join(missing)}, which the identification "
-                                      f"could not estimate ({why})")
-        self._set_identified(self.identification_json)
+        if not isinstance(result, IdentificationResult):  # an injected answer (a truth) known by its JSON alone
+            result = IdentificationResult.from_json(self.identification_json)
+        self._set_identified(result)
         for record, trial in zip(self.records, grid_trials):
             trial = replace(trial, request=replace(self.grid[record["index"] - 1]))
             record.update(_figures("measured", self._measured_figures(trial)))
@@ -321,8 +307,20 @@ class CampaignRunner:
             "result": self.identification_json, "grid_records": self.records[: len(self.grid)]})
         self.run_dir.write_summary(self.summary())
 
-    def _set_identified(self, result: dict) -> None:
-        """Take the identification: the stages start from it, the limits bound the flowing current with it."""
+    def _set_identified(self, result: IdentificationResult) -> None:
+        """Take the identification: the stages start from it, the limits bound the flowing current with it.
+
+        Raises `IdentificationError` when it lacks an estimate the pipeline (`PIPELINE_NEEDS`) or a
+        configured stage (its factory's ``needs``) needs.
+        """
+        needs = {"the pipeline": PIPELINE_NEEDS, **{f"stage {name!r}": needed for name, needed in stage_needs(
+            list(self.config.pipeline.stages), self.extra_stages).items()}}
+        missing = {who: result.missing(needed) for who, needed in needs.items()}
+        missing = {who: names for who, names in missing.items() if names}
+        if missing:
+            why = "; ".join(result.messages) or "no reason given"
+            wanted = "; ".join(f"{who} needs {', '.join(names)}" for who, names in missing.items())
+            raise IdentificationError(f"{wanted}, which the identification could not estimate ({why})")
         self.identified = Identified.from_result(result, self.description.calibration)
         self.backend.truth = identified_truth(self.identified)
 
@@ -362,7 +360,7 @@ class CampaignRunner:
                 self._identify(self._grid_trials())
             else:
                 self.identification_json = saved["result"]
-                self._set_identified(saved["result"])
+                self._set_identified(IdentificationResult.from_json(saved["result"]))
                 self.records[: len(self.grid)] = saved["grid_records"]
         last = self.run_dir.state(done)
         self.gains = dict(last.get("gains", {}))

@@ -25,13 +25,14 @@ from ilcpmac.bench.format import Bench
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.joint import JointEstimate, fit_joint
-from ilcpmac.identify.loop import CurrentLoop
 from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
-from ilcpmac.identify.result import IdentificationResult, MethodEstimates, corrected_calibration
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
+from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.records import IdentificationResult, MethodEstimates, SensorCalibration
 
-__all__ = ["IdentificationDetails", "IdentificationResult", "MethodEstimates", "identify_bench"]
+__all__ = ["IdentificationDetails", "IdentificationResult", "MethodEstimates", "corrected_calibration",
+           "identify_bench"]
 
 #: the steps reported to ``progress``
 STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-sensor gain (ch. 3)",
@@ -166,15 +167,26 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         if not all(np.all(np.isfinite(v)) for v in vars(calibration).values()):
             messages.append("calibration: not finite (a gain estimate is zero) - not reported")
             calibration = None
-    bandwidth = per_phase = None
+    loop = None
     if joint is not None and not joint.loop.is_ideal and np.all(np.isfinite(joint.loop.bandwidth_hz)):
-        per_phase = tuple(float(b) for b in joint.loop.bandwidth_hz)
-        bandwidth = float(np.mean(per_phase))
+        loop = joint.loop
     return IdentificationResult(
-        **best, current_loop_bandwidth_hz=bandwidth, current_loop_bandwidth_per_phase_hz=per_phase,
-        methods={"report": report, "joint": joint_estimates}, calibration=calibration, messages=tuple(messages),
+        **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
+        messages=tuple(messages),
         diagnostics=_diagnostics(tables, system, joint, sensor),
         details=IdentificationDetails(tables, system, joint, sensor, decoupling))
+
+
+def corrected_calibration(sensors: SensorCalibration, epsilon: float, alpha: np.ndarray, beta_a: np.ndarray,
+                          delta: float) -> SensorCalibration:
+    """The calibration that removes the identified errors (eqs. 1.4-1.7).
+
+    (G*_s)^-1 G_s = eps alpha per phase, so the true scale G_s^-1 is
+    current_scale / (eps alpha); beta = G_s (o_s - o*_s) gives the true offset
+    o_s = o*_s + beta G_s^-1; and g_t = delta g*_t.
+    """
+    scale = sensors.current_scale / (epsilon * np.asarray(alpha))
+    return SensorCalibration(scale, sensors.current_offset + np.asarray(beta_a) * scale, delta * sensors.torque_gain)
 
 
 def _finite_estimates(estimates: MethodEstimates, method: str, messages: list) -> MethodEstimates:

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcpmac.identify.reduction import BenchTables
+from ilcpmac.signals.harmonics import filtered, harmonic_band
+
 
 @dataclass(frozen=True)
 class DecouplingEstimate:
@@ -76,10 +78,8 @@ def _standard_error(per_set_point: np.ndarray) -> np.ndarray:
 
 def cogging_band(table: np.ndarray, cogging_order: int) -> np.ndarray:
     """The part of per-count tables (last axis) on the multiples of the cogging order."""
-    spectrum = np.fft.rfft(table, axis=-1)
-    keep = np.zeros(spectrum.shape[-1], bool)
-    keep[cogging_order::cogging_order] = True
-    return np.fft.irfft(np.where(keep, spectrum, 0.0), n=table.shape[-1], axis=-1)
+    n = table.shape[-1]
+    return filtered(table, harmonic_band(n, cogging_order, n // 2, cogging_order), axis=-1)
 
 
 def decouple(tables: BenchTables, delta_epsilon: float) -> DecouplingEstimate:

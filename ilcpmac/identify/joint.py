@@ -10,7 +10,7 @@ harmonics are fitted at once, in the harmonics domain (sec. 2.3), by
 for harmonic h of trial k at mean speed f_k, where
 
 - A_kp = DFT(K_p (G_p I*_p)): the per-phase theoretical torque (K . I*_i of
-  eq. 1.3) through the current loop G_p (`ilcpmac.identify.loop`, applied in
+  eq. 1.3) through the current loop G_p (`ilcpmac.model.current_loop`, applied in
   time count by count), with theta_p = delta eps alpha_p: their mean is the
   total system gain delta*eps, so it no longer rests on the frequency
   response alone;
@@ -48,8 +48,9 @@ from numba import njit
 from scipy.optimize import least_squares
 
 from ilcpmac.errors import IdentificationError
-from ilcpmac.identify.loop import CurrentLoop, lagged_phase, trial_amplitudes
-from ilcpmac.identify.reduction import BenchTables
+from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
+from ilcpmac.model.current_loop import CurrentLoop, lagged_phase
+from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
 SIGNIFICANT = 1e-3
@@ -184,15 +185,10 @@ class JointEstimate:
 
     def cogging_table_nm(self, counts_per_rev: int) -> np.ndarray:
         """delta tau_c per count, N m (measured units): T on the cogging harmonics."""
-        return table_from_harmonics({h: self.position_table[h] for h in self.cogging_harmonics}, counts_per_rev)
-
-
-def table_from_harmonics(amplitudes: dict, counts_per_rev: int) -> np.ndarray:
-    """Per-count table sum_h Re(c_h exp(j h theta)) from one-sided amplitudes {h: c_h}."""
-    spectrum = np.zeros(counts_per_rev // 2 + 1, complex)
-    for h, c in amplitudes.items():
-        spectrum[h] = c * counts_per_rev / 2.0
-    return np.fft.irfft(spectrum, n=counts_per_rev)
+        amplitudes = np.zeros(counts_per_rev // 2 + 1, complex)
+        for h in self.cogging_harmonics:
+            amplitudes[h] = self.position_table[h]
+        return table_from_amplitudes(amplitudes, counts_per_rev)
 
 
 def harmonic_sets(tables: BenchTables) -> HarmonicSets:

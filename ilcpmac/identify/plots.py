@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.identify.result import IdentificationResult
 from ilcpmac.identify.system_gain import excluded_harmonics
+from ilcpmac.records import IdentificationResult
 
 
 def _figure(rows: int = 1, height: float = 3.0):

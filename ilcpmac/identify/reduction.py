@@ -18,7 +18,7 @@ import numpy as np
 from ilcpmac.bench.format import Bench, MotorInfo, check_backemf, check_trial
 from ilcpmac.errors import BenchFormatError, IdentificationError
 from ilcpmac.records import TrialData
-from ilcpmac.signals.harmonics import slow_trend, synchronous_table, whole_revolutions
+from ilcpmac.signals.harmonics import harmonic_amplitudes, slow_trend, synchronous_table, whole_revolutions
 
 #: Highest Legendre degree of the torque sensor's slow trend (linear drift and slow settling).
 TREND_DEGREE = 5
@@ -170,3 +170,9 @@ def reduce_bench(bench: Bench) -> BenchTables:
         raise IdentificationError("no trial can be used: " + "; ".join(messages))
     return BenchTables(bench.motor, np.asarray(bench.backemf_nm_per_a, float), tuple(trials), tuple(files),
                        tuple(messages))
+
+
+def trial_amplitudes(tables: np.ndarray, max_harmonic: int) -> np.ndarray:
+    """Harmonic amplitudes 0..max_harmonic of per-count tables stacked along axis 0 (trials)."""
+    c = harmonic_amplitudes(np.moveaxis(tables, 1, 0))[: max_harmonic + 1]
+    return np.moveaxis(c, 0, 1)

@@ -24,8 +24,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ilcpmac.errors import IdentificationError
-from ilcpmac.identify.loop import CurrentLoop, trial_amplitudes
-from ilcpmac.identify.reduction import BenchTables
+from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
+from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.signals.harmonics import revolution_harmonics
 
 #: relative amplitude (of the largest harmonic) that counts as excited

@@ -47,8 +47,15 @@ def disturbance_table(unexplained: Unexplained, n_points: int) -> np.ndarray:
     return _sines(unexplained.orders, unexplained.amplitudes_nm, unexplained.phases_rad, n_points)
 
 
+def dead_counts(backemf_nm_per_a: np.ndarray) -> np.ndarray:
+    """The counts whose back-EMF row is zero: no current makes torque there, shape (n,)."""
+    return np.sum(backemf_nm_per_a**2, axis=1) == 0
+
+
 def current_references(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.ndarray) -> np.ndarray:
     """Minimum-copper-loss currents i*_p = tau_ref K*_p / sum_q K*_q^2, A (report sec. 2.1).
+
+    0 A at the `dead_counts` (no current makes torque there).
 
     Parameters
     ----------
@@ -56,5 +63,6 @@ def current_references(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.nda
     backemf_nm_per_a : ndarray, shape (n, 3)
         The controller's back-EMF table K*.
     """
-    norm = np.sum(backemf_nm_per_a**2, axis=1)
-    return torque_reference_nm[:, None] * backemf_nm_per_a / norm[:, None]
+    norm = np.sum(backemf_nm_per_a**2, axis=1)[:, None]
+    return np.divide(torque_reference_nm[:, None] * backemf_nm_per_a, norm,
+                     out=np.zeros(np.shape(backemf_nm_per_a)), where=norm != 0)

@@ -23,7 +23,6 @@ from ilcpmac.pipeline.safety import (
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, revolution_harmonics
 from ilcpmac.stages.base import Frame, Identified, Stage
-from ilcpmac.stages.sensor import trial_speed_hz
 
 
 def drift_columns(time_s: np.ndarray) -> np.ndarray:
@@ -107,8 +106,8 @@ class Pipeline:
                   if (table := s.columns(trial)) is not None}
         regression = Regression(mean[h], variance[h], blocks)
         delta = self.identified.delta_at(trial.request.calibration)
-        return Frame(regression, mean / delta, variance / delta**2, delta, trial_speed_hz(trial, cpr),
-                     learning_gain)
+        return Frame({name: regression.block(name) for name in blocks}, mean / delta, variance / delta**2, delta,
+                     trial.mean_speed_hz(cpr), learning_gain)
 
     def learn(self, trial: TrialData, learning_gain: float = 1.0) -> Frame:
         """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame."""

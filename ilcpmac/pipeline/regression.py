@@ -19,25 +19,9 @@ electrical) are not confused.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-
-@dataclass(frozen=True)
-class Block:
-    """A stage's part of the joint fit.
-
-    Attributes
-    ----------
-    estimate : ndarray, shape (k,)
-        The block's coefficients (minimum-norm where not identifiable).
-    information : ndarray, shape (k, k)
-        Marginal Fisher information; singular in directions the trial cannot see.
-    """
-
-    estimate: np.ndarray
-    information: np.ndarray
+from ilcpmac.stages.base import Block
 
 
 class Regression:

@@ -20,6 +20,7 @@ import numpy as np
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.config import LimitSettings
 from ilcpmac.errors import ConfigError, IdentificationError, SafetyError
+from ilcpmac.model.tables import current_references, dead_counts
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.stages.base import Identified
 
@@ -185,13 +186,10 @@ def clip_to_trust_region(calibration: SensorCalibration, nominal: SensorCalibrat
 
 
 def _amperes_per_nm(backemf_nm_per_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """K_p / sum_q K_q^2 per count and phase (I*_p per N m of torque reference), and the counts whose
-    back-EMF row is zero (no current makes torque there: they get 0 A / N m and admit only zero torque)."""
-    norm = np.sum(backemf_nm_per_a**2, axis=1)
-    dead = norm == 0
-    per_nm = np.divide(backemf_nm_per_a, norm[:, None], out=np.zeros_like(backemf_nm_per_a, dtype=float),
-                       where=~dead[:, None])
-    return per_nm, dead
+    """I*_p per N m of torque reference per count and phase (`current_references`), and the `dead_counts`
+    (they get 0 A / N m and admit only zero torque)."""
+    return (current_references(np.ones(len(backemf_nm_per_a)), backemf_nm_per_a),
+            dead_counts(backemf_nm_per_a))
 
 
 def _phase_interval(gain: np.ndarray, offset: np.ndarray, bound: float) -> tuple[np.ndarray, np.ndarray]:

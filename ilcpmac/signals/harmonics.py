@@ -58,12 +58,37 @@ def harmonic_amplitudes(table: np.ndarray) -> np.ndarray:
     return c
 
 
+def table_from_amplitudes(amplitudes: np.ndarray, n_points: int) -> np.ndarray:
+    """The per-count table ``Re(sum_h c_h exp(j h theta))`` over one revolution of ``n_points`` counts.
+
+    The inverse of `harmonic_amplitudes`: ``amplitudes`` holds c_0, c_1, ... along axis 0
+    (at most n_points // 2 + 1 of them; the missing higher ones are zero).
+    """
+    spectrum = np.zeros((n_points // 2 + 1,) + np.shape(amplitudes)[1:], complex)
+    spectrum[: len(amplitudes)] = amplitudes
+    spectrum[0] *= 2.0
+    if n_points % 2 == 0 and len(amplitudes) > n_points // 2:
+        spectrum[-1] *= 2.0
+    return np.fft.irfft(spectrum, n=n_points, axis=0) * n_points / 2.0
+
+
+def filtered(table: np.ndarray, response: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Per-count ``table`` with each harmonic h = 0..N/2 (along ``axis``) multiplied by ``response[h]``."""
+    spectrum = np.fft.rfft(table, axis=axis)
+    return np.fft.irfft(spectrum * response, n=table.shape[axis], axis=axis)
+
+
+def harmonic_band(n_points: int, low: int, high: int, step: int = 1) -> np.ndarray:
+    """1.0 at harmonics low, low + step, ... up to high of a table of ``n_points``, 0.0 elsewhere."""
+    band = np.zeros(n_points // 2 + 1)
+    band[low: high + 1: step] = 1.0
+    return band
+
+
 def band_limited(table: np.ndarray, max_harmonic: int) -> np.ndarray:
     """The table with only harmonics 1..max_harmonic (mean and higher harmonics removed)."""
-    spectrum = np.fft.rfft(table, axis=0)
-    spectrum[0] = 0.0
-    spectrum[max_harmonic + 1:] = 0.0
-    return np.fft.irfft(spectrum, n=table.shape[0], axis=0)
+    band = harmonic_band(table.shape[0], 1, max_harmonic)
+    return filtered(table, band.reshape((-1,) + (1,) * (table.ndim - 1)))
 
 
 def harmonic_columns(theta_rad: np.ndarray, orders) -> np.ndarray:
@@ -115,9 +140,7 @@ def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int
     detrended = torque - linear_trend(count, torque)
     # the synchronous average's harmonics are the mean of the revolutions' harmonics
     harmonics, variance = revolution_harmonics(count, detrended, counts_per_rev, max_harmonic)
-    spectrum = np.zeros(counts_per_rev // 2 + 1, complex)
-    spectrum[1: max_harmonic + 1] = harmonics[1:]
-    ripple = np.fft.irfft(spectrum, n=counts_per_rev) * counts_per_rev / 2.0
+    ripple = table_from_amplitudes(np.concatenate([[0.0], harmonics[1:]]), counts_per_rev)
     c = np.abs(harmonics)
     named = [h for h in (pole_pairs, 2 * pole_pairs, cogging_order) if h <= max_harmonic]
     others = np.ones(c.size, bool)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ilcpmac.signals.harmonics import table_from_amplitudes
+
 
 def multisine_phases_rad(harmonics: int, kind: str, rng: np.random.Generator | None = None) -> np.ndarray:
     """Phases of harmonics 1..harmonics: seeded random, or Schroeder's low-crest-factor law.
@@ -28,6 +30,5 @@ def multisine(counts_per_rev: int, harmonics: int, rms_nm: float, phases_rad: np
     if harmonics >= counts_per_rev // 2:
         raise ValueError(f"{harmonics} harmonics need more than {counts_per_rev} counts per revolution")
     amplitude = rms_nm * np.sqrt(2.0 / harmonics)
-    spectrum = np.zeros(counts_per_rev // 2 + 1, complex)
-    spectrum[1: harmonics + 1] = amplitude * np.exp(1j * np.asarray(phases_rad))
-    return np.fft.irfft(spectrum, n=counts_per_rev) * counts_per_rev / 2.0
+    return table_from_amplitudes(np.concatenate([[0.0], amplitude * np.exp(1j * np.asarray(phases_rad))]),
+                                 counts_per_rev)

@@ -5,73 +5,74 @@ registered in the entry-point group ``ilcpmac.stages``. Before each trial the
 pipeline passes the request through every stage's `Stage.shape`; after it, one
 joint least-squares fit over every stage's `Stage.columns` gives each stage
 its block (`Frame.block`) in `Stage.learn`. Stages never reach into each other.
+
+A factory declares in its attribute ``needs`` (a tuple of
+`ilcpmac.records.IdentificationResult` field names, e.g. ``("cogging_nm",)``)
+what it needs from the identification beyond `PIPELINE_NEEDS`; the campaign
+refuses to start the stages when the identification could not estimate one.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from ilcpmac.backends.base import BenchDescription
-from ilcpmac.pipeline.regression import Block, Regression
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.records import IdentificationResult, SensorCalibration, TrialData, TrialRequest
+
+if TYPE_CHECKING:
+    from ilcpmac.backends.base import BenchDescription
+
+#: the identification's estimates the pipeline itself needs (the trial's delta, the identified sensors
+#: bounding the flowing current); a stage declares what more it needs in its ``needs``
+PIPELINE_NEEDS = ("delta", "epsilon", "alpha", "beta")
 
 
 @dataclass(frozen=True)
 class Identified:
     """What the identification phase found, at the calibration its data were recorded with.
 
-    Attributes follow the result keys of docs/bench-format.md (eqs. 1.4-1.7, 3.3).
+    Attributes follow `ilcpmac.records.IdentificationResult` (eqs. 1.4-1.7); ``cogging_nm`` is None
+    and ``current_loop`` the ideal loop where the identification gave none.
     """
 
     delta: float
     epsilon: float
     alpha: np.ndarray
     beta_a: np.ndarray
-    cogging_nm: np.ndarray
+    cogging_nm: np.ndarray | None
     calibration: SensorCalibration
     delta_std: float = 0.0
     epsilon_std: float = 0.0
     alpha_std: np.ndarray = field(default_factory=lambda: np.zeros(3))
     beta_std_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    current_loop_bandwidth_per_phase_hz: np.ndarray | None = None
+    current_loop: CurrentLoop = field(default_factory=CurrentLoop)
 
     @classmethod
-    def from_result(cls, result: dict, calibration: SensorCalibration) -> "Identified":
-        """Build from an identification result JSON (docs/bench-format.md keys, plus the current loop's
-        ``current_loop_bandwidth_per_phase_hz`` or ``current_loop_bandwidth_hz`` when identified)."""
+    def from_result(cls, result: IdentificationResult | dict, calibration: SensorCalibration) -> Identified:
+        """From the identification (or its JSON, e.g. a simulator's truth), which must hold `PIPELINE_NEEDS`."""
+        if isinstance(result, dict):
+            result = IdentificationResult.from_json(result)
 
-        def std(key, default):
-            value = result.get(key + "_std")
+        def std(value, default):
             return np.asarray(default if value is None else value, float)
 
-        bandwidth = result.get("current_loop_bandwidth_per_phase_hz") or result.get("current_loop_bandwidth_hz")
         return cls(
-            delta=float(result["torque_sensor_gain"]), epsilon=float(result["epsilon"]),
-            alpha=np.asarray(result["alpha"], float), beta_a=np.asarray(result["beta"], float),
-            cogging_nm=np.asarray(result["cogging"]["torque"], float), calibration=calibration,
-            delta_std=float(std("torque_sensor_gain", 0.0)), epsilon_std=float(std("epsilon", 0.0)),
-            alpha_std=std("alpha", np.zeros(3)), beta_std_a=std("beta", np.zeros(3)),
-            current_loop_bandwidth_per_phase_hz=None if bandwidth is None else np.broadcast_to(
-                np.asarray(bandwidth, float), (3,)).copy())
+            delta=float(result.delta), epsilon=float(result.epsilon), alpha=np.asarray(result.alpha, float),
+            beta_a=np.asarray(result.beta, float), cogging_nm=result.cogging_nm, calibration=calibration,
+            delta_std=float(std(result.delta_std, 0.0)), epsilon_std=float(std(result.epsilon_std, 0.0)),
+            alpha_std=std(result.alpha_std, np.zeros(3)), beta_std_a=std(result.beta_std, np.zeros(3)),
+            current_loop=result.current_loop or CurrentLoop())
 
-    def loop_bandwidth_at(self, calibration: SensorCalibration) -> np.ndarray | None:
-        """Each phase's current-loop corner while the controller uses ``calibration``, Hz.
+    def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
+        """The current loop while the controller uses ``calibration``.
 
         The PI loop closes on the measured current, (G*_s^-1 G_s)^-1 = 1 / (epsilon alpha_p)
-        times the true one, so its corner scales with 1 / (epsilon alpha_p).
+        times the true one, so each phase's time constant scales with epsilon alpha_p.
         """
-        if self.current_loop_bandwidth_per_phase_hz is None:
-            return None
-        return (self.current_loop_bandwidth_per_phase_hz * self.epsilon_alpha_at(self.calibration)
-                / self.epsilon_alpha_at(calibration))
-
-    def mean_loop_bandwidth_at(self, calibration: SensorCalibration) -> float | None:
-        """The phases' mean current-loop corner at ``calibration``, Hz (None if not identified)."""
-        bandwidth = self.loop_bandwidth_at(calibration)
-        return None if bandwidth is None else float(np.mean(bandwidth))
+        return self.current_loop.scaled(self.epsilon_alpha_at(calibration) / self.epsilon_alpha_at(self.calibration))
 
     @property
     def sensor_gain(self) -> np.ndarray:
@@ -111,14 +112,31 @@ class StageSetup:
     max_harmonic: int
     options: dict = field(default_factory=dict)
 
-    def torque_response(self, harmonics: np.ndarray, speed_hz: float,
-                        calibration: SensorCalibration) -> np.ndarray:
+    def torque_response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration,
+                        loop_scale: float = 1.0) -> np.ndarray:
         """Torque reference to true torque at mechanical harmonics h, while the controller uses
-        ``calibration``: mean(epsilon alpha) times the identified current loop and the reference hold."""
+        ``calibration``: the phases' mean of epsilon alpha_p times the identified current loop
+        (`CurrentLoop.response`, its time constants times ``loop_scale``)."""
         ident = self.identified
-        gain = float(np.mean(ident.epsilon_alpha_at(calibration)))
-        return gain * plant_response(harmonics, speed_hz, ident.mean_loop_bandwidth_at(calibration),
-                                     self.description.motor.counts_per_rev)
+        loop = ident.loop_at(calibration).scaled(loop_scale)
+        response = loop.response(harmonics, speed_hz, self.description.motor.counts_per_rev)
+        return np.mean(ident.epsilon_alpha_at(calibration) * response, axis=1)
+
+
+@dataclass(frozen=True)
+class Block:
+    """A stage's part of a trial's joint fit.
+
+    Attributes
+    ----------
+    estimate : ndarray, shape (k,)
+        The block's coefficients (minimum-norm where not identifiable).
+    information : ndarray, shape (k, k)
+        Marginal Fisher information; singular in directions the trial cannot see.
+    """
+
+    estimate: np.ndarray
+    information: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -127,8 +145,8 @@ class Frame:
 
     Attributes
     ----------
-    regression : Regression
-        The trial's joint fit over all stages' columns.
+    blocks : dict of name -> Block
+        Each stage's block of the trial's joint fit over all stages' columns.
     torque_harmonics_nm : ndarray of complex, shape (H + 1,)
         Synchronous-average harmonics of the measured torque, converted to
         true torque units (divided by the trial's delta).
@@ -142,7 +160,7 @@ class Frame:
         The pipeline's factor on every learning step at this set point (the guard halves it).
     """
 
-    regression: Regression
+    blocks: dict[str, Block]
     torque_harmonics_nm: np.ndarray
     torque_harmonics_var: np.ndarray
     delta: float
@@ -151,7 +169,7 @@ class Frame:
 
     def block(self, name: str) -> Block:
         """Stage ``name``'s block of the joint fit."""
-        return self.regression.block(name)
+        return self.blocks[name]
 
 
 @runtime_checkable
@@ -201,19 +219,3 @@ def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[st
             raise ConfigError(f"[stages.{stage}] {key}: expected {kind.__name__}, got {value!r}")
         values[key] = value
     return values
-
-
-def plant_response(harmonics: np.ndarray, speed_hz: float, bandwidth_hz: float | None,
-                   counts_per_rev: int) -> np.ndarray:
-    """Current reference to current at mechanical harmonics h (per unit).
-
-    The controller holds each count's reference until the next count (a
-    half-count delay, exp(-j pi h / counts_per_rev)), and the current loop
-    lags it as a first order 1 / (1 + j h f_m / f_bw) at frequency h f_m (no
-    lag when no bandwidth was identified).
-    """
-    h = np.asarray(harmonics, float)
-    hold = np.exp(-1j * np.pi * h / counts_per_rev)
-    if bandwidth_hz is None:
-        return hold
-    return hold / (1.0 + 1j * h * speed_hz / bandwidth_hz)

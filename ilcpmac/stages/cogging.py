@@ -6,9 +6,9 @@ torque units (N m). In the joint fit their columns have coefficients
 delta_j times the state (the feed-forward itself acts through the current
 columns), so H_j = delta_j I (eq. 1.13 restricted to the cogging harmonics).
 The feed-forward is divided by the torque response to the reference (the
-sensors' gain, the reference hold and the identified current loop at the
+sensors' gain and the identified current loop with its reference hold, at the
 request's calibration and speed), so that the torque delivered cancels the
-cogging.
+cogging. It needs the identified cogging (``needs``).
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ class CoggingFeedForward:
     """
 
     name = "cogging"
+    needs = ("cogging_nm",)
 
     def __init__(self, setup: StageSetup) -> None:
         opts = check_options(setup.options, DEFAULTS, RANGES, self.name)

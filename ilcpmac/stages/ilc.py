@@ -7,9 +7,9 @@ harmonics in true units:
 
     u_{j+1} = Q (u_j + gamma L eps_j),   eps_j = -(estimated ripple under u_j),   L = 1 / G^
 
-G^(h) = mean(epsilon alpha) at the trial's calibration times the reference
-hold exp(-j pi h / counts_per_rev) and the identified current loop
-1 / (1 + j h f_m / f_bw) (`StageSetup.torque_response`); Q is a zero-phase (real) low-pass over
+G^(h) = the phases' mean of epsilon alpha_p at the trial's calibration times
+the identified current loop's response to the per-count reference staircase
+(`StageSetup.torque_response`, `ilcpmac.model.current_loop`); Q is a zero-phase (real) low-pass over
 harmonics (1 up to the cut-off harmonic, 0 above). Harmonic 0 is
 never touched: the mean torque stays the set point's. Because u is the total
 feed-forward, the stage stays consistent when earlier stages change theirs.
@@ -36,8 +36,8 @@ import numpy as np
 from ilcpmac.errors import ConfigError
 from ilcpmac.model.motor import in_range
 from ilcpmac.records import TrialData, TrialRequest
-from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.stages.base import Frame, StageSetup, plant_response
+from ilcpmac.signals.harmonics import harmonic_amplitudes, table_from_amplitudes
+from ilcpmac.stages.base import Frame, StageSetup
 from ilcpmac.stages.registry import check_options
 
 DEFAULTS = {
@@ -65,11 +65,6 @@ def q_filter(harmonics: np.ndarray, cutoff: int) -> np.ndarray:
     return (harmonics <= cutoff).astype(float)
 
 
-def setpoint_key(request: TrialRequest) -> str:
-    """The per-set-point memory key, e.g. ``"3@0.75"`` (N m @ Hz)."""
-    return f"{request.torque_setpoint_nm:g}@{request.speed_setpoint_hz:g}"
-
-
 class IterativeLearningControl:
     """Built-in stage ``ilc``.
 
@@ -90,7 +85,6 @@ class IterativeLearningControl:
                               f"Nyquist limit of {cpr} counts per revolution")
         self.options = opts
         self._cpr = cpr
-        self._identified = setup.identified
         self._setup = setup
         self._max_harmonic = min(setup.max_harmonic, opts["q_cutoff_harmonic"])
         self._h = np.arange(1, self._max_harmonic + 1)
@@ -110,13 +104,11 @@ class IterativeLearningControl:
         speed = request.speed_setpoint_hz
         model = self.plant(request, speed)
         gamma = self.options["learning_gain"]
-        bandwidth = self._identified.mean_loop_bandwidth_at(request.calibration)
-        cpr = self._cpr
         worst = np.zeros(self._h.size)
         for g_scale in (1 - u, 1 + u):
-            for bw_scale in ((1 - u, 1 + u) if bandwidth else (1.0,)):
-                true = g_scale * model * plant_response(self._h, speed, bandwidth and bandwidth * bw_scale, cpr) \
-                    / plant_response(self._h, speed, bandwidth, cpr)
+            for bandwidth_scale in (1 - u, 1 + u):
+                true = g_scale * self._setup.torque_response(self._h, speed, request.calibration,
+                                                             1.0 / bandwidth_scale)
                 worst = np.maximum(worst, np.abs(1.0 - gamma * true / model))
         passband = self._q > 0
         bad = passband & (worst * self._q >= 1.0)
@@ -137,9 +129,7 @@ class IterativeLearningControl:
 
     def _table(self, harmonics: np.ndarray) -> np.ndarray:
         """Per-count table of harmonics 1..H, N m."""
-        spectrum = np.zeros(self._cpr // 2 + 1, complex)
-        spectrum[1: self._max_harmonic + 1] = harmonics
-        return np.fft.irfft(spectrum, n=self._cpr) * self._cpr / 2.0
+        return table_from_amplitudes(np.concatenate([[0.0], harmonics]), self._cpr)
 
     def _harmonics(self, table: np.ndarray) -> np.ndarray:
         return harmonic_amplitudes(table)[1: self._max_harmonic + 1]
@@ -154,7 +144,7 @@ class IterativeLearningControl:
         return None
 
     def shape(self, request: TrialRequest) -> TrialRequest:
-        key = setpoint_key(request)
+        key = request.setpoint_key
         if np.any(request.excitation_nm) or key not in self._memory:
             return request
         upstream = self._harmonics(request.feedforward_nm)
@@ -165,7 +155,7 @@ class IterativeLearningControl:
         request = trial.request
         if np.any(request.excitation_nm):
             return  # an identification trial: its ripple is mostly the excitation
-        key = setpoint_key(request)
+        key = request.setpoint_key
         if not self._trials.get(key):
             self.check_convergence(request)
         m = self._entry(key)

@@ -40,6 +40,25 @@ def installed_stages() -> dict[str, StageEntry]:
     return found
 
 
+def _factory(name: str, available: dict[str, StageEntry],
+             extra: dict[str, Callable[[StageSetup], Stage]]) -> Callable[[StageSetup], Stage]:
+    """Stage ``name``'s factory from ``extra`` or the installed stages; `ConfigError` if it has none."""
+    if name not in available and name not in extra:
+        raise ConfigError(f"[pipeline] stages: no stage named {name!r} is installed "
+                          f"(installed: {', '.join(sorted(available))})")
+    try:
+        return extra[name] if name in extra else available[name].load()
+    except Exception as e:  # a plugin that fails to import must not crash the run with a traceback
+        raise ConfigError(f"[pipeline] stages: stage {name!r} failed to load: {e}") from None
+
+
+def stage_needs(names: list[str], extra: dict[str, Callable[[StageSetup], Stage]] | None = None
+                ) -> dict[str, tuple[str, ...]]:
+    """What each named stage needs from the identification beyond `PIPELINE_NEEDS`: its factory's ``needs``."""
+    available = installed_stages()
+    return {name: tuple(getattr(_factory(name, available, extra or {}), "needs", ())) for name in names}
+
+
 def build_stages(names: list[str], setups: dict[str, StageSetup],
                  extra: dict[str, Callable[[StageSetup], Stage]] | None = None) -> list[Stage]:
     """Build the named stages in order; an unknown name or a broken plugin raises `ConfigError`.
@@ -48,17 +67,9 @@ def build_stages(names: list[str], setups: dict[str, StageSetup],
     precedence over installed stages), for stages that are not packaged.
     """
     available = installed_stages()
-    extra = extra or {}
     stages = []
     for name in names:
-        if name not in available and name not in extra:
-            raise ConfigError(f"[pipeline] stages: no stage named {name!r} is installed "
-                              f"(installed: {', '.join(sorted(available))})")
-        try:
-            factory = extra[name] if name in extra else available[name].load()
-        except Exception as e:  # a plugin that fails to import must not crash the run with a traceback
-            raise ConfigError(f"[pipeline] stages: stage {name!r} failed to load: {e}") from None
-        stage = factory(setups[name])
+        stage = _factory(name, available, extra or {})(setups[name])
         if not isinstance(stage, Stage):
             raise ConfigError(f"[pipeline] stages: {name!r} does not implement the Stage protocol")
         stages.append(stage)

@@ -20,10 +20,11 @@ from __future__ import annotations
 import numpy as np
 
 from ilcpmac.estimators.kalman import KalmanEstimator
+from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.model.motor import in_range
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
-from ilcpmac.signals.harmonics import synchronous_average
-from ilcpmac.stages.base import Frame, StageSetup, plant_response
+from ilcpmac.signals.harmonics import filtered, synchronous_average
+from ilcpmac.stages.base import Frame, StageSetup
 from ilcpmac.stages.registry import check_options
 
 DEFAULTS = {"process_noise_rel": 1e-6, "prior_std_rel": 0.02}
@@ -32,22 +33,12 @@ RANGES = {"process_noise_rel": (in_range(0.0, 1.0), "relative, within [0, 1]"),
           "prior_std_rel": (in_range(0.0, 10.0, low_open=True), "relative, within (0, 10]")}
 
 
-def filtered_references(trial: TrialData, counts_per_rev: int, bandwidth_hz: np.ndarray | None) -> np.ndarray:
-    """I*_p as the currents follow it, per count, (counts_per_rev, 3): each harmonic times the
-    reference hold and the phase's current loop."""
+def filtered_references(trial: TrialData, counts_per_rev: int, loop: CurrentLoop) -> np.ndarray:
+    """I*_p as the currents follow it, per count, (counts_per_rev, 3): each harmonic through the
+    phase's current loop (`CurrentLoop.response`)."""
     table = synchronous_average(trial.count, trial.i_ref_a, counts_per_rev)
-    spectrum = np.fft.rfft(table, axis=0)
-    h = np.arange(spectrum.shape[0])
-    speed = trial_speed_hz(trial, counts_per_rev)
-    for p in range(3):
-        spectrum[:, p] *= plant_response(h, speed, None if bandwidth_hz is None else bandwidth_hz[p],
-                                         counts_per_rev)
-    return np.fft.irfft(spectrum, n=counts_per_rev, axis=0)
-
-
-def trial_speed_hz(trial: TrialData, counts_per_rev: int) -> float:
-    """Mean mechanical speed over the trial, Hz."""
-    return float((trial.count[-1] - trial.count[0]) / counts_per_rev / (trial.time_s[-1] - trial.time_s[0]))
+    h = np.arange(counts_per_rev // 2 + 1)
+    return filtered(table, loop.response(h, trial.mean_speed_hz(counts_per_rev), counts_per_rev))
 
 
 def _without_common_modes(information: np.ndarray) -> np.ndarray:
@@ -104,8 +95,8 @@ class CurrentSensorCorrection:
 
     def columns(self, trial: TrialData) -> np.ndarray:
         k = self._backemf
-        bandwidth = self._identified.loop_bandwidth_at(trial.request.calibration)
-        return np.hstack([k * filtered_references(trial, self._cpr, bandwidth), k])
+        loop = self._identified.loop_at(trial.request.calibration)
+        return np.hstack([k * filtered_references(trial, self._cpr, loop), k])
 
     def shape(self, request: TrialRequest) -> TrialRequest:
         return request.with_changes(calibration=self.calibration())
@@ -121,9 +112,7 @@ class CurrentSensorCorrection:
         self._kalman.update_block(block.estimate, information, H)
 
     def state(self) -> dict:
-        cal = self.calibration()
-        return {"kalman": self._kalman.state(), "current_scale": cal.current_scale.tolist(),
-                "current_offset": cal.current_offset.tolist(), "torque_gain": cal.torque_gain}
+        return {"kalman": self._kalman.state(), **self.calibration().to_json()}
 
     def restore(self, state: dict) -> None:
         self._kalman.restore(state["kalman"])

@@ -41,10 +41,6 @@ class HarmonicCanceller:
         self._correction: dict[str, np.ndarray] = {}  # complex amplitude per order, N m, per set point
         self._kalman: dict[str, KalmanEstimator] = {}
 
-    @staticmethod
-    def _key(request: TrialRequest) -> str:
-        return f"{request.torque_setpoint_nm:g}@{request.speed_setpoint_hz:g}"
-
     def _filter(self, key: str) -> KalmanEstimator:
         n = 2 * self.orders.size
         return self._kalman.setdefault(key, KalmanEstimator(np.zeros(n), np.full(n, 1.0), self._q))
@@ -53,7 +49,7 @@ class HarmonicCanceller:
         return None
 
     def shape(self, request: TrialRequest) -> TrialRequest:
-        c = self._correction.get(self._key(request))
+        c = self._correction.get(request.setpoint_key)
         if c is None:
             return request
         table = np.real(np.exp(1j * np.outer(self._theta, self.orders)) @ c)
@@ -62,7 +58,7 @@ class HarmonicCanceller:
     def learn(self, trial: TrialData, frame: Frame) -> None:
         if np.any(trial.request.excitation_nm):
             return  # an identification trial: its ripple is mostly the excitation
-        key = self._key(trial.request)
+        key = trial.request.setpoint_key
         g = self._setup.torque_response(self.orders, frame.speed_hz, trial.request.calibration)
         applied = self._correction.get(key, np.zeros(self.orders.size, complex))
         z = frame.torque_harmonics_nm[self.orders] - g * applied

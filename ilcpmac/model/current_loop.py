@@ -1,4 +1,7 @@
-"""Current-loop dynamics: how the phase currents follow their references (beyond the report).
+"""The current loop: how the phase currents follow their references (beyond the report).
+
+The one model of the loop: the identification fits it (`ilcpmac.identify.joint`) and the
+stages invert it (`ilcpmac.stages.base.StageSetup.torque_response`).
 
 The report assumes the currents follow the references I*_p exactly (sec. 2.3:
 "in this range the current follows the reference closely"). With a 140 Hz
@@ -34,8 +37,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from ilcpmac.signals.harmonics import harmonic_amplitudes
-
 
 @dataclass(frozen=True)
 class CurrentLoop:
@@ -67,6 +68,10 @@ class CurrentLoop:
         """Corner frequency 1 / (2 pi tau_p) per phase, Hz (inf without lag)."""
         with np.errstate(divide="ignore"):
             return 1.0 / (2.0 * np.pi * self.time_constant_s)
+
+    def scaled(self, factor: np.ndarray) -> "CurrentLoop":
+        """The loop with each phase's time constant times ``factor`` (the delay kept)."""
+        return CurrentLoop(self.time_constant_s * factor, self.delay_s)
 
     def response(self, harmonics: np.ndarray, speed_hz: float, counts_per_rev: int) -> np.ndarray:
         """The loop's response per harmonic and phase at a constant speed, shape (len(harmonics), 3).
@@ -158,9 +163,3 @@ def lagged_phase(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: flo
         else:
             out = out - delay_s / count_period_s * (np.roll(out, -1, axis=1) - out)
     return out
-
-
-def trial_amplitudes(tables: np.ndarray, max_harmonic: int) -> np.ndarray:
-    """Harmonic amplitudes 0..max_harmonic of per-count tables stacked along axis 0 (trials)."""
-    c = harmonic_amplitudes(np.moveaxis(tables, 1, 0))[: max_harmonic + 1]
-    return np.moveaxis(c, 0, 1)
