@@ -8,8 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from ilcpmac.bench.format import Bench, MotorInfo, as_written, read_bench, write_bench
+from ilcpmac.bench import fastcsv
+from ilcpmac.bench.fastcsv import format_rows, parse_rows
+from ilcpmac.bench.format import Bench, MotorInfo, as_written, convert_bench, read_bench, write_bench
 from ilcpmac.errors import BenchFormatError
 from ilcpmac.records import SensorCalibration, TrialData
 
@@ -129,14 +133,15 @@ def test_columns_in_any_order_and_unknown_columns_ignored(tmp_path):
     assert_trials_equal(read_bench(folder).trials[0], expected)
 
 
-def test_round_trip_of_simulated_trials(tmp_path, small_simulator, small_model, make_request):
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_round_trip_of_simulated_trials(tmp_path, small_simulator, small_model, make_request, suffix):
     requests = [make_request(small_model, 2.0, 0.5, seed=3), make_request(small_model, 1.0, 1.0, seed=4)]
     trials = small_simulator.run_trials(requests, workers=1)
     bench = Bench(
         motor=MotorInfo(8, 48, small_model.encoder.counts_per_rev, 0.01056),
         backemf_nm_per_a=small_simulator.backemf_counts,
         sensors=SensorCalibration([14.0, 14.5, 13.5], [0.25, -3.0, 1.0], 0.908),
-        trials=tuple(trials), trial_files=("a.csv", "b.csv"))
+        trials=tuple(trials), trial_files=("a" + suffix, "b" + suffix))
     write_bench(tmp_path, bench)
     back = read_bench(tmp_path)
     assert back.motor == bench.motor
@@ -144,7 +149,7 @@ def test_round_trip_of_simulated_trials(tmp_path, small_simulator, small_model, 
     np.testing.assert_array_equal(back.sensors.current_scale, bench.sensors.current_scale)
     np.testing.assert_array_equal(back.sensors.current_offset, bench.sensors.current_offset)
     assert back.sensors.torque_gain == bench.sensors.torque_gain
-    assert back.trial_files == ("a.csv", "b.csv")
+    assert back.trial_files == ("a" + suffix, "b" + suffix)
     for actual, original in zip(back.trials, trials, strict=True):
         assert_round_trip(actual, original)
 
@@ -201,9 +206,12 @@ def test_round_trip_without_optional_parts(tmp_path):
     (("trial_01.csv", "0.03\n", "nan\n"), r"trial_01\.csv: line 4: torque is not a finite number"),
     (("trial_01.csv", "-3.3,1.7,1.7", "-3.3,inf,1.7"), r"trial_01\.csv: line 5: i_ref_b is not a finite number"),
     (("trial_01.csv", "3.3,-1.7,-1.7", "3.3,abc,-1.7"), r"trial_01\.csv: line 3: could not convert string 'abc'"),
-    (("trial_01.csv", "0.0,1.5,-1.5,0.03\n", "0.0,1.5,0.03\n"), r"trial_01\.csv: line 4 has 5 fields, the header has 6"),
-    (("trial_01.csv", "0.0,1.5,-1.5,0.03\n", "0.0,1.5,-1.5,0.03,9\n"), r"trial_01\.csv: line 4 has 7 fields, the header has 6"),
-    (("trial_01.csv", "0.0,-1.5,1.5,0.01\n", "0.0,-1.5,1.5\n"), r"trial_01\.csv: line 2 has 5 fields, the header has 6"),
+    (("trial_01.csv", "0.0,1.5,-1.5,0.03\n", "0.0,1.5,0.03\n"),
+     r"trial_01\.csv: line 4 has 5 fields, the header has 6"),
+    (("trial_01.csv", "0.0,1.5,-1.5,0.03\n", "0.0,1.5,-1.5,0.03,9\n"),
+     r"trial_01\.csv: line 4 has 7 fields, the header has 6"),
+    (("trial_01.csv", "0.0,-1.5,1.5,0.01\n", "0.0,-1.5,1.5\n"),
+     r"trial_01\.csv: line 2 has 5 fields, the header has 6"),
     (("trial_01.csv", TRIAL_CSV[TRIAL_CSV.index("\n1,"):], "\n"), r"trial_01\.csv: needs at least 2 rows, has 1"),
     # files that are not there
     (("bench.toml", 'file = "trial_01.csv"', 'file = "trial_02.csv"'), r"trial_02\.csv: no such file"),
@@ -244,3 +252,76 @@ def test_missing_bench_toml(tmp_path):
 def test_not_a_folder(tmp_path):
     with pytest.raises(BenchFormatError, match=re.escape(str(tmp_path / "absent")) + ": not a folder"):
         read_bench(tmp_path / "absent")
+
+
+# ---------------------------------------------------------------- Parquet trials and the fast CSV parser
+
+def test_csv_to_parquet_and_back_gives_the_same_files(tmp_path, small_simulator, small_model, make_request):
+    trials = small_simulator.run_trials([make_request(small_model, 2.0, 0.5, seed=3)], workers=1)
+    bench = Bench(MotorInfo(8, 48, small_model.encoder.counts_per_rev, 0.01056), small_simulator.backemf_counts,
+                  None, tuple(trials), ("sub/t.csv",))
+    write_bench(tmp_path / "csv", bench)
+    convert_bench(tmp_path / "csv", tmp_path / "parquet", ".parquet")
+    assert (tmp_path / "parquet" / "sub" / "t.parquet").stat().st_size < (tmp_path / "csv" / "sub" / "t.csv").stat(
+        ).st_size / 4
+    convert_bench(tmp_path / "parquet", tmp_path / "back", ".csv")
+    for name in ("bench.toml", "backemf.csv", "sub/t.csv"):
+        assert (tmp_path / "back" / name).read_bytes() == (tmp_path / "csv" / name).read_bytes(), name
+
+
+def test_convert_refuses_an_unknown_format_and_trials_that_would_collide(tmp_path):
+    folder = write_folder(tmp_path / "in")
+    with pytest.raises(BenchFormatError, match=r"trial format must be \.csv or \.parquet, got '\.xlsx'"):
+        convert_bench(folder, tmp_path / "out", ".xlsx")
+    (folder / "trial_01.txt").write_text(TRIAL_CSV)
+    trial = BENCH_TOML[BENCH_TOML.index("[[trials]]"):]
+    (folder / "bench.toml").write_text(BENCH_TOML + "\n" + trial.replace("trial_01.csv", "trial_01.txt"))
+    with pytest.raises(BenchFormatError, match=r"two trials differ only in their suffix"):
+        convert_bench(folder, tmp_path / "out", ".csv")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1e6, 1e6), min_size=3, max_size=60), st.integers(0, 9))
+def test_fast_csv_parser_gives_the_doubles_numpy_gives(values, decimals):
+    """Written fixed-point text parses to the correctly rounded double, the one `as_written` computes."""
+    table = np.array(values[: len(values) // 3 * 3]).reshape(-1, 3)
+    body = format_rows(table, np.full(3, decimals))
+    parsed = parse_rows(body, 3, table.shape[0])
+    np.testing.assert_array_equal(parsed, np.loadtxt(body.decode().splitlines(), delimiter=",", ndmin=2))
+    np.testing.assert_array_equal(parsed, np.round(table * 10.0**decimals) / 10.0**decimals)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("1,-2.5\n+3,4e2\n", [[1, -2.5], [3, 400]]),
+    ("0.5e-3,-0\r\n1E+1,.5", [[0.0005, -0.0], [10, 0.5]]),
+    ("9007199254740992,1e22\n", [[2.0**53, 1e22]]),
+])
+def test_fast_csv_parser_reads_plain_numbers(text, expected):
+    parsed = parse_rows(text.encode(), 2, 10)
+    np.testing.assert_array_equal(parsed, expected)
+    assert np.signbit(parsed).tolist() == np.signbit(np.array(expected, float)).tolist()
+
+
+@pytest.mark.parametrize("text", ["1, 2\n", "1,2\n\n3,4\n", "nan,1\n", "1,2,3\n", "1\n", "1,\n",
+                                  "9007199254740993,1\n", "1e23,1\n", "1e-23,1\n", "0x10,1\n", "1,2#c\n",
+                                  "1e,1\n", "1.2.3,1\n"])
+def test_fast_csv_parser_leaves_anything_else_to_numpy(text):
+    assert parse_rows(text.encode(), 2, 10) is None
+
+
+def test_csv_beyond_the_fast_parser_reads_as_before(tmp_path):
+    """Spaces and exponents: numpy parses them, to the same trial."""
+    expected = read_bench(write_folder(tmp_path / "plain")).trials[0]
+    odd = TRIAL_CSV.replace("0.5000", "5e-1").replace(",3.3,", ", 3.3 ,")
+    folder = write_folder(tmp_path / "odd", ("trial_01.csv", TRIAL_CSV, odd))
+    assert_trials_equal(read_bench(folder).trials[0], expected)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1e6, 1e6) | st.integers(-2 * 10**6, 2 * 10**6).map(lambda k: k / 2e6), min_size=3,
+                max_size=60), st.lists(st.integers(0, 9), min_size=3, max_size=3))
+def test_small_tables_are_formatted_as_the_kernel_formats_them(values, decimals):
+    """The Python path (no compilation for backemf.csv) writes the kernel's bytes, ties and -0 included."""
+    table = np.array(values[: len(values) // 3 * 3]).reshape(-1, 3)
+    decimals = np.array(decimals)
+    assert fastcsv._format_small(table, decimals) == fastcsv._format_block(table, decimals)

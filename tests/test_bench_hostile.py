@@ -17,25 +17,29 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
+from conftest import COUNTS_PER_REV
 from identify_helpers import other_bench
 
 from ilcpmac.bench.format import (
     Bench,
     MotorInfo,
+    convert_bench,
     read_bench,
+    read_trial,
     read_trial_csv,
     write_backemf_csv,
     write_bench,
+    write_trial,
     write_trial_csv,
 )
 from ilcpmac.cli import main
 from ilcpmac.errors import BenchFormatError, IdentificationError
 from ilcpmac.identify import identify_bench
 from ilcpmac.records import SensorCalibration
-
-from conftest import COUNTS_PER_REV
 
 #: what a file outside the bench folder holds: no message may ever show it
 SECRET = "daemon:*:19000:0:secret-hash-7f3a"
@@ -162,6 +166,172 @@ def test_header_without_end_is_refused(bench_dir):
     assert_refused(bench_dir, BenchFormatError, r"trial_01\.csv: line 1: no end of the header line in 4096 bytes")
 
 
+# ------------------------------------------------------------ Parquet trials (issue 10)
+
+@pytest.fixture
+def parquet_dir(pristine, tmp_path) -> Path:
+    """``pristine`` with its trials as Parquet (trial_01.parquet, trial_02.parquet)."""
+    (tmp_path / "outside").mkdir()
+    (tmp_path / "outside" / "passwd").write_text(f"root:x:0:0\n{SECRET}\n")
+    convert_bench(pristine, tmp_path / "bench", ".parquet")
+    return tmp_path / "bench"
+
+
+def write_table(path: Path, columns: dict, **options) -> None:
+    pq.write_table(pa.table(columns), path, **options)
+
+
+def trial_columns(folder: Path) -> dict:
+    """trial_01.parquet's columns as Arrow arrays, to damage one."""
+    table = pq.read_table(folder / "trial_01.parquet")
+    return {name: table.column(name) for name in table.column_names}
+
+
+def test_parquet_trials_read_as_their_csv(pristine, parquet_dir):
+    csv, binary = read_bench(pristine), read_bench(parquet_dir)
+    assert binary.trial_files == ("trial_01.parquet", "trial_02.parquet")
+    for a, b in zip(csv.trials, binary.trials, strict=True):
+        for field in ("count", "time_s", "i_ref_a", "torque_nm", "i_meas_a", "torque_true_nm", "i_true_a",
+                      "speed_true_rad_s"):
+            np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+
+
+@pytest.mark.parametrize("changes, pattern", [
+    ({"time_s": swap_two}, r"trial_01\.parquet: row 12: time does not increase"),
+    ({"count": lambda c: np.where(np.arange(c.size) >= 500, c + 10**15, c)},
+     r"trial_01\.parquet: row 501: count jumps by 1000000000000001"),
+    ({"count": lambda c: c + 2**56}, r"trial_01\.parquet: row 1: count must be an integer of magnitude at most 2\^53"),
+    ({"torque_nm": lambda t: np.full_like(t, 1.5)}, r"trial_01\.parquet: torque is 1\.5 on every line"),
+    ({"i_ref_a": lambda i: 1e6 * i}, r"trial_01\.parquet: sample \d+: i_ref beyond 10000 A"),
+])
+def test_damaged_parquet_trial_is_refused(parquet_dir, changes, pattern):
+    path = parquet_dir / "trial_01.parquet"
+    trial = read_trial(path, 1.0, 1.0)
+    write_trial(path, dataclasses.replace(trial, **{k: f(getattr(trial, k)) for k, f in changes.items()}))
+    assert_refused(parquet_dir, BenchFormatError, pattern)
+
+
+def test_truncated_parquet_is_refused(parquet_dir):
+    path = parquet_dir / "trial_01.parquet"
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: not a readable Parquet file \(")
+
+
+@pytest.mark.parametrize("content", [b"", b"PAR1", b"count,time\n0,1\n", bytes(range(256)) * 4])
+def test_a_file_that_is_not_parquet_is_refused(parquet_dir, content):
+    (parquet_dir / "trial_02.parquet").write_bytes(content)
+    assert_refused(parquet_dir, BenchFormatError, r"trial_02\.parquet: not a readable Parquet file \(")
+
+
+def test_parquet_without_a_required_column_is_refused(parquet_dir):
+    columns = trial_columns(parquet_dir)
+    del columns["torque"]
+    write_table(parquet_dir / "trial_01.parquet", columns)
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: schema: missing column 'torque'")
+
+
+@pytest.mark.parametrize("make, pattern", [
+    (lambda c: c.cast(pa.string()), r"column 'torque' holds string, not numbers"),
+    (lambda c: pa.array([[v] for v in c.cast(pa.float64()).to_pylist()]),
+     r"column 'torque' holds list<\w+: double>, not numbers"),
+    (lambda c: pa.array(c.cast(pa.float64()).to_numpy() > 0), r"column 'torque' holds bool, not numbers"),
+    (lambda c: c.cast(pa.decimal128(30, 6)), r"column 'torque' is decimal128\(30, 6\); decimals may have at most 18"),
+])
+def test_parquet_column_of_the_wrong_type_is_refused(parquet_dir, make, pattern):
+    columns = trial_columns(parquet_dir)
+    columns["torque"] = make(columns["torque"])
+    write_table(parquet_dir / "trial_01.parquet", columns)
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: " + pattern)
+
+
+def test_parquet_decimal_beyond_its_digits_is_refused(parquet_dir):
+    """DECIMAL(18, 6) in 13 bytes (legal Parquet) holding a 20-digit value: written as DECIMAL(30, 6), then the
+    footer's precision patched from 30 to 18."""
+    columns = trial_columns(parquet_dir)
+    n = len(columns["torque"])
+    words = np.zeros((n, 2), np.int64)
+    words[:, 0] = np.arange(n) % 7 + 1
+    words[5, 1] = 1  # 2^64 + 6
+    columns["torque"] = pa.Array.from_buffers(pa.decimal128(30, 6), n, [None, pa.py_buffer(words)])
+    path = parquet_dir / "trial_01.parquet"
+    write_table(path, columns, store_schema=False)
+    scale_6_precision_30 = b"\x0c\x15\x3c"  # thrift compact: scale 6, then precision 30 (zigzag varints)
+    assert path.read_bytes().count(scale_6_precision_30) == 2  # the schema element and its logical type
+    path.write_bytes(path.read_bytes().replace(scale_6_precision_30, b"\x0c\x15\x24"))
+    assert pq.read_schema(path).field("torque").type == pa.decimal128(18, 6)
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: row 6: torque holds more than its 18 digits")
+
+
+def test_parquet_of_floats_and_integers_is_read(parquet_dir, pristine):
+    """Another writer's types (int32, float32, float64) are numbers too."""
+    trial = read_bench(pristine).trials[0]
+    write_table(parquet_dir / "trial_01.parquet", {
+        "count": pa.array(trial.count, pa.int32()), "time": trial.time_s, "torque": trial.torque_nm,
+        **{f"i_ref_{p}": pa.array(trial.i_ref_a[:, k], pa.float32()) for k, p in enumerate("abc")}})
+    back = read_bench(parquet_dir).trials[0]
+    np.testing.assert_array_equal(back.torque_nm, trial.torque_nm)
+    np.testing.assert_array_equal(back.i_ref_a, trial.i_ref_a.astype(np.float32))
+    assert back.i_meas_a is None
+
+
+@pytest.mark.parametrize("value, pattern", [(np.nan, r"row 8: torque is not a finite number"),
+                                            (np.inf, r"row 8: torque is not a finite number"),
+                                            (None, r"row 8: torque is empty")])
+def test_parquet_nan_or_empty_value_is_named(parquet_dir, value, pattern):
+    columns = trial_columns(parquet_dir)
+    torque = columns["torque"].cast(pa.float64()).to_pylist()
+    torque[7] = value
+    columns["torque"] = pa.array(torque, pa.float64())
+    write_table(parquet_dir / "trial_01.parquet", columns)
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: " + pattern)
+
+
+def test_parquet_column_twice_is_refused(parquet_dir):
+    table = pq.read_table(parquet_dir / "trial_01.parquet")
+    pq.write_table(table.append_column("torque", table.column("torque")), parquet_dir / "trial_01.parquet")
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: column 'torque' appears twice")
+
+
+def test_parquet_declaring_too_many_rows_is_refused_before_its_data_is_read(parquet_dir, monkeypatch):
+    """A few kilobytes that declare a million rows (delta-encoded ramps): refused from the footer alone."""
+    n = 2**20 + 1
+    ramp = np.arange(n, dtype=np.int64)
+    write_table(parquet_dir / "trial_01.parquet", {name: ramp for name in ("count", "time", "i_ref_a", "i_ref_b",
+                                                                           "i_ref_c", "torque")},
+                compression="zstd", use_dictionary=False, column_encoding="DELTA_BINARY_PACKED")
+    assert (parquet_dir / "trial_01.parquet").stat().st_size < 100_000
+    monkeypatch.setattr(pq.ParquetFile, "read", lambda *a, **k: pytest.fail("the data was read"))
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: declares 1048577 rows, more than 1048576")
+
+
+def test_parquet_column_larger_than_its_rows_may_take_is_refused_unread(parquet_dir, monkeypatch):
+    """Two rows whose text column is 64 MB once decompressed is never read (only numeric columns are), and a
+    numeric column declaring more bytes than its rows may take is refused from the footer."""
+    columns = trial_columns(parquet_dir)
+    columns["note"] = pa.array(["x" * 2**16] * len(columns["count"]))
+    write_table(parquet_dir / "trial_01.parquet", columns, compression="zstd")
+    bench = read_bench(parquet_dir)
+    assert bench.trials[0].torque_nm.size == len(columns["count"])
+    monkeypatch.setattr("ilcpmac.bench.parquet._COLUMN_ROW_BYTES", 0)
+    monkeypatch.setattr("ilcpmac.bench.parquet._COLUMN_SLACK_BYTES", 64)
+    assert_refused(parquet_dir, BenchFormatError,
+                   r"trial_01\.parquet: column 'count' declares \d+ bytes, more than its 2048 rows may take")
+
+
+def test_sparse_2_gb_parquet_and_fifo_are_refused_unopened(parquet_dir):
+    os.truncate(parquet_dir / "trial_02.parquet", 2 * 2**30)
+    assert_refused(parquet_dir, BenchFormatError, r"trial_02\.parquet: 2147483648 bytes, more than the \d+")
+    (parquet_dir / "trial_01.parquet").unlink()
+    os.mkfifo(parquet_dir / "trial_01.parquet")
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: not a regular file")
+
+
+def test_parquet_symlink_out_of_the_folder_is_refused_unread(parquet_dir):
+    (parquet_dir / "trial_01.parquet").unlink()
+    (parquet_dir / "trial_01.parquet").symlink_to("../outside/passwd")
+    assert_refused(parquet_dir, BenchFormatError, r"trial_01\.parquet: is a symbolic link to outside the bench")
+
+
 # ------------------------------------------------------------ paths (item 9)
 
 @pytest.mark.parametrize("old, new, pattern", [
@@ -220,11 +390,13 @@ def test_symlinks_inside_the_folder_are_followed_and_count_once(bench_dir):
      r"\[motor\]: key 'counts_per_rev' must be at least 4 per electrical period \(4 x pole_pairs = 32\)"),
     ("pole_pairs = 8", "pole_pairs = 4",
      r"backemf\.csv: the back-EMF repeats 8 times per revolution of 1024 counts, but \[motor\] pole_pairs = 4"),
-    ("torque_setpoint = 2.0", "torque_setpoint = 0.0", r"\[\[trials\]\] #1: key 'torque_setpoint' must lie in \(0, 100000\]"),
+    ("torque_setpoint = 2.0", "torque_setpoint = 0.0",
+     r"\[\[trials\]\] #1: key 'torque_setpoint' must lie in \(0, 100000\]"),
     ("torque_setpoint = 2.0", "torque_setpoint = -2.0", r"\[\[trials\]\] #1: key 'torque_setpoint' must lie in \(0, "),
     ("torque_setpoint = 2.0", "torque_setpoint = 1e300", r"\[\[trials\]\] #1: key 'torque_setpoint' must lie in \(0, "),
     ("torque_gain = 0.908", "torque_gain = 1e300", r"\[sensors\]: key 'torque_gain' must lie in \(0, 1e\+09\]"),
-    ("speed_setpoint = 0.5", "speed_setpoint = 0.0", r"\[\[trials\]\] #1: key 'speed_setpoint' must lie in \(0, 1000\]"),
+    ("speed_setpoint = 0.5", "speed_setpoint = 0.0",
+     r"\[\[trials\]\] #1: key 'speed_setpoint' must lie in \(0, 1000\]"),
     ("speed_setpoint = 0.5", "speed_setpoint = -0.5", r"\[\[trials\]\] #1: key 'speed_setpoint' must lie in \(0, "),
     ("speed_setpoint = 0.5", "speed_setpoint = 1.0",
      r"trial_01\.csv: counts and time stamps give 0\.4\d+ revolutions per second .* speed_setpoint = 1 Hz"),

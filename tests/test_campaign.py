@@ -13,12 +13,11 @@ import json
 
 import numpy as np
 import pytest
-
 from campaign_helpers import SMALL_CAMPAIGN, Quiet, run_campaign, simulator_backend
 
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import read_bench
-from ilcpmac.campaign.rundir import RunDir, RunDirError
+from ilcpmac.campaign.rundir import RunDir, RunDirError, trial_file
 from ilcpmac.config import load_config
 from ilcpmac.records import TrialData, TrialRequest
 
@@ -83,7 +82,7 @@ def test_resume_after_a_crash_ends_as_an_uninterruptedrun_campaign(campaign_conf
         run_campaign(campaign_config, crashed, CrashingBackend(simulator_backend(campaign_config), fail_on_call))
     listed = read_bench(crashed).trials
     assert len(listed) == fail_on_call - 1  # every finished trial committed, nothing of the failed one
-    assert sorted(p.name for p in crashed.glob("trial_*")) == [f"trial_{i:03d}.csv" for i in range(1, fail_on_call)]
+    assert sorted(p.name for p in crashed.glob("trial_*")) == [trial_file(i) for i in range(1, fail_on_call)]
     resumed = run_campaign(campaign_config, crashed, resume=True)
     assert resumed == reference
 
@@ -93,10 +92,10 @@ def test_leftovers_of_an_uncommitted_trial_are_removed_on_resume(campaign_config
                                                                            ilc_trials=1)), tmp_path / "run")
     run = tmp_path / "run"
     n = len(read_bench(run).trials)
-    (run / f"trial_{n + 1:03d}.csv").write_text("count,time\n0,")  # half a trial, never listed
+    (run / trial_file(n + 1)).write_bytes(b"PAR1")  # half a trial, never listed
     (run / "states" / f"trial_{n + 1:03d}.json.tmp").write_text("{")
     RunDir.resume(run, simulator_backend(campaign_config).describe())
-    assert not (run / f"trial_{n + 1:03d}.csv").exists()
+    assert not (run / trial_file(n + 1)).exists()
     assert not (run / "states" / f"trial_{n + 1:03d}.json.tmp").exists()
 
 

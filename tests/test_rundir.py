@@ -4,6 +4,7 @@ non-finite numbers, and errors printed while the live table is on screen."""
 from __future__ import annotations
 
 import builtins
+import dataclasses
 import errno
 import json
 import os
@@ -20,8 +21,8 @@ from click.testing import CliRunner
 from filelock import FileLock
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.campaign.rundir import HOLDER_FILE, LOCK_FILE, RunDir, RunDirError
+from ilcpmac.bench.format import MotorInfo, as_written, read_bench, write_trial_csv
+from ilcpmac.campaign.rundir import HOLDER_FILE, LOCK_FILE, RunDir, RunDirError, trial_file
 from ilcpmac.cli import main
 from ilcpmac.errors import ConfigError
 from ilcpmac.records import SensorCalibration, TrialData
@@ -90,7 +91,7 @@ def test_a_dead_holders_record_is_not_believed(tmp_path):
 
 
 class RecordingBackends:
-    """Stands in for cli.run._backend: records that a backend was asked for."""
+    """Stands in for backends.registry.build_backend: records that a backend was asked for."""
 
     def __init__(self) -> None:
         self.built = 0
@@ -103,7 +104,7 @@ class RecordingBackends:
 @pytest.fixture
 def backends(monkeypatch) -> RecordingBackends:
     recording = RecordingBackends()
-    monkeypatch.setattr("ilcpmac.cli.run._backend", recording)
+    monkeypatch.setattr("ilcpmac.backends.registry.build_backend", recording)
     return recording
 
 
@@ -298,7 +299,7 @@ def fail_writing(monkeypatch, name: str, error: int, before: threading.Event | N
     monkeypatch.setattr(builtins, "open", open_)
 
 
-@pytest.mark.parametrize("name, error, committed", [("trial_002.csv", errno.ENOSPC, 1),
+@pytest.mark.parametrize("name, error, committed", [(trial_file(2), errno.ENOSPC, 1),
                                                     ("states/trial_002.json", errno.EDQUOT, 1),
                                                     ("bench.toml", errno.EROFS, 1),
                                                     ("summary.json", errno.ENOSPC, 2)])
@@ -315,7 +316,7 @@ def test_a_full_disk_while_committing_is_one_line_and_the_run_stays_resumable(tm
     assert temporary_files(path) == []
     resumed = RunDir.resume(path, DESCRIPTION)
     assert resumed.completed == committed
-    assert (path / "trial_002.csv").exists() == (committed == 2)
+    assert (path / trial_file(2)).exists() == (committed == 2)
     resumed.close()
 
 
@@ -323,16 +324,16 @@ def test_nothing_is_committed_after_a_failed_trial(tmp_path, monkeypatch):
     path = new_run(tmp_path / "run", trials=1)
     run = RunDir.resume(path, DESCRIPTION)
     go = threading.Event()
-    fail_writing(monkeypatch, "trial_002.csv", errno.ENOSPC, before=go)
+    fail_writing(monkeypatch, trial_file(2), errno.ENOSPC, before=go)
     add(run, 2.0)
     add(run, 3.0)  # queued while trial 2 is being written
     go.set()
-    with pytest.raises(RunDirError, match="trial_002.csv: cannot write"):
+    with pytest.raises(RunDirError, match=f"{trial_file(2)}: cannot write"):
         run.close()
     monkeypatch.undo()
     resumed = RunDir.resume(path, DESCRIPTION)  # bench.toml does not list trial 3 without trial 2
     assert resumed.completed == 1
-    assert sorted(p.name for p in path.glob("trial_*")) == ["trial_001.csv"]
+    assert sorted(p.name for p in path.glob("trial_*")) == [trial_file(1)]
     resumed.close()
 
 
@@ -373,3 +374,36 @@ def test_an_error_raised_under_the_live_table_starts_its_own_line(tmp_path, writ
     assert "┘" in out.stderr  # the table was on screen
     assert error_lines(out.stderr) == ["error: campaign.toml: [campaign] ilc_speed_setpoint_hz: beyond the bench's "
                                        "limit"]
+
+
+# ---------------------------------------------------------------- trial files (issue 10)
+
+def test_trials_are_parquet_and_hold_what_the_campaign_reads_back(tmp_path):
+    """Everything the campaign learns from, and the true torque; not the measured currents nobody reads."""
+    path = new_run(tmp_path / "run")
+    run = RunDir.resume(path, DESCRIPTION)
+    measured = dataclasses.replace(trial(2.0), i_meas_a=np.ones((CPR, 3)), torque_true_nm=np.full(CPR, 2.5))
+    run.add_trial(measured, {}, {})
+    [back] = run.read_trials([1])
+    run.close()
+    assert sorted(p.name for p in path.glob("trial_*")) == ["trial_001.parquet"]
+    np.testing.assert_array_equal(back.torque_true_nm, measured.torque_true_nm)
+    np.testing.assert_array_equal(back.i_ref_a, as_written(measured).i_ref_a)
+    assert back.i_meas_a is None
+
+
+def test_a_run_written_with_csv_trials_resumes_and_goes_on_in_parquet(tmp_path):
+    path = new_run(tmp_path / "run", trials=2)
+    before = read_bench(path)
+    for i in (1, 2):
+        (path / trial_file(i)).unlink()
+        write_trial_csv(path / trial_file(i, ".csv"), before.trials[i - 1])
+    (path / "bench.toml").write_text((path / "bench.toml").read_text().replace(".parquet", ".csv"))
+    run = RunDir.resume(path, DESCRIPTION)
+    assert run.completed == 2
+    add(run, 3.0)
+    run.close()
+    after = read_bench(path)
+    assert after.trial_files == ("trial_001.csv", "trial_002.csv", "trial_003.parquet")
+    for a, b in zip(before.trials, after.trials):
+        np.testing.assert_array_equal(a.torque_nm, b.torque_nm)

@@ -1,8 +1,9 @@
 """Reader and writer of bench folders, exactly as docs/bench-format.md specifies.
 
 A bench folder holds ``bench.toml`` ([motor], optional [sensors], [[trials]]),
-``backemf.csv`` and one CSV per trial sampled once per encoder count. Every
-violation raises `BenchFormatError` naming the file and the line or key.
+``backemf.csv`` and one file per trial sampled once per encoder count: CSV, or
+Parquet when its name ends in .parquet (`ilcpmac.bench.parquet`). Every
+violation raises `BenchFormatError` naming the file and the line (row) or key.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from ilcpmac.bench.fastcsv import format_rows
+from ilcpmac.bench import parquet
+from ilcpmac.bench.fastcsv import format_rows, parse_rows
 from ilcpmac.config import read_toml
 from ilcpmac.errors import BenchFormatError
 from ilcpmac.model.motor import MOTOR_RANGES
@@ -32,6 +34,16 @@ EXTRA_COLUMNS = {
     "speed_true": ("speed_true_rad_s", 1),
 }
 _PHASES = ("a", "b", "c")
+
+
+def _column_names(prefix: str, width: int) -> list[str]:
+    """The file columns of an EXTRA_COLUMNS entry: "i_meas_a" of width 3 is i_meas_a, i_meas_b, i_meas_c."""
+    return [prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix]
+
+
+#: every column a reader takes from a trial file
+_KNOWN_COLUMNS = frozenset(TRIAL_COLUMNS + tuple(
+    n for prefix, (_, width) in EXTRA_COLUMNS.items() for n in _column_names(prefix, width)))
 #: most revolutions of one trial: its rows are at most this many times counts_per_rev ...
 MAX_REVOLUTIONS = 1024
 #: ... and never more than this many
@@ -186,7 +198,8 @@ def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
 
     The file's size is checked against ``max_rows`` before it is opened, the
     header line is read with a bounded readline and no more than ``max_rows``
-    + 1 rows are ever parsed.
+    + 1 rows are ever parsed. Plain decimal numbers are parsed by
+    `parse_rows`; anything else by numpy, whose errors name the line.
     """
     _regular_file(path, MAX_HEADER_BYTES + max_rows * MAX_ROW_BYTES)
     try:
@@ -198,10 +211,14 @@ def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
                 header = [h.strip() for h in header_line.decode().strip().split(",")]
             except UnicodeDecodeError as e:
                 raise BenchFormatError(f"{path}: cannot read ({e})") from None
-            try:
-                data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float, max_rows=max_rows + 1)
-            except ValueError as e:
-                raise BenchFormatError(f"{path}: {_shortened(_loadtxt_message(e, len(header)), 200)}") from None
+            body = f.tell()
+            data = parse_rows(f.read(), len(header), max_rows)
+            if data is None:
+                f.seek(body)
+                try:
+                    data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float, max_rows=max_rows + 1)
+                except ValueError as e:
+                    raise BenchFormatError(f"{path}: {_shortened(_loadtxt_message(e, len(header)), 200)}") from None
     except OSError as e:
         raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
     if data.shape[0] > max_rows:
@@ -210,10 +227,7 @@ def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
         raise BenchFormatError(f"{path}: line 2 has {data.shape[1]} fields, the header has {len(header)}")
     if data.size == 0:
         data = np.zeros((0, len(header)))
-    bad = np.argwhere(~np.isfinite(data))
-    if bad.size:
-        row, col = bad[0]
-        raise BenchFormatError(f"{path}: line {row + 2}: {_shortened(header[col])} is not a finite number")
+    _check_finite(path, header, data, _csv_line)
     return header, data
 
 
@@ -275,6 +289,38 @@ def check_backemf(backemf_nm_per_a: np.ndarray, motor: MotorInfo, where: str) ->
                                f"{motor.counts_per_rev} counts, but [motor] pole_pairs = {motor.pole_pairs}")
 
 
+def _csv_line(row: int) -> str:
+    """Row ``row`` (0-based, -1 the header) of a CSV: its file line."""
+    return f"line {row + 2}"
+
+
+def _parquet_row(row: int) -> str:
+    """Row ``row`` (0-based, -1 the schema) of a Parquet file, counted from 1."""
+    return "schema" if row < 0 else f"row {row + 1}"
+
+
+def _check_finite(path: Path, header: list[str], data: np.ndarray, line) -> None:
+    """Every value must be finite; ``line`` names row i of the file."""
+    bad = np.argwhere(~np.isfinite(data))
+    if bad.size:
+        row, col = bad[0]
+        raise BenchFormatError(f"{path}: {line(row)}: {_shortened(header[col])} is not a finite number")
+
+
+def read_trial(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: float,
+               max_rows: int = MAX_TRIAL_ROWS) -> TrialData:
+    """Read one trial file: Parquet when its name ends in .parquet, else CSV (docs/bench-format.md).
+
+    A file larger than ``max_rows`` rows may take is refused before it is read.
+    """
+    if path.suffix != parquet.SUFFIX:
+        return read_trial_csv(path, torque_setpoint_nm, speed_setpoint_hz, max_rows)
+    _regular_file(path, MAX_HEADER_BYTES + max_rows * MAX_ROW_BYTES)
+    header, data = parquet.read_columns(path, max_rows, _KNOWN_COLUMNS)
+    _check_finite(path, header, data, _parquet_row)
+    return _trial(path, header, data, torque_setpoint_nm, speed_setpoint_hz, _parquet_row)
+
+
 def read_trial_csv(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: float,
                    max_rows: int = MAX_TRIAL_ROWS) -> TrialData:
     """Read one trial CSV (required columns in any order; others ignored unless known extras).
@@ -282,33 +328,39 @@ def read_trial_csv(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: flo
     A file larger than ``max_rows`` rows may take is refused before it is read.
     """
     header, data = _read_csv(path, max_rows)
+    return _trial(path, header, data, torque_setpoint_nm, speed_setpoint_hz, _csv_line)
+
+
+def _trial(path: Path, header: list[str], data: np.ndarray, torque_setpoint_nm: float, speed_setpoint_hz: float,
+           line) -> TrialData:
+    """The trial in ``data`` (rows, one column per ``header`` name); ``line`` names row i of the file."""
     missing = [c for c in TRIAL_COLUMNS if c not in header]
     if missing:
-        raise BenchFormatError(f"{path}: line 1: missing column {missing[0]!r}")
+        raise BenchFormatError(f"{path}: {line(-1)}: missing column {missing[0]!r}")
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:
-        raise BenchFormatError(f"{path}: line 1: column {_shortened(dup[0])!r} appears twice")
+        raise BenchFormatError(f"{path}: {line(-1)}: column {_shortened(dup[0])!r} appears twice")
     col = {name: data[:, header.index(name)] for name in header}
     if data.shape[0] < 2:
         raise BenchFormatError(f"{path}: needs at least 2 rows, has {data.shape[0]}")
     count = col["count"]
     bad = (count != np.round(count)) | (np.abs(count) > MAX_COUNT)
     if np.any(bad):
-        line = int(np.flatnonzero(bad)[0]) + 2
-        raise BenchFormatError(f"{path}: line {line}: count must be an integer of magnitude at most 2^53")
+        raise BenchFormatError(f"{path}: {line(int(np.flatnonzero(bad)[0]))}: count must be an integer of "
+                               "magnitude at most 2^53")
     for name in ("count", "time"):
         steps = np.diff(col[name])
         if np.any(steps <= 0):
-            line = int(np.flatnonzero(steps <= 0)[0]) + 3
-            raise BenchFormatError(f"{path}: line {line}: {name} does not increase")
+            raise BenchFormatError(f"{path}: {line(int(np.flatnonzero(steps <= 0)[0]) + 1)}: {name} does not "
+                                   "increase")
     span = count[-1] - count[0]
     if span > MAX_SPAN_PER_ROW * (count.size - 1):
-        line = int(np.argmax(np.diff(count))) + 3
-        raise BenchFormatError(f"{path}: line {line}: count jumps by {np.diff(count).max():.0f}; a trial's counts "
-                               f"may span at most {MAX_SPAN_PER_ROW} per row ({count.size} rows span {span:.0f})")
+        raise BenchFormatError(f"{path}: {line(int(np.argmax(np.diff(count))) + 1)}: count jumps by "
+                               f"{np.diff(count).max():.0f}; a trial's counts may span at most {MAX_SPAN_PER_ROW} "
+                               f"per row ({count.size} rows span {span:.0f})")
     extras = {}
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
-        names = [prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix]
+        names = _column_names(prefix, width)
         if all(n in col for n in names):
             extras[attr] = np.column_stack([col[n] for n in names]) if width == 3 else col[names[0]]
     return TrialData(
@@ -437,7 +489,7 @@ def read_bench(folder: str | Path) -> Bench:
         if real in seen:
             raise BenchFormatError(f"{where}: file {name!r} is listed twice (also [[trials]] #{seen[real]})")
         seen[real] = i
-        trial = read_trial_csv(path, torque, speed, max_rows)
+        trial = read_trial(path, torque, speed, max_rows)
         check_trial(trial, motor, str(path))
         trials.append(trial)
         files.append(name)
@@ -504,24 +556,41 @@ def _trial_columns(trial: TrialData) -> list[tuple[list[str], str, int]]:
                ([f"i_ref_{ph}" for ph in _PHASES], "i_ref_a", 6), (["torque"], "torque_nm", 6)]
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
         if getattr(trial, attr) is not None:
-            columns.append(([prefix[:-1] + ph for ph in _PHASES] if width == 3 else [prefix], attr, 6))
+            columns.append((_column_names(prefix, width), attr, 6))
     return columns
+
+
+def _trial_table(trial: TrialData) -> tuple[list[str], list[np.ndarray], list[int]]:
+    """The file columns of ``trial``: names, 1-D values and decimals."""
+    header, columns, decimals = [], [], []
+    for names, attr, d in _trial_columns(trial):
+        values = getattr(trial, attr).reshape(-1, len(names))
+        header += names
+        columns += [values[:, k] for k in range(len(names))]
+        decimals += [d] * len(names)
+    return header, columns, decimals
+
+
+def write_trial(path: Path, trial: TrialData) -> None:
+    """Write one trial file atomically: Parquet when its name ends in .parquet, else CSV; both hold the
+    same numbers (`as_written`), with the simulator's extra columns when present."""
+    if path.suffix != parquet.SUFFIX:
+        write_trial_csv(path, trial)
+        return
+    atomic_write(path, parquet.table_bytes(*_trial_table(trial)))
 
 
 def write_trial_csv(path: Path, trial: TrialData) -> None:
     """Write one trial CSV atomically, with the simulator's extra columns when present."""
-    spec = _trial_columns(trial)
-    header = [name for names, _, _ in spec for name in names]
-    decimals = [d for names, _, d in spec for _ in names]
-    _write_csv(path, header, [getattr(trial, attr) for _, attr, _ in spec], decimals)
+    _write_csv(path, *_trial_table(trial))
 
 
 def as_written(trial: TrialData) -> TrialData:
-    """``trial`` exactly as `write_trial_csv` then `read_trial_csv` would give it back.
+    """``trial`` exactly as `write_trial` then `read_trial` would give it back, in either format.
 
     Each value v becomes round(v 10^d) / 10^d, the double nearest to its
-    d-decimal text, so a campaign that learns from this and one resumed from
-    the files learn from identical numbers.
+    d-decimal text (CSV) or decimal (Parquet), so a campaign that learns from
+    this and one resumed from the files learn from identical numbers.
     """
     changes = {attr: np.round(getattr(trial, attr) * 10.0**d) / 10.0**d
                for _, attr, d in _trial_columns(trial) if attr != "count"}
@@ -541,10 +610,26 @@ def write_bench_toml(folder: Path, bench: Bench) -> None:
 
 
 def write_bench(folder: str | Path, bench: Bench) -> None:
-    """Write a whole bench folder: backemf.csv, every trial CSV, then bench.toml last."""
+    """Write a whole bench folder: backemf.csv, every trial (`write_trial`: its name sets its format), then
+    bench.toml last."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     write_backemf_csv(folder / "backemf.csv", bench.backemf_nm_per_a)
     for name, trial in zip(bench.trial_files, bench.trials):
-        write_trial_csv(folder / name, trial)
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        write_trial(folder / name, trial)
     write_bench_toml(folder, bench)
+
+
+def convert_bench(folder: str | Path, out: str | Path, suffix: str = ".csv") -> Bench:
+    """Copy the bench folder ``folder`` to ``out`` with every trial in the format of ``suffix`` (".csv" or
+    ".parquet"), e.g. a run directory's trials as CSV for a tool that reads only CSV; return the bench."""
+    if suffix not in (".csv", parquet.SUFFIX):
+        raise BenchFormatError(f"{out}: trial format must be .csv or {parquet.SUFFIX}, got {suffix!r}")
+    bench = read_bench(folder)
+    names = tuple(str(PurePosixPath(name).with_suffix(suffix)) for name in bench.trial_files)
+    if len(set(names)) < len(names):
+        raise BenchFormatError(f"{folder}: two trials differ only in their suffix; cannot convert them to {suffix}")
+    bench = replace(bench, trial_files=names)
+    write_bench(out, bench)
+    return bench

@@ -6,7 +6,8 @@ Layout::
       campaign.toml        the config the run started with (used by --resume)
       bench.toml           [motor], [sensors] and the complete trials so far
       backemf.csv
-      trial_001.csv ...    one CSV per trial
+      trial_001.parquet ... one Parquet file per trial (docs/bench-format.md; a run
+                           begun before Parquet has trial_001.csv ..., and resumes)
       states/run.json      the run's settings (seed, trials, config)
       states/trial_001.json  after each trial: the request, every stage's state,
                            the campaign's own state and the trial's ripple figures
@@ -19,7 +20,7 @@ campaign.toml last: a directory is a run (resumable) exactly when it holds
 campaign.toml. One that holds only what an interrupted creation writes is
 *debris*, which a new run may reuse.
 
-Each trial is committed in this order: its CSV, its state file, then
+Each trial is committed in this order: its trial file, its state file, then
 bench.toml (the commit point: a trial is complete once bench.toml lists it),
 then summary.json; every file is written to a temporary name, fsynced
 (summary.json, derived from the states, is not) and renamed. A background
@@ -54,9 +55,9 @@ from ilcpmac.bench.format import (
     BENCH_FILE,
     atomic_write,
     bench_toml_text,
-    read_trial_csv,
+    read_trial,
     write_backemf_csv,
-    write_trial_csv,
+    write_trial,
 )
 from ilcpmac.config import read_toml
 from ilcpmac.errors import BenchFormatError, IlcpmacError
@@ -77,9 +78,14 @@ class RunDirError(IlcpmacError):
     """A run directory cannot be created, resumed, locked or written."""
 
 
-def trial_file(index: int) -> str:
-    """The CSV name of trial ``index`` (1-based)."""
-    return f"trial_{index:03d}.csv"
+#: what a run writes its trials as, and what runs written before Parquet hold
+TRIAL_SUFFIX = ".parquet"
+_OLD_TRIAL_SUFFIX = ".csv"
+
+
+def trial_file(index: int, suffix: str = TRIAL_SUFFIX) -> str:
+    """The file name of trial ``index`` (1-based)."""
+    return f"trial_{index:03d}{suffix}"
 
 
 def _non_finite(data, where: str = "") -> tuple[str, float] | None:
@@ -288,7 +294,8 @@ class RunDir:
             run._entries = [(t["file"], float(t["torque_setpoint"]), float(t["speed_setpoint"]))
                             for t in data.get("trials", [])]
             for i, (name, _, _) in enumerate(run._entries, start=1):
-                if name != trial_file(i) or not (path / name).is_file() or not cls._state_path(path, i).is_file():
+                if name not in (trial_file(i), trial_file(i, _OLD_TRIAL_SUFFIX)) or not (path / name).is_file() \
+                        or not cls._state_path(path, i).is_file():
                     raise RunDirError(f"{path}: trial {i} is listed in {BENCH_FILE} but {name} or its state "
                                       "is missing")
             with _writing(path, run._resumable):
@@ -314,7 +321,7 @@ class RunDir:
     def _remove_incomplete(self) -> None:
         """Delete what a crash left of a trial that was never committed, and temporary files."""
         indices = range(1, len(self._entries) + 1)
-        keep = {trial_file(i) for i in indices} | {self._state_path(self.path, i).name for i in indices}
+        keep = {name for name, _, _ in self._entries} | {self._state_path(self.path, i).name for i in indices}
         for f in {*self.path.glob("trial_*"), *(self.path / STATES).glob("trial_*"),
                   *self.path.glob("*.tmp"), *(self.path / STATES).glob("*.tmp")}:
             if f.name not in keep:
@@ -364,11 +371,12 @@ class RunDir:
         if self._failed:  # a later trial must not be listed in bench.toml before the one that failed
             return
         try:
-            csv, state_file = self.path / trial_file(index), self._state_path(self.path, index)
-            # the simulator's true currents and speed are not kept (the true torque is, for honest
-            # ripple figures): a 64-revolution trial is 30 % smaller and quicker to write
-            with _writing(csv, self._resumable):
-                write_trial_csv(csv, replace(trial, i_true_a=None, speed_true_rad_s=None))
+            data, state_file = self.path / trial_file(index), self._state_path(self.path, index)
+            # kept: what the campaign learns from and the true torque, for honest ripple figures; not kept:
+            # the measured currents, true currents and speed, which nothing reads back (the measured
+            # currents' sensor noise alone would more than double the run directory)
+            with _writing(data, self._resumable):
+                write_trial(data, replace(trial, i_meas_a=None, i_true_a=None, speed_true_rad_s=None))
             with _writing(state_file, self._resumable):
                 atomic_write(state_file, _json_text(state, state_file))
             with _writing(self.path / BENCH_FILE, self._resumable):
@@ -402,13 +410,13 @@ class RunDir:
             atomic_write(target, _json_text(summary, target, indent=1), durable=False)
 
     def read_trials(self, indices: list[int]) -> list[TrialData]:
-        """Read complete trials back from their CSVs."""
+        """Read complete trials back from their files."""
         self.flush()
         trials = []
         for i in indices:
             name, torque, speed = self._entries[i - 1]
             try:
-                trials.append(read_trial_csv(self.path / name, torque, speed))
+                trials.append(read_trial(self.path / name, torque, speed))
             except BenchFormatError as e:
                 raise RunDirError(str(e)) from None
         return trials

@@ -10,7 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ilcpmac.bench.format import read_trial_csv  # noqa: E402
+from ilcpmac.bench.format import read_trial  # noqa: E402
+from ilcpmac.campaign.rundir import trial_file  # noqa: E402
 from ilcpmac.signals.harmonics import (  # noqa: E402
     band_limited,
     harmonic_amplitudes,
@@ -18,6 +19,11 @@ from ilcpmac.signals.harmonics import (  # noqa: E402
     synchronous_average,
 )
 
+
+def _trial_path(run_dir: Path, index: int) -> Path:
+    """Trial ``index`` of a run directory: Parquet, or CSV in a run started before Parquet."""
+    path = run_dir / trial_file(index)
+    return path if path.exists() else run_dir / trial_file(index, ".csv")
 
 def ripple_per_trial(records: list[dict], path: Path) -> None:
     """Peak-to-peak ripple per trial (log scale), measured and true, coloured by phase."""
@@ -54,8 +60,8 @@ def before_after(run_dir: Path, records: list[dict], counts_per_rev: int, max_ha
         if not done:
             continue
         final = done[-1]
-        trials = [read_trial_csv(run_dir / f"trial_{r['index']:03d}.csv", r["torque_setpoint"],
-                                 r["speed_setpoint"]) for r in (base, final)]
+        trials = [read_trial(_trial_path(run_dir, r["index"]), r["torque_setpoint"], r["speed_setpoint"])
+                  for r in (base, final)]
         true = all(t.torque_true_nm is not None for t in trials)
         tables = [_ripple_table(t, counts_per_rev, max_harmonic, true) for t in trials]
         fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(9, 9.5))

@@ -1,0 +1,130 @@
+"""Trial files in Parquet (docs/bench-format.md): the trial CSV's columns and numbers, a tenth of its bytes.
+
+Each value is stored as the CSV writes it, a decimal with a fixed number of
+decimals: Parquet DECIMAL(18, d) in 64-bit integers, delta-encoded and
+zstd-compressed. Reading a Parquet trial therefore gives exactly the doubles
+reading its CSV gives. pandas, polars, DuckDB and Arrow read the file as it
+is (decimals as decimal numbers).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ilcpmac.errors import BenchFormatError
+
+SUFFIX = ".parquet"
+#: decimal digits of a stored decimal (its 64-bit integer holds any value the CSV writer accepts up to 9e17)
+PRECISION = 18
+#: bytes a numeric column may take per row once decompressed (a 16-byte decimal), and per column chunk besides
+_COLUMN_ROW_BYTES = 16
+_COLUMN_SLACK_BYTES = 1 << 20
+
+
+def table_bytes(header: list[str], columns: list[np.ndarray], decimals: list[int]) -> bytes:
+    """A Parquet file holding ``columns`` (1-D), column c as a decimal rounded to ``decimals[c]`` decimals.
+
+    A column of 0 decimals is stored as int64.
+
+    Raises
+    ------
+    ValueError
+        For a non-finite value or one beyond 18 digits at its decimals.
+    """
+    arrays = []
+    for values, d in zip(columns, decimals):
+        scaled = np.round(np.asarray(values, np.float64) * 10.0**d)
+        if not np.all(np.abs(scaled) < 10.0**PRECISION):
+            raise ValueError("cannot write NaN, infinite values or values beyond 18 digits")
+        ints = scaled.astype(np.int64)
+        if d == 0:
+            arrays.append(pa.array(ints))
+            continue
+        words = np.empty((ints.size, 2), np.int64)  # decimal128: little-endian low word, then the sign
+        words[:, 0] = ints
+        words[:, 1] = ints >> 63
+        arrays.append(pa.Array.from_buffers(pa.decimal128(PRECISION, d), ints.size, [None, pa.py_buffer(words)]))
+    sink = pa.BufferOutputStream()
+    pq.write_table(pa.table(arrays, names=header), sink, compression="zstd", use_dictionary=False,
+                   store_decimal_as_integer=True, column_encoding="DELTA_BINARY_PACKED")
+    return sink.getvalue().to_pybytes()
+
+
+def _one_line(e: Exception) -> str:
+    text = " ".join(str(e).split())
+    return text if len(text) <= 160 else text[:160] + "..."
+
+
+def _as_float(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:
+    """A numeric column as float64: a decimal as its integer over 10^scale, exactly as the CSV text parses."""
+    kind = column.type
+    if pa.types.is_decimal(kind):
+        if kind.bit_width != 128 or kind.precision > PRECISION:
+            raise BenchFormatError(f"{path}: column {name!r} is {kind}; decimals may have at most {PRECISION} "
+                                   "digits (docs/bench-format.md)")
+        words = np.concatenate([np.frombuffer(chunk.buffers()[1], np.int64).reshape(-1, 2)[
+            chunk.offset: chunk.offset + len(chunk)] for chunk in column.chunks]) if column.num_chunks else np.zeros(
+            (0, 2), np.int64)
+        low, high = words[:, 0], words[:, 1]  # little-endian 128-bit integers
+        wide = np.flatnonzero(high != low >> 63)
+        if wide.size:
+            raise BenchFormatError(f"{path}: row {wide[0] + 1}: {name} holds more than its {kind.precision} digits")
+        return low / 10.0**kind.scale
+    return column.to_numpy().astype(np.float64)
+
+
+def read_columns(path: Path, max_rows: int, wanted: Collection[str]) -> tuple[list[str], np.ndarray]:
+    """The columns of ``path`` named in ``wanted`` (those it has), as float64 rows.
+
+    The footer is read first: a file declaring more than ``max_rows`` rows, a
+    column ``wanted`` that is not a number (integer, float or decimal), or a
+    column chunk larger than its rows may take is refused before any data is
+    decompressed. Other columns are never read.
+
+    Raises
+    ------
+    BenchFormatError
+        Naming ``path`` and the row or column at fault.
+    """
+    try:
+        with pq.ParquetFile(path, memory_map=False) as f:
+            meta, schema = f.metadata, f.schema_arrow
+            if meta.num_rows > max_rows or meta.num_rows < 0:
+                raise BenchFormatError(f"{path}: declares {meta.num_rows} rows, more than {max_rows} "
+                                       "(docs/bench-format.md)")
+            names = schema.names
+            dup = sorted({n for n in names if names.count(n) > 1})
+            if dup:
+                raise BenchFormatError(f"{path}: column {dup[0][:120]!r} appears twice")
+            header = [n for n in names if n in wanted]
+            for name in header:
+                kind = schema.field(name).type
+                if not (pa.types.is_integer(kind) or pa.types.is_floating(kind) or pa.types.is_decimal(kind)):
+                    raise BenchFormatError(f"{path}: column {name!r} holds {kind}, not numbers")
+            for g in range(meta.num_row_groups):
+                group = meta.row_group(g)
+                bound = _COLUMN_ROW_BYTES * group.num_rows + _COLUMN_SLACK_BYTES
+                for c in range(group.num_columns):
+                    chunk = group.column(c)
+                    if chunk.path_in_schema in header and chunk.total_uncompressed_size > bound:
+                        raise BenchFormatError(f"{path}: column {chunk.path_in_schema!r} declares "
+                                               f"{chunk.total_uncompressed_size} bytes, more than its "
+                                               f"{group.num_rows} rows may take")
+            table = f.read(columns=header, use_threads=True)
+    except (pa.ArrowException, OSError, ValueError) as e:
+        raise BenchFormatError(f"{path}: not a readable Parquet file ({_one_line(e)})") from None
+    if table.num_rows != meta.num_rows:
+        raise BenchFormatError(f"{path}: holds {table.num_rows} rows, its footer declares {meta.num_rows}")
+    data = np.empty((len(header), table.num_rows)).T  # each column contiguous
+    for k, name in enumerate(header):
+        column = table.column(name)
+        if column.null_count:
+            row = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0]) + 1
+            raise BenchFormatError(f"{path}: row {row}: {name[:120]} is empty")
+        data[:, k] = _as_float(path, name, column)
+    return header, data
