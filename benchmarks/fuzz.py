@@ -657,10 +657,10 @@ CONFIG_KEYS: list[tuple[str, bool, str, str, str | None]] = [
     ("significance -5", True, "stages.ilc", "significance", "-5.0"),
     ("q_cutoff_harmonic 0", True, "stages.ilc", "q_cutoff_harmonic", "0"),
     ("estimation bogus", True, "stages.ilc", "estimation", '"bogus"'),
-    ("control_rate_hz 0.001", True, "controller", "control_rate_hz", "0.001"),
-    ("control_rate_hz 1e12", True, "controller", "control_rate_hz", "1e12"),
-    ("bandwidth_hz 1e9", True, "controller", "bandwidth_hz", "1e9"),
-    ("voltage_limit_v 0", True, "controller", "voltage_limit_v", "0.0"),
+    ("control_rate_hz 0.001", True, "simulator.controller", "control_rate_hz", "0.001"),
+    ("control_rate_hz 1e12", True, "simulator.controller", "control_rate_hz", "1e12"),
+    ("bandwidth_hz 1e9", True, "simulator.controller", "bandwidth_hz", "1e9"),
+    ("voltage_limit_v 0", True, "simulator.controller", "voltage_limit_v", "0.0"),
     ("speed set points [1e-6]", True, "trials", "speed_setpoints_hz", "[1e-6]"),
     ("speed set points [-1]", True, "trials", "speed_setpoints_hz", "[-1.0]"),
     ("torque set points []", True, "trials", "torque_setpoints_nm", "[]"),
@@ -671,26 +671,26 @@ CONFIG_KEYS: list[tuple[str, bool, str, str, str | None]] = [
     ("warmup_revolutions 10^6", True, "trials", "warmup_revolutions", "1000000"),
     ("seed -1", True, "trials", "seed", "-1"),
     ("seed 2^40", False, "trials", "seed", str(2**40)),  # valid: each trial seed is derived, 32-bit
-    ("counts_per_rev 0", True, "encoder", "counts_per_rev", "0"),
-    ("counts_per_rev 2^40", True, "encoder", "counts_per_rev", str(2**40)),
-    ("timer_resolution_s 10", True, "encoder", "timer_resolution_s", "10.0"),
-    ("inertia 0", True, "mechanics", "inertia_kgm2", "0.0"),
-    ("inertia -1", True, "mechanics", "inertia_kgm2", "-1.0"),
-    ("inertia 1e300", True, "mechanics", "inertia_kgm2", "1e300"),
-    ("pole_pairs 0", True, "winding", "pole_pairs", "0"),
-    ("pole_pairs 10^6", True, "winding", "pole_pairs", "1000000"),
-    ("phase_inductance_h 0", True, "winding", "phase_inductance_h", "0.0"),
-    ("phase_resistance_ohm -0.5", True, "winding", "phase_resistance_ohm", "-0.5"),
-    ("alpha [0, 0, 0]", True, "current_sensors", "alpha", "[0.0, 0.0, 0.0]"),
-    ("epsilon 0", True, "current_sensors", "epsilon", "0.0"),
-    ("delta 0", True, "torque_sensor", "delta", "0.0"),
-    ("noise_nm -1", True, "torque_sensor", "noise_nm", "-1.0"),
-    ("highpass_hz 1e6", True, "torque_sensor", "highpass_hz", "1e6"),
-    ("backemf without the fundamental", True, "backemf", "harmonics", "[2, 3, 5, 7]"),
-    ("backemf amplitudes all zero", True, "backemf", "amplitudes_nm_per_a", "[0.0, 0.0, 0.0, 0.0]"),
-    ("backemf lists of unequal length", True, "backemf", "phases_rad", "[0.0]"),
-    ("cogging multiple 0", True, "cogging", "multiples", "[0, 2]"),
-    ("unexplained orders empty", False, "unexplained", "orders", "[]"),
+    ("counts_per_rev 0", True, "bench", "counts_per_rev", "0"),
+    ("counts_per_rev 2^40", True, "bench", "counts_per_rev", str(2**40)),
+    ("timer_resolution_s 10", True, "simulator.encoder", "timer_resolution_s", "10.0"),
+    ("inertia 0", True, "bench", "inertia_kgm2", "0.0"),
+    ("inertia -1", True, "bench", "inertia_kgm2", "-1.0"),
+    ("inertia 1e300", True, "bench", "inertia_kgm2", "1e300"),
+    ("pole_pairs 0", True, "bench", "pole_pairs", "0"),
+    ("pole_pairs 10^6", True, "bench", "pole_pairs", "1000000"),
+    ("phase_inductance_h 0", True, "simulator.winding", "phase_inductance_h", "0.0"),
+    ("phase_resistance_ohm -0.5", True, "simulator.winding", "phase_resistance_ohm", "-0.5"),
+    ("alpha [0, 0, 0]", True, "simulator.current_sensors", "alpha", "[0.0, 0.0, 0.0]"),
+    ("epsilon 0", True, "simulator.current_sensors", "epsilon", "0.0"),
+    ("delta 0", True, "simulator.torque_sensor", "delta", "0.0"),
+    ("noise_nm -1", True, "simulator.torque_sensor", "noise_nm", "-1.0"),
+    ("highpass_hz 1e6", True, "simulator.torque_sensor", "highpass_hz", "1e6"),
+    ("backemf without the fundamental", True, "bench.backemf", "harmonics", "[2, 3, 5, 7]"),
+    ("backemf amplitudes all zero", True, "bench.backemf", "amplitudes_nm_per_a", "[0.0, 0.0, 0.0, 0.0]"),
+    ("backemf lists of unequal length", True, "bench.backemf", "phases_rad", "[0.0]"),
+    ("cogging multiple 0", True, "simulator.cogging", "multiples", "[0, 2]"),
+    ("unexplained orders empty", False, "simulator.unexplained", "orders", "[]"),
     ("excitation fraction 1e6", True, "excitation", "fraction", "1e6"),
     ("excitation phases bogus", True, "excitation", "phases", '"bogus"'),
     ("excitation harmonics 0", False, "excitation", "harmonics", "0"),
@@ -716,11 +716,11 @@ def _whole_file_mutations() -> list[tuple[str, bool, Callable[[str], str | bytes
         ("config nested 100000 deep", True, lambda t: t + "x = " + "[" * 100_000 + "]" * 100_000 + "\n"),
         ("config empty", True, lambda t: ""),
         ("config cut mid-line", True, lambda t: t[:t.index("control_rate_hz") + 8]),
-        ("config duplicated key", True, lambda t: t.replace("[winding]", "[winding]\npole_pairs = 8")),
+        ("config duplicated key", True, lambda t: t.replace("[bench]", "[bench]\npole_pairs = 8", 1)),
         ("config unknown table", True, lambda t: t + "\n[bogus]\nx = 1\n"),
-        ("config unknown key", True, lambda t: toml_set(t, "mechanics", "inertia_kg", "0.01")),
-        ("config missing [encoder]", True, lambda t: t.replace("[encoder]", "[encoderx]")),
-        ("config missing key bandwidth_hz", True, lambda t: toml_set(t, "controller", "bandwidth_hz", None)),
+        ("config unknown key", True, lambda t: toml_set(t, "bench", "inertia_kg", "0.01")),
+        ("config missing [bench]", True, lambda t: t.replace("[bench]", "[benchx]", 1)),
+        ("config missing key bandwidth_hz", True, lambda t: toml_set(t, "simulator.controller", "bandwidth_hz", None)),
         ("config 1 MB comment", False, lambda t: "#" + "x" * 1_000_000 + "\n" + t),
         ("[stages.nope] for an unlisted stage", True, lambda t: t + "\n[stages.nope]\nx = 1\n"),
     ]
@@ -735,9 +735,14 @@ HOSTILE_VALUES = (("nan", True), ("inf", True), ("-inf", True), ("-1", False), (
 def _random_config_mutations(rng: np.random.Generator, base: str, n: int):
     import tomllib
 
-    data = tomllib.loads(base)
-    keys = [(t, k, v) for t, table in data.items() if t != "stages" for k, v in table.items()]
-    keys += [(f"stages.{s}", k, v) for s, table in data.get("stages", {}).items() for k, v in table.items()]
+    def leaves(table: dict, name: str):
+        for k, v in table.items():
+            if isinstance(v, dict):
+                yield from leaves(v, f"{name}.{k}" if name else k)
+            elif name:
+                yield name, k, v
+
+    keys = list(leaves(tomllib.loads(base), ""))
     out = []
     for _ in range(n):
         table, name, current = keys[int(rng.integers(len(keys)))]

@@ -193,7 +193,7 @@ def simulated_seconds(request: TrialRequest, warmup_revolutions: int) -> float:
 
 def bench_request(config: CampaignConfig) -> TrialRequest:
     """The benchmark trial: the grid's multisine request at TORQUE_NM, run at SPEED_HZ."""
-    requests = grid_requests(config, config.grid.seed, config.grid.revolutions)
+    requests = grid_requests(config, config.model.controller.calibration(), config.grid.seed, config.grid.revolutions)
     request = next(r for r in requests if r.torque_setpoint_nm == TORQUE_NM)
     return request.with_changes(speed_setpoint_hz=SPEED_HZ)
 
@@ -523,7 +523,8 @@ def main() -> None:
         ref = time_runs(lambda: reference.run(settings.reference_span_s), settings.reference_repeats)
 
     # 3. two cores
-    grid = grid_requests(config, config.grid.seed, config.grid.revolutions)[:settings.grid_trials]
+    grid = grid_requests(config, config.model.controller.calibration(), config.grid.seed,
+                         config.grid.revolutions)[:settings.grid_trials]
     grid_sim_s = sum(simulated_seconds(r, warmup) for r in grid)
     with foreign_load() as load_3:
         batches = time_batches(simulator, grid, settings.grid_repeats)

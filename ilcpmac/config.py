@@ -1,21 +1,29 @@
 """Campaign configuration: a TOML file, read strictly into frozen dataclasses.
 
-Each TOML table maps to one dataclass of ``ilcpmac.model.motor``; its keys are
-the dataclass's field names (which carry their units). Unknown and missing
-keys, wrong types and out-of-range values raise `ConfigError` naming the file
-and key.
+A campaign config holds the bench as its controller knows it ([bench], checked
+against the backend's description before any trial runs), the run's tables,
+and optionally the simulated drive's truth ([simulator.*], read only by the
+simulator backend and ``ilcpmac emulate``). Each table maps to one dataclass;
+its keys are the dataclass's field names (which carry their units). Unknown
+and missing keys, wrong types and out-of-range values raise `ConfigError`
+naming the file and key.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import stat
 import tomllib
+import types
 import typing
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
+
+import numpy as np
 
 from ilcpmac.errors import ConfigError, IlcpmacError
 from ilcpmac.model.motor import (
@@ -32,6 +40,8 @@ from ilcpmac.model.motor import (
     Unexplained,
     Winding,
     all_of,
+    backemf_problem,
+    field_like,
     finite_number,
     in_range,
     length_in,
@@ -41,11 +51,14 @@ from ilcpmac.model.motor import (
     shown,
     value_problem,
 )
+from ilcpmac.model.tables import backemf_table
 
 #: Largest campaign config or bench.toml read, bytes (the seed config is 4 kB).
 MAX_TOML_BYTES = 2**20
 #: Most ILC set points of [campaign].
 MAX_ILC_SETPOINTS = 32
+#: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
+BACKEMF_TOLERANCE = 1e-6
 
 
 def _check(check, doc: str, default):
@@ -122,10 +135,42 @@ class PipelineSettings:
                                      ("current-sensor", "cogging", "ilc"))
 
 
-#: TOML table name -> dataclass, for the drive model.
-MODEL_SECTIONS: dict[str, type] = {
+@dataclass(frozen=True)
+class BenchCalibration:
+    """[bench.calibration]: the controller's current and torque sensor calibration (optional for a real bench:
+    its own is used; the simulated controller starts from it)."""
+
+    current_scale_counts_per_a: tuple[float, ...] = field_like(Controller, "current_scale_counts_per_a")
+    current_offset_counts: tuple[float, ...] = field_like(Controller, "current_offset_counts")
+    torque_gain_v_per_nm: float = field_like(Controller, "torque_gain_v_per_nm")
+
+    calibration = Controller.calibration
+
+
+def _table(cls: type):
+    return dataclasses.field(default=None, metadata={"table": cls})
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    """[bench]: the bench as its controller knows it, checked against the backend's description
+    (`check_bench`) before any trial runs.
+
+    ``backemf`` ([bench.backemf]) and ``calibration`` ([bench.calibration]) are
+    optional sub-tables, and so is ``inertia_kgm2``; the simulator needs all three.
+    """
+
+    pole_pairs: int = field_like(Winding, "pole_pairs")
+    slots: int = field_like(Winding, "slots")
+    counts_per_rev: int = field_like(Encoder, "counts_per_rev")
+    inertia_kgm2: float | None = field_like(Mechanics, "inertia_kgm2", default=None)
+    backemf: BackEmf | None = _table(BackEmf)
+    calibration: BenchCalibration | None = _table(BenchCalibration)
+
+
+#: [simulator.NAME] table -> dataclass: the simulated drive's truth (its back-EMF is [bench.backemf])
+SIMULATOR_SECTIONS: dict[str, type] = {
     "winding": Winding,
-    "backemf": BackEmf,
     "cogging": Cogging,
     "unexplained": Unexplained,
     "mechanics": Mechanics,
@@ -135,6 +180,21 @@ MODEL_SECTIONS: dict[str, type] = {
     "encoder": Encoder,
 }
 
+#: the simulated drive's keys that [bench] holds: model table -> key -> the config table holding it
+BENCH_KEYS: dict[str, dict[str, str]] = {
+    "winding": {"pole_pairs": "bench", "slots": "bench"},
+    "encoder": {"counts_per_rev": "bench"},
+    "mechanics": {"inertia_kgm2": "bench"},
+    "controller": {f.name: "bench.calibration" for f in dataclasses.fields(BenchCalibration)},
+}
+
+
+def model_key(table: str, key: str) -> str:
+    """``"[config table] key"`` of key ``key`` of the simulated drive's (`MotorModel`) table ``table``."""
+    if table == "backemf":
+        return f"[bench.backemf] {key}"
+    return f"[{BENCH_KEYS.get(table, {}).get(key, f'simulator.{table}')}] {key}"
+
 
 @dataclass(frozen=True)
 class CampaignConfig:
@@ -143,25 +203,37 @@ class CampaignConfig:
     Attributes
     ----------
     path : the file.
-    model : the simulated drive.
+    bench : the bench as its controller knows it ([bench]).
     grid : the identification set-point grid ([trials]).
     excitation : its multisine.
     campaign, limits, pipeline : ``ilcpmac run`` settings.
     stage_options : each stage's ``[stages.NAME]`` table, checked by the stage itself.
+    model : the simulated drive ([bench] with the truth of [simulator.*]); None without [simulator].
     """
 
     path: Path
-    model: MotorModel
+    bench: BenchSettings
     grid: TrialGrid
     excitation: Excitation
     campaign: CampaignSettings = CampaignSettings()
     limits: LimitSettings = LimitSettings()
     pipeline: PipelineSettings = PipelineSettings()
     stage_options: dict = dataclasses.field(default_factory=dict, compare=False)
+    model: MotorModel | None = None
+
+    def simulated_model(self) -> MotorModel:
+        """The simulated drive; a config without [simulator] raises `ConfigError`."""
+        if self.model is None:
+            raise ConfigError(f"{self.path}: no [simulator] tables: the simulator backend and ilcpmac emulate "
+                              "need the simulated drive (see configs/seed-bench.toml)")
+        return self.model
 
 
 def _coerce(value, annotation, where: str):
     origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        (annotation,) = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return _coerce(value, annotation, where)
     if origin is tuple:
         (item,) = {a for a in typing.get_args(annotation) if a is not Ellipsis}
         if not isinstance(value, list):
@@ -187,18 +259,27 @@ def _name(key: str) -> str:
     return key if re.fullmatch(r"[A-Za-z0-9_-]{1,60}", key) else shown(key)
 
 
-def parse_section(table: dict, cls: type, source: str, section: str):
-    """Build dataclass ``cls`` from TOML ``table``; every error names ``source`` and the key."""
+def parse_section(table: dict, cls: type, source: str, section: str, given: dict | None = None):
+    """Build dataclass ``cls`` from TOML ``table``; every error names ``source`` and the key.
+
+    A field whose metadata names a ``"table"`` class is the optional sub-table
+    ``[section.field]``; the fields in ``given`` take its values and are not read.
+    """
     if not isinstance(table, dict):
         raise ConfigError(f"{source}: [{section}] must be a table")
+    given = given or {}
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in given}
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise ConfigError(f"{source}: [{section}] unknown key {shown(unknown[0])} (known: {', '.join(fields)})")
-    values = {}
+    values = dict(given)
     for name, f in fields.items():
         where = f"{source}: [{section}] {name}"
+        if "table" in f.metadata:
+            values[name] = (parse_section(table[name], f.metadata["table"], source, f"{section}.{name}")
+                            if name in table else None)
+            continue
         if name not in table:
             if f.default is not dataclasses.MISSING:
                 values[name] = f.default
@@ -255,18 +336,23 @@ RUN_SECTIONS: dict[str, type] = {"campaign": CampaignSettings, "limits": LimitSe
                                  "pipeline": PipelineSettings}
 
 
+def packaged_config(name: str) -> Path:
+    """The path of config ``name`` shipped with the package (``ilcpmac/configs``), e.g. "seed-bench.toml"."""
+    return Path(str(resources.files("ilcpmac") / "configs" / name))
+
+
 def load_config(path: str | Path) -> CampaignConfig:
     """Read and validate a campaign config (see configs/seed-bench.toml and `check_config`)."""
     path = Path(path)
     data = read_toml(path)
-    known = set(MODEL_SECTIONS) | {"trials", "excitation", "stages"} | set(RUN_SECTIONS)
+    known = {"bench", "simulator", "trials", "excitation", "stages"} | set(RUN_SECTIONS)
     unknown = sorted(set(data) - known)
     if unknown:
         raise ConfigError(f"{path}: unknown table [{_name(unknown[0])}] (known: {', '.join(sorted(known))})")
-    for name in [*MODEL_SECTIONS, "trials", "excitation"]:
+    for name in ["bench", "trials", "excitation"]:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
-    parts = {name: parse_section(data[name], cls, str(path), name) for name, cls in MODEL_SECTIONS.items()}
+    bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
     run = {name: parse_section(data.get(name, {}), cls, str(path), name) for name, cls in RUN_SECTIONS.items()}
     stage_options = data.get("stages", {})
     if not isinstance(stage_options, dict):
@@ -277,29 +363,67 @@ def load_config(path: str | Path) -> CampaignConfig:
         if name not in run["pipeline"].stages:
             raise ConfigError(f"{path}: [stages.{_name(name)}] configures a stage that [pipeline] stages "
                               "does not list")
-    config = CampaignConfig(path=path, model=MotorModel(**parts),
+    config = CampaignConfig(path=path, bench=bench,
                             grid=parse_section(data["trials"], TrialGrid, str(path), "trials"),
                             excitation=parse_section(data["excitation"], Excitation, str(path), "excitation"),
-                            stage_options=stage_options, **run)
+                            stage_options=stage_options,
+                            model=_simulated_drive(data["simulator"], bench, path) if "simulator" in data else None,
+                            **run)
     check_config(config)
     return config
+
+
+def _simulated_drive(tables, bench: BenchSettings, path: Path) -> MotorModel:
+    """The simulated drive from the [simulator.*] tables and what [bench] holds of it."""
+    if not isinstance(tables, dict):
+        raise ConfigError(f"{path}: [simulator] must hold the tables [simulator.NAME]")
+    unknown = sorted(set(tables) - set(SIMULATOR_SECTIONS))
+    if unknown:
+        raise ConfigError(f"{path}: unknown table [simulator.{_name(unknown[0])}] "
+                          f"(known: {', '.join(SIMULATOR_SECTIONS)})")
+    for key, value in (("backemf", bench.backemf), ("calibration", bench.calibration),
+                       ("inertia_kgm2", bench.inertia_kgm2)):
+        if value is None:
+            what = f"[bench.{key}]" if key != "inertia_kgm2" else f"[bench] {key}"
+            raise ConfigError(f"{path}: {what}: missing (the simulated drive needs it)")
+    known = {"pole_pairs": bench.pole_pairs, "slots": bench.slots, "counts_per_rev": bench.counts_per_rev,
+             "inertia_kgm2": bench.inertia_kgm2,
+             **{f.name: getattr(bench.calibration, f.name) for f in dataclasses.fields(BenchCalibration)}}
+    parts = {"backemf": bench.backemf}
+    for name, cls in SIMULATOR_SECTIONS.items():
+        if name not in tables:
+            raise ConfigError(f"{path}: missing table [simulator.{name}]")
+        given = {key: known[key] for key in BENCH_KEYS.get(name, {})}
+        misplaced = sorted(set(given) & set(tables[name])) if isinstance(tables[name], dict) else []
+        if misplaced:
+            raise ConfigError(f"{path}: [simulator.{name}] {misplaced[0]}: the controller knows it: "
+                              f"give it as {model_key(name, misplaced[0])}")
+        parts[name] = parse_section(tables[name], cls, str(path), f"simulator.{name}", given)
+    return MotorModel(**{f.name: parts[f.name] for f in dataclasses.fields(MotorModel)})
 
 
 def check_config(config: CampaignConfig) -> None:
     """Check ``config`` across keys and tables; the first problem raises `ConfigError` naming the file and keys.
 
-    Every field's range and the model's checks (`ilcpmac.model.motor.model_problem`);
-    harmonics within the encoder's Nyquist limit; set points within [limits];
-    every trial of [trials] and [campaign] within [limits] max_samples_per_trial
-    and max_trial_duration_s and slow enough for two control periods per count;
-    the saturation term below 1 up to [limits] max_current_a; the built-in
+    Every field's range; the back-EMF's fundamental and the model's checks
+    (`ilcpmac.model.motor.model_problem`); harmonics within the encoder's
+    Nyquist limit; set points within [limits]; every trial of [trials] and
+    [campaign] within [limits] max_samples_per_trial and max_trial_duration_s;
+    with the simulated drive, slow enough for two control periods per count
+    and the saturation term below 1 up to [limits] max_current_a; the built-in
     stages' options. Call it again after changing a loaded config.
     """
-    sections = {"trials": config.grid, "excitation": config.excitation,
+    bench = config.bench
+    sections = {"bench": bench, "bench.backemf": bench.backemf, "bench.calibration": bench.calibration,
+                "trials": config.grid, "excitation": config.excitation,
                 **{name: getattr(config, name) for name in RUN_SECTIONS}}
-    problem = model_problem(config.model)
+    problem = None
     for name, obj in sections.items():
-        problem = problem or section_problem(name, obj)
+        problem = problem or (None if obj is None else section_problem(name, obj))
+    if config.model is not None:
+        problem = problem or model_problem(config.model, model_key)
+    elif bench.backemf is not None:
+        problem = problem or backemf_problem(bench.backemf, bench.pole_pairs, bench.counts_per_rev, model_key)
     problem = problem or _run_problem(config)
     if problem is not None:
         raise ConfigError(f"{config.path}: {problem}")
@@ -314,18 +438,18 @@ def check_config(config: CampaignConfig) -> None:
 
 def _run_problem(config: CampaignConfig) -> str | None:
     """The first problem of the grid, the campaign and the limits together, or None."""
-    cpr = config.model.encoder.counts_per_rev
+    cpr = config.bench.counts_per_rev
     grid, campaign, limits = config.grid, config.campaign, config.limits
     for key, harmonics in (("[excitation] harmonics", config.excitation.harmonics),
                            ("[campaign] ripple_harmonics", campaign.ripple_harmonics)):
         if harmonics >= cpr // 2:
-            return f"{key}: {harmonics} is beyond the Nyquist limit of [encoder] counts_per_rev {cpr}"
+            return f"{key}: {harmonics} is beyond the Nyquist limit of [bench] counts_per_rev {cpr}"
     if len(campaign.ilc_revolutions) not in (1, len(campaign.ilc_torque_setpoints_nm)):
         return (f"[campaign] ilc_revolutions: give one number, or one per ILC set point "
                 f"({len(campaign.ilc_torque_setpoints_nm)})")
-    drop = config.model.unexplained.saturation_per_a2 * limits.max_current_a**2
+    drop = 0.0 if config.model is None else config.model.unexplained.saturation_per_a2 * limits.max_current_a**2
     if drop >= 1:
-        return (f"[unexplained] saturation_per_a2: times [limits] max_current_a squared is {drop:.3g}: "
+        return (f"[simulator.unexplained] saturation_per_a2: times [limits] max_current_a squared is {drop:.3g}: "
                 "the torque constant would vanish within the current limit")
     for key, values, limit_key, limit in (
             ("[trials] torque_setpoints_nm", grid.torque_setpoints_nm, "max_torque_nm", limits.max_torque_nm),
@@ -345,11 +469,11 @@ def _run_problem(config: CampaignConfig) -> str | None:
 def _trial_problem(config: CampaignConfig, speed_key: str, speeds_hz: tuple[float, ...], revolutions_key: str,
                    revolutions: int) -> str | None:
     """What makes trials of ``revolutions`` at ``speeds_hz`` too large, too long or too fast, or None."""
-    cpr = config.model.encoder.counts_per_rev
+    cpr = config.bench.counts_per_rev
     limits, warmup = config.limits, config.grid.warmup_revolutions
     samples = revolutions * cpr
     if samples > limits.max_samples_per_trial:
-        return (f"{revolutions_key}: {revolutions} x [encoder] counts_per_rev {cpr} = {samples} samples, "
+        return (f"{revolutions_key}: {revolutions} x [bench] counts_per_rev {cpr} = {samples} samples, "
                 f"beyond [limits] max_samples_per_trial {limits.max_samples_per_trial}")
     slowest, fastest = min(speeds_hz), max(speeds_hz)
     duration = (warmup + revolutions) / slowest
@@ -357,8 +481,40 @@ def _trial_problem(config: CampaignConfig, speed_key: str, speeds_hz: tuple[floa
         return (f"{speed_key}: at {slowest:g} Hz a trial of [trials] warmup_revolutions {warmup} + "
                 f"{revolutions_key} {revolutions} lasts {duration:.3g} s, beyond [limits] max_trial_duration_s "
                 f"{limits.max_trial_duration_s:g}")
+    if config.model is None:
+        return None
     rate = config.model.controller.control_rate_hz
     if fastest * cpr > rate / 2:
-        return (f"{speed_key}: {fastest:g} Hz x [encoder] counts_per_rev {cpr} is more than half of [controller] "
-                f"control_rate_hz {rate:g} counts per second (each count needs two control periods)")
+        return (f"{speed_key}: {fastest:g} Hz x [bench] counts_per_rev {cpr} is more than half of "
+                f"[simulator.controller] control_rate_hz {rate:g} counts per second (each count needs two control "
+                "periods)")
     return None
+
+
+def check_bench(config: CampaignConfig, description) -> None:
+    """Raise `ConfigError` naming the key if the bench a backend describes (`BenchDescription`) is not the one
+    [bench] describes: pole pairs, slots and counts per revolution, and the inertia, back-EMF and
+    calibration where [bench] gives them."""
+    bench, motor = config.bench, description.motor
+    for key in ("pole_pairs", "slots", "counts_per_rev"):
+        if getattr(bench, key) != getattr(motor, key):
+            raise ConfigError(f"{config.path}: [bench] {key} {getattr(bench, key)} differs from the bench's "
+                              f"{getattr(motor, key)}")
+    if bench.inertia_kgm2 is not None and not math.isclose(bench.inertia_kgm2, motor.inertia_kgm2, rel_tol=1e-9):
+        raise ConfigError(f"{config.path}: [bench] inertia_kgm2 {bench.inertia_kgm2:g} differs from the bench's "
+                          f"{motor.inertia_kgm2:g}")
+    if bench.backemf is not None:
+        ours = backemf_table(motor, bench.backemf, motor.counts_per_rev)
+        error = np.abs(ours - description.backemf_nm_per_a)
+        count, phase = np.unravel_index(np.argmax(error), error.shape)
+        if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
+            raise ConfigError(f"{config.path}: [bench.backemf] differs from the bench's back-EMF table by "
+                              f"{error[count, phase]:.3g} N m / A at count {count}, phase {'abc'[phase]}")
+    if bench.calibration is not None:
+        ours, theirs = bench.calibration.calibration(), description.calibration
+        for key, a, b in (("current_scale_counts_per_a", ours.current_scale, theirs.current_scale),
+                          ("current_offset_counts", ours.current_offset, theirs.current_offset),
+                          ("torque_gain_v_per_nm", ours.torque_gain, theirs.torque_gain)):
+            if not np.allclose(a, b, rtol=1e-9, atol=1e-12):
+                raise ConfigError(f"{config.path}: [bench.calibration] {key} {shown(np.atleast_1d(a).tolist())} "
+                                  f"differs from the bench's {shown(np.atleast_1d(b).tolist())}")

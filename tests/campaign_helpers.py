@@ -16,7 +16,7 @@ from ilcpmac.sim.grid import truth_dict
 
 #: a small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials
 SMALL_CAMPAIGN = {
-    "encoder": {"counts_per_rev": 1024},
+    "bench": {"counts_per_rev": 1024},
     "excitation": {"harmonics": 100},
     "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
     "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": [6], "ilc_trials": 4,

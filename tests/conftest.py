@@ -16,7 +16,8 @@ from ilcpmac.model.motor import MotorModel
 from ilcpmac.records import SensorCalibration, TrialRequest
 from ilcpmac.sim.simulator import Simulator
 
-SEED_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
+SEED_CONFIG = Path(__file__).resolve().parents[1] / "ilcpmac" / "configs" / "seed-bench.toml"
+REAL_BENCH_CONFIG = SEED_CONFIG.with_name("real-bench.toml")
 #: encoder resolution of the fast test model (the seed bench has 4096)
 COUNTS_PER_REV = 1024
 #: recorded revolutions of a test trial
@@ -44,24 +45,29 @@ def toml_text(data: dict[str, dict], prefix: str = "") -> str:
     return "\n".join(lines)
 
 
+def _table(data: dict, dotted: str, create: bool = False) -> dict:
+    """The table ``data[a][b]...`` named ``"a.b..."`` (created if asked)."""
+    for part in dotted.split("."):
+        data = data.setdefault(part, {}) if create else data[part]
+    return data
+
+
 @pytest.fixture
 def write_config(tmp_path: Path) -> Callable[..., Path]:
     """Write the seed campaign with changes into ``tmp_path``; returns a writer.
 
-    ``write(changes, drop)``: ``changes`` maps table -> {key: value} (new tables
-    allowed); ``drop`` lists "table" or "table.key" entries to remove.
+    ``write(changes, drop)``: ``changes`` maps a table, dotted if nested ("simulator.cogging"), to
+    {key: value} (new tables allowed); ``drop`` lists tables or keys, dotted ("simulator.cogging",
+    "bench.slots"), to remove; ``base`` is the config changed (default the seed campaign).
     """
     def write(changes: dict[str, dict] | None = None, drop: Iterable[str] = (),
-              name: str = "campaign.toml") -> Path:
-        data = tomllib.loads(SEED_CONFIG.read_text())
+              name: str = "campaign.toml", base: Path = SEED_CONFIG) -> Path:
+        data = tomllib.loads(base.read_text())
         for table, values in (changes or {}).items():
-            data.setdefault(table, {}).update(values)
+            _table(data, table, create=True).update(values)
         for entry in drop:
-            table, _, key = entry.partition(".")
-            if key:
-                del data[table][key]
-            else:
-                del data[table]
+            parent, _, key = entry.rpartition(".")
+            del (_table(data, parent) if parent else data)[key]
         path = tmp_path / name
         path.write_text(toml_text(data))
         return path
@@ -71,7 +77,7 @@ def write_config(tmp_path: Path) -> Callable[..., Path]:
 
 @pytest.fixture(scope="session")
 def seed_config() -> CampaignConfig:
-    """configs/seed-bench.toml as shipped."""
+    """The packaged seed-bench.toml."""
     return load_config(SEED_CONFIG)
 
 

@@ -12,15 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner, Result
+from conftest import COUNTS_PER_REV
 
 from ilcpmac.bench.format import MotorInfo, read_bench
 from ilcpmac.cli import main
 from ilcpmac.errors import BenchFormatError
 
-from conftest import COUNTS_PER_REV
-
 #: two trials of two revolutions at 1024 counts per revolution
-SMALL = {"encoder": {"counts_per_rev": COUNTS_PER_REV},
+SMALL = {"bench": {"counts_per_rev": COUNTS_PER_REV},
          "trials": {"torque_setpoints_nm": [2.0], "speed_setpoints_hz": [0.5, 1.0], "revolutions": 2}}
 TRUTH_KEYS = {"total_system_gain", "torque_sensor_gain", "epsilon", "alpha", "beta", "inertia_estimate", "cogging"}
 
@@ -82,8 +81,8 @@ def test_seed_and_revolutions_options(write_config, tmp_path):
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"winding": {"pole_pair": 8}}, r"\[winding\] unknown key 'pole_pair'"),
-    ({"mechanics": {"inertia_kgm2": -1.0}}, r"\[mechanics\] inertia_kgm2: invalid value -1.0"),
+    ({"bench": {"pole_pair": 8}}, r"\[bench\] unknown key 'pole_pair'"),
+    ({"bench": {"inertia_kgm2": -1.0}}, r"\[bench\] inertia_kgm2: invalid value -1.0"),
 ])
 def test_bad_config_exits_2_with_one_line(write_config, tmp_path, changes, message):
     config = write_config({**SMALL, **changes})
@@ -96,7 +95,8 @@ def test_bad_config_exits_2_with_one_line(write_config, tmp_path, changes, messa
 
 @pytest.mark.parametrize("changes, options, message", [
     # the former segfaults, MemoryError and AttributeError
-    ({"controller": {"control_rate_hz": 0.001}}, [], r"\[controller\] control_rate_hz: invalid value 0.001"),
+    ({"simulator.controller": {"control_rate_hz": 0.001}},
+     [], r"\[simulator\.controller\] control_rate_hz: invalid value 0.001"),
     ({"trials": {"speed_setpoints_hz": [1e-6]}}, [], r"\[trials\] speed_setpoints_hz: at 1e-06 Hz .* lasts 3e\+06 s"),
     ({"trials": {"revolutions": 20000}}, [], r"\[trials\] revolutions: 20000 x .*max_samples_per_trial"),
     ({"trials": {"torque_setpoints_nm": []}}, [], r"\[trials\] torque_setpoints_nm: invalid value \[\]"),
@@ -115,7 +115,7 @@ def test_config_without_physical_sense_exits_2_with_one_line(write_config, tmp_p
 
 def test_console_script_former_segfault_exits_2(write_config, tmp_path):
     script = Path(sysconfig.get_path("scripts")) / "ilcpmac"
-    config = write_config({**SMALL, "controller": {"control_rate_hz": 0.001}})
+    config = write_config({**SMALL, "simulator.controller": {"control_rate_hz": 0.001}})
     done = subprocess.run([str(script), "simulate", str(config), "--out", str(tmp_path / "bench")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr  # was -11 (SIGSEGV)
@@ -131,12 +131,12 @@ def test_missing_config_exits_2(tmp_path):
 
 def test_console_script_reports_bad_config_without_traceback(write_config, tmp_path):
     script = Path(sysconfig.get_path("scripts")) / "ilcpmac"
-    config = write_config({**SMALL, "winding": {"slots": "48"}})
+    config = write_config({**SMALL, "bench": {"slots": "48"}})
     done = subprocess.run([str(script), "simulate", str(config), "--out", str(tmp_path / "bench")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2
     assert_one_error_line(done.stderr, done.stdout + done.stderr, config)
-    assert "[winding] slots: expected an integer, got '48'" in done.stderr
+    assert "[bench] slots: expected an integer, got '48'" in done.stderr
 
 
 def test_damaged_bench_folder_is_rejected_by_the_reader(write_config, tmp_path):

@@ -7,11 +7,10 @@ import re
 
 import numpy as np
 import pytest
+from conftest import SEED_CONFIG
 
 from ilcpmac.config import CampaignSettings, LimitSettings, PipelineSettings, load_config
 from ilcpmac.errors import ConfigError
-
-from conftest import SEED_CONFIG
 
 
 def test_seed_config_values(seed_config):
@@ -33,7 +32,7 @@ def test_alpha_is_normalised_to_mean_one(seed_config):
 
 
 def test_integer_accepted_where_a_number_is_expected(write_config):
-    cfg = load_config(write_config({"mechanics": {"inertia_kgm2": 1}}))
+    cfg = load_config(write_config({"bench": {"inertia_kgm2": 1}}))
     assert cfg.model.mechanics.inertia_kgm2 == 1.0
     assert isinstance(cfg.model.mechanics.inertia_kgm2, float)
 
@@ -48,30 +47,33 @@ def test_run_tables_are_optional(write_config, seed_config):
 @pytest.mark.parametrize("changes, drop, message", [
     # unknown table and unknown key
     ({"windings": {"slots": 48}}, (), r"unknown table \[windings\]"),
-    ({"winding": {"pole_pair": 8}}, (), r"\[winding\] unknown key 'pole_pair'"),
+    ({"bench": {"pole_pair": 8}}, (), r"\[bench\] unknown key 'pole_pair'"),
     # missing table and missing key
-    (None, ("cogging",), r"missing table \[cogging\]"),
-    (None, ("winding.slots",), r"\[winding\] slots: missing"),
-    (None, ("current_sensors.beta_a",), r"\[current_sensors\] beta_a: missing"),
+    (None, ("simulator.cogging",), r"missing table \[simulator.cogging\]"),
+    (None, ("bench.slots",), r"\[bench\] slots: missing"),
+    (None, ("simulator.current_sensors.beta_a",), r"\[simulator\.current_sensors\] beta_a: missing"),
     # wrong type
-    ({"winding": {"slots": "48"}}, (), r"\[winding\] slots: expected an integer, got '48'"),
-    ({"encoder": {"counts_per_rev": True}}, (), r"\[encoder\] counts_per_rev: expected an integer"),
-    ({"mechanics": {"inertia_kgm2": "0.01"}}, (), r"\[mechanics\] inertia_kgm2: expected a finite number"),
-    ({"backemf": {"harmonics": 1}}, (), r"\[backemf\] harmonics: expected a list"),
-    ({"backemf": {"harmonics": [1, 3.5, 5, 7]}}, (), r"\[backemf\] harmonics: expected an integer, got 3.5"),
+    ({"bench": {"slots": "48"}}, (), r"\[bench\] slots: expected an integer, got '48'"),
+    ({"bench": {"counts_per_rev": True}}, (), r"\[bench\] counts_per_rev: expected an integer"),
+    ({"bench": {"inertia_kgm2": "0.01"}}, (), r"\[bench\] inertia_kgm2: expected a finite number"),
+    ({"bench.backemf": {"harmonics": 1}}, (), r"\[bench\.backemf\] harmonics: expected a list"),
+    ({"bench.backemf": {"harmonics": [1, 3.5, 5, 7]}},
+     (), r"\[bench\.backemf\] harmonics: expected an integer, got 3.5"),
     ({"excitation": {"phases": 1}}, (), r"\[excitation\] phases: expected a string"),
     # bad value
-    ({"mechanics": {"inertia_kgm2": -0.01}}, (), r"\[mechanics\] inertia_kgm2: invalid value -0.01"),
-    ({"mechanics": {"inertia_kgm2": math.nan}}, (), r"\[mechanics\] inertia_kgm2: expected a finite number"),
-    ({"backemf": {"phases_rad": [0.0, math.inf, 0.0, 0.0]}}, (),
-     r"\[backemf\] phases_rad: expected a finite number"),
-    ({"current_sensors": {"alpha": [1.0, 1.0]}}, (), r"\[current_sensors\] alpha: invalid value \[1.0, 1.0\]"),
-    ({"torque_sensor": {"noise_nm": -0.1}}, (), r"\[torque_sensor\] noise_nm: invalid value"),
+    ({"bench": {"inertia_kgm2": -0.01}}, (), r"\[bench\] inertia_kgm2: invalid value -0.01"),
+    ({"bench": {"inertia_kgm2": math.nan}}, (), r"\[bench\] inertia_kgm2: expected a finite number"),
+    ({"bench.backemf": {"phases_rad": [0.0, math.inf, 0.0, 0.0]}}, (),
+     r"\[bench\.backemf\] phases_rad: expected a finite number"),
+    ({"simulator.current_sensors": {"alpha": [1.0, 1.0]}},
+     (), r"\[simulator\.current_sensors\] alpha: invalid value \[1.0, 1.0\]"),
+    ({"simulator.torque_sensor": {"noise_nm": -0.1}}, (), r"\[simulator\.torque_sensor\] noise_nm: invalid value"),
     ({"excitation": {"phases": "square"}}, (), r"\[excitation\] phases: invalid value 'square'"),
-    ({"cogging": {"amplitudes_nm": [0.5]}}, (),
-     r"\[cogging\] multiples, amplitudes_nm, phases_rad: must have equal lengths"),
+    ({"simulator.cogging": {"amplitudes_nm": [0.5]}}, (),
+     r"\[simulator\.cogging\] multiples, amplitudes_nm, phases_rad: must have equal lengths"),
     ({"excitation": {"harmonics": 2048}}, (), r"\[excitation\] harmonics: 2048 is beyond the Nyquist limit"),
-    ({"backemf": {"harmonics": [3, 5, 7, 9]}}, (), r"\[backemf\] harmonics: must include the fundamental 1"),
+    ({"bench.backemf": {"harmonics": [3, 5, 7, 9]}},
+     (), r"\[bench\.backemf\] harmonics: must include the fundamental 1"),
     ({"campaign": {"ripple_harmonics": 2048}}, (), r"\[campaign\] ripple_harmonics: 2048 is beyond the Nyquist"),
     ({"stages": {"shaper": {"gain": 1.0}}}, (),
      r"\[stages.shaper\] configures a stage that \[pipeline\] stages does not list"),
@@ -102,3 +104,33 @@ def test_ilc_revolutions_are_one_number_or_one_per_ilc_set_point(write_config):
     assert [cfg.campaign.revolutions_at(t) for t in (1.0, 3.0, 5.0)] == [64, 32, 16]
     with pytest.raises(ConfigError, match=r"campaign.toml: \[campaign\] ilc_revolutions: give one number"):
         load_config(write_config({"campaign": {"ilc_revolutions": [64, 32]}}))
+
+
+@pytest.mark.parametrize("changes, drop, message", [
+    ({"simulator.winding": {"pole_pairs": 8}}, (),
+     r"\[simulator.winding\] pole_pairs: the controller knows it: give it as \[bench\] pole_pairs"),
+    ({"simulator.controller": {"torque_gain_v_per_nm": 0.9}}, (),
+     r"\[simulator.controller\] torque_gain_v_per_nm: the controller knows it: give it as \[bench.calibration\]"),
+    ({"simulator.backemf": {"harmonics": [1]}}, (), r"unknown table \[simulator.backemf\]"),
+    (None, ("bench.backemf",), r"\[bench.backemf\]: missing \(the simulated drive needs it\)"),
+    (None, ("bench.calibration",), r"\[bench.calibration\]: missing \(the simulated drive needs it\)"),
+    (None, ("bench.inertia_kgm2",), r"\[bench\] inertia_kgm2: missing \(the simulated drive needs it\)"),
+    (None, ("bench",), r"missing table \[bench\]"),
+])
+def test_the_simulated_truth_is_apart_from_what_the_controller_knows(write_config, changes, drop, message):
+    path = write_config(changes, drop)
+    with pytest.raises(ConfigError, match=re.escape(str(path)) + ": " + message):
+        load_config(path)
+
+
+def test_a_config_without_the_simulated_truth_needs_only_bench_and_run_tables(write_config):
+    """Issue 9: a real bench's config holds [bench], [trials], [excitation] and the run tables only."""
+    path = write_config(drop=("simulator", "bench.backemf", "bench.calibration", "bench.inertia_kgm2"))
+    cfg = load_config(path)
+    assert cfg.model is None and cfg.bench.inertia_kgm2 is None and cfg.bench.backemf is None
+    with pytest.raises(ConfigError, match=re.escape(str(path)) + r": no \[simulator\] tables"):
+        cfg.simulated_model()
+    with pytest.raises(ConfigError, match=r"\[bench.backemf\] harmonics: mechanical order 2400"):
+        load_config(write_config({"bench.backemf": {"harmonics": [1, 300], "amplitudes_nm_per_a": [0.2, 0.01],
+                                                    "phases_rad": [0.0, 0.0], "asymmetry": [0.0, 0.0, 0.0]}},
+                                 drop=("simulator",)))

@@ -15,14 +15,13 @@ import tomllib
 from pathlib import Path
 
 import pytest
+from conftest import SEED_CONFIG, toml_text
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ilcpmac.bench.format import read_bench
 from ilcpmac.config import MAX_TOML_BYTES, load_config, read_toml
 from ilcpmac.errors import BenchFormatError, ConfigError
-
-from conftest import SEED_CONFIG, toml_text
 
 
 def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
@@ -44,8 +43,10 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"stages": {"current-sensor": {"process_noise_rel": math.nan}}},
      r"\[stages\.current-sensor\] process_noise_rel"),
     ({"pipeline": {"stages": ["ilc", "ilc"]}}, r"\[pipeline\] stages: invalid value \['ilc', 'ilc'\]"),
-    ({"controller": {"control_rate_hz": 0.001}}, r"\[controller\] control_rate_hz: invalid value 0.001"),
-    ({"controller": {"control_rate_hz": 1e12}}, r"\[controller\] control_rate_hz: invalid value 1000000000000\.0"),
+    ({"simulator.controller": {"control_rate_hz": 0.001}},
+     r"\[simulator\.controller\] control_rate_hz: invalid value 0.001"),
+    ({"simulator.controller": {"control_rate_hz": 1e12}},
+     r"\[simulator\.controller\] control_rate_hz: invalid value 1000000000000\.0"),
     ({"trials": {"speed_setpoints_hz": [1e-6]}},
      r"\[trials\] speed_setpoints_hz: at 1e-06 Hz .* lasts 9e\+06 s, beyond \[limits\] max_trial_duration_s"),
     ({"campaign": {"ilc_speed_setpoint_hz": 1e-6}},
@@ -56,14 +57,14 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"campaign": {"ilc_torque_setpoints_nm": []}}, r"\[campaign\] ilc_torque_setpoints_nm: invalid value \[\]"),
     ({"campaign": {"ilc_revolutions": []}}, r"\[campaign\] ilc_revolutions: invalid value \[\]"),
     ({"trials": {"revolutions": 20000}},
-     r"\[trials\] revolutions: 20000 x \[encoder\] counts_per_rev 4096 = 81920000 samples, "
+     r"\[trials\] revolutions: 20000 x \[bench\] counts_per_rev 4096 = 81920000 samples, "
      r"beyond \[limits\] max_samples_per_trial 2000000"),
     ({"campaign": {"ilc_revolutions": [20000]}}, r"\[campaign\] ilc_revolutions: .*max_samples_per_trial"),
     ({"limits": {"max_samples_per_trial": 10000}}, r"\[trials\] revolutions: .*max_samples_per_trial 10000"),
     # issue 8, item 10
-    ({"mechanics": {"inertia_kgm2": 1e300}}, r"\[mechanics\] inertia_kgm2: invalid value 1e\+300"),
-    ({"mechanics": {"inertia_kgm2": 10**400}}, r"\[mechanics\] inertia_kgm2: expected a finite number"),
-    ({"winding": {"pole_pairs": 1000000}}, r"\[winding\] pole_pairs: invalid value 1000000"),
+    ({"bench": {"inertia_kgm2": 1e300}}, r"\[bench\] inertia_kgm2: invalid value 1e\+300"),
+    ({"bench": {"inertia_kgm2": 10**400}}, r"\[bench\] inertia_kgm2: expected a finite number"),
+    ({"bench": {"pole_pairs": 1000000}}, r"\[bench\] pole_pairs: invalid value 1000000"),
     ({"trials": {"torque_setpoints_nm": [0.0, 1.0]}}, r"\[trials\] torque_setpoints_nm: invalid value"),
     ({"trials": {"torque_setpoints_nm": [-1.0]}}, r"\[trials\] torque_setpoints_nm: invalid value"),
     ({"trials": {"speed_setpoints_hz": [0.0]}}, r"\[trials\] speed_setpoints_hz: invalid value"),
@@ -72,42 +73,47 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"campaign": {"ilc_torque_setpoints_nm": [1.0, 1.0, 5.0]}}, r"\[campaign\] ilc_torque_setpoints_nm: .*distinct"),
     ({"campaign": {"ilc_speed_setpoint_hz": 0.0}}, r"\[campaign\] ilc_speed_setpoint_hz"),
     # every other key's range
-    ({"winding": {"slots": 0}}, r"\[winding\] slots"),
-    ({"winding": {"phase_resistance_ohm": 0.0}}, r"\[winding\] phase_resistance_ohm"),
-    ({"winding": {"phase_inductance_h": 1e9}}, r"\[winding\] phase_inductance_h"),
-    ({"backemf": {"amplitudes_nm_per_a": [0.0, 0.012, 0.006, 0.003]}},
-     r"\[backemf\] harmonics: must include the fundamental 1, with a non-zero amplitude"),
-    ({"backemf": {"asymmetry": [-1.0, 0.0, 0.0]}}, r"\[backemf\] asymmetry"),
-    ({"backemf": {"phases_rad": [0.0, 100.0, 0.0, 0.0]}}, r"\[backemf\] phases_rad"),
-    ({"backemf": {"harmonics": list(range(1, 101))}}, r"\[backemf\] harmonics: invalid value \[1, 2, 3"),
-    ({"backemf": {"harmonics": [1, 3, 5, 300]}},
-     r"\[backemf\] harmonics: mechanical order 2400 \(harmonic 300 x \[winding\] pole_pairs 8\) is beyond the "
-     r"Nyquist limit of \[encoder\] counts_per_rev 4096"),
-    ({"winding": {"pole_pairs": 200}, "encoder": {"counts_per_rev": 2048}},
-     r"\[backemf\] harmonics: .*\[winding\] pole_pairs 200"),
-    ({"cogging": {"multiples": [1, 50]}}, r"\[cogging\] multiples: mechanical order 2400 .*\[winding\] slots"),
-    ({"unexplained": {"orders": [20, 36, 3000]}}, r"\[unexplained\] orders: mechanical order 3000"),
-    ({"unexplained": {"saturation_per_a2": 0.01}},
-     r"\[unexplained\] saturation_per_a2: times \[limits\] max_current_a squared is 9"),
-    ({"mechanics": {"coulomb_friction_nm": -1.0}}, r"\[mechanics\] coulomb_friction_nm"),
-    ({"controller": {"bandwidth_hz": 5000.0}}, r"\[controller\] bandwidth_hz: 5000 Hz is above control_rate_hz / 10"),
-    ({"controller": {"voltage_limit_v": 0.0}}, r"\[controller\] voltage_limit_v"),
-    ({"controller": {"current_scale_counts_per_a": [14.0, 0.0, 14.0]}}, r"\[controller\] current_scale_counts_per_a"),
-    ({"controller": {"current_offset_counts": [0.0, 1e300, 0.0]}}, r"\[controller\] current_offset_counts"),
-    ({"controller": {"torque_gain_v_per_nm": -0.9}}, r"\[controller\] torque_gain_v_per_nm"),
-    ({"controller": {"control_rate_hz": 2000.0, "bandwidth_hz": 100.0}},
-     r"\[trials\] speed_setpoints_hz: 1 Hz x \[encoder\] counts_per_rev 4096 is more than half of "
-     r"\[controller\] control_rate_hz 2000"),
-    ({"current_sensors": {"epsilon": 0.0}}, r"\[current_sensors\] epsilon"),
-    ({"current_sensors": {"alpha": [0.0, 1.0, 1.0]}}, r"\[current_sensors\] alpha"),
-    ({"current_sensors": {"noise_counts": -1.0}}, r"\[current_sensors\] noise_counts"),
-    ({"torque_sensor": {"delta": 0.0}}, r"\[torque_sensor\] delta"),
-    ({"torque_sensor": {"highpass_hz": 1e9}}, r"\[torque_sensor\] highpass_hz"),
-    ({"encoder": {"counts_per_rev": 2}}, r"\[encoder\] counts_per_rev: invalid value 2 "),
-    ({"encoder": {"counts_per_rev": 2**25}}, r"\[encoder\] counts_per_rev: invalid value 33554432"),
-    ({"encoder": {"counts_per_rev": 256}}, r"\[excitation\] harmonics: 144 is beyond the Nyquist limit of "
-                                           r"\[encoder\] counts_per_rev 256"),
-    ({"encoder": {"timer_resolution_s": 0.0}}, r"\[encoder\] timer_resolution_s"),
+    ({"bench": {"slots": 0}}, r"\[bench\] slots"),
+    ({"simulator.winding": {"phase_resistance_ohm": 0.0}}, r"\[simulator\.winding\] phase_resistance_ohm"),
+    ({"simulator.winding": {"phase_inductance_h": 1e9}}, r"\[simulator\.winding\] phase_inductance_h"),
+    ({"bench.backemf": {"amplitudes_nm_per_a": [0.0, 0.012, 0.006, 0.003]}},
+     r"\[bench\.backemf\] harmonics: must include the fundamental 1, with a non-zero amplitude"),
+    ({"bench.backemf": {"asymmetry": [-1.0, 0.0, 0.0]}}, r"\[bench\.backemf\] asymmetry"),
+    ({"bench.backemf": {"phases_rad": [0.0, 100.0, 0.0, 0.0]}}, r"\[bench\.backemf\] phases_rad"),
+    ({"bench.backemf": {"harmonics": list(range(1, 101))}}, r"\[bench\.backemf\] harmonics: invalid value \[1, 2, 3"),
+    ({"bench.backemf": {"harmonics": [1, 3, 5, 300]}},
+     r"\[bench\.backemf\] harmonics: mechanical order 2400 \(harmonic 300 x \[bench\] pole_pairs 8\) is beyond the "
+     r"Nyquist limit of \[bench\] counts_per_rev 4096"),
+    ({"bench": {"pole_pairs": 200, "counts_per_rev": 2048}},
+     r"\[bench\.backemf\] harmonics: .*\[bench\] pole_pairs 200"),
+    ({"simulator.cogging": {"multiples": [1, 50]}},
+     r"\[simulator\.cogging\] multiples: mechanical order 2400 .*\[bench\] slots"),
+    ({"simulator.unexplained": {"orders": [20, 36, 3000]}},
+     r"\[simulator\.unexplained\] orders: mechanical order 3000"),
+    ({"simulator.unexplained": {"saturation_per_a2": 0.01}},
+     r"\[simulator\.unexplained\] saturation_per_a2: times \[limits\] max_current_a squared is 9"),
+    ({"simulator.mechanics": {"coulomb_friction_nm": -1.0}}, r"\[simulator\.mechanics\] coulomb_friction_nm"),
+    ({"simulator.controller": {"bandwidth_hz": 5000.0}},
+     r"\[simulator\.controller\] bandwidth_hz: 5000 Hz is above control_rate_hz / 10"),
+    ({"simulator.controller": {"voltage_limit_v": 0.0}}, r"\[simulator\.controller\] voltage_limit_v"),
+    ({"bench.calibration": {"current_scale_counts_per_a": [14.0, 0.0, 14.0]}},
+     r"\[bench\.calibration\] current_scale_counts_per_a"),
+    ({"bench.calibration": {"current_offset_counts": [0.0, 1e300, 0.0]}},
+     r"\[bench\.calibration\] current_offset_counts"),
+    ({"bench.calibration": {"torque_gain_v_per_nm": -0.9}}, r"\[bench\.calibration\] torque_gain_v_per_nm"),
+    ({"simulator.controller": {"control_rate_hz": 2000.0, "bandwidth_hz": 100.0}},
+     r"\[trials\] speed_setpoints_hz: 1 Hz x \[bench\] counts_per_rev 4096 is more than half of "
+     r"\[simulator\.controller\] control_rate_hz 2000"),
+    ({"simulator.current_sensors": {"epsilon": 0.0}}, r"\[simulator\.current_sensors\] epsilon"),
+    ({"simulator.current_sensors": {"alpha": [0.0, 1.0, 1.0]}}, r"\[simulator\.current_sensors\] alpha"),
+    ({"simulator.current_sensors": {"noise_counts": -1.0}}, r"\[simulator\.current_sensors\] noise_counts"),
+    ({"simulator.torque_sensor": {"delta": 0.0}}, r"\[simulator\.torque_sensor\] delta"),
+    ({"simulator.torque_sensor": {"highpass_hz": 1e9}}, r"\[simulator\.torque_sensor\] highpass_hz"),
+    ({"bench": {"counts_per_rev": 2}}, r"\[bench\] counts_per_rev: invalid value 2 "),
+    ({"bench": {"counts_per_rev": 2**25}}, r"\[bench\] counts_per_rev: invalid value 33554432"),
+    ({"bench": {"counts_per_rev": 256}}, r"\[excitation\] harmonics: 144 is beyond the Nyquist limit of "
+                                           r"\[bench\] counts_per_rev 256"),
+    ({"simulator.encoder": {"timer_resolution_s": 0.0}}, r"\[simulator\.encoder\] timer_resolution_s"),
     ({"excitation": {"fraction": 2.0}}, r"\[excitation\] fraction"),
     ({"trials": {"torque_setpoints_nm": [1.0, 9.0]}},
      r"\[trials\] torque_setpoints_nm: 9 is beyond \[limits\] max_torque_nm 8"),
@@ -124,8 +130,8 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"campaign": {"patience": 0}}, r"\[campaign\] patience"),
     ({"campaign": {"min_improvement": math.nan}}, r"\[campaign\] min_improvement"),
     # hostile shapes and sizes: the message stays one short line
-    ({"winding": {"slots": "x" * 100_000}}, r"\[winding\] slots: expected an integer, got 'xxxxx.*\.\.\."),
-    ({"winding": {"x" * 100_000: 1}}, r"\[winding\] unknown key 'xxxx.*\.\.\."),
+    ({"bench": {"slots": "x" * 100_000}}, r"\[bench\] slots: expected an integer, got 'xxxxx.*\.\.\."),
+    ({"bench": {"x" * 100_000: 1}}, r"\[bench\] unknown key 'xxxx.*\.\.\."),
     ({"excitation": {"phases": "random\n"}}, r"\[excitation\] phases: invalid value 'random\\n'"),
 ])
 def test_values_without_physical_sense_are_one_line_naming_the_key(write_config, changes, pattern):
@@ -138,8 +144,8 @@ def test_values_without_physical_sense_are_one_line_naming_the_key(write_config,
 @pytest.mark.parametrize("edit, pattern", [
     (lambda text: "stages = 5\n" + text.split("[stages.ilc]")[0],
      r"\[stages\] must be a table of \[stages\.NAME\] tables"),
-    (lambda text: text.replace("[winding]\n", '[winding]\n"slots\\nfake line" = 1\n'),
-     r"\[winding\] unknown key 'slots\\nfake line'"),
+    (lambda text: text.replace("[bench]\n", '[bench]\n"slots\\nfake line" = 1\n'),
+     r"\[bench\] unknown key 'slots\\nfake line'"),
     (lambda text: text + '\n["a\\nb"]\nc = 1\n', r"unknown table \['a\\nb'\]"),
     (lambda text: text.replace("[stages.ilc]", '[stages."i\\nlc"]'), r"\[stages\.'i\\nlc'\] configures a stage"),
 ])
@@ -156,7 +162,7 @@ def test_hostile_names_stay_on_one_line(tmp_path, edit, pattern):
 
 @pytest.mark.parametrize("content, pattern", [
     (bytes(range(256)) * 4, r"line 2: not UTF-8 text \(byte 0x80\)"),
-    (SEED_CONFIG.read_bytes().replace(b"# 16 magnets", b"# 16 \xff magnets"), r"line 6: not UTF-8 text \(byte 0xff\)"),
+    (SEED_CONFIG.read_bytes().replace(b"# 16 magnets", b"# 16 \xff magnets"), r"line 9: not UTF-8 text \(byte 0xff\)"),
     (b"a = " + b"[" * 100_000 + b"]" * 100_000, r"not valid TOML \(nested too deeply\)"),
     (b"a = " + b"{b = " * 50_000 + b"1" + b"}" * 50_000, r"not valid TOML \(nested too deeply\)"),
     (b"# " + b"x" * MAX_TOML_BYTES, rf"more than {MAX_TOML_BYTES} bytes \(refused\)"),

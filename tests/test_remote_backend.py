@@ -55,7 +55,8 @@ def config():
     """The seed bench with 256 counts per revolution (60 excited harmonics): trials of milliseconds."""
     cfg = load_config(SEED_CONFIG)
     model = dataclasses.replace(cfg.model, encoder=dataclasses.replace(cfg.model.encoder, counts_per_rev=256))
-    return dataclasses.replace(cfg, model=model, excitation=dataclasses.replace(cfg.excitation, harmonics=60))
+    return dataclasses.replace(cfg, model=model, bench=dataclasses.replace(cfg.bench, counts_per_rev=256),
+                               excitation=dataclasses.replace(cfg.excitation, harmonics=60))
 
 
 @pytest.fixture(scope="module")
@@ -66,7 +67,7 @@ def simulator(config) -> SimulatorBackend:
 @pytest.fixture(scope="module")
 def requests(config) -> list[TrialRequest]:
     """Four grid requests (2 revolutions each), from both ends of the set-point grid."""
-    grid = grid_requests(config, seed=11, revolutions=2)
+    grid = grid_requests(config, config.model.controller.calibration(), seed=11, revolutions=2)
     return [grid[0], grid[7], grid[15], grid[-1]]
 
 
@@ -317,7 +318,7 @@ def test_emulate_command_serves_the_simulator(tmp_path, remote):
         assert line.startswith("listening on 127.0.0.1:"), process.stderr.read() if process.poll() else line
         backend = remote(line.split()[-1], read_timeout_s=5.0)
         cfg = load_config(config)
-        request = grid_requests(cfg, seed=3, revolutions=1)[0]
+        request = grid_requests(cfg, cfg.model.controller.calibration(), seed=3, revolutions=1)[0]
         assert_same_trial(backend.run_trial(request), SimulatorBackend(cfg.model, LIMITS).run_trial(request))
         backend.close()
     finally:

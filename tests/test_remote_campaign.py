@@ -10,6 +10,7 @@ from __future__ import annotations
 import pytest
 from campaign_helpers import SMALL_CAMPAIGN, run_campaign, simulator_backend
 from click.testing import CliRunner
+from conftest import REAL_BENCH_CONFIG
 
 from ilcpmac.backends.emulator import BenchEmulator, Fault, FaultPlan
 from ilcpmac.backends.remote import RemoteBackend
@@ -82,7 +83,7 @@ def test_after_a_fault_it_cannot_ride_out_resume_completes_the_campaign(config, 
     run = tmp_path / "run"
     listed = read_bench(run).trials  # no partial trial is listed, none duplicated
     assert len(listed) == 4
-    assert sorted(p.name for p in run.glob("trial_*")) == [f"trial_{i:03d}.csv" for i in range(1, 5)]
+    assert sorted(p.name for p in run.glob("trial_*")) == [f"trial_{i:03d}.parquet" for i in range(1, 5)]
     assert sorted(p.name for p in (run / "states").glob("trial_*")) == [f"trial_{i:03d}.json" for i in range(1, 5)]
     with remote(emulator()) as backend:
         summary = run_campaign(config, run, backend, resume=True)
@@ -100,3 +101,17 @@ def test_ilcpmac_run_on_the_remote_backend(config, emulator, tmp_path):
                                             "--backend", "remote", "--address", "127.0.0.1:1"])
     assert unreachable.exit_code == 2
     assert unreachable.stderr.startswith("error: ") and "Traceback" not in unreachable.output
+
+
+@pytest.mark.slow
+def test_a_campaign_from_the_real_bench_template_runs_against_the_emulator(config, emulator, write_config, tmp_path):
+    """configs/real-bench.toml holds no simulated truth; made small like the other tests, it runs a whole
+    campaign through ``ilcpmac run --backend remote`` against the emulated seed bench."""
+    real = write_config({k: v for k, v in SMALL_CAMPAIGN.items() if k != "stages"}, name="real.toml",
+                        base=REAL_BENCH_CONFIG)
+    assert load_config(real).model is None
+    emu = emulator()
+    done = CliRunner().invoke(main, ["run", str(real), "--backend", "remote", "--address", emu.address,
+                                     "--out", str(tmp_path / "run")])
+    assert done.exit_code == 0, done.output
+    assert len(read_bench(tmp_path / "run").trials) == emu.requests_received

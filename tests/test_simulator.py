@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import COUNTS_PER_REV, REVOLUTIONS, SEED_CONFIG
 from scipy.interpolate import CubicSpline
 
 from ilcpmac.errors import SimulationError
@@ -17,8 +18,6 @@ from ilcpmac.model.tables import backemf_table, cogging_table, disturbance_table
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.sim.grid import grid_requests
 from ilcpmac.sim.simulator import MAX_COUNTS_PER_REV, MAX_SAMPLES, SensorTruth, Simulator
-
-from conftest import COUNTS_PER_REV, REVOLUTIONS, SEED_CONFIG
 
 #: phase shifts 2 pi p / 3 of phases a, b, c
 PHASORS = np.exp(-2j * np.pi * np.arange(3) / 3)
@@ -122,9 +121,12 @@ def test_each_error_ripples_at_its_own_harmonic(sine_model, make_request, error,
 @pytest.fixture(scope="module")
 def seed_grid(seed_config, small_model) -> dict[tuple[float, float], TrialRequest]:
     """The seed campaign's multisine trials on the small model, by (torque, speed) set point."""
-    config = dataclasses.replace(seed_config, model=small_model)
+    config = dataclasses.replace(seed_config, model=small_model,
+                                 bench=dataclasses.replace(seed_config.bench,
+                                                           counts_per_rev=small_model.encoder.counts_per_rev))
     return {(r.torque_setpoint_nm, r.speed_setpoint_hz): r
-            for r in grid_requests(config, seed=2009, revolutions=REVOLUTIONS)}
+            for r in grid_requests(config, small_model.controller.calibration(), seed=2009,
+                                       revolutions=REVOLUTIONS)}
 
 
 @pytest.fixture(scope="module")

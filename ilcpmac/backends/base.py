@@ -1,4 +1,4 @@
-"""The one interface every backend implements."""
+"""The one interface every backend implements (docs/writing-a-backend.md)."""
 
 from __future__ import annotations
 
@@ -43,7 +43,15 @@ class BenchDescription:
 
 @runtime_checkable
 class Backend(Protocol):
-    """Runs trials on a motor, simulated or real."""
+    """Runs trials on a motor, simulated or real: everything a campaign uses of a backend.
+
+    Attributes
+    ----------
+    max_parallel_trials : int
+        How many `run_trial` calls may run at once, in threads (1: one at a time).
+    """
+
+    max_parallel_trials: int
 
     def describe(self) -> BenchDescription:
         """The motor, its back-EMF table, today's calibration and the limits."""
@@ -51,4 +59,8 @@ class Backend(Protocol):
 
     def run_trial(self, request: TrialRequest) -> TrialData:
         """Run one trial and return its position-sampled data."""
+        ...
+
+    def close(self) -> None:
+        """Release the bench (connections, devices); called once the campaign ends or fails."""
         ...

@@ -24,9 +24,8 @@ import numpy as np
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.bench.format import MotorInfo
-from ilcpmac.model.motor import MOTOR_RANGES
 from ilcpmac.errors import BackendError
-from ilcpmac.model.tables import current_references
+from ilcpmac.model.motor import MOTOR_RANGES
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 
 #: Protocol version carried in every frame header; both ends must speak the same.

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import socket
 import time
-from typing import Callable, TypeVar
+from typing import TYPE_CHECKING, Callable, TypeVar
 
 import numpy as np
 
@@ -41,6 +41,9 @@ from ilcpmac.backends.protocol import (
 )
 from ilcpmac.errors import BackendError
 from ilcpmac.records import TrialData, TrialRequest
+
+if TYPE_CHECKING:
+    from ilcpmac.backends.registry import BackendSetup
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -70,8 +73,8 @@ def _same_description(a: BenchDescription, b: BenchDescription) -> bool:
 class RemoteBackend:
     """Runs trials on a bench target that speaks the bench protocol (docs/protocol.md).
 
-    Not thread-safe: one trial at a time. Use as a context manager, or call
-    `close`, to release the connection.
+    Not thread-safe: one trial at a time (``max_parallel_trials`` 1). Use as a
+    context manager, or call `close`, to release the connection.
 
     Parameters
     ----------
@@ -94,6 +97,8 @@ class RemoteBackend:
         margin, s, from its REQUEST: the target's warm-up and transfer time.
     """
 
+    max_parallel_trials = 1
+
     def __init__(self, address: str, connect_timeout_s: float = 5.0, read_timeout_s: float = 10.0,
                  retries: int = 3, backoff_s: float = 0.5, trial_margin_s: float = 20.0) -> None:
         if min(connect_timeout_s, read_timeout_s, trial_margin_s) <= 0 or retries < 0 or backoff_s < 0:
@@ -110,6 +115,13 @@ class RemoteBackend:
         self._description: BenchDescription | None = None
         self._trials = 0
         self._next_trial_id = 1
+
+    @classmethod
+    def from_setup(cls, setup: BackendSetup) -> RemoteBackend:
+        """A bench target speaking the bench protocol over TCP at --address HOST:PORT (docs/protocol.md)."""
+        if not setup.address:
+            raise BackendError("--backend remote needs --address HOST:PORT")
+        return cls(setup.address)
 
     # -------------------------------------------------------- connection
 

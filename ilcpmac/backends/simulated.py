@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.bench.format import MotorInfo
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.sim.simulator import Simulator
+
+if TYPE_CHECKING:
+    from ilcpmac.backends.registry import BackendSetup
 
 
 class SimulatorBackend:
@@ -29,6 +33,14 @@ class SimulatorBackend:
         self.limits = limits
         self.max_parallel_trials = os.cpu_count() or 1
 
+    @classmethod
+    def from_setup(cls, setup: BackendSetup) -> SimulatorBackend:
+        """The numba simulator of the config's [bench] and [simulator.*] tables, within its [limits]."""
+        config = setup.config
+        lim = config.limits
+        return cls(config.simulated_model(), BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz),
+                   config.grid.warmup_revolutions)
+
     def describe(self) -> BenchDescription:
         m = self.simulator.model
         return BenchDescription(
@@ -41,3 +53,6 @@ class SimulatorBackend:
 
     def run_trial(self, request: TrialRequest) -> TrialData:
         return self.simulator.run_trial(request)
+
+    def close(self) -> None:
+        """Nothing to release."""

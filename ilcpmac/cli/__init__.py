@@ -53,9 +53,12 @@ def main() -> None:
 
 
 # Each command lives in its own module and registers itself on `main` when imported.
-from ilcpmac.cli import simulate  # noqa: E402,F401
-from ilcpmac.cli import emulate  # noqa: E402,F401
-from ilcpmac.cli import run  # noqa: E402,F401
-from ilcpmac.cli import report  # noqa: E402,F401
-from ilcpmac.cli import stages  # noqa: E402,F401
-from ilcpmac.cli import identify  # noqa: E402,F401
+from ilcpmac.cli import (  # noqa: E402
+    backends,  # noqa: E402,F401
+    emulate,  # noqa: E402,F401
+    identify,  # noqa: E402,F401
+    report,  # noqa: E402,F401
+    run,  # noqa: E402,F401
+    simulate,  # noqa: E402,F401
+    stages,  # noqa: E402,F401
+)

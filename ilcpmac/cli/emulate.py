@@ -18,8 +18,9 @@ _FAULT_HELP = "N: on trial N only; N+: on trial N and every later one (trials co
 @click.option("--port", required=True, type=click.IntRange(0, 65535),
               help="TCP port to listen on (0: any free port; the address is printed).")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on.")
-@click.option("--config", "config", default="configs/seed-bench.toml", show_default=True,
-              type=click.Path(dir_okay=False, path_type=Path), help="Campaign config whose drive is simulated.")
+@click.option("--config", "config", default=None, type=click.Path(dir_okay=False, path_type=Path),
+              help="Campaign config whose drive ([bench] and [simulator.*]) is simulated "
+                   "[default: the packaged seed-bench.toml].")
 @click.option("--max-current", default=30.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
               help="Current limit the target announces and enforces, A.")
 @click.option("--max-torque", default=8.0, show_default=True, type=click.FloatRange(min=0, min_open=True),
@@ -52,7 +53,7 @@ _FAULT_HELP = "N: on trial N only; N+: on trial N and every later one (trials co
 @click.option("--max-samples", "max_trial_samples", default=None, type=click.IntRange(min=2),
               help="Largest trial (revolutions x counts per revolution); larger requests get LIMIT_EXCEEDED "
                    "[default: the bench format's 4194304 rows].")
-def emulate(port: int, host: str, config: Path, max_current: float, max_torque: float, max_speed: float,
+def emulate(port: int, host: str, config: Path | None, max_current: float, max_torque: float, max_speed: float,
             chunk_samples: int, heartbeat_s: float, drop: str | None, stall: str | None, stall_s: float,
             corrupt: str | None, wrong_version: str | None, restart: str | None, restart_delay_s: float,
             idle_timeout_s: float, frame_timeout_s: float, max_connections: int, max_trial_samples: int | None) -> None:
@@ -67,15 +68,15 @@ def emulate(port: int, host: str, config: Path, max_current: float, max_torque: 
     from ilcpmac.backends.base import BenchLimits
     from ilcpmac.backends.emulator import BenchEmulator, Fault, FaultPlan
     from ilcpmac.backends.simulated import SimulatorBackend
-    from ilcpmac.config import load_config
+    from ilcpmac.config import load_config, packaged_config
 
-    cfg = load_config(config)
+    cfg = load_config(config or packaged_config("seed-bench.toml"))
     faults = FaultPlan(
         **{name: Fault.parse(spec) for name, spec in
            [("drop", drop), ("stall", stall), ("corrupt", corrupt), ("wrong_version", wrong_version),
             ("restart", restart)] if spec is not None},
         stall_s=stall_s)
-    backend = SimulatorBackend(cfg.model, BenchLimits(max_current, max_torque, max_speed),
+    backend = SimulatorBackend(cfg.simulated_model(), BenchLimits(max_current, max_torque, max_speed),
                                cfg.grid.warmup_revolutions)
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])

@@ -11,7 +11,8 @@ from rich.live import Live
 
 from ilcpmac.cli import console, main
 
-DEFAULT_CONFIG = Path("configs/seed-bench.toml")
+#: the packaged config ``ilcpmac run`` runs with no CONFIG
+DEFAULT_CONFIG = "seed-bench.toml"
 
 
 class LiveTable(Live):
@@ -25,31 +26,14 @@ class LiveTable(Live):
             self.console.line()
 
 
-def _backend(kind: str, address: str | None, config, limits):
-    """The backend the campaign runs on; ``limits`` are the config's, announced by the simulator."""
-    from ilcpmac.backends.base import BenchLimits
-    from ilcpmac.errors import ConfigError
-
-    if kind == "sim":
-        from ilcpmac.backends.simulated import SimulatorBackend
-
-        return SimulatorBackend(config.model, BenchLimits(limits.max_current_a, limits.max_torque_nm,
-                                                          limits.max_speed_hz),
-                                config.grid.warmup_revolutions)
-    if not address:
-        raise ConfigError("--backend remote needs --address HOST:PORT")
-    from ilcpmac.backends.remote import RemoteBackend
-
-    return RemoteBackend(address)
-
-
 @main.command()
 @click.argument("config", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Run directory to create (default runs/<config name>-<date>-<time>).")
-@click.option("--backend", "backend_kind", type=click.Choice(["sim", "remote"]), default="sim", show_default=True,
-              help="Run trials on the simulator or on a bench target (docs/protocol.md).")
-@click.option("--address", help="HOST:PORT of the bench target, with --backend remote.")
+@click.option("--backend", "backend_kind", default="sim", show_default=True,
+              help="Where trials run: any installed backend (ilcpmac backends lists them): sim, the simulator; "
+                   "remote, a bench target (docs/protocol.md).")
+@click.option("--address", help="Where the bench is, for backends that need it (remote: HOST:PORT).")
 @click.option("--trials", type=click.IntRange(min=1), default=None,
               help="Most ILC trials per set point (overrides [campaign] ilc_trials).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override [trials] seed.")
@@ -59,15 +43,16 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
         seed: int | None, resume_dir: Path | None) -> None:
     """Run a campaign: identify, compensate, then learn the residual ripple with ILC.
 
-    With no CONFIG, runs configs/seed-bench.toml on the simulator. Every trial is
+    With no CONFIG, runs the packaged seed-bench.toml on the simulator. Every trial is
     persisted as it finishes in the run directory (a bench folder); see
     docs/campaign.md.
     """
     import dataclasses
 
+    from ilcpmac.backends.registry import BackendSetup, build_backend
     from ilcpmac.campaign.rundir import CONFIG_FILE, RunDir
     from ilcpmac.campaign.runner import CampaignPlan, CampaignRunner
-    from ilcpmac.config import check_config, load_config
+    from ilcpmac.config import check_config, load_config, packaged_config
     from ilcpmac.errors import ConfigError
     from ilcpmac.identify import identify_bench
     from ilcpmac.report.table import summary_table, trials_table
@@ -84,9 +69,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             config_path = resume_dir / CONFIG_FILE
             seed, trials = settings.get("seed"), settings.get("trials")
         else:
-            config_path = config or DEFAULT_CONFIG
-            if config is None and not config_path.is_file():
-                raise ConfigError(f"no CONFIG given and {DEFAULT_CONFIG} is not here; give a campaign config")
+            config_path = config or packaged_config(DEFAULT_CONFIG)
         cfg = load_config(config_path)
         if trials is not None:
             cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, ilc_trials=trials))
@@ -98,7 +81,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             out_dir = out_dir or Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
             made_out_dir = not out_dir.exists()
             lock = RunDir.lock(out_dir, new=True)
-        backend = _backend(backend_kind, address, cfg, cfg.limits)
+        backend = build_backend(backend_kind, BackendSetup(cfg, address))
         try:
             description = backend.describe()
             CampaignPlan.build(cfg, description, seed)  # before anything is written
@@ -122,9 +105,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
                 runner = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, Events())
                 summary = runner.run()
         finally:
-            close = getattr(backend, "close", None)
-            if close is not None:
-                close()
+            backend.close()
     finally:
         if lock is not None:
             lock.release()

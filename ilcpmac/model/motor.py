@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import reprlib
 from dataclasses import Field, dataclass, field, fields
+from typing import Callable
 
 import numpy as np
 
@@ -276,10 +277,19 @@ class MotorModel:
 _PARALLEL_LISTS = ("harmonics", "multiples", "orders", "amplitudes_nm_per_a", "amplitudes_nm", "phases_rad")
 
 
+def field_like(cls: type, name: str, **kw) -> Field:
+    """A dataclass field checked and documented as field ``name`` of dataclass ``cls``."""
+    (like,) = [f for f in fields(cls) if f.name == name]
+    return field(metadata=like.metadata, **kw)
+
+
 def value_problem(f: Field, value) -> str | None:
-    """``"key: invalid value ... (doc)"`` if field ``f``'s check refuses ``value``, else None."""
+    """``"key: invalid value ... (doc)"`` if field ``f``'s check refuses ``value``, else None.
+
+    None is the value of an optional field left out.
+    """
     check = f.metadata.get("check")
-    if check is None or check(value):
+    if check is None or (value is None and f.default is None) or check(value):
         return None
     return f"{f.name}: invalid value {shown(value)} ({f.metadata.get('doc', '')})"
 
@@ -293,45 +303,68 @@ def lengths_problem(obj) -> str | None:
     return None
 
 
-def section_problem(table: str, obj) -> str | None:
-    """The first field of dataclass ``obj`` out of its range, or its unequal parallel lists, as "[table] ..."."""
+def config_key(table: str, key: str) -> str:
+    """``"[table] key"``: how a message names a key of the model (a campaign config may name it otherwise)."""
+    return f"[{table}] {key}"
+
+
+def section_problem(table: str, obj, name: Callable[[str, str], str] = config_key) -> str | None:
+    """The first field of dataclass ``obj`` out of its range, or its unequal parallel lists, as "[table] ...".
+
+    ``name(table, key)`` names a key in the message.
+    """
     for f in fields(obj):
         problem = value_problem(f, getattr(obj, f.name))
         if problem is not None:
-            return f"[{table}] {problem}"
+            return f"{name(table, f.name)}{problem.removeprefix(f.name)}"
     problem = lengths_problem(obj)
-    return None if problem is None else f"[{table}] {problem}"
+    return None if problem is None else f"{name(table, '')}{problem}"
 
 
-def model_problem(model: MotorModel) -> str | None:
-    """The first value of ``model`` out of its range, as "[table] key: why" (tables as in a config), or None.
+def backemf_problem(backemf: BackEmf, pole_pairs: int, counts_per_rev: int,
+                    name: Callable[[str, str], str] = config_key) -> str | None:
+    """The back-EMF's fundamental missing, or its highest harmonic beyond the encoder's Nyquist limit, or None."""
+    if 1 not in backemf.harmonics or backemf.amplitudes_nm_per_a[backemf.harmonics.index(1)] == 0:
+        return f"{name('backemf', 'harmonics')}: must include the fundamental 1, with a non-zero amplitude"
+    return _nyquist_problem(name("backemf", "harmonics"), max(backemf.harmonics) * pole_pairs,
+                            f"harmonic {max(backemf.harmonics)} x {name('winding', 'pole_pairs')} {pole_pairs}",
+                            counts_per_rev, name)
+
+
+def _nyquist_problem(key: str, order: int, how: str, counts_per_rev: int,
+                     name: Callable[[str, str], str]) -> str | None:
+    if order < counts_per_rev // 2:
+        return None
+    return (f"{key}: mechanical order {order} ({how}) is beyond the Nyquist limit of "
+            f"{name('encoder', 'counts_per_rev')} {counts_per_rev}")
+
+
+def model_problem(model: MotorModel, name: Callable[[str, str], str] = config_key) -> str | None:
+    """The first value of ``model`` out of its range, as "[table] key: why", or None.
 
     Each field's own check, then the checks across keys: the fundamental of
     the back-EMF, every order within the encoder's Nyquist limit, the current
-    bandwidth within a tenth of the control rate.
+    bandwidth within a tenth of the control rate. ``name(table, key)`` names a
+    key as the model's reader knows it (default ``"[table] key"``).
     """
     for section in fields(model):
-        problem = section_problem(section.name, getattr(model, section.name))
+        problem = section_problem(section.name, getattr(model, section.name), name)
         if problem is not None:
             return problem
-    emf, w, cpr = model.backemf, model.winding, model.encoder.counts_per_rev
-    if 1 not in emf.harmonics or emf.amplitudes_nm_per_a[emf.harmonics.index(1)] == 0:
-        return "[backemf] harmonics: must include the fundamental 1, with a non-zero amplitude"
-    highest = {
-        "[backemf] harmonics": (max(emf.harmonics) * w.pole_pairs,
-                                f"harmonic {max(emf.harmonics)} x [winding] pole_pairs {w.pole_pairs}"),
-        "[cogging] multiples": (max(model.cogging.multiples, default=0) * w.cogging_order,
-                                f"multiple {max(model.cogging.multiples, default=0)} x the cogging order "
-                                f"{w.cogging_order} = lcm([winding] slots, 2 pole_pairs)"),
-        "[unexplained] orders": (max(model.unexplained.orders, default=0), "order"),
-    }
-    for key, (order, how) in highest.items():
-        if order >= cpr // 2:
-            return (f"{key}: mechanical order {order} ({how}) is beyond the Nyquist limit of "
-                    f"[encoder] counts_per_rev {cpr}")
+    w, cpr = model.winding, model.encoder.counts_per_rev
+    problem = backemf_problem(model.backemf, w.pole_pairs, cpr, name)
+    if problem is not None:
+        return problem
+    multiple, order = max(model.cogging.multiples, default=0), max(model.unexplained.orders, default=0)
+    problem = (_nyquist_problem(name("cogging", "multiples"), multiple * w.cogging_order,
+                                f"multiple {multiple} x the cogging order {w.cogging_order} = "
+                                f"lcm({name('winding', 'slots')}, 2 pole_pairs)", cpr, name)
+               or _nyquist_problem(name("unexplained", "orders"), order, "order", cpr, name))
+    if problem is not None:
+        return problem
     ctrl = model.controller
     if ctrl.bandwidth_hz > ctrl.control_rate_hz / 10:
-        return (f"[controller] bandwidth_hz: {ctrl.bandwidth_hz:g} Hz is above control_rate_hz / 10 = "
+        return (f"{name('controller', 'bandwidth_hz')}: {ctrl.bandwidth_hz:g} Hz is above control_rate_hz / 10 = "
                 f"{ctrl.control_rate_hz / 10:g} Hz (a discrete current loop needs ten control periods per "
                 "bandwidth period)")
     return None

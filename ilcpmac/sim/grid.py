@@ -8,25 +8,26 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.backends.base import BenchLimits
+from ilcpmac.backends.registry import BackendSetup
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import Bench, write_bench
 from ilcpmac.config import CampaignConfig
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.simulator import Simulator, trial_seed
 
 
-def grid_requests(config: CampaignConfig, seed: int, revolutions: int) -> list[TrialRequest]:
-    """One multisine-excited request per (torque, speed) set point, torque-major order.
+def grid_requests(config: CampaignConfig, calibration: SensorCalibration, seed: int,
+                  revolutions: int) -> list[TrialRequest]:
+    """One multisine-excited request per (torque, speed) set point, torque-major order, at ``calibration``
+    (the bench description's).
 
     Each trial gets its own seeded multisine phases, so that position-locked
     disturbances do not correlate with the excitation across trials.
     """
-    cpr = config.model.encoder.counts_per_rev
+    cpr = config.bench.counts_per_rev
     exc = config.excitation
-    calibration = config.model.controller.calibration()
     requests = []
     for torque in config.grid.torque_setpoints_nm:
         for speed in config.grid.speed_setpoints_hz:
@@ -85,16 +86,14 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
     """
     seed = config.grid.seed if seed is None else seed
     revolutions = config.grid.revolutions if revolutions is None else revolutions
-    lim = config.limits
-    backend = SimulatorBackend(config.model, BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz),
-                               config.grid.warmup_revolutions)
-    simulator = backend.simulator
-    requests = grid_requests(config, seed, revolutions)
-    check_plan(grid_plan(config, requests), backend.describe(),
-               SafetyLimits.of_campaign(lim, backend.limits, config.grid.warmup_revolutions))
+    backend = SimulatorBackend.from_setup(BackendSetup(config))
+    simulator, description = backend.simulator, backend.describe()
+    requests = grid_requests(config, description.calibration, seed, revolutions)
+    check_plan(grid_plan(config, requests), description,
+               SafetyLimits.of_campaign(config.limits, backend.limits, config.grid.warmup_revolutions))
     trials = simulator.run_trials(requests, on_done=on_done)
     bench = Bench(
-        motor=backend.describe().motor,
+        motor=description.motor,
         backemf_nm_per_a=simulator.backemf_counts,
         sensors=requests[0].calibration,
         trials=tuple(trials),

@@ -1,0 +1,78 @@
+"""Backend discovery: factories registered in the entry-point group ``ilcpmac.backends``.
+
+The built-in backends (``sim``, ``remote``) register there too (see
+pyproject.toml), so ``ilcpmac run --backend NAME`` picks a third-party backend
+exactly as it picks a built-in one. A factory is ``factory(setup: BackendSetup)
+-> Backend``; the first line of its docstring describes it in ``ilcpmac backends``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import Callable
+
+from ilcpmac.backends.base import Backend
+from ilcpmac.config import CampaignConfig
+from ilcpmac.errors import ConfigError
+
+GROUP = "ilcpmac.backends"
+
+
+@dataclass(frozen=True)
+class BackendSetup:
+    """What a backend factory is given.
+
+    Attributes
+    ----------
+    config : the campaign config (its [bench], [limits] and [trials]; `CampaignConfig.simulated_model` for a
+        simulator).
+    address : where the bench is (``--address``), for backends that need one; None if not given.
+    """
+
+    config: CampaignConfig
+    address: str | None = None
+
+
+@dataclass(frozen=True)
+class BackendEntry:
+    """An installed backend: its name, where it comes from, and how to load it."""
+
+    name: str
+    value: str
+    distribution: str
+
+    def load(self) -> Callable[[BackendSetup], Backend]:
+        """Import the factory; a plugin that fails to import raises `ConfigError`."""
+        (ep,) = entry_points(group=GROUP, name=self.name)
+        try:
+            return ep.load()
+        except Exception as e:  # a broken plugin must not crash the command with a traceback
+            raise ConfigError(f"--backend {self.name}: failed to load {self.value} ({type(e).__name__}: {e})") \
+                from None
+
+    def description(self) -> str:
+        """The first line of the factory's docstring."""
+        doc = (self.load().__doc__ or "").strip()
+        return doc.splitlines()[0] if doc else ""
+
+
+def installed_backends() -> dict[str, BackendEntry]:
+    """Every backend in the entry-point group, by name."""
+    return {ep.name: BackendEntry(ep.name, ep.value, ep.dist.name if ep.dist is not None else "?")
+            for ep in entry_points(group=GROUP)}
+
+
+def build_backend(name: str, setup: BackendSetup) -> Backend:
+    """The backend ``name`` built for ``setup``; an unknown name, a broken plugin or a factory that returns
+    something other than a `Backend` raises `ConfigError`."""
+    available = installed_backends()
+    if name not in available:
+        raise ConfigError(f"--backend: no backend named {name!r} is installed "
+                          f"(installed: {', '.join(sorted(available))})")
+    backend = available[name].load()(setup)
+    if not isinstance(backend, Backend):
+        missing = [m for m in ("describe", "run_trial", "close", "max_parallel_trials") if not hasattr(backend, m)]
+        raise ConfigError(f"--backend {name}: {available[name].value} returned a {type(backend).__name__}, which "
+                          f"lacks {', '.join(missing)} of the Backend protocol")
+    return backend

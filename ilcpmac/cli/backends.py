@@ -1,0 +1,29 @@
+"""``ilcpmac backends``: the backends installed, each with a one-line description."""
+
+from __future__ import annotations
+
+from rich.table import Table
+
+from ilcpmac.cli import main
+
+
+@main.command()
+def backends() -> None:
+    """List the backends ilcpmac run --backend may name (entry-point group ilcpmac.backends)."""
+    from rich.console import Console
+    from rich.markup import escape
+
+    from ilcpmac.backends.registry import GROUP, installed_backends
+    from ilcpmac.errors import ConfigError
+
+    table = Table(title=f"backends (entry-point group {GROUP})", title_justify="left", header_style="bold")
+    for column in ("name", "distribution", "description"):
+        table.add_column(column)
+    for name, entry in sorted(installed_backends().items()):
+        try:
+            description = escape(entry.description())
+        except ConfigError as e:
+            description = f"[red]{escape(str(e))}[/red]"
+        table.add_row(name, entry.distribution + (" (built-in)" if entry.distribution == "ilcpmac" else ""),
+                      description)
+    Console().print(table)

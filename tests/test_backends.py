@@ -1,0 +1,169 @@
+"""Backends are plugins: the entry-point group ilcpmac.backends, ``ilcpmac run --backend NAME``,
+``ilcpmac backends``; the bench a backend describes is checked against the config's [bench]."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
+from click.testing import CliRunner
+from conftest import REAL_BENCH_CONFIG
+
+from ilcpmac.backends.base import Backend
+from ilcpmac.backends.registry import BackendSetup, build_backend, installed_backends
+from ilcpmac.backends.remote import RemoteBackend
+from ilcpmac.bench.format import read_bench
+from ilcpmac.campaign.runner import CampaignPlan
+from ilcpmac.cli import main
+from ilcpmac.errors import BackendError, ConfigError
+
+#: trials run by every `CountingBackend`, and whether it was closed
+RUNS: dict[str, int] = {}
+
+
+class CountingBackend:
+    """A backend as a third party writes one: the simulator of the config, counting its trials."""
+
+    max_parallel_trials = 1
+
+    def __init__(self, setup: BackendSetup) -> None:
+        self.simulator = simulator_backend(setup.config)
+        RUNS.update(trials=0, closed=0)
+
+    def describe(self):
+        return self.simulator.describe()
+
+    def run_trial(self, request):
+        RUNS["trials"] += 1
+        return self.simulator.run_trial(request)
+
+    def close(self) -> None:
+        RUNS["closed"] += 1
+
+
+def counting(setup: BackendSetup) -> CountingBackend:
+    """The simulator, counting its trials (tests)."""
+    return CountingBackend(setup)
+
+
+def not_a_backend(setup: BackendSetup) -> object:
+    """Returns something that is no backend (tests)."""
+    return object()
+
+
+@pytest.fixture
+def plugin(tmp_path, monkeypatch):
+    """Install this module's factories as the entry points of a distribution "test-backends"."""
+    dist = tmp_path / "site" / "test_backends_plugin-0.1.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: test-backends-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[ilcpmac.backends]\ncounting = test_backends:counting\n"
+                                           "broken = test_backends:not_a_backend\n"
+                                           "missing = test_backends_absent:factory\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+
+
+def test_the_built_in_backends_are_entry_points_and_implement_the_protocol(seed_config):
+    found = installed_backends()
+    assert {"sim", "remote"} <= set(found)
+    assert found["sim"].distribution == found["remote"].distribution == "ilcpmac"
+    assert isinstance(build_backend("sim", BackendSetup(seed_config)), Backend)
+    assert isinstance(build_backend("remote", BackendSetup(seed_config, "127.0.0.1:9")), RemoteBackend)
+    with pytest.raises(BackendError, match="--backend remote needs --address HOST:PORT"):
+        build_backend("remote", BackendSetup(seed_config))
+
+
+def test_ilcpmac_backends_lists_each_with_its_description(plugin):
+    done = CliRunner().invoke(main, ["backends"], env={"COLUMNS": "200"})
+    assert done.exit_code == 0, done.output
+    lines = {line.split()[1]: line for line in done.output.splitlines() if line.startswith("│")}
+    assert "numba simulator of the config's [bench] and [simulator.*]" in lines["sim"]
+    assert "bench protocol" in lines["remote"]
+    assert "test-backends-plugin" in lines["counting"] and "counting its trials" in lines["counting"]
+    assert "failed to load" in lines["missing"]
+
+
+@pytest.mark.parametrize("name, message", [
+    ("nosuch", r"--backend: no backend named 'nosuch' is installed \(installed: .*remote, sim"),
+    ("broken", r"--backend broken: test_backends:not_a_backend returned a object, which lacks describe, "
+               r"run_trial, close, max_parallel_trials of the Backend protocol"),
+    ("missing", r"--backend missing: failed to load test_backends_absent:factory \(ModuleNotFoundError"),
+])
+def test_a_backend_that_is_not_there_or_broken_is_one_line(plugin, seed_config, name, message):
+    with pytest.raises(ConfigError, match=message):
+        build_backend(name, BackendSetup(seed_config))
+
+
+@pytest.mark.slow
+def test_a_backend_defined_in_the_tests_runs_a_campaign_through_the_cli(plugin, write_config, tmp_path):
+    config = write_config(SMALL_CAMPAIGN)
+    done = CliRunner().invoke(main, ["run", str(config), "--backend", "counting", "--out", str(tmp_path / "run")])
+    assert done.exit_code == 0, done.output
+    assert RUNS["trials"] == len(read_bench(tmp_path / "run").trials) > 4
+    assert RUNS["closed"] == 1
+
+
+def test_the_simulator_needs_the_simulated_truth(tmp_path):
+    done = CliRunner().invoke(main, ["run", str(REAL_BENCH_CONFIG), "--out", str(tmp_path / "run")])
+    assert done.exit_code == 2
+    assert done.output.strip().startswith("error: ") and len(done.output.strip().splitlines()) == 1
+    assert "real-bench.toml: no [simulator] tables: the simulator backend and ilcpmac emulate need" in done.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_python_dash_m_runs_the_packaged_config_from_any_folder(tmp_path):
+    """No CONFIG: the packaged seed bench is read wherever the command runs (it then stops at the backend)."""
+    done = subprocess.run([sys.executable, "-m", "ilcpmac", "run", "--backend", "nosuch", "--out", "run"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.startswith("error: --backend: no backend named 'nosuch'"), done.stderr
+    assert not (tmp_path / "run").exists()
+
+
+# ------------------------------------------------------------------ the bench against [bench]
+
+
+@pytest.fixture(scope="module")
+def small(seed_config):
+    """The small campaign's config (1024 counts) and its simulator's description."""
+    bench = dataclasses.replace(seed_config.bench, counts_per_rev=1024)
+    model = dataclasses.replace(seed_config.model, encoder=dataclasses.replace(seed_config.model.encoder,
+                                                                               counts_per_rev=1024))
+    cfg = dataclasses.replace(seed_config, bench=bench, model=model,
+                              excitation=dataclasses.replace(seed_config.excitation, harmonics=100),
+                              campaign=dataclasses.replace(seed_config.campaign, ripple_harmonics=100))
+    return cfg, simulator_backend(cfg).describe()
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"pole_pairs": 4}, r"\[bench\] pole_pairs 4 differs from the bench's 8"),
+    ({"slots": 36}, r"\[bench\] slots 36 differs from the bench's 48"),
+    ({"counts_per_rev": 2048}, r"\[bench\] counts_per_rev 2048 differs from the bench's 1024"),
+    ({"inertia_kgm2": 0.02}, r"\[bench\] inertia_kgm2 0.02 differs from the bench's 0.01056"),
+    ({"backemf": "amplitude"}, r"\[bench.backemf\] differs from the bench's back-EMF table by 0.00\d+ N m / A at "
+                               r"count \d+, phase [abc]"),
+    ({"calibration": "offset"}, r"\[bench.calibration\] current_offset_counts \[0.0, 0.5, 0.0\] differs from the "
+                                r"bench's \[0.0, 0.0, 0.0\]"),
+])
+def test_a_bench_unlike_the_config_is_refused_before_any_trial(small, changes, message):
+    cfg, description = small
+    if changes.get("backemf"):
+        emf = cfg.bench.backemf
+        changes = {"backemf": dataclasses.replace(emf, amplitudes_nm_per_a=(0.201, *emf.amplitudes_nm_per_a[1:]))}
+    if changes.get("calibration"):
+        changes = {"calibration": dataclasses.replace(cfg.bench.calibration, current_offset_counts=(0.0, 0.5, 0.0))}
+    with pytest.raises(ConfigError, match=message):
+        CampaignPlan.build(dataclasses.replace(cfg, bench=dataclasses.replace(cfg.bench, **changes)), description, 1)
+
+
+def test_the_grid_takes_the_calibration_of_the_bench(small):
+    """The bench's calibration, not the config's (a bench without [bench.calibration] has only its own)."""
+    cfg, description = small
+    theirs = dataclasses.replace(description.calibration, current_offset=np.array([1.0, 2.0, 3.0]))
+    plan = CampaignPlan.build(dataclasses.replace(cfg, bench=dataclasses.replace(cfg.bench, calibration=None)),
+                              dataclasses.replace(description, calibration=theirs), 1)
+    assert all(r.calibration is theirs for r in plan.grid)
