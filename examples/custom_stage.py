@@ -17,6 +17,7 @@ import numpy as np
 from ilcpmac.backends.base import BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import read_bench
+from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import PipelineSettings, load_config
@@ -58,10 +59,10 @@ class OneHarmonicCanceller:
 
 
 class Printer:
-    def trial(self, record: dict, records: list[dict]) -> None:
-        if record["role"] != "grid":
-            print(f"trial {record['index']:2d} {record['phase']:10s} {record['torque_setpoint']:g} N m: "
-                  f"true ripple {100 * record['ripple_pp_true']:7.3f} % pp")
+    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
+        if record.role != "grid":
+            print(f"trial {record.index:2d} {record.phase:10s} {record.torque_setpoint_nm:g} N m: "
+                  f"true ripple {100 * record.true.pp:7.3f} % pp")
 
     def message(self, text: str) -> None:
         print(text)

@@ -1,6 +1,7 @@
 """The records that flow between identification, campaign, stages and backends.
 
-`TrialRequest` describes a trial before it runs; `TrialData` is what comes
+`BenchDescription` is what a backend tells about its bench before the first
+trial; `TrialRequest` describes a trial before it runs; `TrialData` is what comes
 back, sampled once per encoder count (position-triggered, report sec. 2.3).
 Both are plain frozen dataclasses of numpy arrays and round-trip through the
 bench format (docs/bench-format.md). `IdentificationResult` is what the
@@ -12,10 +13,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ilcpmac.model.current_loop import CurrentLoop
+if TYPE_CHECKING:  # records are the bottom layer: ilcpmac.model and ilcpmac.bench import them
+    from ilcpmac.bench.format import MotorInfo
+    from ilcpmac.model.current_loop import CurrentLoop
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,36 @@ class SensorCalibration:
     def from_json(cls, data: dict) -> "SensorCalibration":
         """The calibration `to_json` wrote."""
         return cls(data["current_scale"], data["current_offset"], data["torque_gain"])
+
+
+@dataclass(frozen=True)
+class BenchLimits:
+    """What the bench accepts; requests beyond these are refused or clipped."""
+
+    max_current_a: float
+    max_torque_nm: float
+    max_speed_hz: float
+
+
+@dataclass(frozen=True)
+class BenchDescription:
+    """What a backend tells about its motor before the first trial.
+
+    Attributes
+    ----------
+    motor : MotorInfo
+        The [motor] data of the bench format.
+    backemf_nm_per_a : ndarray, shape (counts_per_rev, 3)
+        The back-EMF table (backemf.csv).
+    calibration : SensorCalibration
+        The controller's calibration today (the [sensors] data).
+    limits : BenchLimits
+    """
+
+    motor: MotorInfo
+    backemf_nm_per_a: np.ndarray
+    calibration: SensorCalibration
+    limits: BenchLimits
 
 
 @dataclass(frozen=True)
@@ -315,6 +349,8 @@ class IdentificationResult(MethodEstimates):
         bandwidth = data.get("current_loop_bandwidth_per_phase_hz") or data.get("current_loop_bandwidth_hz")
         if tau is None and bandwidth is not None:
             tau = 1.0 / (2.0 * np.pi * np.broadcast_to(np.asarray(bandwidth, float), (3,)))
+        from ilcpmac.model.current_loop import CurrentLoop
+
         loop = None if tau is None else CurrentLoop(tau, data.get("current_loop_delay_s") or 0.0)
         calibration = data.get("calibration")
         return cls(**cls.fields_from_json(data), current_loop=loop,

@@ -6,12 +6,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.backends.base import Backend, BenchLimits
+from ilcpmac.backends.base import Backend
 from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import CampaignConfig
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.records import BenchLimits, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.sim.grid import truth_dict
 
 #: a small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials
@@ -25,21 +26,26 @@ SMALL_CAMPAIGN = {
 }
 
 
+def truth_json(backend: SimulatorBackend) -> dict:
+    """The simulator's truth under the result keys, at the controller's calibration."""
+    sim = backend.simulator
+    cpr = sim.model.encoder.counts_per_rev
+    return truth_dict(sim, TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration()))
+
+
 class TruthIdentification:
     """The identification's answer taken from the simulator's truth (dependency injection), so
     that campaign tests test the campaign; the estimators are tested in test_identify_*.py."""
 
     def __init__(self, backend: SimulatorBackend) -> None:
-        sim = backend.simulator
-        cpr = sim.model.encoder.counts_per_rev
-        request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration())
-        self._json = truth_dict(sim, request)
+        self.result = IdentificationResult.from_json(truth_json(backend))
 
-    def __call__(self, bench):
-        return self
+    def __call__(self, bench) -> IdentificationResult:
+        return self.result
 
     def to_json(self) -> dict:
-        return self._json
+        """The answer's result JSON (tests/test_identify_record.py reads it)."""
+        return self.result.to_json()
 
 
 class Quiet:
@@ -48,7 +54,7 @@ class Quiet:
     def __init__(self) -> None:
         self.messages: list[str] = []
 
-    def trial(self, record: dict, records: list[dict]) -> None:
+    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
         pass
 
     def message(self, text: str) -> None:
@@ -77,6 +83,9 @@ class Recording:
         self.requests.append(request)
         self.trials.append(self.backend.run_trial(request))
         return self.trials[-1]
+
+    def close(self) -> None:
+        self.backend.close()
 
 
 def run_campaign(cfg: CampaignConfig, out: Path, backend: Backend | None = None, resume: bool = False,

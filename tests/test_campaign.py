@@ -172,21 +172,19 @@ def _true_amplitude(trial: TrialData, order: int) -> float:
 
 
 def test_a_campaign_stops_with_a_clear_error_when_the_identification_lacks_an_estimate(campaign_config, tmp_path):
-    from campaign_helpers import TruthIdentification
+    from campaign_helpers import truth_json
 
     from ilcpmac.campaign.runner import CampaignRunner
     from ilcpmac.errors import IdentificationError
+    from ilcpmac.records import IdentificationResult
 
     sim = simulator_backend(campaign_config)
-    answer = TruthIdentification(sim).to_json()
+    answer = truth_json(sim)
     answer.update(alpha=None, messages=["alpha: coherence too low"])
 
     class Lacking:
         def __call__(self, bench):
-            return self
-
-        def to_json(self):
-            return answer
+            return IdentificationResult.from_json(answer)
 
     run_dir = RunDir.create(tmp_path / "run", sim.describe(), campaign_config.path.read_text())
     with pytest.raises(IdentificationError, match="needs alpha.*coherence too low"):

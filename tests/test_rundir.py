@@ -343,7 +343,7 @@ def test_json_of_a_run_never_holds_a_non_finite_number(tmp_path):
     path = new_run(tmp_path / "run", trials=1)
     run = RunDir.resume(path, DESCRIPTION)
     with pytest.raises(RunDirError, match=r"identification.json: result.cogging.1 is nan, not a finite number"):
-        run.write_json("identification.json", {"result": {"cogging": [1.0, float("nan")]}})
+        run.write_identification({"result": {"cogging": [1.0, float("nan")]}})
     add(run, 2.0, {"record": {"reduction_factor": float("inf")}})
     with pytest.raises(RunDirError, match=r"trial_002.json: record.reduction_factor is inf, not a finite number"):
         run.close()

@@ -6,9 +6,9 @@ import os
 from typing import TYPE_CHECKING
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
-from ilcpmac.bench.format import MotorInfo
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.sim.grid import simulated_description
 from ilcpmac.sim.simulator import Simulator
 
 if TYPE_CHECKING:
@@ -42,14 +42,7 @@ class SimulatorBackend:
                    config.grid.warmup_revolutions)
 
     def describe(self) -> BenchDescription:
-        m = self.simulator.model
-        return BenchDescription(
-            motor=MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev,
-                            m.mechanics.inertia_kgm2),
-            backemf_nm_per_a=self.simulator.backemf_counts,
-            calibration=m.controller.calibration(),
-            limits=self.limits,
-        )
+        return simulated_description(self.simulator, self.limits)
 
     def run_trial(self, request: TrialRequest) -> TrialData:
         return self.simulator.run_trial(request)

@@ -531,9 +531,7 @@ def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
              f"pole_pairs = {m.pole_pairs}", f"slots = {m.slots}", f"counts_per_rev = {m.counts_per_rev}",
              f"inertia = {_toml_value(m.inertia_kgm2)}", f"backemf_file = {_toml_value(backemf_file)}", ""]
     if sensors is not None:
-        lines += ["[sensors]", f"current_scale = {_toml_value(sensors.current_scale)}",
-                  f"current_offset = {_toml_value(sensors.current_offset)}",
-                  f"torque_gain = {_toml_value(sensors.torque_gain)}", ""]
+        lines += ["[sensors]", *(f"{key} = {_toml_value(value)}" for key, value in sensors.to_json().items()), ""]
     for name, torque, speed in trials:
         lines += ["[[trials]]", f"file = {_toml_value(name)}",
                   f"torque_setpoint = {_toml_value(torque)}", f"speed_setpoint = {_toml_value(speed)}", ""]

@@ -32,6 +32,9 @@ A run holds an exclusive lock on its directory from before creation (or
 resume) to its end: a second run on it fails at once, saying which process
 holds it. The operating system releases the lock when its process dies, kill
 -9 included. JSON files never hold a non-finite number.
+
+`RunFiles` is the one place that knows this layout: `RunDir` writes through
+it, ``ilcpmac report`` reads through it (no lock needed).
 """
 
 from __future__ import annotations
@@ -50,7 +53,6 @@ from pathlib import Path
 
 from filelock import FileLock, Timeout
 
-from ilcpmac.backends.base import BenchDescription
 from ilcpmac.bench.format import (
     BENCH_FILE,
     atomic_write,
@@ -61,12 +63,15 @@ from ilcpmac.bench.format import (
 )
 from ilcpmac.config import read_toml
 from ilcpmac.errors import BenchFormatError, IlcpmacError
-from ilcpmac.records import TrialData
+from ilcpmac.records import BenchDescription, TrialData
 
 CONFIG_FILE = "campaign.toml"
 STATES = "states"
 RUN_FILE = "run.json"
 BACKEMF_FILE = "backemf.csv"
+SUMMARY_FILE = "summary.json"
+IDENTIFICATION_FILE = "identification.json"
+PLOTS = "plots"
 LOCK_FILE = ".lock"
 HOLDER_FILE = ".lock.holder"
 #: what creation writes before campaign.toml, at the top and in states/ (each also as NAME.tmp)
@@ -86,6 +91,75 @@ _OLD_TRIAL_SUFFIX = ".csv"
 def trial_file(index: int, suffix: str = TRIAL_SUFFIX) -> str:
     """The file name of trial ``index`` (1-based)."""
     return f"trial_{index:03d}{suffix}"
+
+
+class RunFiles:
+    """The paths of a run directory (the layout of the module docstring) and reading them back.
+
+    Parameters
+    ----------
+    path : the run directory.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.config = self.path / CONFIG_FILE
+        self.bench = self.path / BENCH_FILE
+        self.backemf = self.path / BACKEMF_FILE
+        self.summary = self.path / SUMMARY_FILE
+        self.states = self.path / STATES
+        self.settings = self.states / RUN_FILE
+        self.identification = self.states / IDENTIFICATION_FILE
+        self.plots = self.path / PLOTS
+
+    def trial(self, index: int) -> Path:
+        """Trial ``index``'s file as a run writes it (Parquet)."""
+        return self.path / trial_file(index)
+
+    def existing_trial(self, index: int) -> Path:
+        """Trial ``index``'s file: Parquet, or CSV in a run begun before Parquet."""
+        path = self.trial(index)
+        old = self.path / trial_file(index, _OLD_TRIAL_SUFFIX)
+        return old if not path.exists() and old.exists() else path
+
+    def is_trial_name(self, index: int, name: str) -> bool:
+        """Whether ``name`` may be trial ``index``'s file (Parquet, or the CSV of a run begun before it)."""
+        return name in (trial_file(index), trial_file(index, _OLD_TRIAL_SUFFIX))
+
+    def state(self, index: int) -> Path:
+        """states/trial_NNN.json, the state saved with trial ``index``."""
+        return self.states / f"trial_{index:03d}.json"
+
+    def read_json(self, path: Path) -> dict | None:
+        """The JSON object in ``path`` (one of these paths), None when it does not exist; `RunDirError`
+        naming it when it cannot be read."""
+        try:
+            return json.loads(path.read_text()) if path.is_file() else None
+        except (OSError, ValueError) as e:
+            raise RunDirError(f"{path}: unreadable ({e})") from None
+
+    def read_state(self, index: int) -> dict:
+        """The state saved with trial ``index``; `RunDirError` when it is missing or unreadable."""
+        state = self.read_json(self.state(index))
+        if state is None:
+            raise RunDirError(f"{self.state(index)}: missing (trial {index} is not complete)")
+        return state
+
+    def read_summary(self) -> dict:
+        """summary.json; `RunDirError` when there is none or it is unreadable."""
+        summary = self.read_json(self.summary)
+        if summary is None:
+            raise RunDirError(f"{self.path}: no {SUMMARY_FILE} (not a run directory of ilcpmac run)")
+        if not isinstance(summary.get("trials"), list):
+            raise RunDirError(f"{self.summary}: unreadable (no list of trials)")
+        return summary
+
+    def read_trial(self, index: int, torque_setpoint_nm: float, speed_setpoint_hz: float) -> TrialData:
+        """Trial ``index`` read back from its file."""
+        try:
+            return read_trial(self.existing_trial(index), torque_setpoint_nm, speed_setpoint_hz)
+        except BenchFormatError as e:
+            raise RunDirError(str(e)) from None
 
 
 def _non_finite(data, where: str = "") -> tuple[str, float] | None:
@@ -217,6 +291,7 @@ class RunDir:
                  lock: RunLock | None = None) -> None:
         """``lock``: one the run releases on `close`."""
         self.path = path
+        self.files = RunFiles(path)
         self.description = description
         self._entries = entries
         self._states: dict[int, dict] = {}
@@ -261,21 +336,22 @@ class RunDir:
                 raise RunDirError(f"{path}: exists and is not empty: it holds a run; continue it with "
                                   f"--resume {path}, or use another --out")
             _refuse_other(path, kind)
-            for f in [*path.iterdir(), *((path / STATES).iterdir() if (path / STATES).is_dir() else ())]:
+            files = run.files
+            for f in [*path.iterdir(), *(files.states.iterdir() if files.states.is_dir() else ())]:
                 if f.name not in (LOCK_FILE, HOLDER_FILE, STATES):
                     f.unlink()
             then = f"nothing was created; {path} can be given to --out again"
-            with _writing(path / STATES, then):
-                (path / STATES).mkdir(exist_ok=True)
-            target = path / STATES / RUN_FILE
+            with _writing(files.states, then):
+                files.states.mkdir(exist_ok=True)
+            target = files.settings
             with _writing(target, then):
                 atomic_write(target, _json_text(settings or {}, target))
-            with _writing(path / BACKEMF_FILE, then):
-                write_backemf_csv(path / BACKEMF_FILE, description.backemf_nm_per_a)
-            with _writing(path / BENCH_FILE, then):
+            with _writing(files.backemf, then):
+                write_backemf_csv(files.backemf, description.backemf_nm_per_a)
+            with _writing(files.bench, then):
                 run._write_bench_toml()
-            with _writing(path / CONFIG_FILE, then):
-                atomic_write(path / CONFIG_FILE, config_text)
+            with _writing(files.config, then):
+                atomic_write(files.config, config_text)
         except BaseException:
             run.close()
             raise
@@ -290,12 +366,12 @@ class RunDir:
         path = Path(path)
         run = cls(path, description, [], None if lock else cls.lock(path, new=False))
         try:
-            data = read_toml(path / BENCH_FILE, RunDirError)
+            data = read_toml(run.files.bench, RunDirError)
             run._entries = [(t["file"], float(t["torque_setpoint"]), float(t["speed_setpoint"]))
                             for t in data.get("trials", [])]
             for i, (name, _, _) in enumerate(run._entries, start=1):
-                if name not in (trial_file(i), trial_file(i, _OLD_TRIAL_SUFFIX)) or not (path / name).is_file() \
-                        or not cls._state_path(path, i).is_file():
+                if not run.files.is_trial_name(i, name) or not (path / name).is_file() \
+                        or not run.files.state(i).is_file():
                     raise RunDirError(f"{path}: trial {i} is listed in {BENCH_FILE} but {name} or its state "
                                       "is missing")
             with _writing(path, run._resumable):
@@ -308,27 +384,20 @@ class RunDir:
     @staticmethod
     def read_settings(path: str | Path) -> dict:
         """The settings a run was created with (states/run.json; empty when there are none)."""
-        f = Path(path) / STATES / RUN_FILE
-        try:
-            return json.loads(f.read_text()) if f.is_file() else {}
-        except (OSError, ValueError) as e:
-            raise RunDirError(f"{f}: unreadable ({e})") from None
-
-    @staticmethod
-    def _state_path(path: Path, index: int) -> Path:
-        return path / STATES / f"trial_{index:03d}.json"
+        files = RunFiles(path)
+        return files.read_json(files.settings) or {}
 
     def _remove_incomplete(self) -> None:
         """Delete what a crash left of a trial that was never committed, and temporary files."""
         indices = range(1, len(self._entries) + 1)
-        keep = {name for name, _, _ in self._entries} | {self._state_path(self.path, i).name for i in indices}
-        for f in {*self.path.glob("trial_*"), *(self.path / STATES).glob("trial_*"),
-                  *self.path.glob("*.tmp"), *(self.path / STATES).glob("*.tmp")}:
+        keep = {name for name, _, _ in self._entries} | {self.files.state(i).name for i in indices}
+        states = self.files.states
+        for f in {*self.path.glob("trial_*"), *states.glob("trial_*"), *self.path.glob("*.tmp"), *states.glob("*.tmp")}:
             if f.name not in keep:
                 f.unlink()
 
     def _write_bench_toml(self, entries: list[tuple[str, float, float]] | None = None) -> None:
-        atomic_write(self.path / BENCH_FILE, bench_toml_text(self.description.motor, self.description.calibration,
+        atomic_write(self.files.bench, bench_toml_text(self.description.motor, self.description.calibration,
                                                              self._entries if entries is None else entries))
 
     @property
@@ -353,7 +422,11 @@ class RunDir:
 
     def config_text(self) -> str:
         """The campaign config the run started with."""
-        return (self.path / CONFIG_FILE).read_text()
+        return self.files.config.read_text()
+
+    def trial_names(self, count: int) -> tuple[str, ...]:
+        """The file names of trials 1..``count``, as bench.toml lists them."""
+        return tuple(name for name, _, _ in self._entries[:count])
 
     def add_trial(self, trial: TrialData, state: dict, summary: dict) -> int:
         """Queue the next trial, its state and the summary for commit, in order; return its index."""
@@ -371,7 +444,7 @@ class RunDir:
         if self._failed:  # a later trial must not be listed in bench.toml before the one that failed
             return
         try:
-            data, state_file = self.path / trial_file(index), self._state_path(self.path, index)
+            data, state_file = self.files.trial(index), self.files.state(index)
             # kept: what the campaign learns from and the true torque, for honest ripple figures; not kept:
             # the measured currents, true currents and speed, which nothing reads back (the measured
             # currents' sensor noise alone would more than double the run directory)
@@ -379,7 +452,7 @@ class RunDir:
                 write_trial(data, replace(trial, i_meas_a=None, i_true_a=None, speed_true_rad_s=None))
             with _writing(state_file, self._resumable):
                 atomic_write(state_file, _json_text(state, state_file))
-            with _writing(self.path / BENCH_FILE, self._resumable):
+            with _writing(self.files.bench, self._resumable):
                 self._write_bench_toml(entries)
             self.write_summary(summary)
         except BaseException:
@@ -389,34 +462,26 @@ class RunDir:
     def state(self, index: int) -> dict:
         """The state saved with trial ``index``."""
         if index not in self._states:
-            self._states[index] = json.loads(self._state_path(self.path, index).read_text())
+            self._states[index] = self.files.read_state(index)
         return self._states[index]
 
-    def write_json(self, name: str, data: dict) -> None:
-        """Write ``states/NAME`` atomically."""
-        target = self.path / STATES / name
+    def write_identification(self, data: dict) -> None:
+        """Write states/identification.json atomically."""
+        target = self.files.identification
         with _writing(target, self._resumable):
             atomic_write(target, _json_text(data, target))
 
-    def read_json(self, name: str) -> dict | None:
-        """``states/NAME``, or None when it does not exist."""
-        f = self.path / STATES / name
-        return json.loads(f.read_text()) if f.is_file() else None
+    def read_identification(self) -> dict | None:
+        """states/identification.json, or None when it does not exist."""
+        return self.files.read_json(self.files.identification)
 
     def write_summary(self, summary: dict) -> None:
         """Write summary.json atomically (not fsynced: it is rebuilt from the states on resume)."""
-        target = self.path / "summary.json"
+        target = self.files.summary
         with _writing(target, self._resumable):
             atomic_write(target, _json_text(summary, target, indent=1), durable=False)
 
     def read_trials(self, indices: list[int]) -> list[TrialData]:
         """Read complete trials back from their files."""
         self.flush()
-        trials = []
-        for i in indices:
-            name, torque, speed = self._entries[i - 1]
-            try:
-                trials.append(read_trial(self.path / name, torque, speed))
-            except BenchFormatError as e:
-                raise RunDirError(str(e)) from None
-        return trials
+        return [self.files.read_trial(i, *self._entries[i - 1][1:]) for i in indices]

@@ -19,104 +19,37 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Callable, Protocol
 
 import numpy as np
 
-from ilcpmac.backends.base import Backend, BenchDescription
+from ilcpmac.backends.base import Backend
 from ilcpmac.bench.format import Bench, as_written
-from ilcpmac.campaign.rundir import RunDir, trial_file
-from ilcpmac.config import CampaignConfig, check_bench
-from ilcpmac.errors import ConfigError, IdentificationError
+from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
+from ilcpmac.campaign.record import TrialRecord
+from ilcpmac.campaign.rundir import RunDir
+from ilcpmac.config import CampaignConfig
+from ilcpmac.errors import IdentificationError
+from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.pipeline.safety import (
-    LimitGuard,
-    SafetyLimits,
-    check_plan,
-    identified_truth,
-    torque_violation,
-    trust_edges,
-)
-from ilcpmac.records import IdentificationResult, TrialData, TrialRequest
-from ilcpmac.signals.harmonics import RippleFigures, ripple_figures
-from ilcpmac.sim.grid import grid_plan, grid_requests
-from ilcpmac.sim.simulator import trial_seed
+from ilcpmac.pipeline.safety import LimitGuard, identified_truth
+from ilcpmac.records import BenchDescription, IdentificationResult, TrialData, TrialRequest
+from ilcpmac.signals.harmonics import RippleFigures
 from ilcpmac.stages.base import PIPELINE_NEEDS, Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs
+
+__all__ = ["CampaignEvents", "CampaignPlan", "CampaignRunner"]
 
 
 class CampaignEvents(Protocol):
     """What the campaign tells its user interface."""
 
-    def trial(self, record: dict, records: list[dict]) -> None:
+    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
         """A trial finished (``records`` holds every trial so far, updated)."""
 
     def message(self, text: str) -> None:
         """Something worth saying (phase changes, the guard acting)."""
-
-
-@dataclass(frozen=True)
-class Step:
-    """The next trial: its phase, its role in the phase and its unshaped request."""
-
-    phase: str
-    role: str
-    request: TrialRequest
-
-
-def _figures(prefix: str, f: RippleFigures | None) -> dict:
-    if f is None:
-        return {}
-    return {f"ripple_pp_{prefix}": f.pp, f"ripple_rms_{prefix}": f.rms, f"rest_rms_{prefix}": f.rest_rms,
-            f"ripple_rms_repeatable_{prefix}": f.rms_repeatable,
-            f"amp_1x_{prefix}_nm": f.amp_1x, f"amp_2x_{prefix}_nm": f.amp_2x,
-            f"amp_cogging_{prefix}_nm": f.amp_cogging, f"amp_rest_{prefix}_nm": f.amp_rest}
-
-
-def base_request(config: CampaignConfig, description: BenchDescription, torque_nm: float,
-                 seed: int) -> TrialRequest:
-    """An uncompensated request at an ILC set point, with the bench's own calibration."""
-    cpr = description.motor.counts_per_rev
-    c = config.campaign
-    return TrialRequest(torque_nm, c.ilc_speed_setpoint_hz, c.revolutions_at(torque_nm), np.zeros(cpr),
-                        np.zeros(cpr), description.calibration, seed=seed)
-
-
-@dataclass(frozen=True)
-class CampaignPlan:
-    """The limits of a campaign and its grid, checked against the bench before anything runs or is written.
-
-    Attributes
-    ----------
-    limits : the config's limits, tightened by the bench's.
-    grid : the identification grid's requests; trial k (1-based) is seeded with ``trial_seed(seed, k)``.
-    """
-
-    limits: SafetyLimits
-    grid: list[TrialRequest]
-
-    @classmethod
-    def build(cls, config: CampaignConfig, description: BenchDescription, seed: int) -> "CampaignPlan":
-        """Check the bench against [bench] (`check_bench`) and every request the campaign will make: the grid,
-        each ILC set point as its baseline runs it, and as the stages may run it (any calibration of the trust
-        region); raise `ConfigError` naming the keys."""
-        check_bench(config, description)
-        limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
-        grid = [replace(r, seed=trial_seed(seed, i + 1))
-                for i, r in enumerate(grid_requests(config, description.calibration, seed, config.grid.revolutions))]
-        c = config.campaign
-        baselines = [(f"{config.path}: [campaign] ilc_torque_setpoints_nm {torque:g} N m at ilc_speed_setpoint_hz "
-                      f"{c.ilc_speed_setpoint_hz:g} Hz, ilc_revolutions {c.revolutions_at(torque)}",
-                      base_request(config, description, torque, 0)) for torque in c.ilc_torque_setpoints_nm]
-        check_plan([*grid_plan(config, grid), *baselines], description, limits)
-        for place, request in baselines:
-            for edge in trust_edges(limits):
-                why = torque_violation(request.torque_reference_nm(), description.backemf_nm_per_a, limits, edge)
-                if why is not None:
-                    raise ConfigError(f"{place}: with a calibration at the edge of the trust region ([limits] "
-                                      f"max_scale_deviation, max_offset_deviation_a): {why}")
-        return cls(limits, grid)
 
 
 class CampaignRunner:
@@ -139,56 +72,29 @@ class CampaignRunner:
         self.extra_stages = extra_stages
         self.config = config
         self.run_dir = run_dir
-        self.seed = seed
         self.identify = identify
         self.events = events
         self.description: BenchDescription = run_dir.description
-        plan = CampaignPlan.build(config, self.description, seed)
-        self.limits = plan.limits
+        self.plan = CampaignPlan.build(config, self.description, seed)
         #: every request of every phase passes the limits here (the identified sensors join them later)
-        self.backend = LimitGuard(backend, self.description, self.limits)
-        self.grid = plan.grid
-        self.records: list[dict] = []
+        self.backend = LimitGuard(backend, self.description, self.plan.limits)
+        self.records: list[TrialRecord] = []
         self.identified: Identified | None = None
         self.identification_json: dict | None = None
         self.pipeline: Pipeline | None = None
         self.gains: dict[str, float] = {}
         self._grid_data: dict[int, TrialData] = {}
+        #: the measured torque's analysis of the grid trials run by this process, for their measured ripple
+        self._grid_spectra: dict[int, TorqueSpectrum] = {}
 
-    # ---------------------------------------------------------------- planning
-
-    def _base_request(self, torque_nm: float, index: int) -> TrialRequest:
-        return base_request(self.config, self.description, torque_nm, trial_seed(self.seed, index))
-
-    def _records_at(self, torque_nm: float, roles: tuple[str, ...]) -> list[dict]:
-        return [r for r in self.records if r["role"] in roles and r["torque_setpoint"] == torque_nm]
-
-    def _ilc_finished(self, torque_nm: float) -> bool:
-        c = self.config.campaign
-        ilc = self._records_at(torque_nm, ("ilc",))
-        if len(ilc) >= c.ilc_trials:
-            return True
-        # judged on the repeatable part: at low torque the noise left in the average hides progress
-        history = [r["ripple_rms_repeatable_measured"] for r in self._records_at(torque_nm, ("compensate", "ilc"))]
-        if len(history) <= c.patience:
-            return False
-        best_before = min(history[: -c.patience])
-        return all(p > (1.0 - c.min_improvement) * best_before for p in history[-c.patience:])
+    @property
+    def grid(self) -> list[TrialRequest]:
+        """The identification grid's requests."""
+        return self.plan.grid
 
     def next_step(self) -> Step | None:
         """The next trial to run, from the trials done so far; None when the campaign is over."""
-        n = len(self.records)
-        index = n + 1
-        if n < len(self.grid):
-            return Step("identify", "grid", self.grid[n])
-        for role, phase in (("baseline", "identify"), ("compensate", "compensate")):
-            for torque in self.config.campaign.ilc_torque_setpoints_nm:
-                if not self._records_at(torque, (role,)):
-                    return Step(phase, role, self._base_request(torque, index))
-        for torque in self.config.campaign.ilc_torque_setpoints_nm:
-            if not self._ilc_finished(torque):
-                return Step("ilc", "ilc", self._base_request(torque, index))
-        return None
+        return self.plan.next_step(self.records)
 
     # ---------------------------------------------------------------- running
 
@@ -223,43 +129,53 @@ class CampaignRunner:
 
     def _run_grid(self) -> None:
         """Run the remaining grid trials (in parallel where the backend allows), persist them in order."""
-        start = len(self.records)
-        steps = self.grid[start:]
+        steps = self.grid[len(self.records):]
         self.events.message(f"identify: {len(self.grid)} multisine trials over the set-point grid")
-        workers = min(getattr(self.backend, "max_parallel_trials", 1), os.cpu_count() or 1)
+        workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1)
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
             for request, trial in zip(steps, pool.map(self._run, steps)):
                 self._finish(Step("identify", "grid", request), trial)
 
     def _finish(self, step: Step, trial: TrialData) -> None:
-        """Learn from a finished trial, measure its ripple, persist it, tell the user."""
-        key = step.request.setpoint_key
-        record = {"index": len(self.records) + 1, "phase": step.phase, "role": step.role,
-                  "torque_setpoint": step.request.torque_setpoint_nm, "speed_setpoint": step.request.speed_setpoint_hz}
-        guard = None
-        if step.role in ("compensate", "ilc"):
-            self.pipeline.learn(trial, self.gains.get(key, 1.0))
-        record.update(self._ripple(trial))
-        baseline = self._records_at(step.request.torque_setpoint_nm, ("baseline",))
-        if step.role in ("compensate", "ilc") and baseline:
-            for kind in ("measured", "true"):
-                before, after = baseline[0].get(f"ripple_pp_{kind}"), record.get(f"ripple_pp_{kind}")
-                if before is not None and after is not None and after > 0:  # a flat trace has no factor
-                    record["reduction_factor" + ("_true" if kind == "true" else "")] = before / after
+        """Analyse a finished trial once, teach the pipeline from it, record its ripple, persist it, tell the user."""
+        request = step.request
+        key = request.setpoint_key
+        analysis = TrialAnalysis.of(trial, self.description.motor.counts_per_rev,
+                                    self.config.campaign.ripple_harmonics)
+        record = TrialRecord(len(self.records) + 1, step.phase, step.role, request.torque_setpoint_nm,
+                             request.speed_setpoint_hz, true=self._true_figures(analysis))
+        if record.learns:
+            self.pipeline.learn(trial, self.gains.get(key, 1.0), analysis.measured)
+        if self.identified is not None:
+            record = replace(record, measured=self._measured_figures(trial.request, analysis.measured))
+        if record.learns:
+            record = self._with_reductions(record)
         self.records.append(record)
-        if step.role == "ilc":
-            guard = self._guard(step.request.torque_setpoint_nm, key)
-        state = {"record": record, "pipeline": self.pipeline.state() if self.pipeline else None,
+        guard = self._guard(request.torque_setpoint_nm, key) if step.role == "ilc" else None
+        state = {"record": record.to_json(), "pipeline": self.pipeline.state() if self.pipeline else None,
                  "gains": dict(self.gains), "guard": guard,
-                 "request": {"calibration": step.request.calibration.to_json(),
+                 "request": {"calibration": request.calibration.to_json(),
                              "feedforward_nm": trial.request.feedforward_nm.tolist(),
-                             "revolutions": step.request.revolutions, "seed": step.request.seed}}
+                             "revolutions": request.revolutions, "seed": request.seed}}
         self.run_dir.add_trial(trial, state, self.summary())
         if step.role == "grid":
-            self._grid_data[record["index"]] = trial
+            self._grid_data[record.index] = trial
+            self._grid_spectra[record.index] = analysis.measured
             if len(self.records) == len(self.grid):
                 self._identify(self._grid_trials())
         self.events.trial(record, self.records)
+
+    def _with_reductions(self, record: TrialRecord) -> TrialRecord:
+        """``record`` with its reduction factors against its set point's baseline."""
+        baseline = records_at(self.records, record.torque_setpoint_nm, ("baseline",))
+        if not baseline:
+            return record
+        factors = {}
+        for kind, name in (("measured", "reduction_factor"), ("true", "reduction_factor_true")):
+            before, after = baseline[0].figures(kind), record.figures(kind)
+            if before is not None and after is not None and after.pp > 0:  # a flat trace has no factor
+                factors[name] = before.pp / after.pp
+        return replace(record, **factors)
 
     def _grid_trials(self) -> list[TrialData]:
         """The grid trials: from memory, or read back from the run directory after a resume
@@ -268,43 +184,39 @@ class CampaignRunner:
         self._grid_data.update(zip(missing, self.run_dir.read_trials(missing)))
         return [self._grid_data[i] for i in range(1, len(self.grid) + 1)]
 
-    def _ripple(self, trial: TrialData) -> dict:
+    def _true_figures(self, analysis: TrialAnalysis) -> RippleFigures | None:
+        """True ripple, as a fraction of the true torque's mean."""
+        if analysis.true is None:
+            return None
         m = self.description.motor
-        H = self.config.campaign.ripple_harmonics
-        out = {}
-        if trial.torque_true_nm is not None:
-            out.update(_figures("true", ripple_figures(trial.count, trial.torque_true_nm, m.counts_per_rev,
-                                                       float(trial.torque_true_nm.mean()), m.pole_pairs,
-                                                       m.cogging_order, H)))
-        if self.identified is not None:
-            out.update(_figures("measured", self._measured_figures(trial)))
-        return out
+        return analysis.true.figures(analysis.true_mean_nm, m.pole_pairs, m.cogging_order)
 
-    def _measured_figures(self, trial: TrialData) -> RippleFigures:
+    def _measured_figures(self, request: TrialRequest, spectrum: TorqueSpectrum) -> RippleFigures:
         """Measured ripple, as a fraction of the mean torque the sensor would show (delta epsilon set point)."""
         m = self.description.motor
-        cal = trial.request.calibration
+        cal = request.calibration
         ident = self.identified
-        mean = trial.torque_setpoint_nm * ident.delta_at(cal) * float(np.mean(ident.epsilon_alpha_at(cal)))
-        return ripple_figures(trial.count, trial.torque_nm, m.counts_per_rev, mean, m.pole_pairs, m.cogging_order,
-                              self.config.campaign.ripple_harmonics)
+        mean = request.torque_setpoint_nm * ident.delta_at(cal) * float(np.mean(ident.epsilon_alpha_at(cal)))
+        return spectrum.figures(mean, m.pole_pairs, m.cogging_order)
 
     def _identify(self, grid_trials: list[TrialData]) -> None:
         """Identify from the grid; measured ripple of the grid trials follows from it."""
         self.run_dir.flush()  # the grid records change below; nothing may be serialising them
         self.events.message("identify: estimating delta*epsilon, delta, alpha, beta and cogging")
+        n = len(grid_trials)
         bench = Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
-                      tuple(grid_trials), tuple(trial_file(i) for i in range(1, len(grid_trials) + 1)))
+                      tuple(grid_trials), self.run_dir.trial_names(n))
         result = self.identify(bench)
         self.identification_json = result.to_json()
-        if not isinstance(result, IdentificationResult):  # an injected answer (a truth) known by its JSON alone
-            result = IdentificationResult.from_json(self.identification_json)
         self._set_identified(result)
-        for record, trial in zip(self.records, grid_trials):
-            trial = replace(trial, request=replace(self.grid[record["index"] - 1]))
-            record.update(_figures("measured", self._measured_figures(trial)))
-        self.run_dir.write_json("identification.json", {
-            "result": self.identification_json, "grid_records": self.records[: len(self.grid)]})
+        cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
+        for i, trial in enumerate(grid_trials, start=1):  # read back after a resume: analysed here
+            if i not in self._grid_spectra:
+                self._grid_spectra[i] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, cpr, H)
+        self.records[:n] = [replace(r, measured=self._measured_figures(request, self._grid_spectra[r.index]))
+                            for r, request in zip(self.records, self.grid)]
+        self.run_dir.write_identification({"result": self.identification_json,
+                                           "grid_records": [r.to_json() for r in self.records[:n]]})
         self.run_dir.write_summary(self.summary())
 
     def _set_identified(self, result: IdentificationResult) -> None:
@@ -329,21 +241,21 @@ class CampaignRunner:
         setups = {name: StageSetup(self.description, self.identified, self.config.campaign.ripple_harmonics,
                                    self.config.stage_options.get(name, {})) for name in names}
         stages = build_stages(names, setups, self.extra_stages)
-        self.pipeline = Pipeline(stages, self.description, self.identified, self.limits,
+        self.pipeline = Pipeline(stages, self.description, self.identified, self.plan.limits,
                                  self.config.campaign.ripple_harmonics, self.events.message)
 
     def _guard(self, torque_nm: float, key: str) -> dict | None:
         """Revert to the best correction and halve the learning gain when the ripple grew twice in a row."""
-        history = self._records_at(torque_nm, ("compensate", "ilc"))
-        pp = [r["ripple_pp_measured"] for r in history]
+        history = records_at(self.records, torque_nm, ("compensate", "ilc"))
+        pp = [r.measured.pp for r in history]
         if len(pp) < 3 or not (pp[-1] > pp[-2] > pp[-3]):
             return None
-        best = min(history, key=lambda r: r["ripple_pp_measured"])
-        self.pipeline.restore(self.run_dir.state(best["index"])["pipeline"])
+        best = min(history, key=lambda r: r.measured.pp)
+        self.pipeline.restore(self.run_dir.state(best.index)["pipeline"])
         self.gains[key] = self.gains.get(key, 1.0) * 0.5
-        event = {"set_point": key, "reverted_to_trial": best["index"], "learning_gain": self.gains[key]}
+        event = {"set_point": key, "reverted_to_trial": best.index, "learning_gain": self.gains[key]}
         self.events.message(f"guard: measured ripple at {key} grew twice in a row; reverted to the correction "
-                            f"of trial {best['index']} and halved the learning gain to {self.gains[key]:g}")
+                            f"of trial {best.index} and halved the learning gain to {self.gains[key]:g}")
         return event
 
     # ---------------------------------------------------------------- resume and summary
@@ -353,15 +265,15 @@ class CampaignRunner:
         done = self.run_dir.completed
         if done == 0:
             return
-        self.records = [self.run_dir.state(i)["record"] for i in range(1, done + 1)]
-        saved = self.run_dir.read_json("identification.json")
+        self.records = [TrialRecord.from_json(self.run_dir.state(i)["record"]) for i in range(1, done + 1)]
+        saved = self.run_dir.read_identification()
         if len(self.records) >= len(self.grid):
             if saved is None:
                 self._identify(self._grid_trials())
             else:
                 self.identification_json = saved["result"]
                 self._set_identified(IdentificationResult.from_json(saved["result"]))
-                self.records[: len(self.grid)] = saved["grid_records"]
+                self.records[: len(self.grid)] = [TrialRecord.from_json(r) for r in saved["grid_records"]]
         last = self.run_dir.state(done)
         self.gains = dict(last.get("gains", {}))
         if last["pipeline"] is not None:
@@ -370,17 +282,18 @@ class CampaignRunner:
         self.events.message(f"resume: {done} trials already complete in {self.run_dir.path}")
 
     def summary(self) -> dict:
-        """summary.json: every trial, the identification and the final figures."""
-        trials = [{k: v for k, v in r.items()} for r in self.records]
+        """summary.json: every trial, the identification and the final figures (docs/campaign.md)."""
+        setpoints = self.config.campaign.ilc_torque_setpoints_nm
+        last = [done[-1] for t in setpoints if (done := records_at(self.records, t, ("compensate", "ilc")))]
         final = {}
-        last = [self._records_at(t, ("compensate", "ilc"))[-1:] for t in self.config.campaign.ilc_torque_setpoints_nm]
-        last = [r[0] for r in last if r]
-        if last and len(last) == len(self.config.campaign.ilc_torque_setpoints_nm):
-            for key in ("ripple_pp_true", "ripple_pp_measured", "ripple_rms_true", "ripple_rms_measured"):
-                if all(key in r for r in last):
-                    final[key] = max(r[key] for r in last)
+        if last and len(last) == len(setpoints):
+            for name, kind in (("pp", "true"), ("pp", "measured"), ("rms", "true"), ("rms", "measured")):
+                figures = [r.figures(kind) for r in last]
+                if all(f is not None for f in figures):
+                    final[f"ripple_{name}_{kind}"] = max(getattr(f, name) for f in figures)
             for key in ("reduction_factor", "reduction_factor_true"):
-                if all(key in r for r in last):
-                    final[key] = min(r[key] for r in last)
-        return {"trials": trials, "identification": self.identification_json, "final": final}
-
+                factors = [getattr(r, key) for r in last]
+                if all(f is not None for f in factors):
+                    final[key] = min(factors)
+        return {"trials": [r.to_json() for r in self.records], "identification": self.identification_json,
+                "final": final}

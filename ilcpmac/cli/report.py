@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
@@ -16,31 +15,27 @@ from ilcpmac.cli import console, main
               help="Where to write the PNGs (default RUN_DIR/plots).")
 def report(run_dir: Path, out_dir: Path | None) -> None:
     """Plot a run: ripple per trial, torque before and after, its spectrum, the learned correction."""
-    from ilcpmac.campaign.rundir import RunDirError
+    from ilcpmac.campaign.record import records_of
+    from ilcpmac.campaign.rundir import RunDirError, RunFiles
     from ilcpmac.config import load_config, read_toml
     from ilcpmac.report import plots
 
-    summary_path = run_dir / "summary.json"
-    if not summary_path.is_file():
-        raise RunDirError(f"{run_dir}: no summary.json (not a run directory of ilcpmac run)")
+    files = RunFiles(run_dir)
+    summary = files.read_summary()
     try:
-        summary = json.loads(summary_path.read_text())
-        records = summary["trials"]
-    except (json.JSONDecodeError, KeyError) as e:
-        raise RunDirError(f"{summary_path}: unreadable ({e})") from None
-    cfg = load_config(run_dir / "campaign.toml")
-    cpr = int(read_toml(run_dir / "bench.toml", RunDirError)["motor"]["counts_per_rev"])
-    out_dir = out_dir or run_dir / "plots"
+        records = records_of(summary)
+    except (KeyError, TypeError, ValueError) as e:
+        raise RunDirError(f"{files.summary}: unreadable ({e!r})") from None
+    cfg = load_config(files.config)
+    cpr = int(read_toml(files.bench, RunDirError)["motor"]["counts_per_rev"])
+    out_dir = out_dir or files.plots
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         written = [out_dir / "ripple_per_trial.png"]
         plots.ripple_per_trial(records, written[0])
-        written += plots.before_after(run_dir, records, cpr, cfg.campaign.ripple_harmonics, out_dir)
-        feedforward = {}
-        for r in records:
-            if r["role"] in ("compensate", "ilc"):
-                state = json.loads((run_dir / "states" / f"trial_{r['index']:03d}.json").read_text())
-                feedforward[r["torque_setpoint"]] = state["request"]["feedforward_nm"]
+        written += plots.before_after(files, records, cpr, cfg.campaign.ripple_harmonics, out_dir)
+        feedforward = {r.torque_setpoint_nm: files.read_state(r.index)["request"]["feedforward_nm"]
+                       for r in records if r.learns}
         if feedforward:
             written.append(plots.learned_correction(feedforward, out_dir))
     except OSError as e:

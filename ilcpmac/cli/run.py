@@ -50,8 +50,10 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     import dataclasses
 
     from ilcpmac.backends.registry import BackendSetup, build_backend
-    from ilcpmac.campaign.rundir import CONFIG_FILE, RunDir
-    from ilcpmac.campaign.runner import CampaignPlan, CampaignRunner
+    from ilcpmac.campaign.plan import CampaignPlan
+    from ilcpmac.campaign.record import TrialRecord, records_of
+    from ilcpmac.campaign.rundir import RunDir, RunFiles
+    from ilcpmac.campaign.runner import CampaignRunner
     from ilcpmac.config import check_config, load_config, packaged_config
     from ilcpmac.errors import ConfigError
     from ilcpmac.identify import identify_bench
@@ -66,7 +68,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     try:
         if resume_dir is not None:
             settings = RunDir.read_settings(resume_dir)
-            config_path = resume_dir / CONFIG_FILE
+            config_path = RunFiles(resume_dir).config
             seed, trials = settings.get("seed"), settings.get("trials")
         else:
             config_path = config or packaged_config(DEFAULT_CONFIG)
@@ -90,11 +92,8 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             else:
                 run_dir = RunDir.create(out_dir, description, config_path.read_text(),
                                         {"seed": seed, "trials": trials, "config": str(config_path)}, lock)
-            records: list[dict] = []
-
             class Events:
-                def trial(self, record: dict, all_records: list[dict]) -> None:
-                    records[:] = all_records
+                def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
                     live.update(trials_table(records, f"ilcpmac run  {run_dir.path}"))
 
                 def message(self, text: str) -> None:
@@ -111,7 +110,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             lock.release()
         if made_out_dir and run_dir is None:  # nothing was created: leave no empty directory behind
             shutil.rmtree(out_dir, ignore_errors=True)
-    console.print(summary_table(summary, list(cfg.campaign.ilc_torque_setpoints_nm)))
+    console.print(summary_table(records_of(summary), list(cfg.campaign.ilc_torque_setpoints_nm)))
     final = summary["final"]
     if final:
         console.print("final (worst over the ILC set points): " + ", ".join(

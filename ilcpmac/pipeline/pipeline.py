@@ -6,7 +6,7 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.backends.base import BenchDescription
+from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.pipeline.regression import Regression
 from ilcpmac.pipeline.safety import (
     FlowingCurrent,
@@ -20,15 +20,9 @@ from ilcpmac.pipeline.safety import (
     identified_truth,
     torque_violation,
 )
-from ilcpmac.records import TrialData, TrialRequest
-from ilcpmac.signals.harmonics import harmonic_amplitudes, revolution_harmonics
+from ilcpmac.records import BenchDescription, TrialData, TrialRequest
+from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.stages.base import Frame, Identified, Stage
-
-
-def drift_columns(time_s: np.ndarray) -> np.ndarray:
-    """Nuisance regressors of a piezo torque sensor: DC level and linear drift."""
-    span = max(time_s[-1] - time_s[0], 1e-12)
-    return np.column_stack([np.ones_like(time_s), (time_s - time_s.mean()) / span])
 
 
 class Pipeline:
@@ -95,12 +89,16 @@ class Pipeline:
         pole_pairs = self.description.motor.pole_pairs
         return np.arange(pole_pairs, self.max_harmonic + 1, pole_pairs)
 
-    def frame(self, trial: TrialData, learning_gain: float = 1.0) -> Frame:
-        """The joint fit and the measured ripple spectrum of a finished trial."""
+    def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
+        """The joint fit and the measured ripple spectrum of a finished trial.
+
+        ``spectrum``: the trial's measured `TorqueSpectrum` up to H (`TrialAnalysis.measured`), computed
+        here when not given.
+        """
         cpr = self.description.motor.counts_per_rev
-        nuisance = drift_columns(trial.time_s)
-        trend = nuisance @ np.linalg.lstsq(nuisance, trial.torque_nm, rcond=None)[0]
-        mean, variance = revolution_harmonics(trial.count, trial.torque_nm - trend, cpr, self.max_harmonic)
+        if spectrum is None:
+            spectrum = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, cpr, self.max_harmonic)
+        mean, variance = spectrum.harmonics_nm, spectrum.variance_nm2
         h = self.claimed_harmonics()
         blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.stages
                   if (table := s.columns(trial)) is not None}
@@ -109,9 +107,9 @@ class Pipeline:
         return Frame({name: regression.block(name) for name in blocks}, mean / delta, variance / delta**2, delta,
                      trial.mean_speed_hz(cpr), learning_gain)
 
-    def learn(self, trial: TrialData, learning_gain: float = 1.0) -> Frame:
-        """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame."""
-        frame = self.frame(trial, learning_gain)
+    def learn(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
+        """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame (`frame`)."""
+        frame = self.frame(trial, learning_gain, spectrum)
         for stage in self.stages:
             stage.learn(trial, frame)
         return frame

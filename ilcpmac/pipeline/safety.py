@@ -13,16 +13,18 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Iterable
+from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
-from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.config import LimitSettings
 from ilcpmac.errors import ConfigError, IdentificationError, SafetyError
 from ilcpmac.model.tables import current_references, dead_counts
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.stages.base import Identified
+
+if TYPE_CHECKING:
+    from ilcpmac.backends.base import Backend
 
 #: relative slack of every comparison with a limit: what clipping to a bound may leave after rounding
 ROUNDING = 1e-9
@@ -364,7 +366,7 @@ def check_plan(plan: Iterable[tuple[str, TrialRequest]], description: BenchDescr
 
 
 class LimitGuard:
-    """A backend that passes on only the requests `request_violation` accepts.
+    """A backend (the whole `Backend` protocol) that passes on only the requests `request_violation` accepts.
 
     The campaign wraps whatever backend it is given in one, so no phase can bypass the limits.
 
@@ -380,7 +382,7 @@ class LimitGuard:
         The identified true sensors, once known (bounds the flowing current and centres the trust region).
     """
 
-    def __init__(self, backend, description: BenchDescription, limits: SafetyLimits) -> None:
+    def __init__(self, backend: Backend, description: BenchDescription, limits: SafetyLimits) -> None:
         self.backend = backend
         self.description = description
         self.limits = limits
@@ -388,7 +390,7 @@ class LimitGuard:
 
     @property
     def max_parallel_trials(self) -> int:
-        return getattr(self.backend, "max_parallel_trials", 1)
+        return self.backend.max_parallel_trials
 
     def describe(self) -> BenchDescription:
         return self.description
@@ -399,3 +401,6 @@ class LimitGuard:
             raise SafetyError(f"trial at {request.torque_setpoint_nm!r} N m, {request.speed_setpoint_hz!r} Hz "
                               f"refused before it reached the backend: {violation.message}")
         return self.backend.run_trial(request)
+
+    def close(self) -> None:
+        self.backend.close()

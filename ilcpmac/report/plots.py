@@ -10,31 +10,23 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ilcpmac.bench.format import read_trial  # noqa: E402
-from ilcpmac.campaign.rundir import trial_file  # noqa: E402
-from ilcpmac.signals.harmonics import (  # noqa: E402
-    band_limited,
-    harmonic_amplitudes,
-    linear_trend,
-    synchronous_average,
-)
+from ilcpmac.campaign.plan import records_at  # noqa: E402
+from ilcpmac.campaign.record import TrialRecord  # noqa: E402
+from ilcpmac.campaign.rundir import RunFiles  # noqa: E402
+from ilcpmac.pipeline.analysis import TorqueSpectrum  # noqa: E402
 
 
-def _trial_path(run_dir: Path, index: int) -> Path:
-    """Trial ``index`` of a run directory: Parquet, or CSV in a run started before Parquet."""
-    path = run_dir / trial_file(index)
-    return path if path.exists() else run_dir / trial_file(index, ".csv")
-
-def ripple_per_trial(records: list[dict], path: Path) -> None:
+def ripple_per_trial(records: list[TrialRecord], path: Path) -> None:
     """Peak-to-peak ripple per trial (log scale), measured and true, coloured by phase."""
     fig, ax = plt.subplots(figsize=(9, 4.5))
     colours = {"identify": "tab:gray", "compensate": "tab:orange", "ilc": "tab:blue"}
-    for key, marker, label in (("ripple_pp_measured", "o", "measured"), ("ripple_pp_true", "x", "true")):
+    for kind, marker in (("measured", "o"), ("true", "x")):
         for phase, colour in colours.items():
-            pts = [(r["index"], 100 * r[key]) for r in records if r["phase"] == phase and key in r]
+            pts = [(r.index, 100 * r.figures(kind).pp) for r in records
+                   if r.phase == phase and r.figures(kind) is not None]
             if pts:
                 x, y = zip(*pts)
-                ax.semilogy(x, y, marker, color=colour, label=f"{phase}, {label}", ms=5, mfc="none")
+                ax.semilogy(x, y, marker, color=colour, label=f"{phase}, {kind}", ms=5, mfc="none")
     ax.axhline(0.1, color="k", lw=0.8, ls=":", label="0.1 %")
     ax.set(xlabel="trial", ylabel="ripple peak-to-peak, % of mean torque", title="Ripple per trial")
     ax.legend(fontsize=8, ncol=2)
@@ -44,35 +36,29 @@ def ripple_per_trial(records: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def _ripple_table(trial, counts_per_rev: int, max_harmonic: int, true: bool) -> np.ndarray:
-    torque = trial.torque_true_nm if true and trial.torque_true_nm is not None else trial.torque_nm
-    detrended = torque - linear_trend(trial.time_s, torque)
-    return band_limited(synchronous_average(trial.count, detrended, counts_per_rev), max_harmonic)
-
-
-def before_after(run_dir: Path, records: list[dict], counts_per_rev: int, max_harmonic: int,
+def before_after(files: RunFiles, records: list[TrialRecord], counts_per_rev: int, max_harmonic: int,
                  out_dir: Path) -> list[Path]:
     """Per ILC set point: the ripple over one revolution and its spectrum, uncompensated vs final."""
     written = []
-    for torque in sorted({r["torque_setpoint"] for r in records if r["role"] == "baseline"}):
-        base = next(r for r in records if r["role"] == "baseline" and r["torque_setpoint"] == torque)
-        done = [r for r in records if r["role"] in ("compensate", "ilc") and r["torque_setpoint"] == torque]
+    for torque in sorted({r.torque_setpoint_nm for r in records if r.role == "baseline"}):
+        base = records_at(records, torque, ("baseline",))[0]
+        done = records_at(records, torque, ("compensate", "ilc"))
         if not done:
             continue
         final = done[-1]
-        trials = [read_trial(_trial_path(run_dir, r["index"]), r["torque_setpoint"], r["speed_setpoint"])
-                  for r in (base, final)]
+        trials = [files.read_trial(r.index, r.torque_setpoint_nm, r.speed_setpoint_hz) for r in (base, final)]
         true = all(t.torque_true_nm is not None for t in trials)
-        tables = [_ripple_table(t, counts_per_rev, max_harmonic, true) for t in trials]
+        spectra = [TorqueSpectrum.of(t.count, t.time_s, t.torque_true_nm if true else t.torque_nm, counts_per_rev,
+                                     max_harmonic) for t in trials]
         fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(9, 9.5))
         angle = 360.0 * np.arange(counts_per_rev) / counts_per_rev
         kind = "true" if true else "measured"
-        for ax, table, r, label in zip((ax0, ax1), tables, (base, final), ("uncompensated", "final")):
-            ax.plot(angle, 1000 * table, lw=0.8, color="tab:blue" if ax is ax0 else "tab:orange")
+        for ax, spectrum, r, label in zip((ax0, ax1), spectra, (base, final), ("uncompensated", "final")):
+            ax.plot(angle, 1000 * spectrum.ripple_table(), lw=0.8, color="tab:blue" if ax is ax0 else "tab:orange")
             ax.set(xlabel="mechanical angle, deg", ylabel="mN m",
-                   title=f"{torque:g} N m, {label} (trial {r['index']}): {kind} torque ripple, "
+                   title=f"{torque:g} N m, {label} (trial {r.index}): {kind} torque ripple, "
                          f"harmonics 1..{max_harmonic}")
-            amp = np.abs(harmonic_amplitudes(table))[1: max_harmonic + 1]
+            amp = np.abs(spectrum.harmonics_nm[1:])
             ax2.semilogy(np.arange(1, max_harmonic + 1), 1000 * np.maximum(amp, 1e-9), ".", ms=4, label=label)
         ax2.set(xlabel="harmonic of the mechanical revolution", ylabel="amplitude, mN m",
                 title="harmonic spectrum")

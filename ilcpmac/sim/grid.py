@@ -8,12 +8,10 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.backends.registry import BackendSetup
-from ilcpmac.backends.simulated import SimulatorBackend
-from ilcpmac.bench.format import Bench, write_bench
+from ilcpmac.bench.format import Bench, MotorInfo, write_bench
 from ilcpmac.config import CampaignConfig
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.simulator import Simulator, trial_seed
 
@@ -62,12 +60,20 @@ def truth_dict(simulator: Simulator, request: TrialRequest) -> dict:
         # the PI loop closes on the measured current, 1 / (epsilon alpha_p) times the true one
         "current_loop_bandwidth_per_phase_hz": (simulator.model.controller.bandwidth_hz
                                                 / (t.epsilon * t.alpha)).tolist(),
-        "calibration": {
-            "current_scale": simulator.scale_true.tolist(),
-            "current_offset": simulator.offset_true.tolist(),
-            "torque_gain": simulator.torque_gain_true,
-        },
+        "calibration": SensorCalibration(simulator.scale_true, simulator.offset_true,
+                                         simulator.torque_gain_true).to_json(),
     }
+
+
+def simulated_description(simulator: Simulator, limits: BenchLimits) -> BenchDescription:
+    """What the simulated bench tells before its first trial: what its controller knows, and ``limits``."""
+    m = simulator.model
+    return BenchDescription(
+        motor=MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
+        backemf_nm_per_a=simulator.backemf_counts,
+        calibration=m.controller.calibration(),
+        limits=limits,
+    )
 
 
 def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None = None,
@@ -86,11 +92,13 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
     """
     seed = config.grid.seed if seed is None else seed
     revolutions = config.grid.revolutions if revolutions is None else revolutions
-    backend = SimulatorBackend.from_setup(BackendSetup(config))
-    simulator, description = backend.simulator, backend.describe()
+    lim = config.limits
+    simulator = Simulator(config.simulated_model(), config.grid.warmup_revolutions)
+    bench_limits = BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz)
+    description = simulated_description(simulator, bench_limits)
     requests = grid_requests(config, description.calibration, seed, revolutions)
     check_plan(grid_plan(config, requests), description,
-               SafetyLimits.of_campaign(config.limits, backend.limits, config.grid.warmup_revolutions))
+               SafetyLimits.of_campaign(lim, bench_limits, config.grid.warmup_revolutions))
     trials = simulator.run_trials(requests, on_done=on_done)
     bench = Bench(
         motor=description.motor,

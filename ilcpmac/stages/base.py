@@ -15,15 +15,12 @@ refuses to start the stages when the identification could not estimate one.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from ilcpmac.model.current_loop import CurrentLoop
-from ilcpmac.records import IdentificationResult, SensorCalibration, TrialData, TrialRequest
-
-if TYPE_CHECKING:
-    from ilcpmac.backends.base import BenchDescription
+from ilcpmac.records import BenchDescription, IdentificationResult, SensorCalibration, TrialData, TrialRequest
 
 #: the identification's estimates the pipeline itself needs (the trial's delta, the identified sensors
 #: bounding the flowing current); a stage declares what more it needs in its ``needs``

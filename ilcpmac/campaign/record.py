@@ -1,0 +1,89 @@
+"""The record of one campaign trial: what summary.json and the live table show of it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ilcpmac.signals.harmonics import RippleFigures
+
+__all__ = ["FIGURE_KEYS", "TrialRecord", "records_of"]
+
+#: summary.json's key of each `RippleFigures` field; ``{}`` is "measured" or "true"
+FIGURE_KEYS = (("pp", "ripple_pp_{}"), ("rms", "ripple_rms_{}"), ("rest_rms", "rest_rms_{}"),
+               ("rms_repeatable", "ripple_rms_repeatable_{}"), ("amp_1x", "amp_1x_{}_nm"),
+               ("amp_2x", "amp_2x_{}_nm"), ("amp_cogging", "amp_cogging_{}_nm"), ("amp_rest", "amp_rest_{}_nm"))
+
+
+def _figures_json(kind: str, figures: RippleFigures | None) -> dict:
+    return {} if figures is None else {key.format(kind): getattr(figures, name) for name, key in FIGURE_KEYS}
+
+
+def _figures_from_json(kind: str, data: dict) -> RippleFigures | None:
+    if FIGURE_KEYS[0][1].format(kind) not in data:
+        return None
+    return RippleFigures(**{name: float(data[key.format(kind)]) for name, key in FIGURE_KEYS})
+
+
+@dataclass(frozen=True)
+class TrialRecord:
+    """One trial of a campaign (docs/campaign.md, summary.json).
+
+    Attributes
+    ----------
+    index : int
+        1-based, in the order trials ran.
+    phase : str
+        "identify", "compensate" or "ilc".
+    role : str
+        "grid", "baseline", "compensate" or "ilc".
+    torque_setpoint_nm, speed_setpoint_hz : float
+    measured : RippleFigures or None
+        Of the measured torque; None until the identification (which gives the mean it refers to).
+    true : RippleFigures or None
+        Of the true torque (simulator only).
+    reduction_factor, reduction_factor_true : float or None
+        The set point's baseline peak-to-peak ripple over this trial's, measured and true
+        (compensate and ilc trials; None where the trial's ripple is zero).
+    """
+
+    index: int
+    phase: str
+    role: str
+    torque_setpoint_nm: float
+    speed_setpoint_hz: float
+    measured: RippleFigures | None = None
+    true: RippleFigures | None = None
+    reduction_factor: float | None = None
+    reduction_factor_true: float | None = None
+
+    @property
+    def learns(self) -> bool:
+        """Whether the pipeline learns from this trial (the compensate and ilc roles)."""
+        return self.role in ("compensate", "ilc")
+
+    def figures(self, kind: str) -> RippleFigures | None:
+        """`measured` or `true` by name."""
+        return {"measured": self.measured, "true": self.true}[kind]
+
+    def to_json(self) -> dict:
+        """The record's object in summary.json (and states/trial_NNN.json); absent figures are left out."""
+        out = {"index": self.index, "phase": self.phase, "role": self.role, "torque_setpoint": self.torque_setpoint_nm,
+               "speed_setpoint": self.speed_setpoint_hz, **_figures_json("true", self.true),
+               **_figures_json("measured", self.measured)}
+        for f in ("reduction_factor", "reduction_factor_true"):
+            if getattr(self, f) is not None:
+                out[f] = getattr(self, f)
+        return out
+
+    @classmethod
+    def from_json(cls, data: dict) -> TrialRecord:
+        """The record `to_json` wrote."""
+        return cls(int(data["index"]), str(data["phase"]), str(data["role"]), float(data["torque_setpoint"]),
+                   float(data["speed_setpoint"]), _figures_from_json("measured", data),
+                   _figures_from_json("true", data), data.get("reduction_factor"), data.get("reduction_factor_true"))
+
+
+def records_of(summary: dict) -> list[TrialRecord]:
+    """The trial records of a summary.json."""
+    return [TrialRecord.from_json(t) for t in summary["trials"]]
+
