@@ -42,8 +42,10 @@ def estimates_table(result) -> Table:
 @click.option("--output", "output", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Result JSON to write (docs/bench-format.md).")
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Folder for the report-style figures (PNG).")
-def identify(bench_dir: Path, output: Path, plots_dir: Path | None) -> None:
+              help="Folder for the report-style figures.")
+@click.option("--format", "plot_format", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
+              help="File format of the figures written by --plots.")
+def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format: str) -> None:
     """Identify delta*eps, delta, eps, alpha, beta, J* and the cogging torque of BENCH_DIR."""
     from ilcpmac.bench.format import read_bench
     from ilcpmac.identify import STEPS, identify_bench
@@ -65,7 +67,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None) -> None:
     if plots_dir is not None:
         from ilcpmac.identify.plots import write_plots
 
-        written = write_plots(result, plots_dir)
+        written = write_plots(result, plots_dir, plot_format)
         console.print(f"wrote {len(written)} figures to {plots_dir}")
     click.echo()
     from rich.console import Console

@@ -1,152 +1,282 @@
-"""Figures like the report's: 2.4/2.5, 3.1/3.2, 3.3, 4.1, 4.2/4.3 (matplotlib, PNG)."""
+"""The identification's figures, like the report's (Grassens 2009): 2.1-2.5, 3.1-3.3 and 4.1-4.3.
+
+Each builder takes an `IdentificationResult` and returns a matplotlib
+`Figure` (`ilcpmac.plotting`); lines of many set points are coloured by
+torque set point with one legend entry per torque, position is in mechanical
+degrees. `write_plots` writes the figures of the estimates (2.4-4.3, the
+``--plots`` of ``ilcpmac identify``); `SIGNAL_FIGURES` (2.1-2.3: references and
+measured ripple) are drawn by benchmarks/reproduce_report.py as well.
+"""
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from ilcpmac.identify.system_gain import excluded_harmonics
+from ilcpmac import plotting
+from ilcpmac.identify import sensor_gain
+from ilcpmac.identify.system_gain import excluded_harmonics, theoretical_torque_tables
 from ilcpmac.records import IdentificationResult
 
-
-def _figure(rows: int = 1, height: float = 3.0):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(rows, 1, figsize=(8.0, height * rows), squeeze=False)
-    return plt, fig, axes[:, 0]
+__all__ = ["IDENTIFICATION_FIGURES", "SIGNAL_FIGURES", "build_figures", "write_plots"]
 
 
-def _save(plt, fig, path: Path, written: list) -> None:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(path)
+def _per_torque(torque: float, lines: int) -> str:
+    return f"{torque:g} N m ({lines} set point{'s' if lines > 1 else ''})"
 
 
-def _harmonic_response(result: IdentificationResult, folder: Path, written: list) -> None:
-    """Figs. 2.4 and 2.5: |H| from the torque reference to the measured torque, coherence, fitted constant."""
+def _torque(torque: float, lines: int) -> str:
+    return f"{torque:g} N m"
+
+
+def _torques(result: IdentificationResult) -> list[float]:
+    return [t.torque_setpoint_nm for t in result.details.tables.trials]
+
+
+def _electrical_revolution(result: IdentificationResult) -> tuple[np.ndarray, np.ndarray, float]:
+    """The counts of the first electrical revolution, their mechanical degrees, and its span in degrees."""
+    motor = result.details.tables.motor
+    counts = np.arange(motor.counts_per_rev // motor.pole_pairs)
+    return counts, plotting.mechanical_degrees(counts, motor.counts_per_rev), 360.0 / motor.pole_pairs
+
+
+def _slowest_per_torque(result: IdentificationResult) -> list[int]:
+    """One trial per torque set point: the one at the lowest speed set point."""
+    trials = result.details.tables.trials
+    slowest = min(t.speed_setpoint_hz for t in trials)
+    return [i for i, t in enumerate(trials) if t.speed_setpoint_hz == slowest]
+
+
+def torque_reference(result: IdentificationResult) -> Figure:
+    """Fig. 2.1: the torque the current references ask for, sum_p K_p I*_p, over one electrical revolution."""
+    counts, degrees, span = _electrical_revolution(result)
+    pick = _slowest_per_torque(result)
+    theory = theoretical_torque_tables(result.details.tables)
+    speed = result.details.tables.trials[pick[0]].speed_setpoint_hz
+    fig, (axis,) = plotting.figure(1, 3.5)
+    plotting.plot_groups(axis, degrees, [theory[k, counts] for k in pick], [_torques(result)[k] for k in pick],
+                         _torque, lw=0.8)
+    axis.set_title(f"torque reference with the multisine, {speed:g} Hz (eq. 1.3 with ideal sensors)")
+    axis.set_ylabel("sum_p K_p I*_p (N m)")
+    plotting.angle_axis(axis, span)
+    plotting.legend(axis)
+    return fig
+
+
+def current_reference(result: IdentificationResult) -> Figure:
+    """Fig. 2.2: the current references I*_p of each phase over one electrical revolution."""
+    counts, degrees, span = _electrical_revolution(result)
+    pick = _slowest_per_torque(result)
+    trials = result.details.tables.trials
+    fig, axes = plotting.figure(3, 2.2)
+    for phase, axis in zip("abc", axes):
+        column = "abc".index(phase)
+        plotting.plot_groups(axis, degrees, [trials[k].i_ref_table_a[counts, column] for k in pick],
+                             [trials[k].torque_setpoint_nm for k in pick], _torque, lw=0.8)
+        axis.set_ylabel(f"I*_{phase} (A)")
+        plotting.legend(axis, ncol=2)
+    axes[0].set_title(f"current references, {trials[pick[0]].speed_setpoint_hz:g} Hz")
+    plotting.angle_axis(axes[-1], span)
+    return fig
+
+
+def measured_ripple(result: IdentificationResult) -> Figure:
+    """Fig. 2.3: the measured torque ripple (synchronous average less its mean) of every set point."""
+    counts, degrees, span = _electrical_revolution(result)
+    tables = [t.torque_table_nm - t.torque_table_nm.mean() for t in result.details.tables.trials]
+    fig, (axis,) = plotting.figure(1, 3.5)
+    plotting.plot_groups(axis, degrees, [t[counts] for t in tables], _torques(result), _per_torque, lw=0.6)
+    axis.set_title("measured torque ripple per set point (torque sensor's initial gain)")
+    axis.set_ylabel("tau*_p (N m)")
+    plotting.angle_axis(axis, span)
+    plotting.legend(axis)
+    return fig
+
+
+def harmonic_response(result: IdentificationResult, kept_only: bool) -> Figure:
+    """Figs. 2.4 (all harmonics) and 2.5 (``kept_only``: the fitted ones): |H| and coherence per set point."""
     system = result.details.system
     motor = result.details.tables.motor
     h = system.harmonics
-    kept = ~excluded_harmonics(h, motor.pole_pairs, motor.cogging_order)
-    for name, mask, title in (("fig2_4_harmonic_response.png", np.ones(h.size, bool), "all harmonics"),
-                              ("fig2_5_harmonic_response_fit.png", kept, "multiples of the pole pairs and "
-                                                                         "cogging order left out")):
-        plt, fig, (top, bottom) = _figure(2)
-        for response in system.response_per_trial:
-            top.plot(h[mask], np.abs(response[mask]), lw=0.6, alpha=0.5)
-        top.axhline(system.delta_epsilon, color="k", lw=1.5, label=f"report: delta*eps = {system.delta_epsilon:.4f}")
-        if result.methods["joint"].delta_epsilon is not None:
-            top.axhline(result.methods["joint"].delta_epsilon, color="C3", ls="--",
-                        label=f"joint fit: delta*eps = {result.methods['joint'].delta_epsilon:.4f}")
-        top.set_ylabel("magnitude")
-        top.set_title(f"torque reference to measured torque ({title})")
-        top.legend(fontsize=8)
-        bottom.plot(h[mask], system.coherence[mask], ".-", lw=0.6)
-        bottom.set_ylabel("coherence")
-        bottom.set_xlabel("harmonic of the mechanical revolution")
-        _save(plt, fig, folder / name, written)
+    mask = ~excluded_harmonics(h, motor.pole_pairs, motor.cogging_order) if kept_only else np.ones(h.size, bool)
+    torques = _torques(result)
+    fig, (top, bottom) = plotting.figure(2)
+    plotting.plot_groups(top, h[mask], list(np.abs(system.response_per_trial[:, mask])), torques, _per_torque,
+                         lw=0.6, alpha=0.7)
+    top.axhline(system.delta_epsilon, color="k", lw=1.5,
+                label=f"report's method: delta*eps = {system.delta_epsilon:.4f} "
+                      f"(residue {100 * system.residue:.1f} %)")
+    joint = result.methods["joint"].delta_epsilon
+    if joint is not None:
+        top.axhline(joint, color="C3", ls="--", label=f"joint fit: delta*eps = {joint:.4f}")
+    what = "pole-pair and cogging multiples left out" if kept_only else "all harmonics"
+    top.set_title(f"torque reference to measured torque ({what})")
+    top.set_ylabel("|H| (N m / N m)")
+    plotting.legend(top, ncol=2)
+    plotting.plot_groups(bottom, h[mask], list(system.coherence_per_trial[:, mask]), torques, _per_torque,
+                         lw=0.6, alpha=0.7)
+    bottom.plot(h[mask], system.coherence[mask], "k", lw=1.2, label="all set points together")
+    bottom.set_ylabel("coherence (-)")
+    bottom.set_xlabel("harmonic (per mechanical revolution)")
+    plotting.legend(bottom, ncol=2)
+    return fig
 
 
-def _dynamics(result: IdentificationResult, folder: Path, written: list) -> None:
-    """Figs. 3.1-3.3: torque over angular velocity, the fitted J* s + b*, J* per set point."""
-    sensor = result.details.sensor
-    plt, fig, (top, bottom) = _figure(2)
-    for response in sensor.responses:
-        top.semilogx(response.frequency_hz, 20 * np.log10(np.abs(response.response)), lw=0.6, alpha=0.6)
-        bottom.semilogx(response.frequency_hz, response.coherence, lw=0.6, alpha=0.6)
-    top.set_ylabel("magnitude (dB N m s/rad)")
-    top.set_title("measured torque over angular velocity, per set point")
-    bottom.set_ylabel("coherence")
+def torque_speed_response(result: IdentificationResult) -> Figure:
+    """Fig. 3.1: measured torque over angular velocity and its coherence, per set point."""
+    responses = result.details.sensor.responses
+    torques = _torques(result)
+    frequencies = [r.frequency_hz for r in responses]
+    fig, (top, bottom) = plotting.figure(2)
+    plotting.plot_groups(top, frequencies, [20 * np.log10(np.abs(r.response)) for r in responses], torques,
+                         _per_torque, method="semilogx", lw=0.6, alpha=0.7)
+    top.set_title("measured torque over angular velocity, per set point (eq. 3.2)")
+    top.set_ylabel("|tau*_m / omega| (dB re 1 N m s/rad)")
+    plotting.legend(top)
+    plotting.plot_groups(bottom, frequencies, [r.coherence for r in responses], torques, _per_torque,
+                         method="semilogx", lw=0.6, alpha=0.7)
+    bottom.axhline(sensor_gain.MIN_COHERENCE, color="k", ls=":", lw=1,
+                   label=f"fit threshold {sensor_gain.MIN_COHERENCE:g}")
+    bottom.set_ylabel("coherence (-)")
     bottom.set_xlabel("frequency (Hz)")
-    _save(plt, fig, folder / "fig3_1_torque_speed_response.png", written)
+    plotting.legend(bottom)
+    return fig
 
-    plt, fig, (top, bottom) = _figure(2)
-    for response, inertia, damping in zip(sensor.responses, sensor.inertia_per_trial, sensor.damping_per_trial):
-        w = 2 * np.pi * response.frequency_hz
-        model = damping + 1j * w * inertia
-        line, = top.semilogx(response.frequency_hz, 20 * np.log10(np.abs(response.response)), ".", ms=2, alpha=0.4)
-        top.semilogx(response.frequency_hz, 20 * np.log10(np.abs(model)), color=line.get_color(), lw=0.8)
-        bottom.semilogx(response.frequency_hz, np.degrees(np.angle(response.response)), ".", ms=2, alpha=0.4,
-                        color=line.get_color())
-        bottom.semilogx(response.frequency_hz, np.degrees(np.angle(model)), color=line.get_color(), lw=0.8)
-    top.set_ylabel("magnitude (dB)")
-    top.set_title("least-squares fit of J* s + b*")
+
+def inertia_fit(result: IdentificationResult) -> Figure:
+    """Fig. 3.2: the response per set point (dots) and its least-squares fit J* s + b* (lines)."""
+    sensor = result.details.sensor
+    torques = _torques(result)
+    frequencies = [r.frequency_hz for r in sensor.responses]
+    models = [damping + 2j * np.pi * r.frequency_hz * inertia
+              for r, inertia, damping in zip(sensor.responses, sensor.inertia_per_trial, sensor.damping_per_trial)]
+    measured = [r.response for r in sensor.responses]
+    fig, (top, bottom) = plotting.figure(2)
+    for axis, value in ((top, lambda z: 20 * np.log10(np.abs(z))), (bottom, lambda z: np.degrees(np.angle(z)))):
+        plotting.plot_groups(axis, frequencies, [value(z) for z in measured], torques, lambda t, n: None,
+                             method="semilogx", ls="none", marker=".", ms=2, alpha=0.4)
+        plotting.plot_groups(axis, frequencies, [value(z) for z in models], torques, _per_torque,
+                             method="semilogx", lw=0.8)
+        axis.plot([], [], "k.", label="measured")
+        plotting.legend(axis, ncol=2)
+    top.set_title("least-squares fit of J* s + b* per set point (lines) to the measured response (dots)")
+    top.set_ylabel("magnitude (dB re 1 N m s/rad)")
     bottom.set_ylabel("phase (deg)")
     bottom.set_xlabel("frequency (Hz)")
-    _save(plt, fig, folder / "fig3_2_inertia_fit.png", written)
+    return fig
 
-    plt, fig, (axis,) = _figure(1, 3.5)
+
+def inertia_per_setpoint(result: IdentificationResult) -> Figure:
+    """Fig. 3.3: J* per set point with its standard error, and their mean."""
+    sensor = result.details.sensor
     trials = result.details.tables.trials
-    torques = sorted({t.torque_setpoint_nm for t in trials})
-    for torque in torques:
+    fig, (axis,) = plotting.figure(1, 3.5)
+    colours = plotting.group_colours(_torques(result))
+    for torque, colour in colours.items():
         pick = [i for i, t in enumerate(trials) if t.torque_setpoint_nm == torque]
         axis.errorbar([trials[i].speed_setpoint_hz for i in pick], sensor.inertia_per_trial[pick],
-                      yerr=sensor.inertia_std_per_trial[pick], fmt="o-", ms=3, label=f"{torque:g} N m")
+                      yerr=sensor.inertia_std_per_trial[pick], fmt="o-", ms=3, color=colour, label=f"{torque:g} N m")
     spread = 100 * sensor.inertia_per_trial.std(ddof=1) / sensor.inertia
-    axis.axhline(sensor.inertia, color="k", lw=1, label=f"mean J* = {sensor.inertia:.5f}, sigma = {spread:.1f} %")
+    axis.axhline(sensor.inertia, color="k", lw=1, label=f"mean J* = {sensor.inertia:.5f} kg m², sigma = {spread:.1f} %")
     axis.set_xlabel("speed set point (Hz)")
-    axis.set_ylabel("J* (kg m^2)")
+    axis.set_ylabel("J* (kg m²)")
     axis.set_title("J* per set point")
-    axis.legend(fontsize=7, ncol=2)
-    _save(plt, fig, folder / "fig3_3_inertia_per_setpoint.png", written)
+    plotting.legend(axis, ncol=2)
+    return fig
 
 
-def _decoupling(result: IdentificationResult, folder: Path, written: list) -> None:
-    """Figs. 4.1-4.3: decoupling of a representative set point; cogging per set point and its deviation."""
-    decoupling = result.details.decoupling
-    motor = result.details.tables.motor
-    delta = result.delta or 1.0
-    k = len(decoupling.measured_nm) // 2
-    count = np.arange(motor.counts_per_rev)
-    plt, fig, axes = _figure(3, 2.4)
-    axes[0].plot(count, decoupling.measured_nm[k], lw=0.6)
-    axes[0].set_title("decoupling of the pulsating torque (eqs. 1.12, 1.13)")
-    axes[1].plot(count, decoupling.explained_nm[k], lw=0.6, label="X y")
-    axes[1].plot(count, decoupling.residual_nm[k], lw=0.6, label="z")
-    axes[2].plot(count, decoupling.cogging_nm[k], lw=0.6, label="tau_c")
-    axes[2].plot(count, decoupling.rest_nm[k], lw=0.6, label="rest")
+def _representative(result: IdentificationResult) -> int:
+    """The set point fig. 4.1 shows: the middle one of the list."""
+    return len(result.details.tables.trials) // 2
+
+
+def decoupling(result: IdentificationResult) -> Figure:
+    """Fig. 4.1: the decoupling (eqs. 1.12, 1.13) of a representative set point, one electrical revolution."""
+    estimate = result.details.decoupling
+    counts, degrees, span = _electrical_revolution(result)
+    k = _representative(result)
+    trial = result.details.tables.trials[k]
+    fig, axes = plotting.figure(3, 2.4)
+    axes[0].plot(degrees, estimate.measured_nm[k, counts], lw=0.8, label="tau*_p less delta*eps sum_p K_p I*_p")
+    axes[1].plot(degrees, estimate.explained_nm[k, counts], lw=0.8, label="X y (currents)")
+    axes[1].plot(degrees, estimate.residual_nm[k, counts], lw=0.8, label="z (residual)")
+    axes[2].plot(degrees, estimate.cogging_nm[k, counts], lw=0.8, label="tau*_c (cogging harmonics of z)")
+    axes[2].plot(degrees, estimate.rest_nm[k, counts], lw=0.8, label="rest")
+    axes[0].set_title(f"decoupling of the pulsating torque (eqs. 1.12, 1.13), {trial.torque_setpoint_nm:g} N m at "
+                      f"{trial.speed_setpoint_hz:g} Hz")
     for axis in axes:
         axis.set_ylabel("torque (N m)")
-    axes[1].legend(fontsize=8)
-    axes[2].legend(fontsize=8)
-    axes[2].set_xlabel("encoder position (counts)")
-    _save(plt, fig, folder / "fig4_1_decoupling.png", written)
+        plotting.legend(axis, loc="upper right")
+    plotting.angle_axis(axes[-1], span)
+    return fig
 
-    electrical = count[: motor.counts_per_rev // motor.pole_pairs]
-    cogging = decoupling.cogging_nm[:, electrical] / delta
-    mean = cogging.mean(axis=0)
-    plt, fig, (axis,) = _figure(1, 3.5)
-    axis.plot(electrical, cogging.T, lw=0.6, alpha=0.6)
+
+def _cogging_per_setpoint(result: IdentificationResult) -> np.ndarray:
+    """The cogging of each set point in true units (divided by delta), N m."""
+    return result.details.decoupling.cogging_nm / (result.delta or 1.0)
+
+
+def cogging_per_setpoint(result: IdentificationResult) -> Figure:
+    """Fig. 4.2: the cogging torque of each set point over one electrical revolution, and the result's."""
+    counts, degrees, span = _electrical_revolution(result)
+    cogging = _cogging_per_setpoint(result)
+    fig, (axis,) = plotting.figure(1, 3.5)
+    plotting.plot_groups(axis, degrees, list(cogging[:, counts]), _torques(result), _per_torque, lw=0.6, alpha=0.7)
     if result.cogging_nm is not None:
-        axis.plot(electrical, result.cogging_nm[electrical], "k", lw=1.2, label="result (joint fit)")
-        axis.legend(fontsize=8)
-    axis.set_title("cogging torque per set point, one electrical revolution")
-    axis.set_xlabel("encoder position (counts)")
-    axis.set_ylabel("torque (N m)")
-    _save(plt, fig, folder / "fig4_2_cogging_per_setpoint.png", written)
-
-    plt, fig, (axis,) = _figure(1, 3.5)
-    axis.plot(electrical, 100 * (cogging - mean).T / np.abs(mean).max(), lw=0.6, alpha=0.6)
-    axis.set_title("cogging torque error per set point (relative to the mean's peak)")
-    axis.set_xlabel("encoder position (counts)")
-    axis.set_ylabel("% error")
-    _save(plt, fig, folder / "fig4_3_cogging_error.png", written)
+        axis.plot(degrees, result.cogging_nm[counts], "k", lw=1.2, label="result (joint fit)")
+    axis.set_title("cogging torque per set point (report's decoupling), one electrical revolution")
+    axis.set_ylabel("cogging torque (N m)")
+    plotting.angle_axis(axis, span)
+    plotting.legend(axis, ncol=2)
+    return fig
 
 
-def write_plots(result: IdentificationResult, folder: str | Path) -> list[Path]:
-    """Write the report-style figures that the result's estimates allow; returns their paths."""
+def cogging_error(result: IdentificationResult) -> Figure:
+    """Fig. 4.3: each set point's cogging less their mean, relative to the mean's peak."""
+    counts, degrees, span = _electrical_revolution(result)
+    cogging = _cogging_per_setpoint(result)
+    mean = cogging.mean(axis=0)
+    error = 100 * (cogging - mean)[:, counts] / np.abs(mean).max()
+    fig, (axis,) = plotting.figure(1, 3.5)
+    plotting.plot_groups(axis, degrees, list(error), _torques(result), _per_torque, lw=0.6, alpha=0.7)
+    axis.set_title("cogging torque error per set point, relative to the peak of their mean")
+    axis.set_ylabel("error (% of the mean's peak)")
+    plotting.angle_axis(axis, span)
+    plotting.legend(axis, ncol=2)
+    return fig
+
+
+#: file name -> (the detail it needs, builder): the figures of the estimates
+IDENTIFICATION_FIGURES = {
+    "fig2_4_harmonic_response": ("system", partial(harmonic_response, kept_only=False)),
+    "fig2_5_harmonic_response_fit": ("system", partial(harmonic_response, kept_only=True)),
+    "fig3_1_torque_speed_response": ("sensor", torque_speed_response),
+    "fig3_2_inertia_fit": ("sensor", inertia_fit),
+    "fig3_3_inertia_per_setpoint": ("sensor", inertia_per_setpoint),
+    "fig4_1_decoupling": ("decoupling", decoupling),
+    "fig4_2_cogging_per_setpoint": ("decoupling", cogging_per_setpoint),
+    "fig4_3_cogging_error": ("decoupling", cogging_error),
+}
+#: the same for the signals the estimates come from
+SIGNAL_FIGURES = {
+    "fig2_1_torque_reference": ("tables", torque_reference),
+    "fig2_2_current_reference": ("tables", current_reference),
+    "fig2_3_measured_ripple": ("tables", measured_ripple),
+}
+
+
+def build_figures(result: IdentificationResult, which: dict = IDENTIFICATION_FIGURES) -> dict[str, Figure]:
+    """The figures of ``which`` that the result's details allow, by file name."""
+    return {name: build(result) for name, (detail, build) in which.items()
+            if getattr(result.details, detail) is not None}
+
+
+def write_plots(result: IdentificationResult, folder: str | Path, fmt: str = "png") -> list[Path]:
+    """Write the figures of the estimates that the result allows as ``fmt`` (png, svg, pdf); returns their paths."""
     folder = Path(folder)
+    plotting.check_format(fmt, folder)
     folder.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
-    if result.details.system is not None:
-        _harmonic_response(result, folder, written)
-    if result.details.sensor is not None:
-        _dynamics(result, folder, written)
-    if result.details.decoupling is not None:
-        _decoupling(result, folder, written)
-    return written
+    return [plotting.save(fig, folder / name, fmt) for name, fig in build_figures(result).items()]

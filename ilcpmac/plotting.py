@@ -1,0 +1,140 @@
+"""The one matplotlib set-up of every plot: figures, colours per set point, angle axes, saving as PNG, SVG or PDF.
+
+Figures are `matplotlib.figure.Figure` objects made without pyplot: no global
+backend or figure registry is touched (PNG is drawn by Agg), nothing has to be
+closed, and building figures in a library or a test leaves no state behind.
+Axis labels are ``"quantity (unit)"``; position is in mechanical degrees.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from PIL import Image
+
+from ilcpmac.errors import IlcpmacError
+
+__all__ = ["ANGLE_LABEL", "FORMATS", "PlotError", "angle_axis", "check_format", "figure", "group_colours", "legend",
+           "mechanical_degrees", "plot_groups", "save"]
+
+#: the formats `save` writes
+FORMATS = ("png", "svg", "pdf")
+#: resolution of PNG files (modest: the figures are read on screen and kept in the repository)
+PNG_DPI = 90
+#: width of every figure, inches
+WIDTH_IN = 8.0
+#: colours of a compact PNG
+COMPACT_COLOURS = 64
+#: the label of every position axis
+ANGLE_LABEL = "position (mechanical deg)"
+#: font size of legends
+LEGEND_FONT_SIZE = 7
+
+
+class PlotError(IlcpmacError):
+    """A figure cannot be written as asked (unknown format)."""
+
+
+def figure(rows: int = 1, height_in: float = 3.0, sharex: bool = True) -> tuple[Figure, list[Axes]]:
+    """A figure of ``rows`` stacked axes with a light grid, laid out automatically.
+
+    Parameters
+    ----------
+    rows : number of axes, one above the other.
+    height_in : height of each axes, inches.
+    sharex : whether the axes share their x axis.
+    """
+    fig = Figure(figsize=(WIDTH_IN, height_in * rows), layout="constrained")
+    axes = fig.subplots(rows, 1, squeeze=False, sharex=sharex)[:, 0]
+    for axis in axes:
+        axis.grid(True, alpha=0.3)
+    return fig, list(axes)
+
+
+def legend(axis: Axes, ncol: int = 1, **options) -> None:
+    """The legend of ``axis`` in the common style."""
+    axis.legend(fontsize=LEGEND_FONT_SIZE, ncol=ncol, **options)
+
+
+def save(fig: Figure, path: str | Path, fmt: str = "png", compact: bool = False) -> Path:
+    """Write ``fig`` as ``fmt`` (png, svg or pdf) to ``path`` with that suffix; returns the path written.
+
+    ``compact`` writes a PNG with a palette of `COMPACT_COLOURS` colours (a quarter of the bytes, for figures
+    kept in the repository).
+
+    Raises
+    ------
+    PlotError
+        When ``fmt`` is not one of `FORMATS`.
+    """
+    check_format(fmt, path)
+    path = Path(path).with_suffix("." + fmt)
+    if compact and fmt == "png":
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=PNG_DPI)
+        with Image.open(buffer) as image:
+            image.convert("RGB").quantize(COMPACT_COLOURS, Image.Quantize.FASTOCTREE).save(path, optimize=True)
+    else:
+        fig.savefig(path, format=fmt, dpi=PNG_DPI, metadata=_METADATA[fmt])
+    return path
+
+
+def check_format(fmt: str, path: str | Path) -> None:
+    """Raise `PlotError` naming ``path`` unless ``fmt`` is one of `FORMATS`."""
+    if fmt not in FORMATS:
+        raise PlotError(f"{path}: unknown figure format {fmt!r} (one of {', '.join(FORMATS)})")
+
+
+#: no creation date or version in the files, so that the same figure gives the same bytes
+_METADATA = {"png": {"Software": None}, "svg": {"Date": None, "Creator": None},
+             "pdf": {"CreationDate": None, "Creator": None, "Producer": None}}
+
+
+def mechanical_degrees(counts: np.ndarray, counts_per_rev: int) -> np.ndarray:
+    """Encoder counts as mechanical degrees."""
+    return 360.0 * np.asarray(counts, float) / counts_per_rev
+
+
+def angle_axis(axis: Axes, span_deg: float = 360.0) -> None:
+    """Label ``axis``'s x axis as position in mechanical degrees over 0..``span_deg``."""
+    axis.set_xlabel(ANGLE_LABEL)
+    axis.set_xlim(0.0, span_deg)
+
+
+def group_colours(keys: Sequence[float]) -> dict[float, tuple]:
+    """One colour per distinct key (a set point), in order along viridis."""
+    distinct = sorted(set(keys))
+    cmap = colormaps["viridis"]
+    return {key: cmap(0.85 * i / max(len(distinct) - 1, 1)) for i, key in enumerate(distinct)}
+
+
+def plot_groups(axis: Axes, x, ys: Sequence[np.ndarray], keys: Sequence[float], label: Callable[[float, int], str],
+                method: str = "plot", **style) -> dict[float, tuple]:
+    """Many lines coloured by group, one legend entry per group; returns the colours.
+
+    Parameters
+    ----------
+    axis : the axes.
+    x : one array for every line, or a sequence of arrays, one per line.
+    ys : the lines.
+    keys : the group of each line (e.g. its torque set point).
+    label : ``label(key, n)``, the legend entry of a group of ``n`` lines.
+    method : the Axes method that draws a line ("plot", "semilogx", ...).
+    style : passed to it.
+    """
+    colours = group_colours(keys)
+    counts = {key: list(keys).count(key) for key in colours}
+    labelled = set()
+    draw = getattr(axis, method)
+    for i, (y, key) in enumerate(zip(ys, keys)):
+        xi = x[i] if isinstance(x, (list, tuple)) else x
+        name = None if key in labelled else label(key, counts[key])
+        labelled.add(key)
+        draw(xi, y, color=colours[key], label=name, **style)
+    return colours

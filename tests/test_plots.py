@@ -1,0 +1,177 @@
+"""The figures: axis labels with units, a legend wherever lines are many, position in mechanical degrees, formats.
+
+Checked through matplotlib's objects on a small synthetic bench (6 set points), not by looking at pixels.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from identify_helpers import identified, other_bench
+from PIL import Image
+
+from ilcpmac import plotting
+from ilcpmac.bench.format import write_bench
+from ilcpmac.cli import main
+from ilcpmac.identify.plots import IDENTIFICATION_FIGURES, SIGNAL_FIGURES, build_figures
+
+ROOT = Path(__file__).resolve().parents[1]
+#: "quantity (unit)"
+UNIT = re.compile(r"\S \(.+\)$")
+
+
+def _reproduction():
+    spec = importlib.util.spec_from_file_location("reproduce_report", ROOT / "benchmarks" / "reproduce_report.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def small():
+    """The identification of the small synthetic bench and its truth."""
+    return identified("other")
+
+
+@pytest.fixture(scope="module")
+def figures(small):
+    result, _ = small
+    return build_figures(result, SIGNAL_FIGURES | IDENTIFICATION_FIGURES)
+
+
+@pytest.fixture(scope="module")
+def reproduction(small):
+    result, truth = small
+    return _reproduction().reproduction_figures(result, truth)
+
+
+def _data_lines(axis) -> list:
+    """The lines that draw data (not the empty proxies that only label the legend)."""
+    return [line for line in axis.get_lines() if len(line.get_xdata()) > 0]
+
+
+def assert_readable(name: str, fig) -> None:
+    """Every axis label has a unit, the bottom axes has an x label, every axes with two lines or more has a
+    legend that names groups rather than lines, position is in mechanical degrees within one revolution."""
+    axes = fig.axes
+    assert axes, name
+    assert axes[-1].get_xlabel(), f"{name}: no x label on the bottom axes"
+    for axis in axes:
+        for label in (axis.get_xlabel(), axis.get_ylabel()):
+            assert label == "" or UNIT.search(label), f"{name}: axis label {label!r} has no unit"
+        assert axis.get_ylabel(), f"{name}: an axes without y label"
+        lines = _data_lines(axis)
+        if len(lines) + len(axis.containers) >= 2:
+            legend = axis.get_legend()
+            assert legend is not None, f"{name}: {len(lines)} lines and no legend"
+            texts = [t.get_text() for t in legend.get_texts()]
+            assert texts and all(texts), name
+            assert len(texts) <= 12, f"{name}: {len(texts)} legend entries"
+        if axis.get_xlabel() == plotting.ANGLE_LABEL:
+            low, high = axis.get_xlim()
+            assert low == 0.0 and 0.0 < high <= 360.0, f"{name}: angle axis {low}..{high}"
+            assert max(np.max(line.get_xdata()) for line in lines) <= high, name
+
+
+def test_every_figure_is_built_on_a_small_bench(figures):
+    assert set(figures) == set(IDENTIFICATION_FIGURES) | set(SIGNAL_FIGURES)
+
+
+@pytest.mark.parametrize("name", sorted(IDENTIFICATION_FIGURES) + sorted(SIGNAL_FIGURES))
+def test_identification_figures_have_units_and_legends(figures, name):
+    assert_readable(name, figures[name])
+
+
+def test_lines_of_many_set_points_are_grouped_by_torque(small, figures):
+    """Fig. 4.2 draws one line per set point (6) and names the 3 torque set points once each."""
+    result, _ = small
+    axis = figures["fig4_2_cogging_per_setpoint"].axes[0]
+    texts = [t.get_text() for t in axis.get_legend().get_texts()]
+    torques = sorted({t.torque_setpoint_nm for t in result.details.tables.trials})
+    assert len(_data_lines(axis)) == len(result.details.tables.trials) + 1
+    assert [t for t in texts if "N m (" in t] == [f"{t:g} N m (2 set points)" for t in torques]
+
+
+def test_positions_are_in_mechanical_degrees(small, figures):
+    """Figs. 4.1-4.3 and 2.1-2.3 span one electrical revolution: 360 / pole pairs degrees, not counts."""
+    result, _ = small
+    span = 360.0 / result.details.tables.motor.pole_pairs
+    for name in ("fig2_1_torque_reference", "fig2_3_measured_ripple", "fig4_1_decoupling",
+                 "fig4_2_cogging_per_setpoint", "fig4_3_cogging_error"):
+        axis = figures[name].axes[-1]
+        assert axis.get_xlabel() == plotting.ANGLE_LABEL
+        assert axis.get_xlim() == (0.0, span)
+        assert max(np.max(line.get_xdata()) for line in _data_lines(axis)) < span
+
+
+@pytest.mark.parametrize("name", sorted(IDENTIFICATION_FIGURES) + sorted(SIGNAL_FIGURES))
+def test_reproduction_figures_have_units_and_legends(reproduction, name):
+    assert_readable(name, reproduction[name])
+
+
+def test_reproduction_figures_show_the_reports_numbers_and_the_truth(reproduction):
+    def legend_text(name: str, index: int = 0) -> str:
+        return " ".join(t.get_text() for t in reproduction[name].axes[index].get_legend().get_texts())
+
+    assert "report (fig. 2.5): delta*eps = 0.56285" in legend_text("fig2_5_harmonic_response_fit")
+    assert "truth" in legend_text("fig2_5_harmonic_response_fit")
+    assert "report (fig. 3.3): J_mean = 0.00821" in legend_text("fig3_3_inertia_per_setpoint")
+    assert "truth" in legend_text("fig4_2_cogging_per_setpoint")
+    assert "up to 8 %" in legend_text("fig4_3_cogging_error")
+
+
+def test_the_committed_reproduction_shows_every_figure_and_table_of_chapters_2_to_4():
+    text = (ROOT / "docs" / "reproduction.md").read_text()
+    assert text.splitlines()[2] == "Generated by `python benchmarks/reproduce_report.py`; do not edit by hand."
+    for number in ("2.1", "2.2", "2.3", "2.4", "2.5", "3.1", "3.2", "3.3", "4.1", "4.2", "4.3"):
+        assert f"### Figure {number}:" in text
+    assert "### Table 3.1:" in text and "### Table 4.1:" in text
+    for name in set(IDENTIFICATION_FIGURES) | set(SIGNAL_FIGURES):
+        assert f"](reproduction/{name}.png)" in text
+        assert (ROOT / "docs" / "reproduction" / f"{name}.png").is_file()
+    assert sum(p.stat().st_size for p in (ROOT / "docs" / "reproduction").glob("*.png")) < 600_000
+
+
+@pytest.mark.parametrize("fmt", plotting.FORMATS)
+def test_save_writes_each_format(tmp_path, figures, fmt):
+    path = plotting.save(figures["fig3_3_inertia_per_setpoint"], tmp_path / "fig", fmt)
+    assert path == tmp_path / f"fig.{fmt}"
+    magic = {"png": b"\x89PNG", "svg": b"<?xml", "pdf": b"%PDF"}[fmt]
+    assert path.read_bytes().startswith(magic)
+
+
+def test_a_compact_png_has_a_small_palette(tmp_path, figures):
+    fig = figures["fig4_3_cogging_error"]
+    full = plotting.save(fig, tmp_path / "full", "png")
+    compact = plotting.save(fig, tmp_path / "compact", "png", compact=True)
+    with Image.open(compact) as image:
+        assert image.mode == "P" and len(image.getcolors()) <= plotting.COMPACT_COLOURS
+        assert image.size == Image.open(full).size
+    assert compact.stat().st_size < full.stat().st_size
+
+
+def test_an_unknown_format_is_one_line_naming_the_file(tmp_path, figures):
+    with pytest.raises(plotting.PlotError, match=r"fig: unknown figure format 'jpg' \(one of png, svg, pdf\)$"):
+        plotting.save(figures["fig3_3_inertia_per_setpoint"], tmp_path / "fig", "jpg")
+
+
+def test_cli_writes_the_figures_in_the_format_asked(tmp_path):
+    bench, _ = other_bench()
+    write_bench(tmp_path / "bench", bench)
+    out = CliRunner().invoke(main, ["identify", str(tmp_path / "bench"), "--output", str(tmp_path / "result.json"),
+                                    "--plots", str(tmp_path / "plots"), "--format", "svg"])
+    assert out.exit_code == 0, out.output
+    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == sorted(f"{n}.svg" for n in IDENTIFICATION_FIGURES)
+
+
+def test_cli_refuses_an_unknown_format_before_reading(tmp_path):
+    out = CliRunner().invoke(main, ["identify", str(tmp_path), "--output", str(tmp_path / "r.json"),
+                                    "--plots", str(tmp_path / "plots"), "--format", "jpg"])
+    assert out.exit_code == 2
+    assert "'jpg' is not one of 'png', 'svg', 'pdf'" in out.output
+    assert not (tmp_path / "plots").exists()
