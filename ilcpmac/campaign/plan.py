@@ -98,6 +98,17 @@ class CampaignPlan:
         best_before = min(history[: -c.patience])
         return all(p > (1.0 - c.min_improvement) * best_before for p in history[-c.patience:])
 
+    def most_remaining(self, records: list[TrialRecord]) -> int:
+        """The most trials that can follow ``records``: the grid, baselines and compensations left, and every
+        unfinished ILC set point running to [campaign] ilc_trials."""
+        c = self.config.campaign
+        left = max(len(self.grid) - len(records), 0)
+        for torque in c.ilc_torque_setpoints_nm:
+            left += sum(not records_at(records, torque, (role,)) for role in ("baseline", "compensate"))
+            if not self.ilc_finished(records, torque):
+                left += c.ilc_trials - len(records_at(records, torque, ("ilc",)))
+        return left
+
     def next_step(self, records: list[TrialRecord]) -> Step | None:
         """The trial after ``records`` (every trial done so far); None when the campaign is over."""
         n = len(records)

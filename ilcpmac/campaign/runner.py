@@ -27,7 +27,7 @@ import numpy as np
 from ilcpmac.backends.base import Backend
 from ilcpmac.bench.format import Bench, as_written
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
-from ilcpmac.campaign.record import TrialRecord
+from ilcpmac.campaign.record import FIGURE_KEYS, TrialRecord
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.config import CampaignConfig
 from ilcpmac.errors import IdentificationError
@@ -39,7 +39,14 @@ from ilcpmac.signals.harmonics import RippleFigures
 from ilcpmac.stages.base import PIPELINE_NEEDS, Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs
 
-__all__ = ["CampaignEvents", "CampaignPlan", "CampaignRunner"]
+__all__ = ["SUMMARY_UNITS", "CampaignEvents", "CampaignPlan", "CampaignRunner"]
+
+#: summary.json's "units": the unit of each number of its trials and of "final"
+SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
+                 **{key.format(kind): "N m" if key.endswith("_nm") else "fraction of mean torque"
+                    for _, key in FIGURE_KEYS for kind in ("measured", "true")},
+                 "reduction_factor": "x (uncompensated peak-to-peak ripple over this one, measured)",
+                 "reduction_factor_true": "x (uncompensated peak-to-peak ripple over this one, true)"}
 
 
 class CampaignEvents(Protocol):
@@ -282,7 +289,8 @@ class CampaignRunner:
         self.events.message(f"resume: {done} trials already complete in {self.run_dir.path}")
 
     def summary(self) -> dict:
-        """summary.json: every trial, the identification and the final figures (docs/campaign.md)."""
+        """summary.json: the units of its figures, every trial, the identification and the final figures
+        (docs/campaign.md)."""
         setpoints = self.config.campaign.ilc_torque_setpoints_nm
         last = [done[-1] for t in setpoints if (done := records_at(self.records, t, ("compensate", "ilc")))]
         final = {}
@@ -295,5 +303,5 @@ class CampaignRunner:
                 factors = [getattr(r, key) for r in last]
                 if all(f is not None for f in factors):
                     final[key] = min(factors)
-        return {"trials": [r.to_json() for r in self.records], "identification": self.identification_json,
-                "final": final}
+        return {"units": dict(SUMMARY_UNITS), "trials": [r.to_json() for r in self.records],
+                "identification": self.identification_json, "final": final}

@@ -2,17 +2,125 @@
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
+from rich.console import Console, ConsoleOptions, RenderResult
 from rich.live import Live
+from rich.text import Text
 
 from ilcpmac.cli import console, main
 
+if TYPE_CHECKING:
+    from ilcpmac.campaign.plan import CampaignPlan
+    from ilcpmac.campaign.record import TrialRecord
+
 #: the packaged config ``ilcpmac run`` runs with no CONFIG
 DEFAULT_CONFIG = "seed-bench.toml"
+#: the live display's refreshes per second (one spinner frame each)
+REFRESH_HZ = 4
+_SPINNER = "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` for people: "7.4 s", "3m05s", "2h07m"."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes = int(seconds // 60)
+    return f"{minutes}m{int(seconds % 60):02d}s" if minutes < 60 else f"{minutes // 60}h{minutes % 60:02d}m"
+
+
+class CampaignView:
+    """The live display of ``ilcpmac run`` and the campaign's events (`CampaignEvents`): the table of trials
+    laid out for the console's width, under it a status line with the trial running, its elapsed time, and
+    the trials and time left at most (the plan's bound on the trials, at the mean time of the trials so far).
+
+    Parameters
+    ----------
+    console : where messages go.
+    plan : the campaign's plan.
+    title : the table's title.
+    records : the trials done so far; None when not yet known (a resume loads them).
+    clock : seconds, monotonic.
+    """
+
+    def __init__(self, console: Console, plan: CampaignPlan, title: str, records: list[TrialRecord] | None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.console = console
+        self.plan = plan
+        self.title = title
+        self.records = records
+        self.clock = clock
+        self.started_s = self.last_s = clock()
+        #: wall seconds of each trial finished in this process, grid trials (run in parallel) apart
+        self.seconds: dict[bool, list[float]] = {True: [], False: []}
+        self.ended: str | None = None
+
+    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
+        """A trial finished."""
+        now = self.clock()
+        self.seconds[record.role == "grid"].append(now - self.last_s)
+        self.last_s = now
+        self.records = list(records)
+
+    def message(self, text: str) -> None:
+        """Say ``text`` above the display."""
+        self.console.print(Text(text, style="bold"))
+
+    def end(self, how: str) -> None:
+        """The campaign is over ("done", "stopped"): the status line says so from now on."""
+        self.ended = how
+
+    def time_left_s(self) -> float | None:
+        """At most how long the campaign still runs: the plan's bound on the grid trials and the others left,
+        each at the mean time of its kind so far in this process; None while a kind left has no time yet."""
+        if self.records is None:
+            return None
+        grid_left = max(len(self.plan.grid) - len(self.records), 0)
+        left = {True: grid_left, False: self.plan.most_remaining(self.records) - grid_left}
+        if any(n and not self.seconds[grid] for grid, n in left.items()):
+            return None
+        return sum(n * sum(self.seconds[grid]) / len(self.seconds[grid]) for grid, n in left.items() if n)
+
+    def status(self) -> str:
+        """The status line."""
+        now = self.clock()
+        elapsed = duration(now - self.started_s)
+        if self.ended is not None:
+            return f"{self.ended}: {len(self.records)} trials, {elapsed}" if self.records is not None else \
+                f"{self.ended} after {elapsed}"
+        if self.records is None:
+            return f"{_SPINNER[0]} starting, {elapsed}"
+        done = len(self.records)
+        step = self.plan.next_step(self.records)
+        if step is None:
+            running = "writing the summary"
+        elif step.role == "grid":
+            running = f"trial {done + 1}/{len(self.plan.grid)} grid"
+        else:
+            r = step.request
+            running = f"trial {done + 1} {step.role} {r.torque_setpoint_nm:g} N m {r.speed_setpoint_hz:g} Hz"
+        left = self.time_left_s()
+        bound = f"≤ {self.plan.most_remaining(self.records)} to go" + ("" if left is None else f", ~{duration(left)}")
+        return (f"{_SPINNER[int(now * REFRESH_HZ) % len(_SPINNER)]} {running}, {duration(now - self.last_s)} | "
+                f"{done} done, {elapsed} | {bound}")
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        from ilcpmac.report.table import trials_table
+
+        yield trials_table(self.records or [], options.max_width, self.title)
+        yield Text(self.status())
+
+
+def files_written(path: Path) -> tuple[int, int]:
+    """How many files a run directory holds and their total bytes (its lock files left out)."""
+    files = [p for p in path.rglob("*") if p.is_file() and not p.name.startswith(".lock")]
+    return len(files), sum(p.stat().st_size for p in files)
 
 
 class LiveTable(Live):
@@ -41,7 +149,7 @@ class LiveTable(Live):
               help="Continue the run in this directory from its last complete trial.")
 def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: str | None, trials: int | None,
         seed: int | None, resume_dir: Path | None) -> None:
-    """Run a campaign: identify, compensate, then learn the residual ripple with ILC.
+    """Run a campaign: identify, compensate, then learn with ILC.
 
     With no CONFIG, runs the packaged seed-bench.toml on the simulator. Every trial is
     persisted as it finishes in the run directory (a bench folder); see
@@ -51,13 +159,13 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
 
     from ilcpmac.backends.registry import BackendSetup, build_backend
     from ilcpmac.campaign.plan import CampaignPlan
-    from ilcpmac.campaign.record import TrialRecord, records_of
+    from ilcpmac.campaign.record import records_of
     from ilcpmac.campaign.rundir import RunDir, RunFiles
     from ilcpmac.campaign.runner import CampaignRunner
     from ilcpmac.config import check_config, load_config, packaged_config
     from ilcpmac.errors import ConfigError
     from ilcpmac.identify import identify_bench
-    from ilcpmac.report.table import summary_table, trials_table
+    from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
     if resume_dir is not None and (config is not None or out_dir is not None):
         raise ConfigError("--resume continues a run with its own config: give no CONFIG or --out")
@@ -86,23 +194,21 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
         backend = build_backend(backend_kind, BackendSetup(cfg, address))
         try:
             description = backend.describe()
-            CampaignPlan.build(cfg, description, seed)  # before anything is written
+            plan = CampaignPlan.build(cfg, description, seed)  # before anything is written
             if resume_dir is not None:
                 run_dir = RunDir.resume(resume_dir, description, lock)
             else:
                 run_dir = RunDir.create(out_dir, description, config_path.read_text(),
                                         {"seed": seed, "trials": trials, "config": str(config_path)}, lock)
-            class Events:
-                def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
-                    live.update(trials_table(records, f"ilcpmac run  {run_dir.path}"))
-
-                def message(self, text: str) -> None:
-                    live.console.print(f"[bold]{text}[/bold]")
-
-            with LiveTable(trials_table([], f"ilcpmac run  {run_dir.path}"), console=console, refresh_per_second=4,
-                           vertical_overflow="visible") as live:
-                runner = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, Events())
-                summary = runner.run()
+            view = CampaignView(console, plan, f"ilcpmac run  {run_dir.path}",
+                                None if resume_dir is not None else [])
+            with LiveTable(view, console=console, refresh_per_second=REFRESH_HZ, vertical_overflow="visible"):
+                try:
+                    summary = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, view).run()
+                except BaseException:
+                    view.end("stopped")
+                    raise
+                view.end("done")
         finally:
             backend.close()
     finally:
@@ -110,9 +216,12 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             lock.release()
         if made_out_dir and run_dir is None:  # nothing was created: leave no empty directory behind
             shutil.rmtree(out_dir, ignore_errors=True)
+    console.print(Text(SUMMARY_TITLE))
     console.print(summary_table(records_of(summary), list(cfg.campaign.ilc_torque_setpoints_nm)))
-    final = summary["final"]
-    if final:
-        console.print("final (worst over the ILC set points): " + ", ".join(
-            f"{k} = {100 * v:.3f} %" if k.startswith("ripple") else f"{k} = {v:.0f}x" for k, v in final.items()))
-    console.print(f"run directory: {run_dir.path} (summary.json, bench.toml, states/)")
+    lines = final_lines(summary["final"])
+    if lines:
+        console.print(Text("\n  ".join([FINAL_TITLE, *lines])))
+    count, size = files_written(run_dir.path)
+    # not wrapped: the path and the command stay whole, to copy
+    console.print(Text(f"wrote {count} files, {size / 1e6:.1f} MB, in {run_dir.path}\n"
+                       f"next: ilcpmac report {shlex.quote(str(run_dir.path))}"), soft_wrap=True)

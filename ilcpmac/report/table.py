@@ -1,67 +1,168 @@
-"""Rich tables of a campaign's trials: one row per trial, the grid collapsed into one row."""
+"""Rich tables of a campaign's trials, laid out for the console's width, and the final figures in words.
+
+Every cell is formatted to a few characters (3 significant digits, units in the
+header) and never wrapped: a layout keeps the columns that fit the width, in
+order of importance, so no cell or header is ever cut.
+"""
 
 from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from rich.table import Table
 
 from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.record import TrialRecord
-from ilcpmac.signals.harmonics import RippleFigures
+
+__all__ = ["FINAL_TITLE", "SUMMARY_TITLE", "final_lines", "significant", "summary_table", "trials_table"]
+
+#: width of a column's padding (one space each side) and its left border
+_COLUMN_FRAME = 3
 
 
-def _pct(figures: RippleFigures | None, name: str) -> str:
-    return "-" if figures is None else f"{100 * getattr(figures, name):.3f}"
+def significant(value: float) -> str:
+    """``value`` to 3 significant digits without an exponent (at most 4 decimals; 0 stays "0")."""
+    if value == 0 or not math.isfinite(value):
+        return f"{value:g}"
+    decimals = min(4, max(0, 2 - math.floor(math.log10(abs(value)))))
+    return f"{value:.{decimals}f}"
 
 
-def _mnm(figures: RippleFigures | None, name: str) -> str:
-    return "-" if figures is None else f"{1000 * getattr(figures, name):.2f}"
+def _span(values: list[float]) -> str:
+    low, high = min(values), max(values)
+    return f"{low:g}" if low == high else f"{low:g}-{high:g}"
 
 
-def _factor(factor: float | None) -> str:
-    return "-" if factor is None else f"{factor:.0f}x"
+def _worst(rows: list[TrialRecord], kind: str, name: str, scale: float) -> str:
+    """The largest figure ``name`` of ``kind`` over ``rows``, times ``scale``; "-" where none has it."""
+    values = [getattr(f, name) for r in rows if (f := r.figures(kind)) is not None]
+    return significant(scale * max(values)) if values else "-"
 
 
-def trials_table(records: list[TrialRecord], title: str = "ilcpmac run") -> Table:
-    """The live table: per trial, measured and true ripple (% of mean torque) and what is left where."""
-    table = Table(title=title, title_justify="left", header_style="bold")
-    for name, justify in [("#", "right"), ("phase", "left"), ("set point", "left"),
-                          ("pp meas %", "right"), ("rms meas %", "right"), ("pp true %", "right"),
-                          ("rms true %", "right"), ("1x mN m", "right"), ("2x mN m", "right"),
-                          ("cog mN m", "right"), ("rest mN m", "right"), ("noise %", "right"),
-                          ("reduction", "right")]:
-        table.add_column(name, justify=justify)
+def _factor(rows: list[TrialRecord], name: str) -> str:
+    values = [getattr(r, name) for r in rows if getattr(r, name) is not None]
+    return f"{significant(min(values))}x" if values else "-"
+
+
+def _index(rows: list[TrialRecord]) -> str:
+    first, last = rows[0].index, rows[-1].index
+    return str(first) if first == last else f"{first}-{last}"
+
+
+@dataclass(frozen=True)
+class _Column:
+    """A column of the live table: its header (quantity, then unit, on two lines), its rank (0 is kept first
+    when the width is short) and its cell for a row of trials (one trial, or the grid)."""
+
+    header: str
+    rank: int
+    cell: Callable[[list[TrialRecord]], str]
+    justify: str = "right"
+
+
+def _figure(header: str, rank: int, kind: str, name: str, scale: float) -> _Column:
+    return _Column(header, rank, lambda rows: _worst(rows, kind, name, scale))
+
+
+#: the live table's columns in display order; ripple in % of mean torque, amplitudes in mN m
+_COLUMNS = (
+    _Column("#", 0, _index),
+    _Column("phase", 0, lambda rows: rows[0].role, "left"),
+    _Column("torque\nN m", 0, lambda rows: _span([r.torque_setpoint_nm for r in rows])),
+    _Column("speed\nHz", 1, lambda rows: _span([r.speed_setpoint_hz for r in rows])),
+    _figure("meas pp\n%", 0, "measured", "pp", 100),
+    _figure("meas rms\n%", 3, "measured", "rms", 100),
+    _figure("true pp\n%", 0, "true", "pp", 100),
+    _figure("true rms\n%", 3, "true", "rms", 100),
+    _figure("1x\nmN m", 4, "measured", "amp_1x", 1000),
+    _figure("2x\nmN m", 4, "measured", "amp_2x", 1000),
+    _figure("cogging\nmN m", 4, "measured", "amp_cogging", 1000),
+    _figure("rest\nmN m", 4, "measured", "amp_rest", 1000),
+    _figure("noise\n%", 2, "measured", "rest_rms", 100),
+    _Column("reduction\nmeas", 0, lambda rows: _factor(rows, "reduction_factor")),
+    _Column("reduction\ntrue", 2, lambda rows: _factor(rows, "reduction_factor_true")),
+)
+
+
+def _rows(records: list[TrialRecord]) -> list[list[TrialRecord]]:
+    """The table's rows: the grid in one row, then one row per trial."""
     grid = [r for r in records if r.role == "grid"]
-    if grid:
-        true_pp = [r.true.pp for r in grid if r.true is not None]
-        span = f"true pp {100 * min(true_pp):.1f}..{100 * max(true_pp):.1f} %" if true_pp else ""
-        table.add_row(f"1-{len(grid)}", "identify", f"multisine grid, {len(grid)} trials", *[""] * 3,
-                      span, *[""] * 6)
-    for r in records:
-        if r.role == "grid":
-            continue
-        phase = r.phase + (" (baseline)" if r.role == "baseline" else "")
-        m = r.measured
-        table.add_row(str(r.index), phase, f"{r.torque_setpoint_nm:g} N m @ {r.speed_setpoint_hz:g} Hz",
-                      _pct(m, "pp"), _pct(m, "rms"), _pct(r.true, "pp"), _pct(r.true, "rms"), _mnm(m, "amp_1x"),
-                      _mnm(m, "amp_2x"), _mnm(m, "amp_cogging"), _mnm(m, "amp_rest"), _pct(m, "rest_rms"),
-                      _factor(r.reduction_factor))
+    return ([grid] if grid else []) + [[r] for r in records if r.role != "grid"]
+
+
+def _text_width(text: str) -> int:
+    return max(len(line) for line in text.split("\n"))
+
+
+def _fit(columns: list[tuple[_Column, list[str]]], width: int) -> list[tuple[_Column, list[str]]]:
+    """The columns that fit ``width`` side by side, unwrapped: rank by rank, while a whole rank fits
+    (rank 0 always)."""
+    needs = [max([_text_width(c.header), *map(len, cells)]) + _COLUMN_FRAME for c, cells in columns]
+    used, kept = 1, 0
+    for rank in sorted({c.rank for c, _ in columns}):
+        used += sum(n for (c, _), n in zip(columns, needs) if c.rank == rank)
+        if used > width:
+            break
+        kept = rank
+    return [(c, cells) for c, cells in columns if c.rank <= kept]
+
+
+def _table(columns: list[tuple[str, str, list[str]]], **options) -> Table:
+    table = Table(header_style="bold", **options)
+    for header, justify, _ in columns:
+        table.add_column(header, justify=justify, no_wrap=True)
+    for row in zip(*(cells for *_, cells in columns)):
+        table.add_row(*row)
     return table
+
+
+def trials_table(records: list[TrialRecord], width: int, title: str | None = None) -> Table:
+    """The live table, for a console ``width`` characters wide: per trial its phase, set point, measured and true
+    ripple, harmonic amplitudes and reduction factors, as many columns as fit. The identification grid is one row
+    (its trials' range, set points and largest figures)."""
+    rows = _rows(records)
+    columns = _fit([(c, [c.cell(row) for row in rows]) for c in _COLUMNS], width)
+    caption = "grid row: the largest figure over its trials" if any(r.role == "grid" for r in records) else None
+    return _table([(c.header, c.justify, cells) for c, cells in columns], title=title, title_justify="left",
+                  caption=caption, caption_justify="left")
+
+
+#: the summary's title, printed on a line of its own above `summary_table`
+SUMMARY_TITLE = "summary per ILC set point (ripple peak-to-peak, % of mean torque)"
 
 
 def summary_table(records: list[TrialRecord], setpoints: list[float]) -> Table:
-    """Per ILC set point: uncompensated and final ripple, reduction factors, trials used."""
-    table = Table(title="summary (ripple peak-to-peak, % of mean torque)", title_justify="left",
-                  header_style="bold")
-    for name in ("set point", "uncompensated meas", "final meas", "uncompensated true", "final true",
-                 "reduction meas", "reduction true", "ILC trials"):
-        table.add_column(name, justify="right")
+    """Per ILC set point: uncompensated and final ripple, reduction factors, ILC trials used (`SUMMARY_TITLE`)."""
+    rows = []
     for torque in setpoints:
         base = records_at(records, torque, ("baseline",))
         done = records_at(records, torque, ("compensate", "ilc"))
-        if not base or not done:
+        if base and done:
+            b, f = base[0], done[-1]
+            rows.append([f"{torque:g}", _worst([b], "measured", "pp", 100), _worst([f], "measured", "pp", 100),
+                         _worst([b], "true", "pp", 100), _worst([f], "true", "pp", 100),
+                         _factor([f], "reduction_factor"), _factor([f], "reduction_factor_true"),
+                         str(sum(r.role == "ilc" for r in done))])
+    headers = ["torque\nN m", "meas %\nbefore", "meas %\nafter", "true %\nbefore", "true %\nafter",
+               "reduction\nmeas", "reduction\ntrue", "ILC\ntrials"]
+    return _table([(h, "right", list(cells)) for h, cells in zip(headers, zip(*rows) if rows else [[]] * 8)])
+
+
+#: the line above `final_lines`
+FINAL_TITLE = "final, the worst over the ILC set points (ripple peak-to-peak):"
+
+
+def final_lines(final: dict) -> list[str]:
+    """summary.json's ``final`` in words, one line per kind of peak-to-peak ripple (true, then measured);
+    `FINAL_TITLE` heads them."""
+    lines = []
+    for kind, factor in (("true", "reduction_factor_true"), ("measured", "reduction_factor")):
+        if f"ripple_pp_{kind}" not in final:
             continue
-        b, f = base[0], done[-1]
-        table.add_row(f"{torque:g} N m", _pct(b.measured, "pp"), _pct(f.measured, "pp"), _pct(b.true, "pp"),
-                      _pct(f.true, "pp"), _factor(f.reduction_factor), _factor(f.reduction_factor_true),
-                      str(sum(r.role == "ilc" for r in done)))
-    return table
+        words = f"{kind} ripple {significant(100 * final[f'ripple_pp_{kind}'])} % of mean torque"
+        if factor in final:
+            words += f", {significant(final[factor])}x below uncompensated"
+        lines.append(words)
+    return lines
