@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import re
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -175,3 +176,148 @@ def test_cli_refuses_an_unknown_format_before_reading(tmp_path):
     assert out.exit_code == 2
     assert "'jpg' is not one of 'png', 'svg', 'pdf'" in out.output
     assert not (tmp_path / "plots").exists()
+
+
+# ---------------------------------------------------------------- the report of a run directory (ilcpmac report)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    """A tiny campaign's run directory: 2 ILC set points (2 and 4 N m), 2 ILC trials each."""
+    from campaign_helpers import SMALL_CAMPAIGN, run_campaign
+    from conftest import SEED_CONFIG, toml_text
+
+    from ilcpmac.config import load_config
+
+    folder = tmp_path_factory.mktemp("report")
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    for table, values in SMALL_CAMPAIGN.items():
+        for key, value in values.items():
+            data.setdefault(table, {})[key] = dict(data.get(table, {}).get(key, {}), **value) \
+                if isinstance(value, dict) else value
+    data["campaign"]["ilc_trials"] = 2
+    (folder / "campaign.toml").write_text(toml_text(data))
+    run_campaign(load_config(folder / "campaign.toml"), folder / "run")
+    return folder / "run"
+
+
+@pytest.fixture(scope="module")
+def run_report(run_dir):
+    from ilcpmac.report.plots import RunReport
+
+    return RunReport.read(run_dir)
+
+
+@pytest.fixture(scope="module")
+def report_figures(run_report):
+    from ilcpmac.report.plots import build_figures
+
+    figures, why = build_figures(run_report)
+    assert why is None
+    return figures
+
+
+REPORT_FIGURES = ["ripple_per_trial", "before_after_2Nm", "before_after_4Nm", "learned_2Nm", "learned_4Nm"]
+
+
+def _legend_texts(axis) -> list[str]:
+    return [t.get_text() for t in axis.get_legend().get_texts()]
+
+
+def test_the_report_has_its_figures_per_ilc_set_point(report_figures):
+    assert list(report_figures) == REPORT_FIGURES
+
+
+@pytest.mark.parametrize("name", REPORT_FIGURES)
+def test_report_figures_have_units_and_legends(report_figures, name):
+    assert_readable(name, report_figures[name])
+
+
+def test_ripple_per_trial_marks_set_points_and_phases(run_report, report_figures):
+    (axis,) = report_figures["ripple_per_trial"].axes
+    assert axis.get_xlabel() == "trial (index)"
+    assert axis.get_ylabel() == "ripple peak-to-peak (% of mean torque)"
+    assert axis.get_yscale() == "log"
+    texts = _legend_texts(axis)
+    assert {"2 N m set point", "4 N m set point", "measured", "true (simulator)"} <= set(texts)
+    assert [t.get_text() for t in axis.texts] == ["identify", "compensate", "ilc"]
+    assert len(axis.patches) == 3  # one band per phase
+    markers = {(line.get_marker(), tuple(line.get_color())) for line in _data_lines(axis)
+               if line.get_marker() != "None"}
+    assert len({colour for _, colour in markers}) == 2  # a colour per set point
+    assert {marker for marker, _ in markers} == {"o", "x"}
+
+
+def test_before_after_shows_measured_and_true_torque_over_one_revolution(report_figures):
+    fig = report_figures["before_after_2Nm"]
+    top, middle, spectrum = fig.axes
+    for axis, when in ((top, "uncompensated"), (middle, "final")):
+        assert when in axis.get_title()
+        assert axis.get_ylabel() == "torque (mN m)"
+        assert axis.get_xlabel() == plotting.ANGLE_LABEL and axis.get_xlim() == (0.0, 360.0)
+        assert _legend_texts(axis) == ["measured", "true"]
+    assert spectrum.get_xlabel() == "harmonic (per mechanical revolution)"
+    assert spectrum.get_ylabel() == "amplitude (mN m)" and spectrum.get_yscale() == "log"
+    assert _legend_texts(spectrum) == ["uncompensated, measured", "uncompensated, true", "final, measured",
+                                       "final, true"]
+
+
+def test_learned_shows_each_stage_per_set_point_as_spectrum_and_over_a_cogging_period(run_report, report_figures):
+    motor = run_report.description.motor
+    for torque in (2, 4):
+        top, bottom = report_figures[f"learned_{torque}Nm"].axes
+        assert top.get_yscale() == "log" and top.get_xlabel() == "harmonic (per mechanical revolution)"
+        assert _legend_texts(top) == ["cogging", "ilc"]
+        assert "current-sensor: no feed-forward" in top.get_title()
+        assert f"{torque} N m" in top.get_title()
+        assert bottom.get_xlim() == (0.0, 360.0 / motor.cogging_order)
+        assert bottom.get_ylabel() == "feed-forward torque (mN m)"
+        assert _legend_texts(bottom) == ["cogging", "ilc", "sum"]
+
+
+def test_each_stage_learned_part_adds_up_to_the_next_requests_feedforward(run_report):
+    """Rebuilt from the states of trial 9 (the first ILC trial at 2 N m), the stages' parts add up to the
+    feed-forward trial 10 (the next at 2 N m) ran with."""
+    from dataclasses import replace
+
+    from ilcpmac.report.plots import learned_feedforward
+
+    records = run_report.records
+    assert [(r.index, r.role, r.torque_setpoint_nm) for r in records[8:10]] == [(9, "ilc", 2.0), (10, "ilc", 2.0)]
+    learned = learned_feedforward(replace(run_report, records=records[:9]))[0]
+    assert learned.record.index == 9 and list(learned.tables_nm) == ["current-sensor", "cogging", "ilc"]
+    assert not learned.tables_nm["current-sensor"].any()
+    applied = np.asarray(run_report.files.read_json(run_report.files.state(10))["request"]["feedforward_nm"])
+    np.testing.assert_allclose(sum(learned.tables_nm.values()), applied, atol=1e-12)
+
+
+def test_report_cli_writes_every_figure_in_the_format_asked(run_dir, tmp_path):
+    out = CliRunner().invoke(main, ["report", str(run_dir), "--out", str(tmp_path / "plots"), "--format", "svg"])
+    assert out.exit_code == 0, out.output
+    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == sorted(f"{n}.svg" for n in REPORT_FIGURES)
+
+
+def test_report_cli_refuses_an_unknown_format(run_dir, tmp_path):
+    out = CliRunner().invoke(main, ["report", str(run_dir), "--out", str(tmp_path / "plots"), "--format", "jpg"])
+    assert out.exit_code == 2 and "'jpg' is not one of 'png', 'svg', 'pdf'" in out.output
+    assert not (tmp_path / "plots").exists()
+
+
+def test_a_stage_that_is_not_installed_leaves_out_only_what_it_learned(run_dir, tmp_path):
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy)
+    config = copy / "campaign.toml"
+    config.write_text(config.read_text().replace('stages = ["current-sensor"', 'stages = ["absent", "current-sensor"'))
+    out = CliRunner().invoke(main, ["report", str(copy), "--format", "pdf"])
+    assert out.exit_code == 0, out.output
+    assert " ".join(out.output.split()).startswith(
+        "warning: what each stage learned is not drawn: [pipeline] stages: no stage named 'absent'")
+    assert sorted(p.name for p in (copy / "plots").iterdir()) == sorted(f"{n}.pdf" for n in REPORT_FIGURES[:3])
+
+
+def test_report_of_a_folder_without_a_run_is_one_error_line(tmp_path):
+    out = CliRunner().invoke(main, ["report", str(tmp_path)])
+    assert out.exit_code == 2
+    assert out.output == f"error: {tmp_path}: no summary.json (not a run directory of ilcpmac run)\n"

@@ -9,7 +9,10 @@ from ilcpmac.cli import main
 
 @main.command()
 def backends() -> None:
-    """List the backends ilcpmac run --backend may name (entry-point group ilcpmac.backends)."""
+    """List the backends ilcpmac run --backend may name.
+
+    They are registered in the entry-point group ilcpmac.backends.
+    """
     from rich.console import Console
     from rich.markup import escape
 

@@ -57,7 +57,9 @@ def emulate(port: int, host: str, config: Path | None, max_current: float, max_t
             chunk_samples: int, heartbeat_s: float, drop: str | None, stall: str | None, stall_s: float,
             corrupt: str | None, wrong_version: str | None, restart: str | None, restart_delay_s: float,
             idle_timeout_s: float, frame_timeout_s: float, max_connections: int, max_trial_samples: int | None) -> None:
-    """Serve the simulated drive of --config as a bench target (docs/protocol.md).
+    """Serve the simulated drive of --config as a bench target.
+
+    It speaks the bench protocol of docs/protocol.md.
 
     Prints "listening on HOST:PORT" on stdout once it accepts connections;
     runs until Ctrl-C or SIGTERM. One client controls it at a time: another

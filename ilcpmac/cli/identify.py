@@ -10,30 +10,102 @@ from rich.table import Table
 
 from ilcpmac.cli import console, main, progress_bar
 
+#: the true values a simulated bench folder holds (``ilcpmac simulate``), under the result keys
+TRUTH_FILE = "truth.json"
 
-def _cell(value, std, digits: int = 4) -> str:
-    """'value +- std' for scalars and vectors; '-' when unknown."""
+
+def _cell(value, std) -> str:
+    """'value ± std'; '-' when unknown."""
     if value is None:
         return "-"
-    if hasattr(value, "__len__"):
-        return ", ".join(_cell(v, s, digits) for v, s in zip(value, [None] * len(value) if std is None else std))
-    return f"{value:.{digits}g} ± {std:.2g}" if std is not None else f"{value:.{digits}g}"
+    return f"{value:.4g} ± {std:.2g}" if std is not None else f"{value:.4g}"
 
 
-def estimates_table(result) -> Table:
-    """The estimates of both methods with their standard errors; the chosen one first."""
-    table = Table(title="identification (value ± standard error)")
+def _rms(values) -> float:
+    import numpy as np
+
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def _error(estimate, truth, kind: str) -> str:
+    """The estimate's error against the truth: "rel" in %, "abs" as a difference, "rms" as RMS % of the truth's."""
+    if estimate is None or truth is None:
+        return "-"
+    if kind == "abs":
+        return f"{estimate - truth:+.2g}"
+    if kind == "rms":
+        return "-" if len(estimate) != len(truth) else f"{100 * _rms(estimate - truth) / _rms(truth):.2g} % RMS"
+    return f"{100 * (estimate / truth - 1):+.2g} %"
+
+
+def _rows(result, columns: list[str]) -> list[tuple[str, object, str, list]]:
+    """Per line of the table: its label, the result's value, how it is compared with the truth ("rel",
+    "abs" or "rms") and per column (value, std, what equals the result's value when the result took it)."""
+    estimates = [result.methods.get(name, result) for name in columns]
+
+    def at(value, p: int | None):
+        return value if value is None or p is None else value[p]
+
+    def line(label: str, name: str, kind: str, p: int | None = None) -> tuple:
+        cells = [(at(getattr(m, name), p), at(getattr(m, name + "_std"), p), at(getattr(m, name), p))
+                 for m in estimates]
+        return label, at(getattr(result, name), p), kind, cells
+
+    rows = [line("delta*eps", "delta_epsilon", "rel"), line("delta", "delta", "rel"), line("eps", "epsilon", "rel")]
+    rows += [line(f"alpha {phase}", "alpha", "abs", p) for p, phase in enumerate("abc")]
+    rows += [line(f"beta {phase} (A)", "beta", "abs", p) for p, phase in enumerate("abc")]
+    rows.append(line("J* (kg m²)", "inertia_estimate", "rel"))
+    rows.append(("cogging (mN m)", result.cogging_nm, "rms",
+                 [(None if m.cogging_nm is None else 1000 * _rms(m.cogging_nm), None, m.cogging_nm)
+                  for m in estimates]))
+    loop = result.current_loop_bandwidth_per_phase_hz  # the joint fit's
+    if loop is None:
+        return rows + [("loop (Hz)", None, "rel", [(None, None, None)] * len(columns))]
+    return rows + [(f"loop {phase} (Hz)", loop[p], "rel",
+                    [(loop[p], None, loop[p]) if name in ("joint", "result") else (None, None, None)
+                     for name in columns]) for p, phase in enumerate("abc")]
+
+
+def read_truth(bench_dir: Path):
+    """The bench folder's truth.json (a simulated bench's) as an `IdentificationResult`, or None without one."""
+    from ilcpmac.bench.format import BenchFormatError
+    from ilcpmac.records import IdentificationResult
+
+    path = bench_dir / TRUTH_FILE
+    if not path.is_file():
+        return None
+    try:
+        return IdentificationResult.from_json(json.loads(path.read_text()))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise BenchFormatError(f"{path}: unreadable ({e})") from None
+
+
+def estimates_table(result, truth=None) -> Table:
+    """Each estimate of each method with its standard error, "*" on the one the result took; with ``truth``
+    (an `IdentificationResult` of the true values, `read_truth`), the result's error against it.
+
+    One line per phase, so that the table fits 80 columns. The cogging line gives the RMS of the cogging
+    torque (mN m) and, against the truth, the RMS of the difference relative to the truth's RMS; gains are
+    compared in relative %, alpha and beta as differences; the current loop is the joint method's.
+    """
+    import numpy as np
+
+    columns = list(result.methods) or ["result"]
+    table = Table(title="identification (value ± standard error; * the result's)", title_justify="left",
+                  header_style="bold", padding=(0, 1))
     table.add_column("estimate")
-    table.add_column("result")
-    for name in result.methods:
-        table.add_column(f"{name} method")
-    rows = (("delta*eps", "delta_epsilon"), ("delta", "delta"), ("eps", "epsilon"), ("alpha", "alpha"),
-            ("beta (A)", "beta"), ("J* (kg m²)", "inertia_estimate"))
-    for label, name in rows:
-        table.add_row(label, _cell(getattr(result, name), getattr(result, name + "_std")),
-                      *(_cell(getattr(m, name), getattr(m, name + "_std")) for m in result.methods.values()))
-    loop = result.current_loop_bandwidth_per_phase_hz
-    table.add_row("current loop (Hz)", "-" if loop is None else ", ".join(f"{b:.0f}" for b in loop), "", "")
+    for name in columns:
+        table.add_column(name if name == "result" else f"{name} method")
+    if truth is not None:
+        table.add_column("vs truth")
+        truths = {label: value for label, value, _, _ in _rows(truth, ["result"])}
+    for label, value, kind, cells in _rows(result, columns):
+        row = [label] + [_cell(shown, std) + (" *" if len(columns) > 1 and raw is not None and value is not None
+                                              and np.array_equal(raw, value) else "")
+                         for shown, std, raw in cells]
+        if truth is not None:
+            row.append(_error(value, truths.get(label), kind))
+        table.add_row(*row)
     return table
 
 
@@ -46,10 +118,16 @@ def estimates_table(result) -> Table:
 @click.option("--format", "plot_format", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
               help="File format of the figures written by --plots.")
 def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format: str) -> None:
-    """Identify delta*eps, delta, eps, alpha, beta, J* and the cogging torque of BENCH_DIR."""
+    """Identify the sensors, inertia and cogging torque of BENCH_DIR.
+
+    Estimates delta*eps, delta, eps, alpha, beta, J* and the cogging torque with both methods, writes the
+    result to --output and prints it; with a truth.json in BENCH_DIR (a simulated bench), also each
+    estimate's error.
+    """
     from ilcpmac.bench.format import read_bench
     from ilcpmac.identify import STEPS, identify_bench
 
+    truth = read_truth(bench_dir)
     with progress_bar() as progress:
         task = progress.add_task("reading bench folder", total=len(STEPS) + 1)
         bench = read_bench(bench_dir)
@@ -72,4 +150,4 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     click.echo()
     from rich.console import Console
 
-    Console().print(estimates_table(result))
+    Console().print(estimates_table(result, truth))

@@ -1,4 +1,4 @@
-"""``ilcpmac report``: PNG plots of a run directory."""
+"""``ilcpmac report``: the figures of a run directory."""
 
 from __future__ import annotations
 
@@ -7,38 +7,33 @@ from pathlib import Path
 import click
 
 from ilcpmac.cli import console, main
+from ilcpmac.plotting import FORMATS
 
 
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Where to write the PNGs (default RUN_DIR/plots).")
-def report(run_dir: Path, out_dir: Path | None) -> None:
-    """Plot a run: ripple per trial, torque before and after, its spectrum, the learned correction."""
-    from ilcpmac.campaign.record import records_of
-    from ilcpmac.campaign.rundir import RunDirError, RunFiles
-    from ilcpmac.config import load_config, read_toml
-    from ilcpmac.report import plots
+              help="Where to write the figures (default RUN_DIR/plots).")
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="png", show_default=True,
+              help="File format of the figures.")
+def report(run_dir: Path, out_dir: Path | None, fmt: str) -> None:
+    """Plot the run in RUN_DIR.
 
-    files = RunFiles(run_dir)
-    summary = files.read_summary()
+    Ripple per trial; per set point, the torque before and after compensation with its spectrum, and
+    what each stage learned.
+    """
+    from rich.markup import escape
+
+    from ilcpmac.campaign.rundir import RunDirError
+    from ilcpmac.report.plots import RunReport, write_report
+
+    run = RunReport.read(run_dir)
+    out_dir = out_dir or run.files.plots
     try:
-        records = records_of(summary)
-    except (KeyError, TypeError, ValueError) as e:
-        raise RunDirError(f"{files.summary}: unreadable ({e!r})") from None
-    cfg = load_config(files.config)
-    cpr = int(read_toml(files.bench, RunDirError)["motor"]["counts_per_rev"])
-    out_dir = out_dir or files.plots
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        written = [out_dir / "ripple_per_trial.png"]
-        plots.ripple_per_trial(records, written[0])
-        written += plots.before_after(files, records, cpr, cfg.campaign.ripple_harmonics, out_dir)
-        feedforward = {r.torque_setpoint_nm: files.read_state(r.index)["request"]["feedforward_nm"]
-                       for r in records if r.learns}
-        if feedforward:
-            written.append(plots.learned_correction(feedforward, out_dir))
+        written, why = write_report(run, out_dir, fmt)
     except OSError as e:
         raise RunDirError(f"{e.filename or out_dir}: {e.strerror or e}") from None
+    if why is not None:
+        console.print(f"[yellow]warning:[/yellow] what each stage learned is not drawn: {escape(why)}")
     for path in written:
-        console.print(f"wrote {path}")
+        console.print(f"wrote {escape(str(path))}")

@@ -17,7 +17,10 @@ from ilcpmac.cli import console, main, progress_bar
 @click.option("--revolutions", type=click.IntRange(min=1), default=None,
               help="Override [trials] revolutions (recorded, after the warm-up).")
 def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | None) -> None:
-    """Simulate CONFIG's multisine set-point grid into a bench folder with truth.json."""
+    """Simulate CONFIG's multisine set-point grid into a bench folder.
+
+    The folder also gets truth.json: the simulator's true values under the result keys.
+    """
     import dataclasses
 
     from ilcpmac.config import check_config, load_config

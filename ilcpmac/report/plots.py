@@ -1,90 +1,293 @@
-"""PNG plots of a run directory (``ilcpmac report``)."""
+"""The figures of a run directory (``ilcpmac report``), on `ilcpmac.plotting`.
+
+- ``ripple_per_trial``: peak-to-peak ripple of every trial, coloured by torque set point, the campaign's
+  phases as bands;
+- ``before_after_<T>Nm``: per ILC set point, the measured and (simulator) true torque ripple over one
+  revolution before compensation and after the last trial, and their spectra;
+- ``learned_<T>Nm``: per ILC set point, the feed-forward each stage has learned by the last trial, as a
+  spectrum and over one cogging period.
+
+Each builder returns a `matplotlib.figure.Figure`; `write_report` writes them all.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from itertools import groupby
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from ilcpmac import plotting
+from ilcpmac.campaign.plan import records_at
+from ilcpmac.campaign.record import TrialRecord, records_of
+from ilcpmac.campaign.rundir import RunDirError, RunFiles
+from ilcpmac.config import CampaignConfig, load_config
+from ilcpmac.errors import ConfigError
+from ilcpmac.pipeline.analysis import TorqueSpectrum
+from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest
+from ilcpmac.signals.harmonics import harmonic_amplitudes
 
-from ilcpmac.campaign.plan import records_at  # noqa: E402
-from ilcpmac.campaign.record import TrialRecord  # noqa: E402
-from ilcpmac.campaign.rundir import RunFiles  # noqa: E402
-from ilcpmac.pipeline.analysis import TorqueSpectrum  # noqa: E402
+__all__ = ["LearnedFeedForward", "RunReport", "before_after", "build_figures", "learned_feedforward",
+           "learned_figure", "ripple_per_trial", "write_report"]
 
-
-def ripple_per_trial(records: list[TrialRecord], path: Path) -> None:
-    """Peak-to-peak ripple per trial (log scale), measured and true, coloured by phase."""
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    colours = {"identify": "tab:gray", "compensate": "tab:orange", "ilc": "tab:blue"}
-    for kind, marker in (("measured", "o"), ("true", "x")):
-        for phase, colour in colours.items():
-            pts = [(r.index, 100 * r.figures(kind).pp) for r in records
-                   if r.phase == phase and r.figures(kind) is not None]
-            if pts:
-                x, y = zip(*pts)
-                ax.semilogy(x, y, marker, color=colour, label=f"{phase}, {kind}", ms=5, mfc="none")
-    ax.axhline(0.1, color="k", lw=0.8, ls=":", label="0.1 %")
-    ax.set(xlabel="trial", ylabel="ripple peak-to-peak, % of mean torque", title="Ripple per trial")
-    ax.legend(fontsize=8, ncol=2)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+#: the shade of each phase's band in the ripple plot
+PHASE_SHADES = {"identify": "0.85", "compensate": "tab:orange", "ilc": "tab:blue"}
+#: the ripple figure everything aims below, % of the mean torque
+TARGET_PERCENT = 0.1
+#: spectrum amplitudes below this fraction of a figure's largest are numerical zeros and not drawn
+SPECTRUM_FLOOR = 1e-6
+TORQUE_LABEL = "torque (mN m)"
+HARMONIC_LABEL = "harmonic (per mechanical revolution)"
 
 
-def before_after(files: RunFiles, records: list[TrialRecord], counts_per_rev: int, max_harmonic: int,
-                 out_dir: Path) -> list[Path]:
-    """Per ILC set point: the ripple over one revolution and its spectrum, uncompensated vs final."""
-    written = []
-    for torque in sorted({r.torque_setpoint_nm for r in records if r.role == "baseline"}):
-        base = records_at(records, torque, ("baseline",))[0]
-        done = records_at(records, torque, ("compensate", "ilc"))
-        if not done:
+@dataclass(frozen=True)
+class RunReport:
+    """What the figures of a run directory are drawn from.
+
+    Attributes
+    ----------
+    files : the run directory.
+    records : its trials (summary.json).
+    config : the campaign it ran.
+    description : its bench (bench.toml, backemf.csv; the limits of the config).
+    """
+
+    files: RunFiles
+    records: list[TrialRecord]
+    config: CampaignConfig
+    description: BenchDescription
+
+    @classmethod
+    def read(cls, run_dir: str | Path) -> RunReport:
+        """Read ``run_dir``; `RunDirError` (or the bench format's error) naming the file that cannot be read."""
+        from ilcpmac.bench.format import _motor, _read_backemf, _sensors
+        from ilcpmac.config import read_toml
+
+        files = RunFiles(run_dir)
+        summary = files.read_summary()
+        try:
+            records = records_of(summary)
+        except (KeyError, TypeError, ValueError) as e:
+            raise RunDirError(f"{files.summary}: unreadable ({e!r})") from None
+        config = load_config(files.config)
+        bench = read_toml(files.bench, RunDirError)
+        if "motor" not in bench or "sensors" not in bench:
+            raise RunDirError(f"{files.bench}: a run's bench.toml has [motor] and [sensors]")
+        motor, backemf_file = _motor(bench["motor"], f"{files.bench}: [motor]")
+        limits = config.limits
+        description = BenchDescription(motor, _read_backemf(files.path / backemf_file, motor),
+                                       _sensors(bench["sensors"], f"{files.bench}: [sensors]"),
+                                       BenchLimits(limits.max_current_a, limits.max_torque_nm, limits.max_speed_hz))
+        return cls(files, records, config, description)
+
+    @property
+    def max_harmonic(self) -> int:
+        """H, the campaign's ripple band."""
+        return self.config.campaign.ripple_harmonics
+
+    def ilc_setpoints(self) -> list[float]:
+        """The torque set points the pipeline learned at, in order."""
+        return sorted({r.torque_setpoint_nm for r in self.records if r.learns})
+
+
+def _legend_proxy(axis: Axes, style: str, label: str, **options) -> None:
+    """A legend entry without data."""
+    axis.plot([], [], style, label=label, **options)
+
+
+def ripple_per_trial(records: list[TrialRecord]) -> Figure:
+    """Peak-to-peak ripple per trial (log scale), measured and true, coloured by torque set point, with the
+    campaign's phases as bands."""
+    fig, (axis,) = plotting.figure(1, 4.0)
+    for phase, run in groupby(records, key=lambda r: r.phase):
+        run = list(run)
+        axis.axvspan(run[0].index - 0.5, run[-1].index + 0.5, color=PHASE_SHADES.get(phase, "0.9"), alpha=0.15,
+                     lw=0)
+        axis.text(run[0].index - 0.4, 1.0, phase, transform=axis.get_xaxis_transform(), va="top", fontsize=7)
+    colours = plotting.group_colours([r.torque_setpoint_nm for r in records])
+    for torque, colour in colours.items():
+        for kind, marker, fill in (("measured", "o", colour), ("true", "x", "none")):
+            points = [(r.index, 100 * r.figures(kind).pp) for r in records
+                      if r.torque_setpoint_nm == torque and r.figures(kind) is not None and r.figures(kind).pp > 0]
+            if points:
+                axis.semilogy(*zip(*points), marker, color=colour, mfc=fill, ms=5, ls="none")
+        _legend_proxy(axis, "s", f"{torque:g} N m set point", color=colour)
+    _legend_proxy(axis, "ko", "measured")
+    _legend_proxy(axis, "kx", "true (simulator)")
+    axis.axhline(TARGET_PERCENT, color="k", lw=0.8, ls=":", label=f"{TARGET_PERCENT:g} %")
+    axis.set_yscale("log")
+    axis.set_title("ripple per trial (bands: the campaign's phases)")
+    axis.set_xlabel("trial (index)")
+    axis.set_ylabel("ripple peak-to-peak (% of mean torque)")
+    if records:
+        axis.set_xlim(0.5, records[-1].index + 0.5)
+    plotting.legend(axis, ncol=2)
+    return fig
+
+
+def _spectra(trial, counts_per_rev: int, max_harmonic: int) -> dict[str, TorqueSpectrum]:
+    """The measured and (when the trial has it) true torque's spectra."""
+    out = {"measured": TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)}
+    if trial.torque_true_nm is not None:
+        out["true"] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_true_nm, counts_per_rev, max_harmonic)
+    return out
+
+
+def _spectrum_points(axis: Axes, amplitudes_nm: dict[str, np.ndarray], **style) -> None:
+    """Amplitude per harmonic 1..H on a log scale, one series per name; numerical zeros left out."""
+    largest = max((float(np.max(a)) for a in amplitudes_nm.values()), default=0.0)
+    for name, amplitude in amplitudes_nm.items():
+        shown = np.where(amplitude > SPECTRUM_FLOOR * largest, 1000 * amplitude, np.nan)
+        axis.semilogy(np.arange(1, amplitude.size + 1), shown, label=name, **style)
+    axis.set_xlabel(HARMONIC_LABEL)
+    axis.set_ylabel("amplitude (mN m)")
+
+
+def before_after(report: RunReport) -> dict[str, Figure]:
+    """Per ILC set point: measured and true torque ripple over one revolution, uncompensated (baseline) and
+    after the last trial, and their spectra; by file name."""
+    cpr, H = report.description.motor.counts_per_rev, report.max_harmonic
+    degrees = plotting.mechanical_degrees(np.arange(cpr), cpr)
+    figures = {}
+    for torque in report.ilc_setpoints():
+        base = records_at(report.records, torque, ("baseline",))
+        if not base:
             continue
-        final = done[-1]
-        trials = [files.read_trial(r.index, r.torque_setpoint_nm, r.speed_setpoint_hz) for r in (base, final)]
-        true = all(t.torque_true_nm is not None for t in trials)
-        spectra = [TorqueSpectrum.of(t.count, t.time_s, t.torque_true_nm if true else t.torque_nm, counts_per_rev,
-                                     max_harmonic) for t in trials]
-        fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(9, 9.5))
-        angle = 360.0 * np.arange(counts_per_rev) / counts_per_rev
-        kind = "true" if true else "measured"
-        for ax, spectrum, r, label in zip((ax0, ax1), spectra, (base, final), ("uncompensated", "final")):
-            ax.plot(angle, 1000 * spectrum.ripple_table(), lw=0.8, color="tab:blue" if ax is ax0 else "tab:orange")
-            ax.set(xlabel="mechanical angle, deg", ylabel="mN m",
-                   title=f"{torque:g} N m, {label} (trial {r.index}): {kind} torque ripple, "
-                         f"harmonics 1..{max_harmonic}")
-            amp = np.abs(spectrum.harmonics_nm[1:])
-            ax2.semilogy(np.arange(1, max_harmonic + 1), 1000 * np.maximum(amp, 1e-9), ".", ms=4, label=label)
-        ax2.set(xlabel="harmonic of the mechanical revolution", ylabel="amplitude, mN m",
-                title="harmonic spectrum")
-        ax2.legend(fontsize=8)
-        for ax in (ax0, ax1, ax2):
-            ax.grid(True, alpha=0.3)
-        fig.tight_layout()
-        path = out_dir / f"before_after_{torque:g}Nm.png"
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        written.append(path)
-    return written
+        final = records_at(report.records, torque, ("compensate", "ilc"))[-1]
+        fig, axes = plotting.figure(3, 2.8, sharex=False)
+        amplitudes = {}
+        for axis, record, when in zip(axes, (base[0], final), ("uncompensated", "final")):
+            trial = report.files.read_trial(record.index, record.torque_setpoint_nm, record.speed_setpoint_hz)
+            for kind, spectrum in _spectra(trial, cpr, H).items():
+                axis.plot(degrees, 1000 * spectrum.ripple_table(), lw=0.8, label=kind)
+                amplitudes[f"{when}, {kind}"] = np.abs(spectrum.harmonics_nm[1:])
+            axis.set_title(f"{torque:g} N m, {when} (trial {record.index}): torque ripple, harmonics 1..{H}")
+            axis.set_ylabel(TORQUE_LABEL)
+            plotting.angle_axis(axis)
+            plotting.legend(axis, loc="upper right")
+        _spectrum_points(axes[2], amplitudes, marker=".", ms=3, ls="none")
+        axes[2].set_title("spectrum of the torque ripple")
+        plotting.legend(axes[2], ncol=2)
+        figures[f"before_after_{torque:g}Nm"] = fig
+    return figures
 
 
-def learned_correction(states: dict[float, list[float]], out_dir: Path) -> Path:
-    """The final torque feed-forward per ILC set point (cogging feed-forward plus what ILC learned)."""
-    fig, ax = plt.subplots(figsize=(9, 4))
-    for torque, table in sorted(states.items()):
-        table = np.asarray(table)
-        ax.plot(360.0 * np.arange(table.size) / table.size, 1000 * table, lw=0.8, label=f"{torque:g} N m")
-    ax.set(xlabel="mechanical angle, deg", ylabel="feed-forward, mN m",
-           title="Learned torque feed-forward (final trial of each ILC set point)")
-    ax.legend(fontsize=8)
-    ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    path = out_dir / "learned_correction.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+@dataclass(frozen=True)
+class LearnedFeedForward:
+    """What each stage feeds forward at one set point after its last trial.
+
+    Attributes
+    ----------
+    record : the set point's last trial (compensate or ilc).
+    tables_nm : each stage's own feed-forward per encoder count, N m, in the pipeline's order (zero for a
+        stage that feeds nothing forward).
+    """
+
+    record: TrialRecord
+    tables_nm: dict[str, np.ndarray]
+
+
+def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
+    """Per ILC set point, each stage's feed-forward rebuilt from the states of its last trial.
+
+    The stages of the config are built from the run's identification and restored from the state saved
+    with that trial; a request at that set point then passes through them in order, and what each adds
+    to the feed-forward is its own part. Empty before the identification.
+
+    Raises
+    ------
+    ConfigError
+        When a stage of the config is not installed or cannot be built.
+    RunDirError
+        When a state file lacks what it should hold.
+    """
+    from ilcpmac.stages.base import Identified, StageSetup
+    from ilcpmac.stages.registry import build_stages
+
+    files, cfg = report.files, report.config
+    identification = files.read_json(files.identification)
+    setpoints = report.ilc_setpoints()
+    if identification is None or not setpoints:
+        return []
+    description = report.description
+    names = list(cfg.pipeline.stages)
+    try:
+        identified = Identified.from_result(identification["result"], description.calibration)
+    except (KeyError, TypeError, ValueError) as e:
+        raise RunDirError(f"{files.identification}: unreadable ({e!r})") from None
+    setups = {name: StageSetup(description, identified, report.max_harmonic, cfg.stage_options.get(name, {}))
+              for name in names}
+    stages = build_stages(names, setups)
+    cpr = description.motor.counts_per_rev
+    learned = []
+    for torque in setpoints:
+        record = records_at(report.records, torque, ("compensate", "ilc"))[-1]
+        path = files.state(record.index)
+        state = files.read_state(record.index)
+        try:
+            for stage in stages:
+                stage.restore(state["pipeline"][stage.name])
+            calibration = SensorCalibration.from_json(state["request"]["calibration"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise RunDirError(f"{path}: unreadable ({e!r})") from None
+        request = TrialRequest(torque, record.speed_setpoint_hz, 1, np.zeros(cpr), np.zeros(cpr), calibration)
+        tables = {}
+        for stage in stages:
+            shaped = stage.shape(request)
+            tables[stage.name] = shaped.feedforward_nm - request.feedforward_nm
+            request = shaped
+        learned.append(LearnedFeedForward(record, tables))
+    return learned
+
+
+def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
+    """What each stage learned at one set point: its feed-forward's spectrum and its first cogging period."""
+    motor, H = report.description.motor, report.max_harmonic
+    record = learned.record
+    feeding = {name: table for name, table in learned.tables_nm.items() if np.any(table)}
+    silent = [name for name in learned.tables_nm if name not in feeding]
+    fig, (top, bottom) = plotting.figure(2, 3.0, sharex=False)
+    _spectrum_points(top, {name: np.abs(harmonic_amplitudes(table, H)[1:]) for name, table in feeding.items()},
+                     marker=".", ms=4, lw=0.5)
+    note = f"; {', '.join(silent)}: no feed-forward" if silent else ""
+    top.set_title(f"{record.torque_setpoint_nm:g} N m at {record.speed_setpoint_hz:g} Hz: feed-forward each stage "
+                  f"learned by trial {record.index}{note}", fontsize=9)
+    span = 360.0 / motor.cogging_order
+    degrees = plotting.mechanical_degrees(np.arange(motor.counts_per_rev), motor.counts_per_rev)
+    period = degrees <= span
+    for name, table in feeding.items():
+        bottom.plot(degrees[period], 1000 * table[period], lw=0.9, label=name)
+    if len(feeding) > 1:
+        bottom.plot(degrees[period], 1000 * sum(feeding.values())[period], "k", lw=0.6, ls="--", label="sum")
+    bottom.set_title(f"over the first cogging period (1/{motor.cogging_order} revolution)", fontsize=9)
+    bottom.set_ylabel(f"feed-forward {TORQUE_LABEL}")
+    plotting.angle_axis(bottom, span)
+    for axis in (top, bottom):
+        if feeding:
+            plotting.legend(axis, ncol=2)
+    return fig
+
+
+def build_figures(report: RunReport) -> tuple[dict[str, Figure], str | None]:
+    """Every figure of the run by file name (without suffix), and why the learned feed-forward could not be
+    drawn (a stage of the config that is not installed or cannot be built), or None."""
+    figures = {"ripple_per_trial": ripple_per_trial(report.records), **before_after(report)}
+    try:
+        learned = learned_feedforward(report)
+    except ConfigError as e:
+        return figures, str(e)
+    for item in learned:
+        figures[f"learned_{item.record.torque_setpoint_nm:g}Nm"] = learned_figure(item, report)
+    return figures, None
+
+
+def write_report(report: RunReport, out_dir: Path, fmt: str = "png") -> tuple[list[Path], str | None]:
+    """Write every figure (`build_figures`) as ``fmt`` into ``out_dir``; returns the paths and why the learned
+    feed-forward was not drawn, or None."""
+    plotting.check_format(fmt, out_dir)
+    figures, why = build_figures(report)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return [plotting.save(fig, out_dir / name, fmt) for name, fig in figures.items()], why

@@ -6,6 +6,7 @@ a third-party stage exactly as it names a built-in one.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, Callable
@@ -29,6 +30,19 @@ class StageEntry:
         """Import the factory."""
         (ep,) = entry_points(group=GROUP, name=self.name)
         return ep.load()
+
+    def description(self) -> str:
+        """What the stage does, in one line: the first line of the docstring of the module that defines its
+        factory (one stage per module), else of the factory's own; why it cannot be loaded if it cannot."""
+        try:
+            factory = self.load()
+        except Exception as e:  # a broken plugin is listed, not fatal
+            return f"fails to load: {type(e).__name__}: {e}"
+        module = sys.modules.get(getattr(factory, "__module__", ""))
+        for doc in (getattr(module, "__doc__", None), getattr(factory, "__doc__", None)):
+            if doc and doc.strip():
+                return doc.strip().splitlines()[0]
+        return "(no description)"
 
 
 def installed_stages() -> dict[str, StageEntry]:

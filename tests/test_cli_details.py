@@ -1,0 +1,166 @@
+"""CLI details: the identification table against the truth at 80 columns, stage descriptions, help texts."""
+
+from __future__ import annotations
+
+import io
+import json
+
+import click
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from identify_helpers import cogging_error, identified, other_bench
+from rich.console import Console
+
+from ilcpmac.bench.format import write_bench
+from ilcpmac.cli import main
+from ilcpmac.cli.identify import estimates_table
+from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.records import IdentificationResult, MethodEstimates
+from ilcpmac.stages.registry import installed_stages
+
+WIDTH = 80
+
+
+def rendered(table) -> list[str]:
+    """The table's lines as a Console of WIDTH columns prints them."""
+    console = Console(width=WIDTH, file=io.StringIO(), color_system=None)
+    console.print(table)
+    return console.file.getvalue().splitlines()
+
+
+def body(lines: list[str]) -> list[list[str]]:
+    """The cells of each line between the header rule and the bottom rule."""
+    start = next(i for i, line in enumerate(lines) if line.startswith("┡"))
+    return [[cell.strip() for cell in line.strip("│").split("│")] for line in lines[start + 1:-1]]
+
+
+@pytest.fixture(scope="module")
+def small():
+    return identified("other")
+
+
+def test_the_table_with_the_truth_fits_80_columns_one_line_per_estimate(small):
+    result, truth = small
+    table = estimates_table(result, IdentificationResult.from_json(truth))
+    lines = rendered(table)
+    assert max(len(line) for line in lines) <= WIDTH
+    assert not any("…" in line for line in lines)
+    rows = body(lines)
+    assert len(rows) == table.row_count  # no cell wrapped onto a second line
+    labels = [row[0] for row in rows]
+    assert labels[:10] == ["delta*eps", "delta", "eps", "alpha a", "alpha b", "alpha c", "beta a (A)", "beta b (A)",
+                           "beta c (A)", "J* (kg m²)"]
+    assert [cell for cell in rows[0]][1:3] == [f"{result.methods['report'].delta_epsilon:.4g} ± "
+                                               f"{result.methods['report'].delta_epsilon_std:.2g}",
+                                               f"{result.delta_epsilon:.4g} ± {result.delta_epsilon_std:.2g} *"]
+
+
+def test_the_truth_column_gives_each_estimates_error(small):
+    result, truth = small
+    rows = {row[0]: row[-1] for row in body(rendered(estimates_table(result, IdentificationResult.from_json(truth))))}
+    assert rows["delta*eps"] == f"{100 * (result.delta_epsilon / truth['total_system_gain'] - 1):+.2g} %"
+    assert rows["delta"] == f"{100 * (result.delta / truth['torque_sensor_gain'] - 1):+.2g} %"
+    assert rows["alpha b"] == f"{result.alpha[1] - truth['alpha'][1]:+.2g}"
+    assert rows["beta c (A)"] == f"{result.beta[2] - truth['beta'][2]:+.2g}"
+    assert rows["cogging (mN m)"] == f"{100 * cogging_error(result.cogging_nm, truth):.2g} % RMS"
+
+
+def test_without_truth_there_is_no_truth_column(small):
+    result, _ = small
+    lines = rendered(estimates_table(result))
+    assert "vs truth" not in "\n".join(lines)
+    assert {len(row) for row in body(lines)} == {3}
+
+
+#: an estimate of any sign and size the table shows, and a standard error
+_values = st.floats(1e-7, 1e4).flatmap(lambda v: st.sampled_from([v, -v]))
+_stds = st.floats(1e-9, 1e3)
+
+
+def _estimates(draw, values, stds) -> dict:
+    vector = st.lists(values, min_size=3, max_size=3).map(np.array)
+    fields = {name: draw(values) for name in ("delta_epsilon", "delta", "epsilon", "inertia_estimate")}
+    fields |= {name: draw(vector) for name in ("alpha", "beta")}
+    fields |= {f"{name}_std": draw(stds if name not in ("alpha", "beta") else
+                                   st.lists(stds, min_size=3, max_size=3).map(np.array)) for name in fields}
+    return fields | {"cogging_nm": draw(values) * np.sin(np.arange(64) / 3.0)}
+
+
+@st.composite
+def results(draw) -> IdentificationResult:
+    """Two methods' estimates of any size, the result taking the joint one's, a current loop."""
+    joint = _estimates(draw, _values, _stds)
+    report = MethodEstimates(**_estimates(draw, _values, _stds))
+    loop = CurrentLoop(np.array(draw(st.lists(st.floats(1e-7, 1.0), min_size=3, max_size=3))), 0.0)
+    return IdentificationResult(**joint, current_loop=loop, methods={"report": report,
+                                                                      "joint": MethodEstimates(**joint)})
+
+
+@settings(max_examples=40, deadline=None)
+@given(result=results(), truth=results())
+def test_the_table_fits_80_columns_whatever_the_numbers(result, truth):
+    lines = rendered(estimates_table(result, truth))
+    assert max(len(line) for line in lines) <= WIDTH
+    rows = body(lines)
+    assert len(rows) == 14 and all(row[2].endswith(" *") for row in rows)
+
+
+def test_identify_compares_with_the_benchs_truth_json(tmp_path):
+    bench, truth = other_bench()
+    write_bench(tmp_path / "bench", bench)
+    (tmp_path / "bench" / "truth.json").write_text(json.dumps(truth))
+    out = CliRunner().invoke(main, ["identify", str(tmp_path / "bench"), "--output", str(tmp_path / "r.json")],
+                             terminal_width=WIDTH)
+    assert out.exit_code == 0, out.output
+    assert "vs truth" in out.output and "% RMS" in out.output
+
+
+def test_an_unreadable_truth_json_is_one_line_before_the_identification(tmp_path):
+    (tmp_path / "truth.json").write_text("{not json")
+    out = CliRunner().invoke(main, ["identify", str(tmp_path), "--output", str(tmp_path / "r.json")])
+    assert out.exit_code == 2
+    assert out.output.startswith(f"error: {tmp_path / 'truth.json'}: unreadable (")
+    assert len(out.output.splitlines()) == 1
+
+
+def test_stages_describes_each_stage_in_a_line():
+    out = CliRunner().invoke(main, ["stages"], terminal_width=WIDTH)
+    assert out.exit_code == 0, out.output
+    text = " ".join(out.output.split())
+    descriptions = {name: entry.description() for name, entry in installed_stages().items()}
+    assert descriptions["cogging"].startswith("Cogging feed-forward: subtract the estimated cogging torque")
+    assert descriptions["ilc"].startswith("Iterative learning control of the residual ripple")
+    assert descriptions["current-sensor"].startswith("Current-sensor correction")
+    assert descriptions["harmonic-canceller"] == ("Cancel the torque ripple at chosen harmonics: an example ilcpmac "
+                                                  "stage plugin.")
+    for name, description in descriptions.items():
+        assert "\n" not in description
+        assert f"{name} {description}" in text
+
+
+def _commands() -> list[str]:
+    return sorted(main.commands)
+
+
+@pytest.mark.parametrize("command", ["", *_commands()])
+def test_help_fits_80_columns_and_nothing_is_cut(command):
+    """Nothing wider than 80 columns, no text cut with "..." (the usage line's "[ARGS]..." aside; the list of
+    commands is checked below)."""
+    out = CliRunner().invoke(main, [*command.split(), "--help"], terminal_width=WIDTH)
+    assert out.exit_code == 0, out.output
+    usage, *lines = out.output.split("\nCommands:\n")[0].splitlines()
+    assert usage.startswith("Usage:") and len(usage) <= WIDTH
+    for line in lines:
+        assert len(line) <= WIDTH, line
+        assert not line.rstrip().endswith(("...", "…")), line
+
+
+@pytest.mark.parametrize("command", _commands())
+def test_the_command_list_shows_each_commands_first_sentence_whole(command):
+    out = CliRunner().invoke(main, ["--help"], terminal_width=WIDTH)
+    (line,) = [line for line in out.output.splitlines() if line.strip().startswith(command + " ")]
+    first = click.unstyle(main.commands[command].help).split(".")[0]
+    assert " ".join(line.split()[1:]) == " ".join(first.split()) + "."
