@@ -164,6 +164,9 @@ class BenchSettings:
     slots: int = field_like(Winding, "slots")
     counts_per_rev: int = field_like(Encoder, "counts_per_rev")
     inertia_kgm2: float | None = field_like(Mechanics, "inertia_kgm2", default=None)
+    backemf_file: str | None = _check(
+        None, "the back-EMF table as a CSV (count,k_a,k_b,k_c per count, docs/bench-format.md), relative to the "
+        "config's folder; instead of [bench.backemf]", None)
     backemf: BackEmf | None = _table(BackEmf)
     calibration: BenchCalibration | None = _table(BenchCalibration)
 
@@ -353,6 +356,8 @@ def load_config(path: str | Path) -> CampaignConfig:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
     bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
+    if bench.backemf_file is not None and bench.backemf is not None:
+        raise ConfigError(f"{path}: [bench] backemf_file and [bench.backemf] both give the back-EMF: give one")
     run = {name: parse_section(data.get(name, {}), cls, str(path), name) for name, cls in RUN_SECTIONS.items()}
     stage_options = data.get("stages", {})
     if not isinstance(stage_options, dict):
@@ -510,6 +515,16 @@ def check_bench(config: CampaignConfig, description) -> None:
         if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
             raise ConfigError(f"{config.path}: [bench.backemf] differs from the bench's back-EMF table by "
                               f"{error[count, phase]:.3g} N m / A at count {count}, phase {'abc'[phase]}")
+    if bench.backemf_file is not None:
+        from ilcpmac.bench.format import read_backemf_csv  # the bench format reads its own files
+
+        ours = read_backemf_csv(config.path.parent / bench.backemf_file, motor)
+        error = np.abs(ours - description.backemf_nm_per_a)
+        count, phase = np.unravel_index(np.argmax(error), error.shape)
+        if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
+            raise ConfigError(f"{config.path}: [bench] backemf_file {bench.backemf_file} differs from the bench's "
+                              f"back-EMF table by {error[count, phase]:.3g} N m / A at count {count}, "
+                              f"phase {'abc'[phase]}")
     if bench.calibration is not None:
         ours, theirs = bench.calibration.calibration(), description.calibration
         for key, a, b in (("current_scale_counts_per_a", ours.current_scale, theirs.current_scale),

@@ -16,9 +16,10 @@ from conftest import REAL_BENCH_CONFIG
 from ilcpmac.backends.base import Backend
 from ilcpmac.backends.registry import BackendSetup, build_backend, installed_backends
 from ilcpmac.backends.remote import RemoteBackend
-from ilcpmac.bench.format import read_bench
+from ilcpmac.bench.format import read_bench, write_backemf_csv
 from ilcpmac.campaign.runner import CampaignPlan
 from ilcpmac.cli import main
+from ilcpmac.config import load_config
 from ilcpmac.errors import BackendError, ConfigError
 
 #: trials run by every `CountingBackend`, and whether it was closed
@@ -167,3 +168,22 @@ def test_the_grid_takes_the_calibration_of_the_bench(small):
     plan = CampaignPlan.build(dataclasses.replace(cfg, bench=dataclasses.replace(cfg.bench, calibration=None)),
                               dataclasses.replace(description, calibration=theirs), 1)
     assert all(r.calibration is theirs for r in plan.grid)
+
+
+def test_a_back_emf_file_is_checked_against_the_bench(small, tmp_path):
+    """[bench] backemf_file: the bench's own table passes; a table 1 % off in phase b is refused, naming the file."""
+    cfg, description = small
+    cfg = dataclasses.replace(cfg, path=tmp_path / "campaign.toml")
+    with_file = dataclasses.replace(cfg, bench=dataclasses.replace(cfg.bench, backemf=None, backemf_file="k.csv"))
+    write_backemf_csv(tmp_path / "k.csv", description.backemf_nm_per_a)
+    CampaignPlan.build(with_file, description, 1)
+    write_backemf_csv(tmp_path / "k.csv", description.backemf_nm_per_a * [1.0, 1.01, 1.0])
+    with pytest.raises(ConfigError, match=r"\[bench\] backemf_file k.csv differs from the bench's back-EMF table "
+                                          r"by 0.00\d+ N m / A at count \d+, phase b"):
+        CampaignPlan.build(with_file, description, 1)
+
+
+def test_a_back_emf_given_twice_is_refused(write_config):
+    config = write_config({"bench": {"backemf_file": "k.csv"}})
+    with pytest.raises(ConfigError, match=r"\[bench\] backemf_file and \[bench.backemf\] both give the back-EMF"):
+        load_config(config)

@@ -2,9 +2,11 @@
 
 from ilcpmac.bench.format import (
     Bench,
+    BenchHead,
     MotorInfo,
     convert_bench,
     read_bench,
+    read_bench_head,
     read_trial,
     read_trial_csv,
     write_bench,
@@ -12,5 +14,5 @@ from ilcpmac.bench.format import (
     write_trial_csv,
 )
 
-__all__ = ["Bench", "MotorInfo", "convert_bench", "read_bench", "read_trial", "read_trial_csv", "write_bench",
-           "write_trial", "write_trial_csv"]
+__all__ = ["Bench", "BenchHead", "MotorInfo", "convert_bench", "read_bench", "read_bench_head", "read_trial",
+           "read_trial_csv", "write_bench", "write_trial", "write_trial_csv"]

@@ -258,7 +258,8 @@ def _dominant_harmonic(table: np.ndarray) -> int:
     return int(np.argmax(spectrum))
 
 
-def _read_backemf(path: Path, motor: MotorInfo) -> np.ndarray:
+def read_backemf_csv(path: Path, motor: MotorInfo) -> np.ndarray:
+    """A back-EMF table (count,k_a,k_b,k_c, one row per count), N m / A, checked against ``motor``."""
     header, data = _read_csv(path, motor.counts_per_rev)
     if header != ["count", "k_a", "k_b", "k_c"]:
         raise BenchFormatError(f"{path}: line 1: header must be count,k_a,k_b,k_c, got {_shortened(','.join(header))}")
@@ -449,13 +450,26 @@ def _sensors(table, where: str) -> SensorCalibration:
     return SensorCalibration(scale, offset, _positive(table, "torque_gain", where, MAX_CALIBRATION))
 
 
-def read_bench(folder: str | Path) -> Bench:
-    """Read and validate a bench folder (docs/bench-format.md).
+@dataclass(frozen=True)
+class BenchHead:
+    """A bench folder without its trials: bench.toml read and checked, and backemf.csv.
 
-    Every file is a regular file inside the folder (symbolic links resolved),
-    no larger than its rows may take; each trial is checked against the motor
-    (`check_trial`) and the back-EMF against the pole pairs (`check_backemf`).
+    Attributes
+    ----------
+    motor : MotorInfo
+    backemf_nm_per_a : ndarray, shape (counts_per_rev, 3)
+    sensors : SensorCalibration or None
+    entries : the raw [[trials]] entries of bench.toml (checked by `read_bench`).
     """
+
+    motor: MotorInfo
+    backemf_nm_per_a: np.ndarray
+    sensors: SensorCalibration | None
+    entries: object
+
+
+def read_bench_head(folder: str | Path) -> BenchHead:
+    """bench.toml and backemf.csv of ``folder``, with every check `read_bench` makes of them."""
     folder = Path(folder)
     if not folder.is_dir():
         raise BenchFormatError(f"{folder}: not a folder")
@@ -471,9 +485,22 @@ def read_bench(folder: str | Path) -> Bench:
     motor, backemf_file = _motor(data["motor"], f"{toml_path}: [motor]")
     backemf_path = folder / backemf_file
     _inside(backemf_path, root)
-    backemf = _read_backemf(backemf_path, motor)
     sensors = _sensors(data["sensors"], f"{toml_path}: [sensors]") if "sensors" in data else None
-    entries = data.get("trials")
+    return BenchHead(motor, read_backemf_csv(backemf_path, motor), sensors, data.get("trials"))
+
+
+def read_bench(folder: str | Path) -> Bench:
+    """Read and validate a bench folder (docs/bench-format.md).
+
+    Every file is a regular file inside the folder (symbolic links resolved),
+    no larger than its rows may take; each trial is checked against the motor
+    (`check_trial`) and the back-EMF against the pole pairs (`check_backemf`).
+    """
+    folder = Path(folder)
+    head = read_bench_head(folder)
+    motor, backemf, sensors, entries = head.motor, head.backemf_nm_per_a, head.sensors, head.entries
+    root = folder.resolve()
+    toml_path = folder / BENCH_FILE
     if not isinstance(entries, list) or not entries:
         raise BenchFormatError(f"{toml_path}: needs at least one [[trials]] entry")
     max_rows = min(MAX_REVOLUTIONS * motor.counts_per_rev, MAX_TRIAL_ROWS)

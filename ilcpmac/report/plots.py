@@ -63,8 +63,7 @@ class RunReport:
     @classmethod
     def read(cls, run_dir: str | Path) -> RunReport:
         """Read ``run_dir``; `RunDirError` (or the bench format's error) naming the file that cannot be read."""
-        from ilcpmac.bench.format import _motor, _read_backemf, _sensors
-        from ilcpmac.config import read_toml
+        from ilcpmac.bench.format import read_bench_head
 
         files = RunFiles(run_dir)
         summary = files.read_summary()
@@ -73,13 +72,11 @@ class RunReport:
         except (KeyError, TypeError, ValueError) as e:
             raise RunDirError(f"{files.summary}: unreadable ({e!r})") from None
         config = load_config(files.config)
-        bench = read_toml(files.bench, RunDirError)
-        if "motor" not in bench or "sensors" not in bench:
-            raise RunDirError(f"{files.bench}: a run's bench.toml has [motor] and [sensors]")
-        motor, backemf_file = _motor(bench["motor"], f"{files.bench}: [motor]")
+        head = read_bench_head(files.path)
+        if head.sensors is None:
+            raise RunDirError(f"{files.bench}: a run's bench.toml has [sensors]")
         limits = config.limits
-        description = BenchDescription(motor, _read_backemf(files.path / backemf_file, motor),
-                                       _sensors(bench["sensors"], f"{files.bench}: [sensors]"),
+        description = BenchDescription(head.motor, head.backemf_nm_per_a, head.sensors,
                                        BenchLimits(limits.max_current_a, limits.max_torque_nm, limits.max_speed_hz))
         return cls(files, records, config, description)
 
@@ -250,7 +247,7 @@ def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
     feeding = {name: table for name, table in learned.tables_nm.items() if np.any(table)}
     silent = [name for name in learned.tables_nm if name not in feeding]
     fig, (top, bottom) = plotting.figure(2, 3.0, sharex=False)
-    _spectrum_points(top, {name: np.abs(harmonic_amplitudes(table, H)[1:]) for name, table in feeding.items()},
+    _spectrum_points(top, {name: np.abs(harmonic_amplitudes(table)[1 : H + 1]) for name, table in feeding.items()},
                      marker=".", ms=4, lw=0.5)
     note = f"; {', '.join(silent)}: no feed-forward" if silent else ""
     top.set_title(f"{record.torque_setpoint_nm:g} N m at {record.speed_setpoint_hz:g} Hz: feed-forward each stage "
