@@ -2,8 +2,8 @@
 
 These tests inject an identification built from the simulator's truth, so that
 they test the campaign and not the estimators (those are tested against known
-truth in tests/test_identify_*.py); tests/test_cli_run.py runs the whole
-command with the real identification.
+truth in tests/test_identify_*.py); tests/test_live_table.py and
+tests/test_backends.py run the whole command with the real identification.
 """
 
 from __future__ import annotations
