@@ -1,6 +1,6 @@
-"""Storage benchmark (issue 10): run-directory size, identification and campaign wall time, CSV beside Parquet.
+"""Storage and wall-time benchmark (issue 10): run-directory size, identification and campaign wall time.
 
-    python benchmarks/storage.py [--repeats N] [--baseline REF]
+    python benchmarks/storage.py [--repeats N] [--cold-repeats N] [--baseline REF]
 
 Everything runs as a user runs it, as whole processes with a warm numba cache
 (one warm-up run first), best of N:
@@ -8,15 +8,18 @@ Everything runs as a user runs it, as whole processes with a warm numba cache
 1. the seed bench (``ilcpmac simulate``) as CSV and as Parquet: folder size,
    and ``ilcpmac identify`` of each (target <= 2 s, either format);
 2. the default campaign (``ilcpmac run``): run-directory size (target <= 60 MB)
-   and wall time, warm (target <= 4 s) and once with an empty numba cache
-   (cold, target <= 15 s);
-3. the same with the code of git revision REF (default HEAD, read with
-   ``git archive``; nothing in the work tree changes), whose run directories
-   hold CSV trials: today's figures beside the new ones. ``--baseline ''``
-   skips it.
+   and wall time, warm (target <= 4 s) and with an empty numba cache (cold,
+   target <= 15 s, best of --cold-repeats);
+3. the same with the code of git revision REF (default BEFORE_REVISION, the
+   revision issue 10's item 3 started from; read with ``git archive``, nothing
+   in the work tree changes): the figures before beside the figures after.
+   ``--baseline ''`` skips it; the figures recorded at BEFORE_REVISION
+   (BEFORE_FIGURES) are printed in any case.
 
-The machine may be shared: the load average is printed with the figures, and
-best-of-N keeps the least disturbed run.
+The machine may be shared (two cores here): the load average before each
+figure's runs is printed beside it, and a figure measured while the machine
+was busier than its cores is marked "contended" (best-of-N keeps the least
+disturbed run, but a contended figure is an upper bound).
 """
 
 from __future__ import annotations
@@ -32,6 +35,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MB, TARGET_IDENTIFY_S, TARGET_WARM_S, TARGET_COLD_S = 60.0, 2.0, 4.0, 15.0
+#: the revision the wall-time work of issue 10 (item 3) started from
+BEFORE_REVISION = "1a9f043"
+#: its figures, measured with this benchmark before that work (best of 3; load average 2.3-2.7 on 2 cores)
+BEFORE_FIGURES = {"identify CSV s": 3.86, "identify Parquet s": 3.74, "campaign warm s": 8.50,
+                  "campaign cold s": 13.62, "run directory MB": 42.60}
 
 
 def seed_config(tree: Path) -> Path:
@@ -58,17 +66,24 @@ def size_mb(folder: Path) -> float:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
 
 
-def best(tree: Path, args: list[str], cache: Path, repeats: int, fresh: Path | None = None) -> float:
-    """Best wall time of ``repeats`` runs (``fresh`` is removed before each: a run's --out)."""
-    times = []
+def best(tree: Path, args: list[str], cache: Path, repeats: int, fresh: Path | None = None,
+         cold: bool = False) -> tuple[float, float]:
+    """Best wall time of ``repeats`` runs and the highest 1-minute load average before one of them.
+
+    ``fresh`` is removed before each run (a run's --out); ``cold`` empties the numba cache before each.
+    """
+    times, loads = [], []
     for _ in range(repeats):
         if fresh is not None:
             shutil.rmtree(fresh, ignore_errors=True)
+        if cold:
+            shutil.rmtree(cache, ignore_errors=True)
+        loads.append(os.getloadavg()[0])
         times.append(ilcpmac(tree, args, cache))
-    return min(times)
+    return min(times), max(loads)
 
 
-def measure(tree: Path, work: Path, repeats: int, label: str) -> dict:
+def measure(tree: Path, work: Path, repeats: int, cold_repeats: int, label: str) -> dict:
     """Every figure for the source tree ``tree``; its seed bench is converted to the other format in-process."""
     cache = work / "numba-cache"
     bench = work / "bench"
@@ -84,12 +99,12 @@ def measure(tree: Path, work: Path, repeats: int, label: str) -> dict:
             continue
         args = ["identify", str(folder), "--output", str(work / "result.json")]
         ilcpmac(tree, args, cache)  # warm-up: numba compiles into the cache
-        figures["bench"][kind] = (size_mb(folder), best(tree, args, cache, repeats))
-    cold_cache = work / "cold-cache"
+        figures["bench"][kind] = (size_mb(folder), *best(tree, args, cache, repeats))
     run = work / "run"
-    figures["cold_s"] = ilcpmac(tree, ["run", "--out", str(run)], cold_cache)
-    shutil.rmtree(cold_cache, ignore_errors=True)
-    figures["warm_s"] = best(tree, ["run", "--out", str(run)], cache, repeats, fresh=run)
+    figures["cold"] = best(tree, ["run", "--out", str(run)], work / "cold-cache", cold_repeats, fresh=run,
+                           cold=True)
+    shutil.rmtree(work / "cold-cache", ignore_errors=True)
+    figures["warm"] = best(tree, ["run", "--out", str(run)], cache, repeats, fresh=run)
     figures["run_mb"] = size_mb(run)
     figures["run_format"] = "Parquet" if any(run.glob("trial_*.parquet")) else "CSV"
     return figures
@@ -100,33 +115,51 @@ def verdict(ok: bool) -> str:
 
 
 def report(columns: list[dict]) -> None:
-    width = 26
-    print(f"\n{'':<44}" + "".join(f"{c['label']:>{width}}" for c in columns) + "   target")
-    rows = [("seed bench as CSV: size MB", lambda c: c["bench"].get("CSV", (None,))[0], "", None),
-            ("seed bench as CSV: identify s (best)", lambda c: c["bench"].get("CSV", (None, None))[1], "<= 2 s",
+    cores = os.cpu_count() or 1
+    width = 34
+    names = ["recorded before"] + [c["label"] for c in columns]
+    print(f"\n{'':<42}" + "".join(f"{n:>{width}}" for n in names) + "   target")
+
+    def bench(kind: str, timing: bool):
+        return lambda c: None if kind not in c["bench"] else (c["bench"][kind][1:] if timing else
+                                                                  (c["bench"][kind][0], None))
+
+    rows = [("seed bench as CSV: size MB", bench("CSV", False), None, None),
+            ("seed bench as CSV: identify s (best)", bench("CSV", True), "identify CSV s", TARGET_IDENTIFY_S),
+            ("seed bench as Parquet: size MB", bench("Parquet", False), None, None),
+            ("seed bench as Parquet: identify s (best)", bench("Parquet", True), "identify Parquet s",
              TARGET_IDENTIFY_S),
-            ("seed bench as Parquet: size MB", lambda c: c["bench"].get("Parquet", (None,))[0], "", None),
-            ("seed bench as Parquet: identify s (best)", lambda c: c["bench"].get("Parquet", (None, None))[1],
-             "<= 2 s", TARGET_IDENTIFY_S),
-            ("default run directory MB", lambda c: c["run_mb"], "<= 60 MB", TARGET_MB),
-            ("default campaign warm s (best)", lambda c: c["warm_s"], "<= 4 s", TARGET_WARM_S),
-            ("default campaign cold s", lambda c: c["cold_s"], "<= 15 s", TARGET_COLD_S)]
-    for name, get, target, bound in rows:
+            ("default run directory MB", lambda c: (c["run_mb"], None), "run directory MB", TARGET_MB),
+            ("default campaign warm s (best)", lambda c: c["warm"], "campaign warm s", TARGET_WARM_S),
+            ("default campaign cold s (best)", lambda c: c["cold"], "campaign cold s", TARGET_COLD_S)]
+    contended = False
+    for name, get, before, bound in rows:
+        figures = [(BEFORE_FIGURES[before], None) if before else None] + [get(c) for c in columns]
         cells = []
-        for c in columns:
-            value = get(c)
-            text = "-" if value is None else f"{value:.2f}"
-            if value is not None and bound is not None:
-                text += f" {verdict(value <= bound)}"
-            cells.append(f"{text:>{width}}")
-        print(f"{name:<44}" + "".join(cells) + f"   {target}")
+        for figure in figures:
+            if figure is None:
+                cells.append("-")
+                continue
+            value, load = figure
+            text = f"{value:.2f}" + ("" if bound is None else f" {verdict(value <= bound)}")
+            if load is not None:  # a timing: the load average before its runs
+                text += f" (load {load:.1f}{', contended' if load > cores else ''})"
+                contended |= load > cores
+            cells.append(text)
+        print(f"{name:<42}" + "".join(f"{c:>{width}}" for c in cells) + f"   {'' if bound is None else bound}")
     print("run-directory trials: " + ", ".join(f"{c['label']}: {c['run_format']}" for c in columns))
+    if contended:
+        print(f"contended: the load average exceeded the {cores} cores before some runs (other processes); "
+              "those figures are upper bounds")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--repeats", type=int, default=3, help="runs per figure; the best counts (default 3)")
-    parser.add_argument("--baseline", default="HEAD", help="git revision to compare with ('' for none)")
+    parser.add_argument("--cold-repeats", type=int, default=1,
+                        help="cold campaign runs (empty numba cache each); the best counts (default 1)")
+    parser.add_argument("--baseline", default=BEFORE_REVISION,
+                        help=f"git revision to compare with (default {BEFORE_REVISION}; '' for none)")
     args = parser.parse_args()
     print(f"load average before: {os.getloadavg()[0]:.2f} ({os.cpu_count()} cores)")
     with tempfile.TemporaryDirectory() as tmp:
@@ -138,10 +171,11 @@ def main() -> None:
             archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, capture_output=True, check=True)
             subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
             (tmp / "baseline").mkdir()
-            columns.append(measure(old, tmp / "baseline", args.repeats, f"{args.baseline} (today)"))
+            columns.append(measure(old, tmp / "baseline", args.repeats, args.cold_repeats,
+                                   f"{args.baseline} (before)"))
             shutil.rmtree(tmp / "baseline")
         (tmp / "new").mkdir()
-        columns.append(measure(ROOT, tmp / "new", args.repeats, "work tree"))
+        columns.append(measure(ROOT, tmp / "new", args.repeats, args.cold_repeats, "work tree (after)"))
     report(columns)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
 

@@ -49,7 +49,7 @@ from scipy.optimize import least_squares
 
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
-from ilcpmac.model.current_loop import CurrentLoop, lagged_phase
+from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
@@ -260,10 +260,17 @@ class _JointProblem:
             store[key] = compute()
         return store[key]
 
+    def lagged(self, x: np.ndarray, tau: float, delay: float, continuous: bool = False) -> np.ndarray:
+        """`lagged_phase` with the decays of each tau (and delay) computed once."""
+        decay = self._cached("decay", (tau,), lambda: count_decay(self.count_period, tau))
+        sample = decay if continuous else self._cached("sample_decay", (tau, delay), lambda: sample_decay(
+            self.count_period, tau, delay))
+        return lagged_phase(x, self.count_period, tau, delay, continuous, (decay, sample))
+
     def phase_current(self, phi: np.ndarray, p: int) -> np.ndarray:
         """G_p I*_p per count, shape (n_trials, cpr)."""
-        return self._cached(f"current{p}", (phi[p], phi[3]), lambda: lagged_phase(
-            self.i_ref[:, :, p], self.count_period, phi[p], phi[3]))
+        return self._cached(f"current{p}", (phi[p], phi[3]), lambda: self.lagged(self.i_ref[:, :, p], phi[p],
+                                                                                 phi[3]))
 
     def currents(self, phi: np.ndarray) -> np.ndarray:
         """G_p I*_p per count, shape (n_trials, cpr, 3)."""
@@ -281,11 +288,11 @@ class _JointProblem:
 
         def rejected():
             emf = self.emf[:, :, p]
-            return emf - lagged_phase(emf, self.count_period, phi[p], phi[3], continuous=True)
+            return emf - self.lagged(emf, phi[p], phi[3], continuous=True)
 
         emf = self._cached(f"emf_amplitude{p}", (phi[p], phi[3], phi[5]), lambda: self.amplitudes(
-            (k * lagged_phase(self._cached(f"rejected{p}", (phi[p], phi[3]), rejected), self.count_period,
-                              phi[5], 0.0, continuous=True))[:, :, None]))
+            (k * self.lagged(self._cached(f"rejected{p}", (phi[p], phi[3]), rejected), phi[5], 0.0,
+                             continuous=True))[:, :, None]))
         return np.concatenate([current, emf], axis=2)
 
     def design(self, phi: np.ndarray, saturation: np.ndarray | None) -> np.ndarray:

@@ -35,7 +35,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 
 @dataclass(frozen=True)
@@ -91,47 +90,6 @@ class CurrentLoop:
         return 1.0 - b + b * state
 
 
-@njit(cache=True)
-def _lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
-    """The count recursion of the module docstring for one phase, x of shape (n_trials, cpr); fills ``out``.
-
-    ``decay`` = exp(-dt / tau) per count; ``delayed``: T_d >= 0, the sample
-    lies between the previous count and this one, and ``sample_decay`` =
-    exp(-(dt_{c-1} - T_d) / tau), else exp(T_d / tau) (0 without lag). With ``continuous`` the input is linear
-    between counts (a smooth signal such as the back-EMF) instead of a
-    staircase, and ``out`` holds the undelayed state at each count.
-    """
-    n_trials, cpr = x.shape
-    for k in range(n_trials):
-        # warm up over the end of the revolution until the start has decayed below 1e-16
-        start = cpr - 1
-        remaining = 1.0
-        while start > 0 and remaining > 1e-16:
-            remaining *= decay[k, start]
-            start -= 1
-        s = x[k, start]
-        s_prev = s
-        for step in range(start, 2 * cpr):
-            c = step % cpr
-            recording = step >= cpr
-            a = decay[k, c]
-            x_now = x[k, c]
-            if recording and not continuous:
-                if delayed:  # the state at t_c - T_d, between counts c - 1 and c
-                    x_prev = x[k, c - 1]  # c - 1 = -1 wraps to the revolution's last count
-                    out[k, c] = x_prev + (s_prev - x_prev) * sample_decay[k, c]
-                else:  # the state at t_c + |T_d|, after count c
-                    out[k, c] = x_now + (s - x_now) * sample_decay[k, c]
-            s_prev = s
-            if continuous:  # exact for an input linear between counts
-                x_next = x[k, (c + 1) % cpr]
-                s = a * s + x_next - a * x_now - (x_next - x_now) * (1.0 - a) * tau / dt[k, c]
-                if recording:
-                    out[k, (c + 1) % cpr] = s
-            else:
-                s = x_now + (s - x_now) * a
-
-
 def lagged(x: np.ndarray, count_period_s: np.ndarray, loop: CurrentLoop, continuous: bool = False) -> np.ndarray:
     """Per-count tables ``x`` (n_trials, cpr, 3) through the loop, sampled at each count.
 
@@ -142,21 +100,41 @@ def lagged(x: np.ndarray, count_period_s: np.ndarray, loop: CurrentLoop, continu
                      for p in range(3)], axis=2)
 
 
-def lagged_phase(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: float, delay_s: float,
-                 continuous: bool = False) -> np.ndarray:
-    """One phase's per-count tables ``x`` (n_trials, cpr) through a loop with time constant tau and delay T_d."""
+def count_decay(count_period_s: np.ndarray, time_constant_s: float) -> np.ndarray:
+    """exp(-dt_c / tau) per count (zero without lag): how much of the state is left after each count."""
     tau = float(time_constant_s)
-    if tau > 0.0:
-        decay = np.exp(-count_period_s / tau)
-        if delay_s >= 0.0:  # at most one count back
-            sample_decay = np.exp(-np.maximum(np.roll(count_period_s, 1, axis=1) - delay_s, 0.0) / tau)
-        else:
-            sample_decay = np.full_like(count_period_s, np.exp(delay_s / tau))
-    else:
-        decay = sample_decay = np.zeros_like(count_period_s)
+    return np.exp(-count_period_s / tau) if tau > 0.0 else np.zeros_like(count_period_s)
+
+
+def sample_decay(count_period_s: np.ndarray, time_constant_s: float, delay_s: float) -> np.ndarray:
+    """exp(-(dt_{c-1} - T_d) / tau) per count for T_d >= 0 (at most one count back), else exp(T_d / tau).
+
+    Zero without lag. A staircase input's sample at t_c - T_d is read from the state with it.
+    """
+    tau = float(time_constant_s)
+    if tau <= 0.0:
+        return np.zeros_like(count_period_s)
+    if delay_s >= 0.0:
+        return np.exp(-np.maximum(np.roll(count_period_s, 1, axis=1) - delay_s, 0.0) / tau)
+    return np.full_like(count_period_s, np.exp(delay_s / tau))
+
+
+def lagged_phase(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: float, delay_s: float,
+                 continuous: bool = False, decays: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """One phase's per-count tables ``x`` (n_trials, cpr) through a loop with time constant tau and delay T_d.
+
+    ``decays``: `count_decay` and, unless ``continuous`` (which does not use it),
+    `sample_decay` of these count periods, tau and T_d, when the caller keeps them
+    (each is an exp over every count, the bulk of the cost).
+    """
+    tau = float(time_constant_s)
+    if decays is None:
+        decay = count_decay(count_period_s, tau)
+        decays = (decay, decay if continuous else sample_decay(count_period_s, tau, delay_s))
+    from ilcpmac.model.lag_kernel import lag_kernel  # numba, only when a loop is applied
+
     out = np.empty(x.shape)
-    _lag_kernel(np.ascontiguousarray(x, float), count_period_s, tau, decay, sample_decay, delay_s >= 0.0,
-                continuous, out)
+    lag_kernel(np.ascontiguousarray(x, float), count_period_s, tau, *decays, delay_s >= 0.0, continuous, out)
     if continuous and delay_s != 0.0:  # the state at t_c - T_d, linear between counts
         if delay_s > 0.0:
             out = out - delay_s / np.roll(count_period_s, 1, axis=1) * (out - np.roll(out, 1, axis=1))

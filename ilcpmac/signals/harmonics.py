@@ -46,14 +46,15 @@ def linear_trend(x: np.ndarray, values: np.ndarray) -> np.ndarray:
     return dx
 
 
-def harmonic_amplitudes(table: np.ndarray) -> np.ndarray:
-    """Complex amplitudes c_h, h = 0..N/2, of a per-count table over one revolution.
+def harmonic_amplitudes(table: np.ndarray, max_harmonic: int | None = None) -> np.ndarray:
+    """Complex amplitudes c_h, h = 0..N/2 (or 0..max_harmonic), of a per-count table over one revolution.
 
     ``table = Re(sum_h c_h exp(j h theta))`` with c_0 the mean (one-sided spectrum).
     """
-    c = np.fft.rfft(table, axis=0) / table.shape[0]
+    n = table.shape[0]
+    c = np.fft.rfft(table, axis=0)[: None if max_harmonic is None else max_harmonic + 1] / n
     c[1:] *= 2.0
-    if table.shape[0] % 2 == 0:
+    if n % 2 == 0 and c.shape[0] == n // 2 + 1:
         c[-1] /= 2.0
     return c
 
@@ -83,12 +84,6 @@ def harmonic_band(n_points: int, low: int, high: int, step: int = 1) -> np.ndarr
     band = np.zeros(n_points // 2 + 1)
     band[low: high + 1: step] = 1.0
     return band
-
-
-def band_limited(table: np.ndarray, max_harmonic: int) -> np.ndarray:
-    """The table with only harmonics 1..max_harmonic (mean and higher harmonics removed)."""
-    band = harmonic_band(table.shape[0], 1, max_harmonic)
-    return filtered(table, band.reshape((-1,) + (1,) * (table.ndim - 1)))
 
 
 def harmonic_columns(theta_rad: np.ndarray, orders) -> np.ndarray:
@@ -127,43 +122,6 @@ class RippleFigures:
     amp_rest: float
 
 
-def ripple_figures(count: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int, mean_torque_nm: float,
-                   pole_pairs: int, cogging_order: int, max_harmonic: int = 150) -> RippleFigures:
-    """Ripple figures of a position-sampled torque, as docs/campaign.md defines them.
-
-    The torque's mean and linear drift are removed first (a piezo sensor
-    cannot measure them); ``mean_torque_nm`` is the mean torque the fractions
-    refer to.
-    """
-    mask = whole_revolutions(count, counts_per_rev)
-    count, torque = count[mask], torque_nm[mask]
-    detrended = torque - linear_trend(count, torque)
-    # the synchronous average's harmonics are the mean of the revolutions' harmonics
-    harmonics, variance = revolution_harmonics(count, detrended, counts_per_rev, max_harmonic)
-    ripple = table_from_amplitudes(np.concatenate([[0.0], harmonics[1:]]), counts_per_rev)
-    c = np.abs(harmonics)
-    named = [h for h in (pole_pairs, 2 * pole_pairs, cogging_order) if h <= max_harmonic]
-    others = np.ones(c.size, bool)
-    others[0] = False
-    others[named] = False
-    rest = detrended - ripple[count % counts_per_rev]
-    noise_power = float(np.sum(variance[1:]) / 2.0)  # expected power of the noise left in the average
-
-    def amp(h: int) -> float:
-        return float(c[h]) if h <= max_harmonic else 0.0
-
-    return RippleFigures(
-        pp=float(np.ptp(ripple) / mean_torque_nm),
-        rms=float(np.std(ripple) / mean_torque_nm),
-        rest_rms=float(np.std(rest) / mean_torque_nm),
-        rms_repeatable=float(np.sqrt(max(np.var(ripple) - noise_power, 0.0)) / mean_torque_nm),
-        amp_1x=amp(pole_pairs),
-        amp_2x=amp(2 * pole_pairs),
-        amp_cogging=amp(cogging_order),
-        amp_rest=float(np.sqrt(np.sum(c[others] ** 2) / 2.0)),
-    )
-
-
 def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: int,
                          max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
     """Harmonics 0..max_harmonic averaged over whole revolutions, and the variance of that mean.
@@ -188,7 +146,7 @@ def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: 
         missing = np.isnan(row)
         if missing.any():
             row[missing] = np.interp(grid[missing], grid[~missing], row[~missing], period=counts_per_rev)
-    c = harmonic_amplitudes(table.T).T[:, : max_harmonic + 1]
+    c = harmonic_amplitudes(table.T, max_harmonic).T
     mean = c.mean(axis=0)
     variance = np.sum(np.abs(c - mean) ** 2, axis=0) / (n_revs - 1) / n_revs
     return mean, variance

@@ -1,0 +1,51 @@
+"""The numba kernel of `ilcpmac.model.current_loop`: the count recursion of a first-order lag.
+
+Apart from the loop's model so that importing `CurrentLoop` (records, stages, the CLI) does not import numba.
+"""
+
+from numba import njit
+
+
+@njit(cache=True)
+def _advance(s, a, x_now, x_next, tau, dt, continuous):
+    """The state at the next count from ``s`` at this one (``a`` = exp(-dt / tau))."""
+    if continuous:  # exact for an input linear between counts
+        return a * s + x_next - a * x_now - (x_next - x_now) * (1.0 - a) * tau / dt
+    return x_now + (s - x_now) * a
+
+
+@njit(cache=True)
+def lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
+    """The count recursion (`ilcpmac.model.current_loop`) for one phase, x of shape (n_trials, cpr); fills ``out``.
+
+    ``decay`` = exp(-dt / tau) per count; ``delayed``: T_d >= 0, the sample
+    lies between the previous count and this one, and ``sample_decay`` =
+    exp(-(dt_{c-1} - T_d) / tau), else exp(T_d / tau) (0 without lag). With ``continuous`` the input is linear
+    between counts (a smooth signal such as the back-EMF) instead of a
+    staircase, and ``out`` holds the undelayed state at each count.
+    """
+    n_trials, cpr = x.shape
+    for k in range(n_trials):
+        # warm up over the end of the revolution until the start has decayed below 1e-16
+        start = cpr - 1
+        remaining = 1.0
+        while start > 0 and remaining > 1e-16:
+            remaining *= decay[k, start]
+            start -= 1
+        s = x[k, start]
+        s_prev = s
+        for c in range(start, cpr):
+            s_prev = s
+            s = _advance(s, decay[k, c], x[k, c], x[k, c + 1 if c + 1 < cpr else 0], tau, dt[k, c], continuous)
+        for c in range(cpr):
+            following = c + 1 if c + 1 < cpr else 0
+            if not continuous:
+                if delayed:  # the state at t_c - T_d, between counts c - 1 and c
+                    x_prev = x[k, c - 1]  # c - 1 = -1 wraps to the revolution's last count
+                    out[k, c] = x_prev + (s_prev - x_prev) * sample_decay[k, c]
+                else:  # the state at t_c + |T_d|, after count c
+                    out[k, c] = x[k, c] + (s - x[k, c]) * sample_decay[k, c]
+            s_prev = s
+            s = _advance(s, decay[k, c], x[k, c], x[k, following], tau, dt[k, c], continuous)
+            if continuous:
+                out[k, following] = s
