@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 import json
+import subprocess
+import sys
 
 import click
 import numpy as np
@@ -164,3 +166,14 @@ def test_the_command_list_shows_each_commands_first_sentence_whole(command):
     (line,) = [line for line in out.output.splitlines() if line.strip().startswith(command + " ")]
     first = click.unstyle(main.commands[command].help).split(".")[0]
     assert " ".join(line.split()[1:]) == " ".join(first.split()) + "."
+
+
+def test_the_cli_offers_the_plot_formats_without_importing_matplotlib():
+    """FIGURE_FORMATS is plotting.FORMATS; starting the CLI imports neither matplotlib nor numba."""
+    from ilcpmac.cli import FIGURE_FORMATS
+    from ilcpmac.plotting import FORMATS
+
+    assert FIGURE_FORMATS == FORMATS
+    code = "import sys, ilcpmac.cli; print(sorted({'matplotlib', 'numba'} & set(sys.modules)))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == "[]", done.stdout + done.stderr

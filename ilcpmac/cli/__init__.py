@@ -14,6 +14,9 @@ from ilcpmac.errors import IlcpmacError
 #: progress and messages go to stderr; results (tables) may go to stdout
 console = Console(stderr=True)
 
+#: ilcpmac.plotting.FORMATS, named here so that starting any command does not import matplotlib
+FIGURE_FORMATS = ("png", "svg", "pdf")
+
 
 #: errors of the file system rather than of the program: a full disk, a quota, a read-only place
 _FILE_SYSTEM_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from ilcpmac.cli import console, main, progress_bar
+from ilcpmac.cli import FIGURE_FORMATS, console, main, progress_bar
 
 #: the true values a simulated bench folder holds (``ilcpmac simulate``), under the result keys
 TRUTH_FILE = "truth.json"
@@ -115,7 +115,7 @@ def estimates_table(result, truth=None) -> Table:
               help="Result JSON to write (docs/bench-format.md).")
 @click.option("--plots", "plots_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Folder for the report-style figures.")
-@click.option("--format", "plot_format", type=click.Choice(["png", "svg", "pdf"]), default="png", show_default=True,
+@click.option("--format", "plot_format", type=click.Choice(FIGURE_FORMATS), default="png", show_default=True,
               help="File format of the figures written by --plots.")
 def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format: str) -> None:
     """Identify the sensors, inertia and cogging torque of BENCH_DIR.

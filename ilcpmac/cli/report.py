@@ -6,15 +6,14 @@ from pathlib import Path
 
 import click
 
-from ilcpmac.cli import console, main
-from ilcpmac.plotting import FORMATS
+from ilcpmac.cli import FIGURE_FORMATS, console, main
 
 
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where to write the figures (default RUN_DIR/plots).")
-@click.option("--format", "fmt", type=click.Choice(FORMATS), default="png", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(FIGURE_FORMATS), default="png", show_default=True,
               help="File format of the figures.")
 def report(run_dir: Path, out_dir: Path | None, fmt: str) -> None:
     """Plot the run in RUN_DIR.
