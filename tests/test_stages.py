@@ -22,10 +22,11 @@ from ilcpmac.bench.format import MotorInfo
 from ilcpmac.errors import ConfigError
 from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.model.motor import MotorModel
+from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
-from ilcpmac.signals.harmonics import harmonic_amplitudes, ripple_figures, synchronous_average
+from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.grid import truth_dict
 from ilcpmac.sim.simulator import trial_seed
@@ -121,8 +122,8 @@ def run_trials(backend: SimulatorBackend, pipeline: Pipeline, n: int, seed: int,
 
 def true_ripple(backend: SimulatorBackend, trial: TrialData):
     m = backend.describe().motor
-    return ripple_figures(trial.count, trial.torque_true_nm, m.counts_per_rev, float(trial.torque_true_nm.mean()),
-                          m.pole_pairs, m.cogging_order, H)
+    spectrum = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_true_nm, m.counts_per_rev, H)
+    return spectrum.figures(float(trial.torque_true_nm.mean()), m.pole_pairs, m.cogging_order)
 
 
 def true_harmonics(backend: SimulatorBackend, trial: TrialData) -> np.ndarray:
