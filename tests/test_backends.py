@@ -85,7 +85,7 @@ def test_ilcpmac_backends_lists_each_with_its_description(plugin):
     assert "numba simulator of the config's [bench] and [simulator.*]" in lines["sim"]
     assert "bench protocol" in lines["remote"]
     assert "test-backends-plugin" in lines["counting"] and "counting its trials" in lines["counting"]
-    assert "failed to load" in lines["missing"]
+    assert "fails to load: ModuleNotFoundError" in lines["missing"]
 
 
 @pytest.mark.parametrize("name, message", [

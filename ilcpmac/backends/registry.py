@@ -9,12 +9,11 @@ exactly as it picks a built-in one. A factory is ``factory(setup: BackendSetup)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from importlib.metadata import entry_points
-from typing import Callable
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.config import CampaignConfig
 from ilcpmac.errors import ConfigError
+from ilcpmac.plugins import PluginEntry, installed
 
 GROUP = "ilcpmac.backends"
 
@@ -34,33 +33,9 @@ class BackendSetup:
     address: str | None = None
 
 
-@dataclass(frozen=True)
-class BackendEntry:
-    """An installed backend: its name, where it comes from, and how to load it."""
-
-    name: str
-    value: str
-    distribution: str
-
-    def load(self) -> Callable[[BackendSetup], Backend]:
-        """Import the factory; a plugin that fails to import raises `ConfigError`."""
-        (ep,) = entry_points(group=GROUP, name=self.name)
-        try:
-            return ep.load()
-        except Exception as e:  # a broken plugin must not crash the command with a traceback
-            raise ConfigError(f"--backend {self.name}: failed to load {self.value} ({type(e).__name__}: {e})") \
-                from None
-
-    def description(self) -> str:
-        """The first line of the factory's docstring."""
-        doc = (self.load().__doc__ or "").strip()
-        return doc.splitlines()[0] if doc else ""
-
-
-def installed_backends() -> dict[str, BackendEntry]:
+def installed_backends() -> dict[str, PluginEntry]:
     """Every backend in the entry-point group, by name."""
-    return {ep.name: BackendEntry(ep.name, ep.value, ep.dist.name if ep.dist is not None else "?")
-            for ep in entry_points(group=GROUP)}
+    return installed(GROUP)
 
 
 def build_backend(name: str, setup: BackendSetup) -> Backend:
@@ -70,7 +45,12 @@ def build_backend(name: str, setup: BackendSetup) -> Backend:
     if name not in available:
         raise ConfigError(f"--backend: no backend named {name!r} is installed "
                           f"(installed: {', '.join(sorted(available))})")
-    backend = available[name].load()(setup)
+    try:
+        factory = available[name].load()
+    except Exception as e:  # a broken plugin must not crash the command with a traceback
+        raise ConfigError(f"--backend {name}: failed to load {available[name].value} ({type(e).__name__}: {e})") \
+            from None
+    backend = factory(setup)
     if not isinstance(backend, Backend):
         missing = [m for m in ("describe", "run_trial", "close", "max_parallel_trials") if not hasattr(backend, m)]
         raise ConfigError(f"--backend {name}: {available[name].value} returned a {type(backend).__name__}, which "

@@ -17,16 +17,11 @@ def backends() -> None:
     from rich.markup import escape
 
     from ilcpmac.backends.registry import GROUP, installed_backends
-    from ilcpmac.errors import ConfigError
 
     table = Table(title=f"backends (entry-point group {GROUP})", title_justify="left", header_style="bold")
     for column in ("name", "distribution", "description"):
         table.add_column(column)
     for name, entry in sorted(installed_backends().items()):
-        try:
-            description = escape(entry.description())
-        except ConfigError as e:
-            description = f"[red]{escape(str(e))}[/red]"
         table.add_row(name, entry.distribution + (" (built-in)" if entry.distribution == "ilcpmac" else ""),
-                      description)
+                      escape(entry.description()))
     Console().print(table)

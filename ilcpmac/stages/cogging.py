@@ -29,7 +29,9 @@ RANGES = {"prior_std_nm": (in_range(0.0, 1e3, low_open=True), "N m, within (0, 1
 
 
 class CoggingFeedForward:
-    """Built-in stage ``cogging``.
+    """Cogging feed-forward: subtract the estimated cogging torque from the torque reference.
+
+    Built-in stage ``cogging``.
 
     Options (``[stages.cogging]``): ``prior_std_nm`` (std of the identified
     coefficients), ``process_noise_nm`` (random-walk std per trial).

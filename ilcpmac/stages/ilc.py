@@ -66,7 +66,9 @@ def q_filter(harmonics: np.ndarray, cutoff: int) -> np.ndarray:
 
 
 class IterativeLearningControl:
-    """Built-in stage ``ilc``.
+    """Iterative learning control of the residual ripple, in the position (harmonic) domain.
+
+    Built-in stage ``ilc``.
 
     Options (``[stages.ilc]``): ``learning_gain`` gamma, ``q_cutoff_harmonic``,
     ``estimation`` ("kalman" or "fixed"), ``process_noise_nm`` (drift std of

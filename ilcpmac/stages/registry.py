@@ -6,55 +6,22 @@ a third-party stage exactly as it names a built-in one.
 
 from __future__ import annotations
 
-import sys
-from dataclasses import dataclass
-from importlib.metadata import entry_points
 from typing import Any, Callable
 
 from ilcpmac.errors import ConfigError
 from ilcpmac.model.motor import shown
+from ilcpmac.plugins import PluginEntry, installed
 from ilcpmac.stages.base import Stage, StageSetup, read_options
 
 GROUP = "ilcpmac.stages"
 
 
-@dataclass(frozen=True)
-class StageEntry:
-    """An installed stage: its name, where it comes from, and how to load it."""
-
-    name: str
-    value: str
-    distribution: str
-
-    def load(self) -> Callable[[StageSetup], Stage]:
-        """Import the factory."""
-        (ep,) = entry_points(group=GROUP, name=self.name)
-        return ep.load()
-
-    def description(self) -> str:
-        """What the stage does, in one line: the first line of the docstring of the module that defines its
-        factory (one stage per module), else of the factory's own; why it cannot be loaded if it cannot."""
-        try:
-            factory = self.load()
-        except Exception as e:  # a broken plugin is listed, not fatal
-            return f"fails to load: {type(e).__name__}: {e}"
-        module = sys.modules.get(getattr(factory, "__module__", ""))
-        for doc in (getattr(module, "__doc__", None), getattr(factory, "__doc__", None)):
-            if doc and doc.strip():
-                return doc.strip().splitlines()[0]
-        return "(no description)"
-
-
-def installed_stages() -> dict[str, StageEntry]:
+def installed_stages() -> dict[str, PluginEntry]:
     """Every stage in the entry-point group, by name."""
-    found = {}
-    for ep in entry_points(group=GROUP):
-        dist = ep.dist.name if ep.dist is not None else "?"
-        found[ep.name] = StageEntry(ep.name, ep.value, dist)
-    return found
+    return installed(GROUP)
 
 
-def _factory(name: str, available: dict[str, StageEntry],
+def _factory(name: str, available: dict[str, PluginEntry],
              extra: dict[str, Callable[[StageSetup], Stage]]) -> Callable[[StageSetup], Stage]:
     """Stage ``name``'s factory from ``extra`` or the installed stages; `ConfigError` if it has none."""
     if name not in available and name not in extra:

@@ -61,7 +61,9 @@ def _without_common_modes(information: np.ndarray) -> np.ndarray:
 
 
 class CurrentSensorCorrection:
-    """Built-in stage ``current-sensor``.
+    """Current-sensor correction: the controller's current scale and offset per phase (eqs. 1.3-1.7).
+
+    Built-in stage ``current-sensor``.
 
     Options (``[stages.current-sensor]``): ``process_noise_rel`` (random-walk
     std per trial relative to each parameter's prior size), ``prior_std_rel``

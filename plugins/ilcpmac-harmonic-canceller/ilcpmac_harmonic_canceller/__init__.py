@@ -22,7 +22,10 @@ DEFAULTS = {"orders": [1], "process_noise_nm": 1e-5}
 
 
 class HarmonicCanceller:
-    """Stage ``harmonic-canceller``: options ``orders`` and ``process_noise_nm``."""
+    """Cancel the torque ripple at chosen harmonics: an example ilcpmac stage plugin.
+
+    Stage ``harmonic-canceller``: options ``orders`` and ``process_noise_nm``.
+    """
 
     name = "harmonic-canceller"
 
