@@ -14,11 +14,18 @@ from ilcpmac.cli import FIGURE_FORMATS, console, main, progress_bar
 TRUTH_FILE = "truth.json"
 
 
+#: longest 'value ± std' at full precision; a longer one (extreme magnitudes) is shortened to fit 80 columns
+CELL_CHARACTERS = 16
+
+
 def _cell(value, std) -> str:
-    """'value ± std'; '-' when unknown."""
+    """'value ± std' (4 and 2 significant digits, 3 and 1 where that is too long); '-' when unknown."""
     if value is None:
         return "-"
-    return f"{value:.4g} ± {std:.2g}" if std is not None else f"{value:.4g}"
+    if std is None:
+        return f"{value:.4g}"
+    text = f"{value:.4g} ± {std:.2g}"
+    return text if len(text) <= CELL_CHARACTERS else f"{value:.3g} ± {std:.1g}"
 
 
 def _rms(values) -> float:
