@@ -128,3 +128,14 @@ def make_request() -> Callable[..., TrialRequest]:
 def small_simulator(small_model: MotorModel) -> Simulator:
     """A simulator of the small seed bench (all its errors present)."""
     return Simulator(small_model)
+
+
+@pytest.fixture
+def plan(write_config):
+    """The small campaign's plan (seed 7) on its simulator's bench."""
+    from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
+
+    from ilcpmac.campaign.plan import CampaignPlan
+
+    cfg = load_config(write_config(SMALL_CAMPAIGN))
+    return CampaignPlan.build(cfg, simulator_backend(cfg).describe(), 7)

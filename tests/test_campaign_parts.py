@@ -10,15 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ilcpmac.backends.base import Backend
-from ilcpmac.campaign.plan import CampaignPlan, records_at
+from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
-from ilcpmac.config import load_config
 from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import LimitGuard
@@ -64,12 +62,6 @@ def test_a_trial_record_writes_the_summary_keys_of_docs_campaign():
 
 
 # ---------------------------------------------------------------- the plan
-
-
-@pytest.fixture
-def plan(write_config) -> CampaignPlan:
-    cfg = load_config(write_config(SMALL_CAMPAIGN))
-    return CampaignPlan.build(cfg, simulator_backend(cfg).describe(), 7)
 
 
 def done(index: int, role: str, torque: float, repeatable: float = 0.01) -> TrialRecord:

@@ -15,12 +15,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
-from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.runner import SUMMARY_UNITS
 from ilcpmac.cli import main
 from ilcpmac.cli.run import CampaignView, duration, files_written
-from ilcpmac.config import load_config
 from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, significant, summary_table, trials_table
 from ilcpmac.signals.harmonics import RippleFigures
 
@@ -154,14 +152,6 @@ def test_summary_json_units_cover_every_figure_of_a_trial_and_of_final():
 
 
 # ---------------------------------------------------------------- the status line and the plan's bound
-
-
-@pytest.fixture
-def plan(write_config) -> CampaignPlan:
-    from campaign_helpers import simulator_backend
-
-    cfg = load_config(write_config(SMALL_CAMPAIGN))
-    return CampaignPlan.build(cfg, simulator_backend(cfg).describe(), 7)
 
 
 def record(index: int, role: str, torque: float, pp: float = 0.01) -> TrialRecord:
