@@ -59,6 +59,7 @@ def main() -> None:
 from ilcpmac.cli import (  # noqa: E402
     backends,  # noqa: E402,F401
     emulate,  # noqa: E402,F401
+    export,  # noqa: E402,F401
     identify,  # noqa: E402,F401
     report,  # noqa: E402,F401
     run,  # noqa: E402,F401

@@ -77,8 +77,8 @@ def check_builtin_options(name: str, options: dict) -> None:
     A campaign config is checked when it is read, not after the identification;
     other stages check their options when they are built.
     """
-    from ilcpmac.stages import cogging, ilc, sensor  # they import this module
+    from ilcpmac.stages import cogging, ilc, replay, sensor  # they import this module
 
-    builtin = {"ilc": ilc, "cogging": cogging, "current-sensor": sensor}
+    builtin = {"ilc": ilc, "cogging": cogging, "current-sensor": sensor, "replay": replay}
     if name in builtin:
         check_options(options, builtin[name].DEFAULTS, builtin[name].RANGES, name)

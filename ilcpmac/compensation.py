@@ -1,0 +1,344 @@
+"""The compensation a drive applies over its operating envelope: the record of ``compensation.json``.
+
+A campaign learns a torque feed-forward per encoder count at several operating
+points, a grid of torque set points x speed set points, and writes one
+`Compensation` into its run directory; ``ilcpmac export`` turns it into what a
+drive's firmware reads, and the ``replay`` stage applies it through the
+pipeline (docs/export.md).
+
+The feed-forward at a torque set point T and a speed set point S is
+
+1. T clamped into [torques_nm[0], torques_nm[-1]] and S into
+   [speeds_hz[0], speeds_hz[-1]];
+2. the bilinear interpolation, per count, between the four tables learned at
+   the grid points around the clamped (T, S): with T_i <= T <= T_{i+1},
+   S_k <= S <= S_{k+1}, u = (T - T_i) / (T_{i+1} - T_i) and
+   v = (S - S_k) / (S_{k+1} - S_k),
+   (1 - u) ((1 - v) t[i, k] + v t[i, k+1]) + u ((1 - v) t[i+1, k] + v t[i+1, k+1]);
+   along an axis with one point the tables are constant along it;
+3. times the fade-out factor `FadeOut.factor` at the unclamped S.
+
+Linear in speed is physical: the current loop is about first order, so the
+inverse 1 + j f / f_bw of its response, which the feed-forward carries
+(`ilcpmac.stages.base.StageSetup.torque_response`), is linear in the
+harmonic's frequency f = h S.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ilcpmac.bench.format import MAX_CALIBRATION, MAX_SPEED_HZ, MAX_TORQUE_NM
+from ilcpmac.errors import BenchFormatError
+from ilcpmac.model.motor import MAX_GRID_SETPOINTS, MOTOR_RANGES, finite_number, shown
+from ilcpmac.records import SensorCalibration, TrialRequest
+
+__all__ = ["COMPENSATION_FILE", "FORMAT", "MAX_FILE_BYTES", "MAX_TABLE_VALUES", "UNITS", "Compensation", "FadeOut"]
+
+#: the record's file in a run directory
+COMPENSATION_FILE = "compensation.json"
+#: the version of the file's layout, its key "format"
+FORMAT = 1
+#: most values of all tables together (n_T x n_S x counts_per_rev): 32 MiB of doubles
+MAX_TABLE_VALUES = 2**22
+#: largest compensation.json read, bytes: 32 per table value (a double's decimals, indentation) and 1 MiB
+MAX_FILE_BYTES = 32 * MAX_TABLE_VALUES + 2**20
+#: the file's key "units": the unit of each quantity, fixed by the format
+UNITS = {"torques_nm": "N m", "speeds_hz": "Hz", "tables_nm": "N m per encoder count, added to the torque reference",
+         "calibration.current_scale": "counts per A", "calibration.current_offset": "counts",
+         "calibration.torque_gain": "V per N m", "fade.full_hz": "Hz (null: never fades)",
+         "fade.zero_hz": "Hz (null: never fades)"}
+_KEYS = ("format", "units", "counts_per_rev", "calibration", "torques_nm", "speeds_hz", "fade", "tables_nm")
+_CALIBRATION_KEYS = ("current_scale", "current_offset", "torque_gain")
+_FADE_KEYS = ("full_hz", "zero_hz")
+
+
+@dataclass(frozen=True)
+class FadeOut:
+    """The feed-forward's factor over speed: 1 up to full_hz, linear down to 0 at zero_hz, 0 beyond.
+
+    full_hz <= zero_hz; full_hz == zero_hz is a step; both may be inf (never fades), zero_hz alone not.
+
+    Attributes
+    ----------
+    full_hz : float
+        Speed up to which the whole feed-forward applies, Hz, >= 0.
+    zero_hz : float
+        Speed from which none applies, Hz.
+    """
+
+    full_hz: float
+    zero_hz: float
+
+    def __post_init__(self) -> None:
+        full, zero = float(self.full_hz), float(self.zero_hz)
+        object.__setattr__(self, "full_hz", full)
+        object.__setattr__(self, "zero_hz", zero)
+        if not 0.0 <= full <= zero or (math.isinf(zero) and not math.isinf(full)):
+            raise ValueError(f"key 'fade': needs 0 <= full_hz <= zero_hz, both finite or both infinite (null: "
+                             f"never fades), got full_hz = {full!r}, zero_hz = {zero!r}")
+
+    def factor(self, speed_hz: float) -> float:
+        """The factor at ``speed_hz`` (Hz)."""
+        if speed_hz <= self.full_hz:
+            return 1.0
+        if speed_hz >= self.zero_hz:
+            return 0.0
+        return (self.zero_hz - speed_hz) / (self.zero_hz - self.full_hz)
+
+
+def _grid(values, key: str, low: float, high: float, low_open: bool) -> np.ndarray:
+    """A grid axis: 1 to MAX_GRID_SETPOINTS finite values within its range, strictly ascending."""
+    a = np.asarray(values, float)
+    if a.ndim != 1 or not 1 <= a.size <= MAX_GRID_SETPOINTS:
+        raise ValueError(f"key {key!r}: needs 1 to {MAX_GRID_SETPOINTS} values, got shape {a.shape}")
+    inside = (a > low if low_open else a >= low) & (a <= high)
+    if not np.all(inside):
+        bad = int(np.flatnonzero(~inside)[0])
+        raise ValueError(f"key {key!r}: value {bad} must lie in {'(' if low_open else '['}{low:g}, {high:g}], "
+                         f"got {a[bad]!r}")
+    if np.any(np.diff(a) <= 0):
+        raise ValueError(f"key {key!r}: must be strictly ascending, got {_shown(a.tolist())}")
+    return a
+
+
+def _shown(value, limit: int = 100) -> str:
+    """`shown` cut to ``limit`` characters: a message stays one short line whatever a file nests."""
+    text = shown(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _is_counts_per_rev(value) -> bool:
+    """An integer (not a bool) within the bench format's range of counts_per_rev."""
+    low, high = MOTOR_RANGES["counts_per_rev"]
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and low <= value <= high
+
+
+def _bracket(grid: np.ndarray, x: float) -> tuple[int, int, float]:
+    """The grid points around ``x`` clamped into the grid, and the weight of the upper one."""
+    if grid.size == 1:
+        return 0, 0, 0.0
+    x = min(max(x, grid[0]), grid[-1])
+    i = min(int(np.searchsorted(grid, x, side="right")) - 1, grid.size - 2)
+    return i, i + 1, float((x - grid[i]) / (grid[i + 1] - grid[i]))
+
+
+@dataclass(frozen=True)
+class Compensation:
+    """What a drive applies: per-phase current-sensor calibration, torque gain, and a torque feed-forward per
+    encoder count over torque x speed (bilinear between learned points, clamped at the edges, times the
+    fade-out over speed; the module docstring gives the rule).
+
+    Every invariant below is checked when the record is made (`ValueError` naming the key).
+
+    Attributes
+    ----------
+    counts_per_rev : int
+        Encoder counts per mechanical revolution, within the bench format's range.
+    calibration : SensorCalibration
+        Current scale, counts per A per phase; offset, counts per phase; torque gain, V / (N m).
+    torques_nm : ndarray, shape (n_T,)
+        Torque set points learned at, N m: strictly ascending, finite.
+    speeds_hz : ndarray, shape (n_S,)
+        Speed set points learned at, Hz: strictly ascending, finite, > 0.
+    tables_nm : ndarray, shape (n_T, n_S, counts_per_rev)
+        The torque feed-forward per count learned at each (torque, speed) point, N m, added to the torque
+        reference; finite.
+    fade : FadeOut
+    """
+
+    counts_per_rev: int
+    calibration: SensorCalibration
+    torques_nm: np.ndarray
+    speeds_hz: np.ndarray
+    tables_nm: np.ndarray
+    fade: FadeOut
+
+    def __post_init__(self) -> None:
+        cpr = self.counts_per_rev
+        if not _is_counts_per_rev(cpr):
+            raise ValueError(f"key 'counts_per_rev': must be an integer in {list(MOTOR_RANGES['counts_per_rev'])}, "
+                             f"got {_shown(cpr)}")
+        object.__setattr__(self, "counts_per_rev", int(cpr))
+        self._check_calibration()
+        if not isinstance(self.fade, FadeOut):
+            raise ValueError(f"key 'fade': must be a FadeOut, got {type(self.fade).__name__}")
+        torques = _grid(self.torques_nm, "torques_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM, low_open=False)
+        speeds = _grid(self.speeds_hz, "speeds_hz", 0.0, MAX_SPEED_HZ, low_open=True)
+        shape = (torques.size, speeds.size, int(cpr))
+        if math.prod(shape) > MAX_TABLE_VALUES:
+            raise ValueError(f"key 'tables_nm': {shape[0]} x {shape[1]} x {shape[2]} values, more than "
+                             f"{MAX_TABLE_VALUES}")
+        tables = np.asarray(self.tables_nm, float)
+        if tables.shape != shape:
+            raise ValueError(f"key 'tables_nm': shape {tables.shape}, expected {shape} "
+                             "(torques_nm x speeds_hz x counts_per_rev)")
+        inside = np.abs(tables) <= MAX_TORQUE_NM
+        if not np.all(inside):
+            bad = tuple(int(i) for i in np.argwhere(~inside)[0])
+            raise ValueError(f"key 'tables_nm': value {list(bad)} must be finite, within +-{MAX_TORQUE_NM:g} N m, "
+                             f"got {tables[bad]!r}")
+        object.__setattr__(self, "torques_nm", torques)
+        object.__setattr__(self, "speeds_hz", speeds)
+        object.__setattr__(self, "tables_nm", tables)
+
+    def _check_calibration(self) -> None:
+        """The bench format's ranges on a calibration (docs/bench-format.md)."""
+        cal = self.calibration
+        if not isinstance(cal, SensorCalibration):
+            raise ValueError(f"key 'calibration': must be a SensorCalibration, got {type(cal).__name__}")
+        if not np.all((cal.current_scale > 0) & (cal.current_scale <= MAX_CALIBRATION)):
+            raise ValueError(f"key 'calibration.current_scale': must lie in (0, {MAX_CALIBRATION:g}], "
+                             f"got {cal.current_scale.tolist()}")
+        if not np.all(np.abs(cal.current_offset) <= MAX_CALIBRATION):
+            raise ValueError(f"key 'calibration.current_offset': must lie in [-{MAX_CALIBRATION:g}, "
+                             f"{MAX_CALIBRATION:g}], got {cal.current_offset.tolist()}")
+        if not 0 < cal.torque_gain <= MAX_CALIBRATION:
+            raise ValueError(f"key 'calibration.torque_gain': must lie in (0, {MAX_CALIBRATION:g}], "
+                             f"got {cal.torque_gain!r}")
+
+    def feedforward_nm(self, torque_nm: float, speed_hz: float) -> np.ndarray:
+        """The feed-forward per count at a torque and a speed set point, shape (counts_per_rev,), N m."""
+        if math.isnan(torque_nm) or math.isnan(speed_hz):
+            raise ValueError(f"the feed-forward needs a torque and a speed, got {torque_nm!r} N m, {speed_hz!r} Hz")
+        i, j, u = _bracket(self.torques_nm, torque_nm)
+        k, m, v = _bracket(self.speeds_hz, speed_hz)
+        t = self.tables_nm
+        lower, upper = (1.0 - v) * t[i, k] + v * t[i, m], (1.0 - v) * t[j, k] + v * t[j, m]
+        return ((1.0 - u) * lower + u * upper) * self.fade.factor(speed_hz)
+
+    def apply(self, request: TrialRequest) -> TrialRequest:
+        """``request`` with this calibration and this feed-forward added to its own."""
+        if request.feedforward_nm.shape != (self.counts_per_rev,):
+            raise ValueError(f"the request has {request.feedforward_nm.size} counts per revolution, the "
+                             f"compensation {self.counts_per_rev}")
+        ff = self.feedforward_nm(request.torque_setpoint_nm, request.speed_setpoint_hz)
+        return request.with_changes(calibration=self.calibration, feedforward_nm=request.feedforward_nm + ff)
+
+    def to_json(self) -> dict:
+        """The object of compensation.json (docs/export.md): "format", "units", then the fields; an infinite
+        fade speed is null."""
+        return {"format": FORMAT, "units": dict(UNITS), "counts_per_rev": self.counts_per_rev,
+                "calibration": self.calibration.to_json(), "torques_nm": self.torques_nm.tolist(),
+                "speeds_hz": self.speeds_hz.tolist(),
+                "fade": {key: None if math.isinf(getattr(self.fade, key)) else getattr(self.fade, key)
+                         for key in _FADE_KEYS},
+                "tables_nm": self.tables_nm.tolist()}
+
+    @classmethod
+    def from_json(cls, data: dict, source: str = COMPENSATION_FILE) -> Compensation:
+        """The record `to_json` wrote; anything else raises `BenchFormatError` naming ``source`` and the key."""
+        _keys(data, _KEYS, source, "")
+        if type(data["format"]) is not int or data["format"] != FORMAT:
+            raise BenchFormatError(f"{source}: key 'format': this ilcpmac reads format {FORMAT}, "
+                                   f"got {_shown(data['format'])}")
+        if data["units"] != UNITS:
+            raise BenchFormatError(f"{source}: key 'units': must be the units the format fixes (docs/export.md), "
+                                   f"got {_shown(data['units'])}")
+        calibration = _keys(data["calibration"], _CALIBRATION_KEYS, source, "calibration.")
+        fade = _keys(data["fade"], _FADE_KEYS, source, "fade.")
+        fade_hz = [math.inf if fade[key] is None else _number(fade[key], source, "fade." + key) for key in _FADE_KEYS]
+        counts_per_rev = data["counts_per_rev"]
+        if type(counts_per_rev) is not int or not _is_counts_per_rev(counts_per_rev):
+            raise BenchFormatError(f"{source}: key 'counts_per_rev': must be an integer in "
+                                   f"{list(MOTOR_RANGES['counts_per_rev'])}, got {_shown(counts_per_rev)}")
+        torques = _array(data["torques_nm"], 1, source, "torques_nm")
+        speeds = _array(data["speeds_hz"], 1, source, "speeds_hz")
+        scale = _array(calibration["current_scale"], 1, source, "calibration.current_scale")
+        offset = _array(calibration["current_offset"], 1, source, "calibration.current_offset")
+        for key, values in (("current_scale", scale), ("current_offset", offset)):
+            if values.size != 3:
+                raise BenchFormatError(f"{source}: key 'calibration.{key}': needs 3 values (phases a, b, c), "
+                                       f"got {values.size}")
+        size = torques.size * speeds.size * counts_per_rev
+        if size > MAX_TABLE_VALUES:
+            raise BenchFormatError(f"{source}: key 'tables_nm': {torques.size} x {speeds.size} x {counts_per_rev} "
+                                   f"values, more than {MAX_TABLE_VALUES}")
+        try:
+            return cls(counts_per_rev,
+                       SensorCalibration(scale, offset, _number(calibration["torque_gain"], source,
+                                                                "calibration.torque_gain")),
+                       torques, speeds, _array(data["tables_nm"], 3, source, "tables_nm"), FadeOut(*fade_hz))
+        except ValueError as e:
+            raise BenchFormatError(f"{source}: {e}") from None
+
+    @classmethod
+    def read(cls, path: Path) -> Compensation:
+        """The record in the JSON file ``path``: a regular file of at most `MAX_FILE_BYTES`; anything else raises
+        `BenchFormatError` naming the file (and the key)."""
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+        except FileNotFoundError:
+            raise BenchFormatError(f"{path}: no such file") from None
+        except (OSError, ValueError) as e:
+            raise BenchFormatError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise BenchFormatError(f"{path}: not a regular file (a folder, FIFO or device is refused)")
+            with open(fd, "rb", closefd=False) as f:
+                raw = f.read(MAX_FILE_BYTES + 1)
+        except OSError as e:
+            raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
+        finally:
+            os.close(fd)
+        if len(raw) > MAX_FILE_BYTES:
+            raise BenchFormatError(f"{path}: more than {MAX_FILE_BYTES} bytes (refused)")
+        try:
+            data = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
+        except UnicodeDecodeError as e:
+            raise BenchFormatError(f"{path}: not UTF-8 text (byte {e.start})") from None
+        except ValueError as e:
+            raise BenchFormatError(f"{path}: not valid JSON ({e})") from None
+        except RecursionError:
+            raise BenchFormatError(f"{path}: not valid JSON (nested too deeply)") from None
+        return cls.from_json(data, str(path))
+
+
+def _no_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _keys(data, keys: tuple[str, ...], source: str, prefix: str) -> dict:
+    """``data``, an object with exactly ``keys``."""
+    where = f"key {prefix[:-1]!r}" if prefix else "the file"
+    if not isinstance(data, dict):
+        raise BenchFormatError(f"{source}: {where} must be an object, got {_shown(data)}")
+    missing = [key for key in keys if key not in data]
+    if missing:
+        raise BenchFormatError(f"{source}: missing key {prefix + missing[0]!r}")
+    unknown = sorted(set(data) - set(keys))
+    if unknown:
+        raise BenchFormatError(f"{source}: unknown key {_shown(prefix + unknown[0])} (known: {', '.join(keys)})")
+    return data
+
+
+def _number(value, source: str, key: str) -> float:
+    if not finite_number(value):
+        raise BenchFormatError(f"{source}: key {key!r}: must be a finite number, got {_shown(value)}")
+    return float(value)
+
+
+def _array(value, ndim: int, source: str, key: str) -> np.ndarray:
+    """A ``ndim``-dimensional array of finite numbers (JSON lists of lists), as floats."""
+    wrong = f"{source}: key {key!r}: must be {'a list' if ndim == 1 else f'{ndim} nested lists'} of numbers"
+    if not isinstance(value, list):
+        raise BenchFormatError(f"{wrong}, got {_shown(value)}")
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError, OverflowError):
+        raise BenchFormatError(f"{wrong} (rows of unequal lengths?), got {_shown(value)}") from None
+    if a.dtype.kind not in "iuf" or a.ndim != ndim:
+        raise BenchFormatError(f"{wrong}, got {_shown(value)}")
+    a = a.astype(float)
+    finite = np.isfinite(a)
+    if not np.all(finite):
+        bad = [int(i) for i in np.argwhere(~finite)[0]]
+        raise BenchFormatError(f"{source}: key {key!r}: value {bad} is not finite")
+    return a

@@ -1,0 +1,57 @@
+"""Replay: apply an exported compensation (`ilcpmac.compensation.Compensation`, docs/export.md), learn nothing.
+
+It runs a campaign's compensation.json, or one exported from it, on the
+simulator or a bench through the normal pipeline, and its safety limits: the
+request gets the record's calibration and the record's feed-forward at the
+request's torque and speed set point added to it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ilcpmac.compensation import Compensation
+from ilcpmac.errors import ConfigError
+from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.stages.base import Frame, StageSetup
+from ilcpmac.stages.registry import check_options
+
+DEFAULTS = {"file": ""}
+#: each option's range
+RANGES = {"file": (bool, "the compensation.json to replay, relative to the working directory")}
+
+
+class Replay:
+    """Replay an exported compensation: its calibration and feed-forward, learning nothing.
+
+    Built-in stage ``replay``.
+
+    Options (``[stages.replay]``): ``file``, the compensation.json (docs/export.md), relative to the
+    working directory; its counts_per_rev must be the bench's.
+    """
+
+    name = "replay"
+    needs = ()
+
+    def __init__(self, setup: StageSetup) -> None:
+        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
+        self.compensation = Compensation.read(Path(opts["file"]))
+        cpr = setup.description.motor.counts_per_rev
+        if self.compensation.counts_per_rev != cpr:
+            raise ConfigError(f"[stages.{self.name}] file: {opts['file']} has counts_per_rev = "
+                              f"{self.compensation.counts_per_rev}, the bench {cpr}")
+
+    def columns(self, trial: TrialData) -> None:
+        return None
+
+    def shape(self, request: TrialRequest) -> TrialRequest:
+        return self.compensation.apply(request)
+
+    def learn(self, trial: TrialData, frame: Frame) -> None:
+        """Nothing: a replay learns nothing."""
+
+    def state(self) -> dict:
+        return {}
+
+    def restore(self, state: dict) -> None:
+        """Nothing: a replay has no state."""
