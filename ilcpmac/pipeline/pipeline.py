@@ -1,4 +1,13 @@
-"""Stages chained in the config's order; one joint fit per trial feeds them all."""
+"""Stages chained in the config's order; one joint fit per trial feeds them all.
+
+The fit (`Pipeline.frame`) explains the torque the plant adds to what the trial's feed-forward u asks
+for: the feed-forward's own torque is known through the identified response G^
+(`StageSetup.torque_response`) and subtracted from the measured harmonics first, y - delta G^ u (the
+joint fit's model, eq. 1.13, with the feed-forward moved to the known side), as the ILC stage estimates
+d = e - G^ u. A stage that feeds forward -c^ / G^ from its block's estimate c^ then iterates
+c^_{k+1} = c + (G / G^ - 1) G^ u_k, which converges to a delivered torque G u = -c while
+|1 - G / G^| < 1; were u's torque left in y, the stage would read its own feed-forward as the plant's.
+"""
 
 from __future__ import annotations
 
@@ -22,7 +31,7 @@ from ilcpmac.pipeline.safety import (
 )
 from ilcpmac.records import BenchDescription, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.stages.base import Frame, Identified, Stage
+from ilcpmac.stages.base import Frame, Identified, Stage, StageSetup
 
 
 class Pipeline:
@@ -47,6 +56,7 @@ class Pipeline:
         self.max_harmonic = max_harmonic
         self.notify = notify
         self._truth = identified_truth(identified)
+        self._response = StageSetup(description, identified, max_harmonic).torque_response
 
     def shape(self, request: TrialRequest) -> TrialRequest:
         """Pass ``request`` through every stage, each output checked (`checked`), then clip the
@@ -92,20 +102,25 @@ class Pipeline:
     def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
         """The joint fit and the measured ripple spectrum of a finished trial.
 
-        ``spectrum``: the trial's measured `TorqueSpectrum` up to H (`TrialAnalysis.measured`), computed
-        here when not given.
+        The fit is of the measured harmonics less the feed-forward's torque through the identified
+        response, delta G^ u (module docstring). ``spectrum``: the trial's measured `TorqueSpectrum` up
+        to H (`TrialAnalysis.measured`), computed here when not given.
         """
         cpr = self.description.motor.counts_per_rev
         if spectrum is None:
             spectrum = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, cpr, self.max_harmonic)
         mean, variance = spectrum.harmonics_nm, spectrum.variance_nm2
         h = self.claimed_harmonics()
+        request = trial.request
+        delta = self.identified.delta_at(request.calibration)
+        speed_hz = trial.mean_speed_hz(cpr)
+        u = harmonic_amplitudes(request.feedforward_nm)[h]
+        known = delta * self._response(h, speed_hz, request.calibration) * u
         blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.stages
                   if (table := s.columns(trial)) is not None}
-        regression = Regression(mean[h], variance[h], blocks)
-        delta = self.identified.delta_at(trial.request.calibration)
+        regression = Regression(mean[h] - known, variance[h], blocks)
         return Frame({name: regression.block(name) for name in blocks}, mean / delta, variance / delta**2, delta,
-                     trial.mean_speed_hz(cpr), learning_gain)
+                     speed_hz, learning_gain)
 
     def learn(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
         """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame (`frame`)."""
@@ -122,3 +137,14 @@ class Pipeline:
         """Restore every stage from `state`."""
         for stage in self.stages:
             stage.restore(state[stage.name])
+
+    def revert(self, state: dict, key: str) -> None:
+        """Go back to `state` (an earlier `state`) at set point ``key`` only: a stage with the optional
+        ``revert`` reverts that key and keeps what it learned at other set points; any other is restored
+        whole."""
+        for stage in self.stages:
+            revert = getattr(stage, "revert", None)
+            if revert is None:
+                stage.restore(state[stage.name])
+            else:
+                revert(state[stage.name], key)

@@ -14,7 +14,9 @@ information is inflated by the Birge ratio when the fit is worse than that
 noise (model mismatch). Each stage reads its own block: the estimate and the
 block's marginal Fisher information (Schur complement over the others), so
 overlapping regressors (cogging and current-dependent ripple at 6x
-electrical) are not confused.
+electrical) are not confused. ``y`` is what is left to explain: the pipeline
+passes the measured harmonics less the torque of the trial's feed-forward
+through the identified response (ilcpmac.pipeline.pipeline).
 """
 
 from __future__ import annotations

@@ -5,6 +5,8 @@ registered in the entry-point group ``ilcpmac.stages``. Before each trial the
 pipeline passes the request through every stage's `Stage.shape`; after it, one
 joint least-squares fit over every stage's `Stage.columns` gives each stage
 its block (`Frame.block`) in `Stage.learn`. Stages never reach into each other.
+A stage whose memory is per set point may add the optional ``revert(state, key)``
+(`Stage`); the campaign's guard then reverts that set point only (`Pipeline.revert`).
 
 A factory declares in its attribute ``needs`` (a tuple of
 `ilcpmac.records.IdentificationResult` field names, e.g. ``("cogging_nm",)``)
@@ -143,7 +145,8 @@ class Frame:
     Attributes
     ----------
     blocks : dict of name -> Block
-        Each stage's block of the trial's joint fit over all stages' columns.
+        Each stage's block of the trial's joint fit over all stages' columns, of the measured torque
+        less the trial's feed-forward through the identified response (ilcpmac.pipeline.pipeline).
     torque_harmonics_nm : ndarray of complex, shape (H + 1,)
         Synchronous-average harmonics of the measured torque, converted to
         true torque units (divided by the trial's delta).
@@ -171,7 +174,13 @@ class Frame:
 
 @runtime_checkable
 class Stage(Protocol):
-    """A compensation stage."""
+    """A compensation stage.
+
+    Optional: ``revert(self, state: dict, key: str) -> None``: go back to ``state`` (what `state`
+    returned after an earlier trial) for set point ``key`` only; what was learned at other set points
+    stays (a set point ``state`` does not know is unlearned). The guard uses it through
+    `ilcpmac.pipeline.pipeline.Pipeline.revert`; a stage without it is restored whole (`restore`).
+    """
 
     name: str
 

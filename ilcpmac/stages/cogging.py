@@ -3,8 +3,12 @@
 The state is the cogging torque's cosine and sine coefficients at the
 multiples of the cogging order lcm(slots, 2 pole_pairs) up to H, in true
 torque units (N m). In the joint fit their columns have coefficients
-delta_j times the state (the feed-forward itself acts through the current
-columns), so H_j = delta_j I (eq. 1.13 restricted to the cogging harmonics).
+delta_j times the state, so H_j = delta_j I (eq. 1.13 restricted to the
+cogging harmonics): the pipeline fits the measured torque less the
+feed-forward's torque through the identified response G^, delta_j G^ u, so
+the block is the cogging c plus the model error (G - G^) u, never the stage's
+own feed-forward (ilcpmac.pipeline.pipeline). With u = -c^ / G^ the estimate
+iterates to c G^ / G and the delivered torque G u to -c, while |1 - G / G^| < 1.
 The feed-forward is divided by the torque response to the reference (the
 sensors' gain and the identified current loop with its reference hold, at the
 request's calibration and speed), so that the torque delivered cancels the

@@ -14,6 +14,15 @@ harmonics (1 up to the cut-off harmonic, 0 above). Harmonic 0 is
 never touched: the mean torque stays the set point's. Because u is the total
 feed-forward, the stage stays consistent when earlier stages change theirs.
 
+The stage remembers, per set point, the torque its next feed-forward is to
+deliver, t_{j+1} = G^ u_{j+1} (true-torque units, G^ at the set point's
+speed), not the reference itself: each request gets u = t / G^ at its own
+calibration and set point's speed, so what was
+learned at a set point stays right when the current-sensor stage later moves
+the calibration (a 0.6 % change of the common current scale would otherwise
+leave 0.6 % of a 0.5 N m cogging feed-forward in the torque), and at the
+speed a compensation is applied at.
+
 Estimation-based ILC: the ripple with no feed-forward, d = e - G^ u, is
 estimated across trials by a Kalman filter per harmonic, with the
 revolution-to-revolution variance as measurement noise (and a process noise
@@ -126,7 +135,7 @@ class IterativeLearningControl:
     def _entry(self, key: str) -> dict[str, np.ndarray]:
         n = self._h.size
         return self._memory.setdefault(key, {
-            "u": np.zeros(n, complex), "u_applied": np.zeros(n, complex), "d": np.zeros(n, complex),
+            "t": np.zeros(n, complex), "u_applied": np.zeros(n, complex), "d": np.zeros(n, complex),
             "P": np.full(n, np.inf)})
 
     def _table(self, harmonics: np.ndarray) -> np.ndarray:
@@ -136,11 +145,12 @@ class IterativeLearningControl:
     def _harmonics(self, table: np.ndarray) -> np.ndarray:
         return harmonic_amplitudes(table)[1: self._max_harmonic + 1]
 
-    def feedforward_nm(self, key: str) -> np.ndarray | None:
-        """The learned total feed-forward per encoder count (harmonics 1..H) for set point ``key``, N m."""
+    def correction_nm(self, key: str) -> np.ndarray | None:
+        """The torque the learned feed-forward at set point ``key`` is to deliver, per encoder count
+        (harmonics 1..H), N m; None before the set point's first trial."""
         if key not in self._memory:
             return None
-        return self._table(self._memory[key]["u"])
+        return self._table(self._memory[key]["t"])
 
     def columns(self, trial: TrialData) -> None:
         return None
@@ -150,7 +160,8 @@ class IterativeLearningControl:
         if np.any(request.excitation_nm) or key not in self._memory:
             return request
         upstream = self._harmonics(request.feedforward_nm)
-        change = self._table(self._memory[key]["u"] - upstream)
+        u = self._memory[key]["t"] / self.plant(request, request.speed_setpoint_hz)
+        change = self._table(u - upstream)
         return request.with_changes(feedforward_nm=request.feedforward_nm + change)
 
     def learn(self, trial: TrialData, frame: Frame) -> None:
@@ -184,21 +195,33 @@ class IterativeLearningControl:
             shrink = np.maximum(0.0, 1.0 - threshold2 / np.maximum(np.abs(m["d"]) ** 2, 1e-300))
             ripple = shrink * m["d"] + G * u
         m["u_applied"] = u
-        m["u"] = self._q * (u - gamma * ripple / G)
+        # remembered as the torque it delivers at the set point's speed, as `shape` reads it back
+        m["t"] = self.plant(request, request.speed_setpoint_hz) * self._q * (u - gamma * ripple / G)
         self._trials[key] = self._trials.get(key, 0) + 1
 
     def state(self) -> dict:
         def pack(m: dict[str, np.ndarray]) -> dict:
             out = {name: {"re": m[name].real.tolist(), "im": m[name].imag.tolist()}
-                   for name in ("u", "u_applied", "d")}
+                   for name in ("t", "u_applied", "d")}
             out["P"] = [None if np.isinf(p) else p for p in m["P"]]  # JSON has no infinity
             return out
 
         return {key: {**pack(m), "trials": self._trials.get(key, 0)} for key, m in self._memory.items()}
 
     def restore(self, state: dict) -> None:
-        self._memory = {
-            key: {**{name: np.array(s[name]["re"]) + 1j * np.array(s[name]["im"]) for name in ("u", "u_applied", "d")},
-                  "P": np.array([np.inf if p is None else p for p in s["P"]], float)}
-            for key, s in state.items()}
+        self._memory = {key: _unpack(s) for key, s in state.items()}
         self._trials = {key: s["trials"] for key, s in state.items()}
+
+    def revert(self, state: dict, key: str) -> None:
+        """Set point ``key`` as in `state`, unlearned if `state` has none of it; other set points stay."""
+        self._memory.pop(key, None)
+        self._trials.pop(key, None)
+        if key in state:
+            self._memory[key] = _unpack(state[key])
+            self._trials[key] = state[key]["trials"]
+
+
+def _unpack(s: dict) -> dict[str, np.ndarray]:
+    """One set point's memory from its `IterativeLearningControl.state`."""
+    return {**{name: np.array(s[name]["re"]) + 1j * np.array(s[name]["im"]) for name in ("t", "u_applied", "d")},
+            "P": np.array([np.inf if p is None else p for p in s["P"]], float)}

@@ -13,6 +13,16 @@ which are linear in x: the Kalman measurement matrix is H_j = delta_j
 [[diag(G*^-1), 0], [-diag(o*), I]]. The next request's calibration is
 G*^-1 = 1 / G_s, o* = o_s (so that epsilon = alpha = 1, beta = 0), and
 g*_t = g_t = delta g*_t from the identification.
+
+The references are linear in the torque reference (`current_references`), so
+K_p I~*_p = X_p + F_p with F_p the part of the trial's feed-forward u. Since
+sum_p a_p F_p = sum_p a_p (F_p - F) + 3 a F (F the phases' mean, a the mean
+gain) and the pipeline subtracts the feed-forward's torque through the
+identified response, delta G^ u ~ 3 a^ F, from the measured torque
+(`ilcpmac.pipeline.pipeline`), the columns are X_p + F_p - F: the imbalance's
+share of the feed-forward's torque stays in them, its common part does not,
+so the common gain is no longer collinear with the stages that feed forward
+(cogging) and their estimates stay the plant's.
 """
 
 from __future__ import annotations
@@ -22,6 +32,7 @@ import numpy as np
 from ilcpmac.estimators.kalman import KalmanEstimator
 from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.model.motor import in_range
+from ilcpmac.model.tables import current_references
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import filtered, synchronous_average
 from ilcpmac.stages.base import Frame, StageSetup
@@ -37,17 +48,22 @@ def filtered_references(trial: TrialData, counts_per_rev: int, loop: CurrentLoop
     """I*_p as the currents follow it, per count, (counts_per_rev, 3): each harmonic through the
     phase's current loop (`CurrentLoop.response`)."""
     table = synchronous_average(trial.count, trial.i_ref_a, counts_per_rev)
-    h = np.arange(counts_per_rev // 2 + 1)
-    return filtered(table, loop.response(h, trial.mean_speed_hz(counts_per_rev), counts_per_rev))
+    return _through_loop(table, trial.mean_speed_hz(counts_per_rev), loop)
+
+
+def _through_loop(table: np.ndarray, speed_hz: float, loop: CurrentLoop) -> np.ndarray:
+    """Per-count currents per phase, (counts_per_rev, 3), as the phases' current loops follow them."""
+    cpr = table.shape[0]
+    return filtered(table, loop.response(np.arange(cpr // 2 + 1), speed_hz, cpr))
 
 
 def _without_common_modes(information: np.ndarray) -> np.ndarray:
     """The information about the imbalance and the offsets' differential part alone.
 
     Without excitation the common modes (the sum of the gains, the sum of the
-    offsets) are seen only through the feed-forward, whose harmonics other
-    stages (cogging, ILC) put where unmodelled ripple is. They are
-    marginalised out: in the basis [common; differential] the differential
+    offsets) make no ripple the fit can see (a balanced set point's torque is
+    flat; the feed-forward's common part is left out of the columns). They are
+    marginalised out, so that noise does not move them: in the basis [common; differential] the differential
     block's information is the Schur complement over the common one, mapped
     back with zero information along the common directions.
     """
@@ -96,9 +112,13 @@ class CurrentSensorCorrection:
         return SensorCalibration(1.0 / gain, gain_offset / gain, self._torque_gain)
 
     def columns(self, trial: TrialData) -> np.ndarray:
+        """K_p I~*_p less the phases' mean of the feed-forward's part, then K_p (module docstring)."""
         k = self._backemf
         loop = self._identified.loop_at(trial.request.calibration)
-        return np.hstack([k * filtered_references(trial, self._cpr, loop), k])
+        feedforward = k * _through_loop(current_references(trial.request.feedforward_nm, k),
+                                        trial.mean_speed_hz(self._cpr), loop)
+        currents = k * filtered_references(trial, self._cpr, loop) - feedforward.mean(axis=1, keepdims=True)
+        return np.hstack([currents, k])
 
     def shape(self, request: TrialRequest) -> TrialRequest:
         return request.with_changes(calibration=self.calibration())

@@ -77,7 +77,17 @@ class HarmonicCanceller:
                 for key, c in self._correction.items()}
 
     def restore(self, state: dict) -> None:
-        self._correction = {key: np.array(s["re"]) + 1j * np.array(s["im"]) for key, s in state.items()}
-        self._kalman = {}
+        self._correction, self._kalman = {}, {}
         for key, s in state.items():
-            self._filter(key).restore(s["kalman"])
+            self._set(key, s)
+
+    def revert(self, state: dict, key: str) -> None:
+        """Set point ``key`` as in `state`, unlearned if `state` has none of it; other set points stay."""
+        self._correction.pop(key, None)
+        self._kalman.pop(key, None)
+        if key in state:
+            self._set(key, state[key])
+
+    def _set(self, key: str, s: dict) -> None:
+        self._correction[key] = np.array(s["re"]) + 1j * np.array(s["im"])
+        self._filter(key).restore(s["kalman"])

@@ -149,6 +149,28 @@ def test_state_restores(backend, campaign):
     assert json.loads(json.dumps(fresh.state())) == state
 
 
+def test_revert_goes_back_at_one_set_point_only(backend, campaign):
+    _, pipeline, _, _ = campaign
+    canceller = next(s for s in pipeline.stages if s.name == "harmonic-canceller")
+    request = request_for(backend, 1)
+    other = request.with_changes(torque_setpoint_nm=4.0)
+    fresh = HarmonicCanceller(setup(backend, {"orders": ORDERS}))
+    fresh.restore(canceller.state())
+    earlier = json.loads(json.dumps(fresh.state()))
+    for j, later in enumerate((request, other)):  # both set points learn after the state was saved
+        trial = backend.run_trial(fresh.shape(later.with_changes(seed=trial_seed(8, j + 1))))
+        fresh.learn(trial, pipeline.frame(trial))
+    assert np.any(fresh.shape(request).feedforward_nm != canceller.shape(request).feedforward_nm)
+    learned_other = fresh.shape(other).feedforward_nm
+    assert np.abs(learned_other - other.feedforward_nm).max() > 1e-3
+    fresh.revert(earlier, request.setpoint_key)
+    np.testing.assert_array_equal(fresh.shape(request).feedforward_nm, canceller.shape(request).feedforward_nm)
+    np.testing.assert_array_equal(fresh.shape(other).feedforward_nm, learned_other)
+    # a set point the earlier state did not know is unlearned
+    fresh.revert(earlier, other.setpoint_key)
+    np.testing.assert_array_equal(fresh.shape(other).feedforward_nm, other.feedforward_nm)
+
+
 def test_registered_as_a_stage():
     entry = installed_stages()["harmonic-canceller"]
     assert entry.value == "ilcpmac_harmonic_canceller:HarmonicCanceller"
