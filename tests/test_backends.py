@@ -1,5 +1,6 @@
 """Backends are plugins: the entry-point group ilcpmac.backends, ``ilcpmac run --backend NAME``,
-``ilcpmac backends``; the bench a backend describes is checked against the config's [bench]."""
+``ilcpmac backends``; the bench a backend describes is checked against the config's [bench]; the optional
+progress reports reach the campaign through the guard."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
 from click.testing import CliRunner
 from conftest import REAL_BENCH_CONFIG
 
-from ilcpmac.backends.base import Backend
+from ilcpmac.backends.base import Backend, ProgressThrottle, report_progress_to
 from ilcpmac.backends.registry import BackendSetup, build_backend, installed_backends
 from ilcpmac.backends.remote import RemoteBackend
 from ilcpmac.bench.format import read_bench, write_backemf_csv
@@ -21,6 +22,7 @@ from ilcpmac.campaign.runner import CampaignPlan
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.errors import BackendError, ConfigError
+from ilcpmac.pipeline.safety import LimitGuard
 
 #: trials run by every `CountingBackend`, and whether it was closed
 RUNS: dict[str, int] = {}
@@ -187,3 +189,49 @@ def test_a_back_emf_given_twice_is_refused(write_config):
     config = write_config({"bench": {"backemf_file": "k.csv"}})
     with pytest.raises(ConfigError, match=r"\[bench\] backemf_file and \[bench.backemf\] both give the back-EMF"):
         load_config(config)
+
+
+# ------------------------------------------------------------------ progress within a trial
+
+
+class Reporting(CountingBackend):
+    """A backend with the optional progress capability: it keeps what `set_progress` gives it."""
+
+    def __init__(self, setup: BackendSetup) -> None:
+        super().__init__(setup)
+        self.callbacks: list = []
+
+    def set_progress(self, callback) -> None:
+        self.callbacks.append(callback)
+
+
+def test_the_guard_forwards_progress_to_a_backend_that_reports_it(small):
+    cfg, description = small
+    inner = Reporting(BackendSetup(cfg))
+    guard = LimitGuard(inner, description, CampaignPlan.build(cfg, description, 1).limits)
+    fractions: list[float] = []
+    report_progress_to(guard, fractions.append)
+    guard.set_progress(None)
+    assert inner.callbacks == [fractions.append, None]
+
+
+def test_a_backend_without_progress_runs_unchanged_behind_the_guard(small):
+    cfg, description = small
+    plan = CampaignPlan.build(cfg, description, 1)
+    guard = LimitGuard(simulator_backend(cfg), description, plan.limits)
+    fractions: list[float] = []
+    report_progress_to(guard, fractions.append)
+    trial = guard.run_trial(plan.grid[0])
+    assert fractions == [] and not hasattr(guard.backend, "set_progress")
+    assert np.array_equal(trial.torque_nm, simulator_backend(cfg).run_trial(plan.grid[0]).torque_nm)
+
+
+def test_the_progress_throttle_passes_a_fraction_per_interval_and_every_start_and_end():
+    now = [0.0]
+    passed: list[float] = []
+    throttle = ProgressThrottle(passed.append, interval_s=0.1, clock=lambda: now[0])
+    for t, fraction in [(0.0, 0.0), (0.01, 0.1), (0.05, 0.2), (0.12, 0.3), (0.15, 0.4), (0.16, 1.0),
+                        (0.17, 1.0), (0.18, 0.0), (0.19, 0.1), (0.30, 0.1), (0.31, 0.5)]:
+        now[0] = t
+        throttle(fraction)
+    assert passed == [0.0, 0.3, 1.0, 0.0, 0.1]

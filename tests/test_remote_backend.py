@@ -28,6 +28,7 @@ from ilcpmac.backends.protocol import (
     Channel,
     ErrorCode,
     FrameType,
+    PeerClosed,
     decode_error,
     decode_request,
     encode_accept,
@@ -144,6 +145,81 @@ def test_heartbeats_keep_a_slow_trial_alive(emulator, remote, simulator, request
     server = emulator(Slow(), heartbeat_s=0.05)
     trial = remote(server.address, read_timeout_s=0.3).run_trial(requests[0])
     assert_same_trial(trial, simulator.run_trial(requests[0]))
+
+
+# ---------------------------------------------------------------- progress within a trial
+
+
+def test_progress_rises_with_the_samples_received_and_ends_at_1(emulator, remote, simulator, requests):
+    """Chunks of 100 samples of 2 x 256: every DATA frame reported (no throttle), then the verified end."""
+    fractions: list[float] = []
+    backend = remote(emulator().address, progress_interval_s=0.0)
+    backend.set_progress(fractions.append)
+    backend.run_trial(requests[0])
+    n = simulator.run_trial(requests[0]).n_samples
+    expected = [0.0, *(min(k, n) / 512 for k in range(100, n + 100, 100))]
+    assert fractions == expected + ([1.0] if expected[-1] != 1.0 else [])
+    assert fractions == sorted(fractions) and len(fractions) >= 7
+    backend.set_progress(None)
+    backend.run_trial(requests[1])
+    assert len(fractions) == len(expected) + (expected[-1] != 1.0)
+
+
+def test_progress_is_throttled_to_the_start_and_the_end_of_each_trial(emulator, remote, requests):
+    fractions: list[float] = []
+    backend = remote(emulator().address, progress_interval_s=3600.0)
+    backend.set_progress(fractions.append)
+    for request in requests[:2]:
+        backend.run_trial(request)
+    assert fractions == [0.0, 1.0, 0.0, 1.0]
+
+
+def test_a_retried_trial_reports_its_progress_again_from_0(emulator, remote, requests):
+    fractions: list[float] = []
+    backend = remote(emulator(faults=FaultPlan(drop=Fault(1))).address, progress_interval_s=0.0, backoff_s=0.01)
+    backend.set_progress(fractions.append)
+    backend.run_trial(requests[0])
+    assert fractions[:3] == [0.0, 100 / 512, 0.0]  # the first attempt dropped after its first DATA frame
+    assert fractions[2:] == sorted(fractions[2:]) and fractions[-1] == 1.0
+
+
+def test_a_paced_emulator_streams_data_with_heartbeats_between(emulator, simulator, requests):
+    """At 32 x a bench's pace, DATA frames 100 samples (24 ms) apart, heartbeats every 2 ms between them."""
+    server = emulator(pace=32.0, heartbeat_s=0.002)
+    types = []
+    with socket.create_connection((HOST, server.port), timeout=2.0) as sock:
+        channel = Channel(sock, "emulator")
+        channel.send(FrameType.HELLO)
+        assert channel.recv().type is FrameType.DESCRIBE
+        channel.send(FrameType.REQUEST, encode_request(1, requests[0]))
+        while (ftype := channel.recv().type) is not FrameType.END_OF_TRIAL:
+            types.append(ftype)
+    data = [i for i, t in enumerate(types) if t is FrameType.DATA]
+    assert len(data) == -(-simulator.run_trial(requests[0]).n_samples // 100)
+    assert FrameType.HEARTBEAT in types[data[0]:data[-1]]
+    assert set(types) == {FrameType.ACCEPT, FrameType.DATA, FrameType.HEARTBEAT}
+
+
+def test_stopping_a_paced_emulator_ends_the_trial_it_plays(emulator, requests):
+    server = emulator(pace=1e-6)  # its first DATA frame would leave in weeks
+    with socket.create_connection((HOST, server.port), timeout=2.0) as sock:
+        channel = Channel(sock, "emulator")
+        channel.send(FrameType.HELLO)
+        assert channel.recv().type is FrameType.DESCRIBE
+        channel.send(FrameType.REQUEST, encode_request(1, requests[0]))
+        assert channel.recv().type is FrameType.ACCEPT
+        server.stop()
+        frames = []
+        with pytest.raises(PeerClosed):
+            while len(frames) < 1000:
+                frames.append(channel.recv().type)
+    assert set(frames) <= {FrameType.HEARTBEAT}
+
+
+@pytest.mark.parametrize("pace", [0.0, -1.0, float("inf"), float("nan")])
+def test_an_emulator_pace_must_be_positive_and_finite(simulator, pace):
+    with pytest.raises(BackendError, match="pace None or positive and finite"):
+        BenchEmulator(simulator, HOST, 0, pace=pace)
 
 
 # ---------------------------------------------------------------- faults

@@ -4,7 +4,9 @@ For tests, and for developing target firmware against: it speaks exactly
 docs/protocol.md, and can inject the faults a client must survive (a
 connection dropped mid-trial, a stall, a corrupted frame, a wrong protocol
 version, a restart of the target), each on a chosen trial so that tests are
-deterministic. Like a real bench it has one controlling client at a time
+deterministic. It can play each trial back at the pace of a bench (``pace``),
+its DATA frames spread over the trial's time, so that a client sees the
+trial progress. Like a real bench it has one controlling client at a time
 (another gets ERROR BUSY), a bounded number of connections, bounded frames,
 and drops idle or slow clients; whatever the backend raises is answered
 with an ERROR, and it keeps serving.
@@ -17,10 +19,13 @@ import logging
 import os
 import socket
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, fields
 from typing import Iterator
+
+import numpy as np
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.backends.protocol import (
@@ -136,6 +141,11 @@ class BenchEmulator:
         Faults to inject.
     chunk_samples : int
         Samples per DATA frame.
+    pace : float or None
+        None: send each trial's frames as fast as the client takes them, once it has run. Otherwise play
+        the trial back at ``pace`` times the bench's speed (1: as a bench records it): each DATA frame
+        leaves once its last sample's time stamp (s from the trial's start: the simulator's count its
+        warm-up too) divided by ``pace`` has passed since the REQUEST, with HEARTBEATs in between.
     heartbeat_s : float
         HEARTBEAT interval while a trial runs, s.
     restart_delay_s : float
@@ -155,20 +165,22 @@ class BenchEmulator:
     """
 
     def __init__(self, backend: Backend, host: str = "127.0.0.1", port: int = 0, faults: FaultPlan = FaultPlan(),
-                 chunk_samples: int = 8192, heartbeat_s: float = HEARTBEAT_INTERVAL_S,
+                 chunk_samples: int = 8192, pace: float | None = None, heartbeat_s: float = HEARTBEAT_INTERVAL_S,
                  restart_delay_s: float = 0.5, idle_timeout_s: float = 20.0, frame_timeout_s: float = 10.0,
                  max_connections: int = 4, max_trial_samples: int = MAX_TRIAL_ROWS) -> None:
-        if (chunk_samples < 1 or heartbeat_s <= 0 or restart_delay_s < 0 or idle_timeout_s <= 0
-                or frame_timeout_s <= 0 or max_connections < 1 or max_trial_samples < 2):
-            raise BackendError("emulator needs chunk_samples >= 1, heartbeat_s, idle_timeout_s and "
-                               "frame_timeout_s > 0, restart_delay_s >= 0, max_connections >= 1 and "
-                               "max_trial_samples >= 2")
+        if (chunk_samples < 1 or not (pace is None or 0 < pace < float("inf")) or heartbeat_s <= 0
+                or restart_delay_s < 0 or idle_timeout_s <= 0 or frame_timeout_s <= 0 or max_connections < 1
+                or max_trial_samples < 2):
+            raise BackendError("emulator needs chunk_samples >= 1, pace None or positive and finite, "
+                               "heartbeat_s, idle_timeout_s and frame_timeout_s > 0, restart_delay_s >= 0, "
+                               "max_connections >= 1 and max_trial_samples >= 2")
         self.backend = backend
         self._description = backend.describe()
         self.host = host
         self.port = port
         self.faults = faults
         self.chunk_samples = chunk_samples
+        self.pace = pace
         self.heartbeat_s = heartbeat_s
         self.restart_delay_s = restart_delay_s
         self.idle_timeout_s = idle_timeout_s
@@ -347,7 +359,7 @@ class BenchEmulator:
             pass  # the connection is gone or stuck: nobody to tell
 
     def _trial(self, channel: Channel, payload: memoryview) -> bool:
-        """Serve one REQUEST; False when the connection must end (a fault fired)."""
+        """Serve one REQUEST; False when the connection must end (a fault fired, or the emulator stops)."""
         trial_id, request = decode_request(payload)
         with self._lock:
             self._requests += 1
@@ -367,12 +379,13 @@ class BenchEmulator:
                 self.faults_fired.append((name, number))
         version = PROTOCOL_VERSION + 1 if "wrong_version" in faults else PROTOCOL_VERSION
         accept = encode_accept(Accept(trial_id, max_samples))
+        started = time.monotonic()
         future = self._pool.submit(self._run, trial_id, request, max_samples)
         # ACCEPT waits one heartbeat interval: a request the backend refuses at once gets an ERROR alone
         accepted = False
         while True:
             try:
-                frames = future.result(timeout=self.heartbeat_s)
+                frames, ready_s = future.result(timeout=self.heartbeat_s)
                 break
             except FutureTimeout:
                 channel.send_bytes(channel.frame_bytes(FrameType.HEARTBEAT, encode_heartbeat(trial_id), version)
@@ -387,7 +400,9 @@ class BenchEmulator:
                 return True
         if not accepted:
             channel.send_bytes(channel.frame_bytes(FrameType.ACCEPT, accept, version))
-        for i, (ftype, parts) in enumerate(frames):
+        for i, ((ftype, parts), at_s) in enumerate(zip(frames, ready_s)):
+            if self.pace is not None and not self._wait(channel, started + at_s / self.pace, trial_id, version):
+                return False
             frame = channel.frame_bytes(ftype, parts, version)
             if i == 0 and "corrupt" in faults:
                 frame[HEADER.size + (len(frame) - HEADER.size - CRC.size) // 2] ^= 0xFF
@@ -402,11 +417,24 @@ class BenchEmulator:
                     self._stopping.wait(self.faults.stall_s)
         return True
 
-    def _run(self, trial_id: int, request: TrialRequest, max_samples: int) -> Iterator[tuple[FrameType, list]]:
-        """Run ``request`` on the backend; the (type, parts) of its DATA frames and END_OF_TRIAL."""
+    def _wait(self, channel: Channel, due: float, trial_id: int, version: int) -> bool:
+        """Send a HEARTBEAT every ``heartbeat_s`` until ``due`` (time.monotonic); False if the emulator stops."""
+        while (remaining := due - time.monotonic()) > 0:
+            if self._stopping.wait(min(remaining, self.heartbeat_s)):
+                return False
+            if time.monotonic() < due:
+                channel.send_bytes(channel.frame_bytes(FrameType.HEARTBEAT, encode_heartbeat(trial_id), version))
+        return True
+
+    def _run(self, trial_id: int, request: TrialRequest,
+             max_samples: int) -> tuple[Iterator[tuple[FrameType, list]], np.ndarray]:
+        """Run ``request`` on the backend; the (type, parts) of its DATA frames and END_OF_TRIAL, and when
+        each is ready: the time stamp of its last sample, s."""
         data = self.backend.run_trial(request)
-        if not 2 <= data.n_samples <= max_samples:
-            raise BackendError(f"the backend returned {data.n_samples} samples for a trial of 2 to "
-                               f"{max_samples} samples")
+        n = data.n_samples
+        if not 2 <= n <= max_samples:
+            raise BackendError(f"the backend returned {n} samples for a trial of 2 to {max_samples} samples")
         frames = encode_trial(trial_id, data, self.chunk_samples)
-        return itertools.chain([next(frames)], frames)  # the first frame checks the shape of every column
+        ends = np.minimum(np.arange(self.chunk_samples, n + self.chunk_samples, self.chunk_samples), n)
+        ready_s = data.time_s[np.append(ends, n) - 1]
+        return itertools.chain([next(frames)], frames), ready_s  # the first frame checks every column's shape

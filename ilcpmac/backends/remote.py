@@ -8,7 +8,8 @@ timeout, deadline passed, CRC error, sequence gap, incomplete, inconsistent
 or invalid data) is run again from scratch on a new connection, up to
 ``retries`` times with exponential back-off; only a complete, verified trial
 is ever returned. Requests beyond the target's limits are refused before
-anything is sent.
+anything is sent. It reports the progress of a trial (`set_progress`) as its
+samples arrive.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import TYPE_CHECKING, Callable, TypeVar
 
 import numpy as np
 
-from ilcpmac.backends.base import BenchDescription
+from ilcpmac.backends.base import BenchDescription, ProgressCallback, ProgressThrottle
 from ilcpmac.backends.protocol import (
     Channel,
     ErrorCode,
@@ -95,15 +96,19 @@ class RemoteBackend:
         Each trial attempt must end (END_OF_TRIAL) within TRIAL_TIME_FACTOR
         (2) x its recording time (revolutions / speed set point) plus this
         margin, s, from its REQUEST: the target's warm-up and transfer time.
+    progress_interval_s : float
+        Shortest time between two progress reports of a trial (`set_progress`), s.
     """
 
     max_parallel_trials = 1
 
     def __init__(self, address: str, connect_timeout_s: float = 5.0, read_timeout_s: float = 10.0,
-                 retries: int = 3, backoff_s: float = 0.5, trial_margin_s: float = 20.0) -> None:
-        if min(connect_timeout_s, read_timeout_s, trial_margin_s) <= 0 or retries < 0 or backoff_s < 0:
-            raise BackendError("remote backend needs positive timeouts and margin, and non-negative retries "
-                               "and back-off")
+                 retries: int = 3, backoff_s: float = 0.5, trial_margin_s: float = 20.0,
+                 progress_interval_s: float = 0.1) -> None:
+        if (min(connect_timeout_s, read_timeout_s, trial_margin_s) <= 0 or retries < 0 or backoff_s < 0
+                or progress_interval_s < 0):
+            raise BackendError("remote backend needs positive timeouts and margin, and non-negative retries, "
+                               "back-off and progress interval")
         self.address = address
         self.host, self.port = parse_address(address)
         self.connect_timeout_s = connect_timeout_s
@@ -111,6 +116,8 @@ class RemoteBackend:
         self.retries = retries
         self.backoff_s = backoff_s
         self.trial_margin_s = trial_margin_s
+        self.progress_interval_s = progress_interval_s
+        self._progress: ProgressCallback | None = None
         self._channel: Channel | None = None
         self._description: BenchDescription | None = None
         self._trials = 0
@@ -205,6 +212,13 @@ class RemoteBackend:
             self._with_retries("handshake with the bench target", self._connect)
         return self._description
 
+    def set_progress(self, callback: ProgressCallback | None) -> None:
+        """Report the progress of every later trial to ``callback`` (None: stop), at most once per
+        ``progress_interval_s``: the samples received over the samples ACCEPT announced (revolutions x
+        counts_per_rev). 0 at each ACCEPT, and while the target warms up (its warm-up is not recorded, so
+        no sample arrives); 1 once the trial is complete and verified. A retried trial starts again from 0."""
+        self._progress = None if callback is None else ProgressThrottle(callback, self.progress_interval_s)
+
     def run_trial(self, request: TrialRequest) -> TrialData:
         """Run one trial on the target; return it only complete and verified.
 
@@ -245,8 +259,10 @@ class RemoteBackend:
                                     f"{bounds.max_samples} (revolutions x counts_per_rev)")
             channel.bounds[FrameType.DATA] = data_bound(accept.max_samples)
             assembler = TrialAssembler(trial_id, accept.max_samples, bounds)
+            self._report(0.0)
             while (frame := self._next(channel, trial_id, deadline)).type is FrameType.DATA:
                 assembler.add(frame.payload)
+                self._report(assembler.n_samples / accept.max_samples)
         except FrameTimeout:
             raise ProtocolError(f"trial not complete within its deadline of {budget_s:.4g} s "
                                 f"({TRIAL_TIME_FACTOR:g} x {recording_s:.4g} s of recording + "
@@ -254,8 +270,13 @@ class RemoteBackend:
         if frame.type is not FrameType.END_OF_TRIAL:
             raise ProtocolError(f"unexpected {frame.type.name} frame during trial data")
         columns = assembler.finish(frame.payload)
+        self._report(1.0)
         return TrialData(torque_setpoint_nm=request.torque_setpoint_nm,
                          speed_setpoint_hz=request.speed_setpoint_hz, request=request, **columns)
+
+    def _report(self, fraction: float) -> None:
+        if self._progress is not None:
+            self._progress(fraction)
 
     def _next(self, channel: Channel, trial_id: int, deadline: float) -> Frame:
         """The next frame of trial ``trial_id`` other than HEARTBEAT, complete by ``deadline``

@@ -24,7 +24,7 @@ from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, Tr
 from ilcpmac.stages.base import Identified
 
 if TYPE_CHECKING:
-    from ilcpmac.backends.base import Backend
+    from ilcpmac.backends.base import Backend, ProgressCallback
 
 #: relative slack of every comparison with a limit: what clipping to a bound may leave after rounding
 ROUNDING = 1e-9
@@ -368,7 +368,8 @@ def check_plan(plan: Iterable[tuple[str, TrialRequest]], description: BenchDescr
 class LimitGuard:
     """A backend (the whole `Backend` protocol) that passes on only the requests `request_violation` accepts.
 
-    The campaign wraps whatever backend it is given in one, so no phase can bypass the limits.
+    The campaign wraps whatever backend it is given in one, so no phase can bypass the limits. It forwards
+    ``set_progress`` to the backend, which reports nothing if it cannot (`report_progress_to`).
 
     Parameters
     ----------
@@ -401,6 +402,11 @@ class LimitGuard:
             raise SafetyError(f"trial at {request.torque_setpoint_nm!r} N m, {request.speed_setpoint_hz!r} Hz "
                               f"refused before it reached the backend: {violation.message}")
         return self.backend.run_trial(request)
+
+    def set_progress(self, callback: ProgressCallback | None) -> None:
+        from ilcpmac.backends.base import report_progress_to  # here: the pipeline layer sits below the backends
+
+        report_progress_to(self.backend, callback)
 
     def close(self) -> None:
         self.backend.close()
