@@ -622,11 +622,15 @@ RUN_TABLES = ("campaign", "limits", "pipeline", "stages.ilc")
 
 
 def small_config(text: str) -> str:
-    """The seed bench reduced: a 2 x 2 grid, 2 revolutions, 2 ILC set points of 2 revolutions."""
+    """The seed bench reduced: a 2 x 2 grid, 2 revolutions, 2 learned points of 2 revolutions, one validation
+    point."""
     for table, name, value in (("trials", "torque_setpoints_nm", "[1.0, 3.0]"),
                                ("trials", "speed_setpoints_hz", "[0.8, 1.0]"), ("trials", "revolutions", "2"),
-                               ("campaign", "ilc_torque_setpoints_nm", "[1.0, 3.0]"),
-                               ("campaign", "ilc_revolutions", "[2]")):
+                               ("campaign", "learn_torques_nm", "[1.0, 3.0]"),
+                               ("campaign", "learn_speeds_hz", "[0.8]"), ("campaign", "learn_revolutions", "[2]"),
+                               ("campaign", "validate_torques_nm", "[2.0]"),
+                               ("campaign", "validate_speeds_hz", "[0.8]"),
+                               ("campaign", "validate_revolutions", "2")):
         text = toml_set(text, table, name, value)
     return text
 
@@ -694,10 +698,12 @@ CONFIG_KEYS: list[tuple[str, bool, str, str, str | None]] = [
     ("excitation fraction 1e6", True, "excitation", "fraction", "1e6"),
     ("excitation phases bogus", True, "excitation", "phases", '"bogus"'),
     ("excitation harmonics 0", False, "excitation", "harmonics", "0"),
-    ("ilc_revolutions [20000]", True, "campaign", "ilc_revolutions", "[20000]"),
-    ("ilc speed 1e-6 Hz", True, "campaign", "ilc_speed_setpoint_hz", "1e-6"),
-    ("ilc torque set points []", True, "campaign", "ilc_torque_setpoints_nm", "[]"),
-    ("ilc torque set point 100 N m", True, "campaign", "ilc_torque_setpoints_nm", "[100.0]"),
+    ("learn_revolutions [20000]", True, "campaign", "learn_revolutions", "[20000]"),
+    ("learn speed 1e-6 Hz", True, "campaign", "learn_speeds_hz", "[1e-6]"),
+    ("learn torques [0]", True, "campaign", "learn_torques_nm", "[0.0]"),
+    ("learn torque 100 N m", True, "campaign", "learn_torques_nm", "[100.0]"),
+    ("validate speed 9 Hz", True, "campaign", "validate_speeds_hz", "[9.0]"),
+    ("old key ilc_trials", True, "campaign", "ilc_trials", "3"),
     ("min_improvement 2", True, "campaign", "min_improvement", "2.0"),
     ("ripple_harmonics 0", True, "campaign", "ripple_harmonics", "0"),
     ("max_current_a nan", True, "limits", "max_current_a", "nan"),

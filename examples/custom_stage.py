@@ -67,6 +67,9 @@ class Printer:
     def message(self, text: str) -> None:
         print(text)
 
+    def progress(self, fraction: float) -> None:
+        pass
+
 
 def main() -> None:
     root = Path(__file__).resolve().parents[1]
@@ -74,7 +77,8 @@ def main() -> None:
     cfg = dataclasses.replace(
         cfg, pipeline=PipelineSettings(("current-sensor", "cogging", "one-harmonic")),
         stage_options={"one-harmonic": {"order": 20, "gain": 0.5}},
-        campaign=dataclasses.replace(cfg.campaign, ilc_torque_setpoints_nm=(3.0,), ilc_trials=4, ilc_revolutions=(8,)))
+        campaign=dataclasses.replace(cfg.campaign, learn_torques_nm=(3.0,), learn_speeds_hz=(0.75,), learn_trials=4,
+                                     learn_revolutions=(8,), validate_torques_nm=(), validate_speeds_hz=()))
     limits = BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm, cfg.limits.max_speed_hz)
     backend = SimulatorBackend(cfg.model, limits, cfg.grid.warmup_revolutions)
     with tempfile.TemporaryDirectory() as tmp:

@@ -55,8 +55,8 @@ from ilcpmac.model.tables import backemf_table
 
 #: Largest campaign config or bench.toml read, bytes (the seed config is 4 kB).
 MAX_TOML_BYTES = 2**20
-#: Most ILC set points of [campaign].
-MAX_ILC_SETPOINTS = 32
+#: Most learned or validated torques, and speeds, of [campaign].
+MAX_OPERATING_POINTS = 32
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
 
@@ -75,31 +75,48 @@ def _distinct(x: tuple) -> bool:
 
 @dataclass(frozen=True)
 class CampaignSettings:
-    """[campaign]: the compensation and ILC phases of ``ilcpmac run`` (optional; defaults shown)."""
+    """[campaign]: the learning and validation phases of ``ilcpmac run`` (optional; defaults shown).
 
-    ilc_torque_setpoints_nm: tuple[float, ...] = _check(
-        all_of(length_in(1, MAX_ILC_SETPOINTS), in_range(0.0, 1e4, low_open=True), _distinct),
-        f"ILC set points spanning the torque range, N m: 1 to {MAX_ILC_SETPOINTS} distinct positive values",
-        (1.0, 3.0, 5.0))
-    ilc_speed_setpoint_hz: float = _check(in_range(0.0, 1e3, low_open=True),
-                                          "speed of the compensation and ILC trials, Hz, positive", 0.75)
-    ilc_revolutions: tuple[int, ...] = _check(
-        all_of(length_in(1, MAX_ILC_SETPOINTS), in_range(1, 2**24)),
-        "recorded revolutions per compensation and ILC trial: one for all ILC set points, or one each",
-        (64, 32, 32))
-    ilc_trials: int = _check(in_range(1, 1000), "most ILC trials per set point, 1..1000", 10)
+    The compensation is learned at every operating point of learn_torques_nm x learn_speeds_hz and then
+    validated, with no learning, at validate_torques_nm x validate_speeds_hz. An empty list is derived from
+    the grid and the limits (`CampaignConfig.learned_points`, `CampaignConfig.validation_points`).
+    """
+
+    #: keys of earlier releases, and what replaced them
+    RENAMED: typing.ClassVar[dict[str, str]] = {
+        "ilc_torque_setpoints_nm": "learn_torques_nm", "ilc_speed_setpoint_hz": "learn_speeds_hz (a list)",
+        "ilc_revolutions": "learn_revolutions", "ilc_trials": "learn_trials"}
+
+    learn_torques_nm: tuple[float, ...] = _check(
+        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
+        f"torques learned at, N m: up to {MAX_OPERATING_POINTS} distinct positive values; empty: the grid's "
+        "smallest, middle and largest torque set point", ())
+    learn_speeds_hz: tuple[float, ...] = _check(
+        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
+        f"speeds learned at, Hz: up to {MAX_OPERATING_POINTS} distinct positive values; empty: the grid's "
+        "slowest speed, [limits] max_speed_hz and midway", ())
+    learn_revolutions: tuple[int, ...] = _check(
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(1, 2**24)),
+        "recorded revolutions per learning trial at the slowest learned speed (more at a faster speed, "
+        "`CampaignConfig.trial_revolutions`): one for all learned torques, or one per learned torque", (32,))
+    learn_trials: int = _check(in_range(1, 1000), "most learning trials per learned operating point, 1..1000",
+                               10)
     min_improvement: float = _check(lambda x: 0 <= x < 1, "relative ripple improvement that counts, within [0, 1)",
                                     0.05)
-    patience: int = _check(in_range(1, 1000), "ILC trials without improvement before a set point stops, 1..1000",
-                           4)
+    patience: int = _check(in_range(1, 1000),
+                           "learning trials without improvement before an operating point stops, 1..1000", 4)
     ripple_harmonics: int = _check(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, "
                                    "below counts_per_rev / 2", 150)
-
-    def revolutions_at(self, torque_setpoint_nm: float) -> int:
-        """The recorded revolutions of a compensation or ILC trial at this set point."""
-        if len(self.ilc_revolutions) == 1:
-            return self.ilc_revolutions[0]
-        return self.ilc_revolutions[self.ilc_torque_setpoints_nm.index(torque_setpoint_nm)]
+    validate_torques_nm: tuple[float, ...] = _check(
+        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
+        "torques validated at, N m: distinct positive values; empty: midway between the learned torques", ())
+    validate_speeds_hz: tuple[float, ...] = _check(
+        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
+        "speeds validated at, Hz: distinct positive values; empty: the slowest, middle and fastest learned "
+        "speed", ())
+    validate_revolutions: int = _check(
+        in_range(1, 2**24), "recorded revolutions per validation trial at the slowest learned speed (more at a "
+        "faster speed)", 32)
 
 
 @dataclass(frozen=True)
@@ -224,6 +241,52 @@ class CampaignConfig:
     stage_options: dict = dataclasses.field(default_factory=dict, compare=False)
     model: MotorModel | None = None
 
+    def learned_torques_nm(self) -> tuple[float, ...]:
+        """[campaign] learn_torques_nm, ascending; empty: the grid's smallest, middle and largest torque."""
+        given = self.campaign.learn_torques_nm
+        if given:
+            return tuple(sorted(given))
+        low, high = min(self.grid.torque_setpoints_nm), max(self.grid.torque_setpoints_nm)
+        return tuple(sorted({low, (low + high) / 2, high}))
+
+    def learned_speeds_hz(self) -> tuple[float, ...]:
+        """[campaign] learn_speeds_hz, ascending; empty: the grid's slowest speed, [limits] max_speed_hz and
+        midway (a loop's lag grows faster than linearly with speed: two speeds alone interpolate it badly)."""
+        given = self.campaign.learn_speeds_hz
+        if given:
+            return tuple(sorted(given))
+        low, high = min(self.grid.speed_setpoints_hz), self.limits.max_speed_hz
+        return tuple(sorted({low, (low + high) / 2, high}))
+
+    def trial_revolutions(self, point: tuple[float, float]) -> int:
+        """The recorded revolutions of a trial at ``point`` (torque N m, speed Hz) after the grid.
+
+        [campaign] learn_revolutions at a learned torque, else validate_revolutions, hold at the slowest
+        learned speed; a faster trial records as many more as keep it as long, since the current-sensor
+        noise left in its synchronous average falls with its duration, not its revolutions.
+        """
+        c = self.campaign
+        torques = self.learned_torques_nm()
+        if point[0] not in torques:
+            base = c.validate_revolutions
+        else:
+            base = c.learn_revolutions[0 if len(c.learn_revolutions) == 1 else torques.index(point[0])]
+        return max(base, math.ceil(base * point[1] / self.learned_speeds_hz()[0] - 1e-9))
+
+    def learned_points(self) -> list[tuple[float, float]]:
+        """The operating points learned at, (torque N m, speed Hz), torque by torque."""
+        return [(t, s) for t in self.learned_torques_nm() for s in self.learned_speeds_hz()]
+
+    def validation_points(self) -> list[tuple[float, float]]:
+        """The operating points validated at, (torque N m, speed Hz): [campaign] validate_torques_nm x
+        validate_speeds_hz; an empty list is midway between learned torques, and the slowest, middle and
+        fastest learned speed."""
+        c = self.campaign
+        torques, speeds = self.learned_torques_nm(), self.learned_speeds_hz()
+        validated_t = c.validate_torques_nm or tuple((a + b) / 2 for a, b in zip(torques, torques[1:]))
+        validated_s = c.validate_speeds_hz or tuple(sorted({speeds[0], (speeds[0] + speeds[-1]) / 2, speeds[-1]}))
+        return [(t, s) for t in sorted(validated_t) for s in sorted(validated_s)]
+
     def simulated_model(self) -> MotorModel:
         """The simulated drive; a config without [simulator] raises `ConfigError`."""
         if self.model is None:
@@ -274,6 +337,9 @@ def parse_section(table: dict, cls: type, source: str, section: str, given: dict
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in given}
     unknown = sorted(set(table) - set(fields))
+    renamed = getattr(cls, "RENAMED", {})
+    if unknown and unknown[0] in renamed:
+        raise ConfigError(f"{source}: [{section}] {unknown[0]} is now {renamed[unknown[0]]}")
     if unknown:
         raise ConfigError(f"{source}: [{section}] unknown key {shown(unknown[0])} (known: {', '.join(fields)})")
     values = dict(given)
@@ -449,26 +515,36 @@ def _run_problem(config: CampaignConfig) -> str | None:
                            ("[campaign] ripple_harmonics", campaign.ripple_harmonics)):
         if harmonics >= cpr // 2:
             return f"{key}: {harmonics} is beyond the Nyquist limit of [bench] counts_per_rev {cpr}"
-    if len(campaign.ilc_revolutions) not in (1, len(campaign.ilc_torque_setpoints_nm)):
-        return (f"[campaign] ilc_revolutions: give one number, or one per ILC set point "
-                f"({len(campaign.ilc_torque_setpoints_nm)})")
+    torques, speeds = config.learned_torques_nm(), config.learned_speeds_hz()
+    if len(campaign.learn_revolutions) not in (1, len(torques)):
+        return (f"[campaign] learn_revolutions: give one number, or one per learned torque "
+                f"({len(torques)}: {', '.join(f'{t:g}' for t in torques)} N m)")
     drop = 0.0 if config.model is None else config.model.unexplained.saturation_per_a2 * limits.max_current_a**2
     if drop >= 1:
         return (f"[simulator.unexplained] saturation_per_a2: times [limits] max_current_a squared is {drop:.3g}: "
                 "the torque constant would vanish within the current limit")
+    validated = config.validation_points()
     for key, values, limit_key, limit in (
             ("[trials] torque_setpoints_nm", grid.torque_setpoints_nm, "max_torque_nm", limits.max_torque_nm),
             ("[trials] speed_setpoints_hz", grid.speed_setpoints_hz, "max_speed_hz", limits.max_speed_hz),
-            ("[campaign] ilc_torque_setpoints_nm", campaign.ilc_torque_setpoints_nm, "max_torque_nm",
-             limits.max_torque_nm),
-            ("[campaign] ilc_speed_setpoint_hz", (campaign.ilc_speed_setpoint_hz,), "max_speed_hz",
-             limits.max_speed_hz)):
-        if max(values) > limit:
+            ("[campaign] learn_torques_nm", torques, "max_torque_nm", limits.max_torque_nm),
+            ("[campaign] learn_speeds_hz", speeds, "max_speed_hz", limits.max_speed_hz),
+            ("[campaign] validate_torques_nm", [t for t, _ in validated], "max_torque_nm", limits.max_torque_nm),
+            ("[campaign] validate_speeds_hz", [s for _, s in validated], "max_speed_hz", limits.max_speed_hz)):
+        if values and max(values) > limit:
             return f"{key}: {max(values):g} is beyond [limits] {limit_key} {limit:g}"
-    return (_trial_problem(config, "[trials] speed_setpoints_hz", grid.speed_setpoints_hz,
-                           "[trials] revolutions", grid.revolutions)
-            or _trial_problem(config, "[campaign] ilc_speed_setpoint_hz", (campaign.ilc_speed_setpoint_hz,),
-                              "[campaign] ilc_revolutions", max(campaign.ilc_revolutions)))
+    learned = set(config.learned_points())
+    for t, s in validated:
+        if (t, s) in learned:
+            return (f"[campaign] validate_torques_nm, validate_speeds_hz: {t:g} N m at {s:g} Hz is a learned point; "
+                    "validation is at points never learned")
+    problem = _trial_problem(config, "[trials] speed_setpoints_hz", grid.speed_setpoints_hz, "[trials] revolutions",
+                             grid.revolutions)
+    for kind, points in (("learn", config.learned_points()), ("validate", validated)):
+        for point in points:
+            problem = problem or _trial_problem(config, f"[campaign] {kind}_speeds_hz", (point[1],),
+                                                f"[campaign] {kind}_revolutions", config.trial_revolutions(point))
+    return problem
 
 
 def _trial_problem(config: CampaignConfig, speed_key: str, speeds_hz: tuple[float, ...], revolutions_key: str,

@@ -63,7 +63,7 @@ def legend(axis: Axes, ncol: int = 1, **options) -> None:
 
 
 def save(fig: Figure, path: str | Path, fmt: str = "png", compact: bool = False) -> Path:
-    """Write ``fig`` as ``fmt`` (png, svg or pdf) to ``path`` with that suffix; returns the path written.
+    """Write ``fig`` as ``fmt`` (png, svg or pdf) to ``path`` plus that suffix; returns the path written.
 
     ``compact`` writes a PNG with a palette of `COMPACT_COLOURS` colours (a quarter of the bytes, for figures
     kept in the repository).
@@ -74,7 +74,8 @@ def save(fig: Figure, path: str | Path, fmt: str = "png", compact: bool = False)
         When ``fmt`` is not one of `FORMATS`.
     """
     check_format(fmt, path)
-    path = Path(path).with_suffix("." + fmt)
+    path = Path(path)
+    path = path.with_name(f"{path.name}.{fmt}")  # not with_suffix: "before_after_2Nm_0.5Hz" holds a dot
     if compact and fmt == "png":
         buffer = io.BytesIO()
         fig.savefig(buffer, format="png", dpi=PNG_DPI)

@@ -15,13 +15,14 @@ from ilcpmac.config import CampaignConfig
 from ilcpmac.records import BenchLimits, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.sim.grid import truth_dict
 
-#: a small campaign: 1024 counts, a 2 x 2 grid, two ILC set points, few trials
+#: a small campaign: 1024 counts, a 2 x 2 grid, two learned points at one speed, one validation point, few trials
 SMALL_CAMPAIGN = {
     "bench": {"counts_per_rev": 1024},
     "excitation": {"harmonics": 100},
     "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
-    "campaign": {"ilc_torque_setpoints_nm": [2.0, 4.0], "ilc_revolutions": [6], "ilc_trials": 4,
-                 "ripple_harmonics": 100},
+    "campaign": {"learn_torques_nm": [2.0, 4.0], "learn_speeds_hz": [0.9], "learn_revolutions": [6],
+                 "learn_trials": 4, "ripple_harmonics": 100, "validate_torques_nm": [3.0],
+                 "validate_speeds_hz": [0.9], "validate_revolutions": 6},
     "stages": {"ilc": {"learning_gain": 1.0, "q_cutoff_harmonic": 100, "estimation": "kalman"}},
 }
 
@@ -59,6 +60,9 @@ class Quiet:
 
     def message(self, text: str) -> None:
         self.messages.append(text)
+
+    def progress(self, fraction: float) -> None:
+        pass
 
 
 def simulator_backend(cfg: CampaignConfig) -> SimulatorBackend:

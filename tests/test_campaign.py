@@ -57,8 +57,12 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
     roles = [r["role"] for r in records]
     assert roles[:4] == ["grid"] * 4
     assert roles[4:6] == ["baseline"] * 2 and roles[6:8] == ["compensate"] * 2
-    assert set(roles[8:]) == {"ilc"} and 2 <= roles.count("ilc") <= 8
+    assert set(roles[8:-2]) == {"learn"} and 2 <= roles.count("learn") <= 8
+    assert roles[-2:] == ["baseline", "validate"]
     assert [r["phase"] for r in records[:6]] == ["identify"] * 6
+    assert {r["phase"] for r in records[8:-2]} == {"ilc"}  # named for the stage that learns
+    assert [r["phase"] for r in records[-2:]] == ["validate"] * 2
+    assert [(r["torque_setpoint"], r["speed_setpoint"]) for r in records[-2:]] == [(3.0, 0.9)] * 2
     for r in records:
         assert SUMMARY_KEYS <= set(r)
     final = summary["final"]
@@ -72,6 +76,10 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
     last = json.loads(states[-1].read_text())
     assert set(last["pipeline"]) == {"current-sensor", "cogging", "ilc"}
     assert json.loads((tmp_path / "run" / "summary.json").read_text()) == summary
+    (validated,) = summary["validation"]
+    assert (validated["torque_setpoint"], validated["speed_setpoint"]) == (3.0, 0.9)
+    assert validated["reduction_factor_true"] > 20 and not validated["worse_than_uncompensated"]
+    assert summary["compensation"] == {"file": "compensation.json", "fade_full_hz": None, "fade_zero_hz": None}
 
 
 @pytest.mark.parametrize("fail_on_call", [3, 9])  # in the parallel grid, and in the ILC phase
@@ -89,7 +97,7 @@ def test_resume_after_a_crash_ends_as_an_uninterruptedrun_campaign(campaign_conf
 
 def test_leftovers_of_an_uncommitted_trial_are_removed_on_resume(campaign_config, tmp_path):
     run_campaign(dataclasses.replace(campaign_config, campaign=dataclasses.replace(campaign_config.campaign,
-                                                                           ilc_trials=1)), tmp_path / "run")
+                                                                           learn_trials=1)), tmp_path / "run")
     run = tmp_path / "run"
     n = len(read_bench(run).trials)
     (run / trial_file(n + 1)).write_bytes(b"PAR1")  # half a trial, never listed
@@ -131,7 +139,7 @@ class GrowingRipple:
 def test_guard_reverts_and_halves_the_gain_when_the_ripple_grows_twice(campaign_config, tmp_path):
     events = Quiet()
     cfg = dataclasses.replace(campaign_config, campaign=dataclasses.replace(
-        campaign_config.campaign, ilc_torque_setpoints_nm=(2.0,), ilc_trials=4, patience=4))
+        campaign_config.campaign, learn_torques_nm=(2.0,), learn_trials=4, patience=4, validate_torques_nm=()))
     summary = run_campaign(cfg, tmp_path / "run", GrowingRipple(simulator_backend(cfg)), events=events)
     guard = [m for m in events.messages if m.startswith("guard:")]
     assert guard and "halved the learning gain to 0.5" in guard[0]
@@ -141,7 +149,7 @@ def test_guard_reverts_and_halves_the_gain_when_the_ripple_grows_twice(campaign_
     best = events_saved[0]["reverted_to_trial"]
     reverted = next(s for s in states if s["guard"])
     assert reverted["pipeline"] == states[best - 1]["pipeline"]
-    assert summary["trials"][-1]["role"] == "ilc"
+    assert summary["trials"][-1]["role"] == "learn"
 
 
 def test_a_campaign_runs_through_an_installed_plugin_stage(write_config, tmp_path):
@@ -150,7 +158,8 @@ def test_a_campaign_runs_through_an_installed_plugin_stage(write_config, tmp_pat
     changes = dict(SMALL_CAMPAIGN)
     changes["pipeline"] = {"stages": ["current-sensor", "cogging", "harmonic-canceller"]}
     changes["stages"] = {"harmonic-canceller": {"orders": [20, 36, 100]}}
-    changes["campaign"] = dict(SMALL_CAMPAIGN["campaign"], ilc_torque_setpoints_nm=[3.0], ilc_trials=3)
+    changes["campaign"] = dict(SMALL_CAMPAIGN["campaign"], learn_torques_nm=[3.0], learn_trials=3,
+                               validate_torques_nm=[2.0])
     cfg = load_config(write_config(changes, drop=["stages.ilc"]))
     summary = run_campaign(cfg, tmp_path / "run")
     run = tmp_path / "run"
@@ -159,7 +168,7 @@ def test_a_campaign_runs_through_an_installed_plugin_stage(write_config, tmp_pat
     trials = read_bench(run).trials
     roles = [r["role"] for r in summary["trials"]]
     before = trials[roles.index("compensate")]  # the canceller has learned nothing yet
-    after = trials[len(roles) - 1]
+    after = trials[len(roles) - 3]  # the last learning trial
     for order, amplitude in zip((20, 36, 100), (0.012, 0.01, 0.006)):
         assert _true_amplitude(before, order) > 0.5 * amplitude
         assert _true_amplitude(after, order) < 0.2 * _true_amplitude(before, order)
@@ -204,16 +213,16 @@ def test_a_campaign_stops_with_a_clear_error_when_the_identification_lacks_an_es
     ({"limits": {"max_torque_nm": 2.0}}, 30.0,
      r"\[trials\] set point 2 N m at 0.6 Hz.*: torque reference 2.\d+ N m at count \d+ .* exceeds 2 N m "
      r"\(\[limits\] max_torque_nm or the bench's\)"),
-    ({"campaign": {"ilc_speed_setpoint_hz": 3.0}}, 30.0,
-     r"\[campaign\] ilc_torque_setpoints_nm 2 N m at ilc_speed_setpoint_hz 3 Hz, ilc_revolutions 6: speed set "
+    ({"campaign": {"learn_speeds_hz": (3.0,)}}, 30.0,
+     r"\[campaign\] learn_torques_nm 2 N m at learn_speeds_hz 3 Hz, learn_revolutions 6: speed set "
      r"point 3 Hz exceeds 1.5 Hz \(\[limits\] max_speed_hz or the bench's\)"),
-    ({"grid": {"torque_setpoints_nm": (2.0,)}, "campaign": {"ilc_torque_setpoints_nm": (4.0,)},
+    ({"grid": {"torque_setpoints_nm": (2.0,)}, "campaign": {"learn_torques_nm": (4.0,), "validate_torques_nm": ()},
       "limits": {"max_current_a": 14.0}}, 30.0,
-     r"\[campaign\] ilc_torque_setpoints_nm 4 N m .*: with a calibration at the edge of the trust region "
+     r"\[campaign\] learn_torques_nm 4 N m .*: with a calibration at the edge of the trust region "
      r"\(\[limits\] max_scale_deviation, max_offset_deviation_a\): flowing current .* exceeds 14 A"),
-    ({"limits": {"max_trial_duration_s": 9.0}}, 30.0,
-     r"\[campaign\] ilc_torque_setpoints_nm 2 N m .*: the trial lasts 9.333 s \(1 warm-up and 6 revolutions at "
-     r"0.75 Hz\), beyond 9 s \(\[limits\] max_trial_duration_s\)"),
+    ({"limits": {"max_trial_duration_s": 7.5}}, 30.0,
+     r"\[campaign\] learn_torques_nm 2 N m .*: the trial lasts 7.778 s \(1 warm-up and 6 revolutions at "
+     r"0.9 Hz\), beyond 7.5 s \(\[limits\] max_trial_duration_s\)"),
 ], ids=["config-current", "bench-current", "torque", "speed-3-hz", "trust-region", "duration"])
 def test_a_plan_beyond_the_limits_fails_before_any_trial(campaign_config, tmp_path, changes, bench_current_a,
                                                           message):
@@ -268,13 +277,14 @@ def test_every_request_of_a_campaign_obeys_the_limits_whatever_a_stage_asks(writ
     from ilcpmac.model.tables import current_references
 
     changes = {**SMALL_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "tenfold", "cogging", "ilc"]},
-               "campaign": {**SMALL_CAMPAIGN["campaign"], "ilc_trials": 1}, "limits": {"max_current_a": 20.0}}
+               "campaign": {**SMALL_CAMPAIGN["campaign"], "learn_trials": 1}, "limits": {"max_current_a": 20.0}}
     cfg = load_config(write_config(changes))
     sim = simulator_backend(cfg)
     recording, events = Recording(sim), Quiet()
     summary = run_campaign(cfg, tmp_path / "run", recording, events=events, extra_stages={"tenfold": TenfoldScale})
     clipped = [m for m in events.messages if m.startswith("limits: stage 'tenfold' set a calibration outside")]
-    assert len(clipped) == sum(r["role"] in ("compensate", "ilc") for r in summary["trials"]) > 0
+    learning = sum(r["role"] in ("compensate", "learn") for r in summary["trials"])
+    assert learning > 0 and len(clipped) == learning + 2  # and once per learned point for the compensation
     assert "current scale of phase a deviates +900 % from the identified sensors" in clipped[0]
     backemf = sim.describe().backemf_nm_per_a
     assert len(read_bench(tmp_path / "run").trials) == len(recording.requests)

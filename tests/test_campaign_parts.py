@@ -4,6 +4,7 @@ the run directory's layout, the backend protocol of the guard and the layers' im
 from __future__ import annotations
 
 import dataclasses
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +18,8 @@ from ilcpmac.backends.base import Backend
 from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
+from ilcpmac.campaign.validation import PointResult, fade_out, point_results
+from ilcpmac.compensation import FadeOut
 from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import LimitGuard
@@ -37,7 +40,7 @@ def figures(scale: float) -> RippleFigures:
 finite = st.floats(-1e6, 1e6, allow_nan=False)
 
 
-@given(st.integers(1, 999), st.sampled_from(["grid", "baseline", "compensate", "ilc"]), finite, finite,
+@given(st.integers(1, 999), st.sampled_from(["grid", "baseline", "compensate", "learn", "validate"]), finite, finite,
        st.none() | finite.map(figures), st.none() | finite.map(figures), st.none() | finite, st.none() | finite)
 @settings(max_examples=50, deadline=None)
 def test_a_trial_record_round_trips_through_its_json(index, role, torque, speed, measured, true, factor, factor_true):
@@ -49,9 +52,9 @@ def test_a_trial_record_round_trips_through_its_json(index, role, torque, speed,
 
 
 def test_a_trial_record_writes_the_summary_keys_of_docs_campaign():
-    record = TrialRecord(3, "ilc", "ilc", 1.0, 0.75, figures(1.0), figures(2.0), 10.0, 20.0)
+    record = TrialRecord(3, "ilc", "learn", 1.0, 0.75, figures(1.0), figures(2.0), 10.0, 20.0)
     assert record.to_json() == {
-        "index": 3, "phase": "ilc", "role": "ilc", "torque_setpoint": 1.0, "speed_setpoint": 0.75,
+        "index": 3, "phase": "ilc", "role": "learn", "torque_setpoint": 1.0, "speed_setpoint": 0.75,
         "ripple_pp_true": 2.0, "ripple_rms_true": 4.0, "rest_rms_true": 6.0, "ripple_rms_repeatable_true": 8.0,
         "amp_1x_true_nm": 10.0, "amp_2x_true_nm": 12.0, "amp_cogging_true_nm": 14.0, "amp_rest_true_nm": 16.0,
         "ripple_pp_measured": 1.0, "ripple_rms_measured": 2.0, "rest_rms_measured": 3.0,
@@ -64,33 +67,159 @@ def test_a_trial_record_writes_the_summary_keys_of_docs_campaign():
 # ---------------------------------------------------------------- the plan
 
 
-def done(index: int, role: str, torque: float, repeatable: float = 0.01) -> TrialRecord:
-    phase = {"grid": "identify", "baseline": "identify"}.get(role, role)
-    return TrialRecord(index, phase, role, torque, 0.75, dataclasses.replace(figures(1.0), rms_repeatable=repeatable))
+def done(index: int, role: str, torque: float, repeatable: float = 0.01, speed: float = 0.9) -> TrialRecord:
+    phase = {"grid": "identify", "baseline": "identify", "learn": "ilc"}.get(role, role)
+    return TrialRecord(index, phase, role, torque, speed, dataclasses.replace(figures(1.0), rms_repeatable=repeatable))
 
 
-def test_the_plan_orders_grid_baselines_compensation_then_ilc_from_the_records_alone(plan):
+def test_the_plan_orders_grid_baselines_compensation_learning_then_validation_from_the_records_alone(plan):
     records: list[TrialRecord] = []
-    roles = []
+    steps = []
     while (step := plan.next_step(records)) is not None:
-        roles.append((step.role, step.request.torque_setpoint_nm))
-        assert step.request.seed != 0
-        records.append(done(len(records) + 1, step.role, step.request.torque_setpoint_nm))
-    assert roles[:4] == [("grid", r.torque_setpoint_nm) for r in plan.grid]
-    assert roles[4:8] == [("baseline", 2.0), ("baseline", 4.0), ("compensate", 2.0), ("compensate", 4.0)]
-    # a flat repeatable ripple stops improving: patience trials of ILC at each set point, in turn
+        request = step.request
+        steps.append((step.phase, step.role, request.torque_setpoint_nm))
+        assert request.seed != 0
+        assert step.role == "grid" or request.speed_setpoint_hz == 0.9
+        records.append(done(len(records) + 1, step.role, request.torque_setpoint_nm, speed=request.speed_setpoint_hz))
+    assert steps[:4] == [("identify", "grid", r.torque_setpoint_nm) for r in plan.grid]
+    assert steps[4:8] == [("identify", "baseline", 2.0), ("identify", "baseline", 4.0),
+                          ("compensate", "compensate", 2.0), ("compensate", "compensate", 4.0)]
+    # a flat repeatable ripple stops improving: patience trials of learning at each point, in turn
     patience = plan.config.campaign.patience
-    assert roles[8:] == [("ilc", 2.0)] * patience + [("ilc", 4.0)] * patience
-    assert len(records_at(records, 2.0, ("compensate", "ilc"))) == patience + 1
+    assert steps[8:-2] == [("ilc", "learn", 2.0)] * patience + [("ilc", "learn", 4.0)] * patience
+    assert steps[-2:] == [("validate", "baseline", 3.0), ("validate", "validate", 3.0)]
+    assert len(records_at(records, (2.0, 0.9), ("compensate", "learn"))) == patience + 1
 
 
-def test_ilc_goes_on_while_the_ripple_improves_up_to_ilc_trials(plan):
-    records = [done(i + 1, "grid", r.torque_setpoint_nm) for i, r in enumerate(plan.grid)]
+def test_learning_goes_on_while_the_ripple_improves_up_to_learn_trials(plan):
+    records = [done(i + 1, "grid", r.torque_setpoint_nm, speed=r.speed_setpoint_hz) for i, r in enumerate(plan.grid)]
     records += [done(5, "baseline", 2.0), done(6, "baseline", 4.0), done(7, "compensate", 2.0, 1.0),
                 done(8, "compensate", 4.0, 1.0)]
     while (step := plan.next_step(records)) is not None and step.request.torque_setpoint_nm == 2.0:
-        records.append(done(len(records) + 1, "ilc", 2.0, 0.5 ** len(records)))
-    assert len(records_at(records, 2.0, ("ilc",))) == plan.config.campaign.ilc_trials
+        records.append(done(len(records) + 1, "learn", 2.0, 0.5 ** len(records)))
+    assert len(records_at(records, (2.0, 0.9), ("learn",))) == plan.config.campaign.learn_trials
+
+
+def test_the_learning_phase_is_named_for_what_learns():
+    from ilcpmac.campaign.plan import learning_phase
+
+    assert learning_phase(("current-sensor", "cogging", "ilc")) == "ilc"
+    assert learning_phase(("current-sensor", "cogging")) == "learn"
+    assert learning_phase(("harmonic-canceller",)) == "learn"
+
+
+def test_the_plan_ends_only_after_the_validation_and_bounds_every_trial_on_the_way(plan):
+    """Every trial takes at least one off `most_remaining`, which counts the validation trials; the plan is over
+    only when they have run, at the validation point, uncompensated then compensated."""
+    c = plan.config.campaign
+    assert plan.validated == [(3.0, 0.9)]
+    assert plan.most_remaining([]) == len(plan.grid) + (2 + c.learn_trials) * len(plan.learned) + 2
+    records: list[TrialRecord] = []
+    while (step := plan.next_step(records)) is not None:
+        left = plan.most_remaining(records)
+        if step.phase == "validate":
+            assert left == 2 - len(records_at(records, (3.0, 0.9), ("baseline", "validate")))
+            assert (step.request.torque_setpoint_nm, step.request.speed_setpoint_hz) == (3.0, 0.9)
+            assert step.request.revolutions == plan.config.trial_revolutions((3.0, 0.9))
+            assert not step.request.feedforward_nm.any()
+        records.append(done(len(records) + 1, step.role, step.request.torque_setpoint_nm,
+                            speed=step.request.speed_setpoint_hz))
+        assert 0 <= plan.most_remaining(records) <= left - 1
+    assert [r.role for r in records[-2:]] == ["baseline", "validate"]
+    assert plan.most_remaining(records) == 0
+    assert plan.next_step(records[:-1]).role == "validate"
+
+
+# ---------------------------------------------------------------- the validation
+
+
+def point_trial(index: int, role: str, point: tuple[float, float], pp: float, true_pp: float | None = None,
+                factor: float | None = None) -> TrialRecord:
+    """A trial at ``point`` of measured peak-to-peak ripple ``pp`` (and true ``true_pp``)."""
+    phase = {"baseline": "identify", "learn": "ilc"}.get(role, role)
+    true = None if true_pp is None else dataclasses.replace(figures(1.0), pp=true_pp)
+    return TrialRecord(index, phase, role, *point, dataclasses.replace(figures(1.0), pp=pp), true, factor,
+                       None if true_pp is None else factor)
+
+
+def point_result(point: tuple[float, float], before_pp: float, after_pp: float, learned: bool = True) -> PointResult:
+    return PointResult(point, learned, point_trial(1, "baseline", point, before_pp),
+                       point_trial(2, "learn" if learned else "validate", point, after_pp))
+
+
+def test_a_point_is_worse_when_its_measured_ripple_is_at_least_the_uncompensated_one():
+    assert not point_result((1.0, 0.5), 1.0, 0.999).worse
+    assert point_result((1.0, 0.5), 1.0, 1.0).worse
+    assert point_result((1.0, 0.5), 1.0, 1.5, learned=False).worse
+
+
+def test_a_point_result_writes_the_validation_keys_of_summary_json():
+    before = point_trial(7, "baseline", (2.0, 0.75), 0.02, 0.019)
+    after = point_trial(8, "validate", (2.0, 0.75), 0.001, 0.0005, 20.0)
+    assert PointResult((2.0, 0.75), False, before, after).to_json() == {
+        "torque_setpoint": 2.0, "speed_setpoint": 0.75, "learned": False, "uncompensated_trial": 7,
+        "compensated_trial": 8, "uncompensated_pp_measured": 0.02, "ripple_pp_measured": 0.001,
+        "uncompensated_pp_true": 0.019, "ripple_pp_true": 0.0005, "reduction_factor": 20.0,
+        "reduction_factor_true": 20.0, "worse_than_uncompensated": False}
+    measured_only = PointResult((2.0, 0.75), True, point_trial(7, "baseline", (2.0, 0.75), 0.02),
+                                point_trial(9, "learn", (2.0, 0.75), 0.03))
+    assert measured_only.to_json() == {
+        "torque_setpoint": 2.0, "speed_setpoint": 0.75, "learned": True, "uncompensated_trial": 7,
+        "compensated_trial": 9, "uncompensated_pp_measured": 0.02, "ripple_pp_measured": 0.03,
+        "worse_than_uncompensated": True}
+
+
+def test_point_results_pair_each_points_baseline_with_its_last_trial_learned_points_first():
+    learned = [(1.0, 0.5), (1.0, 1.5), (5.0, 0.5), (5.0, 1.5)]
+    validated = [(3.0, 0.5), (3.0, 1.0)]
+    records = [point_trial(1, "grid", (1.0, 0.5), 9.0)]
+    for role, point, pp in [("baseline", (3.0, 0.5), 2.0), ("validate", (3.0, 0.5), 0.1),  # before any learned
+                            ("baseline", (1.0, 0.5), 2.0), ("baseline", (1.0, 1.5), 3.0),
+                            ("compensate", (1.0, 0.5), 0.5), ("compensate", (1.0, 1.5), 0.6),
+                            ("learn", (1.0, 0.5), 0.2), ("learn", (1.0, 0.5), 0.1),
+                            ("compensate", (5.0, 0.5), 0.4),  # no baseline: left out
+                            ("baseline", (5.0, 1.5), 1.0),  # nothing after it: left out
+                            ("baseline", (3.0, 1.0), 2.0)]:  # not validated yet: left out
+        records.append(point_trial(len(records) + 1, role, point, pp))
+    results = point_results(records, learned, validated)
+    assert [(r.point, r.learned, r.before.index, r.after.index) for r in results] == [
+        ((1.0, 0.5), True, 4, 9), ((1.0, 1.5), True, 5, 7), ((3.0, 0.5), False, 2, 3)]
+    unidentified = [dataclasses.replace(r, measured=None) if r.index == 4 else r for r in records]
+    assert [r.point for r in point_results(unidentified, learned, validated)] == [(1.0, 1.5), (3.0, 0.5)]
+    assert point_results(records, [], []) == []
+
+
+#: learned at 1 and 3 N m, validated at 2 N m between the learned speeds
+LEARNED = [(t, s) for t in (1.0, 3.0) for s in (0.5, 1.0, 1.5)]
+VALIDATED = [(2.0, 0.75), (2.0, 1.25)]
+
+
+def results_worse_at(worse: set) -> list[PointResult]:
+    return [point_result(p, 1.0, 2.0 if p in worse else 0.01, p in LEARNED) for p in LEARNED + VALIDATED]
+
+
+@pytest.mark.parametrize("worse, fade", [
+    (set(), FadeOut(math.inf, math.inf)),  # never fades
+    ({(1.0, 1.5)}, FadeOut(1.25, 1.5)),  # the fastest speed, a learned point: from the next slower point speed
+    ({(2.0, 1.25)}, FadeOut(1.0, 1.25)),  # a validation point
+    ({(1.0, 1.0)}, FadeOut(0.75, 1.0)),  # a middle speed
+    ({(3.0, 1.0), (2.0, 1.25), (1.0, 1.5)}, FadeOut(0.75, 1.0)),  # the slowest worse speed decides
+    ({(3.0, 0.5)}, FadeOut(0.0, 0.0)),  # the slowest speed: it never applies
+])
+def test_the_fade_out_retires_the_compensation_from_the_slowest_speed_where_it_is_worse(worse, fade):
+    assert fade_out(results_worse_at(worse)) == fade
+
+
+@given(st.sets(st.sampled_from(LEARNED + VALIDATED)))
+@settings(max_examples=50, deadline=None)
+def test_the_fade_out_keeps_every_point_slower_than_a_worse_one_and_drops_every_worse_one(worse):
+    fade = fade_out(results_worse_at(worse))
+    slowest_worse = min((s for _, s in worse), default=math.inf)
+    for torque, speed in LEARNED + VALIDATED:
+        if (torque, speed) in worse:
+            assert fade.factor(speed) == 0.0
+        elif speed < slowest_worse:
+            assert fade.factor(speed) == 1.0
 
 
 # ---------------------------------------------------------------- the analysis

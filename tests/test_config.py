@@ -97,13 +97,41 @@ def test_missing_file(tmp_path):
         load_config(path)
 
 
-def test_ilc_revolutions_are_one_number_or_one_per_ilc_set_point(write_config):
-    cfg = load_config(write_config({"campaign": {"ilc_revolutions": [40]}}))
-    assert [cfg.campaign.revolutions_at(t) for t in (1.0, 3.0, 5.0)] == [40, 40, 40]
-    cfg = load_config(write_config({"campaign": {"ilc_revolutions": [64, 32, 16]}}))
-    assert [cfg.campaign.revolutions_at(t) for t in (1.0, 3.0, 5.0)] == [64, 32, 16]
-    with pytest.raises(ConfigError, match=r"campaign.toml: \[campaign\] ilc_revolutions: give one number"):
-        load_config(write_config({"campaign": {"ilc_revolutions": [64, 32]}}))
+def test_learn_revolutions_are_one_number_or_one_per_learned_torque(write_config):
+    cfg = load_config(write_config({"campaign": {"learn_revolutions": [40]}}))
+    assert [cfg.trial_revolutions((t, 0.5)) for t in (1.0, 3.0, 5.0)] == [40, 40, 40]
+    cfg = load_config(write_config({"campaign": {"learn_revolutions": [64, 32, 16]}}))
+    assert [cfg.trial_revolutions((t, 0.5)) for t in (1.0, 3.0, 5.0)] == [64, 32, 16]
+    # faster trials last as long as at the slowest learned speed (0.5 Hz); validation trials likewise
+    assert [cfg.trial_revolutions((1.0, s)) for s in (0.5, 1.0, 1.5)] == [64, 128, 192]
+    assert [cfg.trial_revolutions((2.0, s)) for s in (0.5, 0.75, 1.5)] == [32, 48, 96]
+    with pytest.raises(ConfigError, match=r"campaign.toml: \[campaign\] learn_revolutions: give one number"):
+        load_config(write_config({"campaign": {"learn_revolutions": [64, 32]}}))
+
+
+def test_the_operating_points_are_derived_from_the_grid_and_limits_when_not_given(write_config):
+    cfg = load_config(write_config({"campaign": {"learn_torques_nm": [], "learn_speeds_hz": [],
+                                                 "validate_torques_nm": [], "validate_speeds_hz": [],
+                                                 "learn_revolutions": [32]}}))
+    assert cfg.learned_points() == [(t, s) for t in (1.0, 3.0, 5.0) for s in (0.5, 1.0, 1.5)]
+    assert cfg.validation_points() == [(t, s) for t in (2.0, 4.0) for s in (0.5, 1.0, 1.5)]
+
+
+def test_the_seed_config_learns_at_nine_points_and_validates_at_six_others(seed_config):
+    assert seed_config.learned_points() == [(t, s) for t in (1.0, 3.0, 5.0) for s in (0.5, 1.0, 1.5)]
+    assert seed_config.validation_points() == [(t, s) for t in (2.0, 4.0) for s in (0.5, 1.0, 1.5)]
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"ilc_trials": 3}, r"\[campaign\] ilc_trials is now learn_trials"),
+    ({"ilc_speed_setpoint_hz": 0.75}, r"\[campaign\] ilc_speed_setpoint_hz is now learn_speeds_hz \(a list\)"),
+    ({"validate_torques_nm": [3.0], "validate_speeds_hz": [0.5]},
+     r"\[campaign\] validate_torques_nm, validate_speeds_hz: 3 N m at 0.5 Hz is a learned point"),
+    ({"validate_speeds_hz": [2.0]}, r"\[campaign\] validate_speeds_hz: 2 is beyond \[limits\] max_speed_hz 1.5"),
+])
+def test_campaign_keys_of_the_operating_range_are_checked(write_config, changes, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(write_config({"campaign": changes}))
 
 
 @pytest.mark.parametrize("changes, drop, message", [

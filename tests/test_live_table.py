@@ -4,6 +4,7 @@ written and the next command, and summary.json says the units of its figures."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import re
@@ -17,12 +18,17 @@ from rich.console import Console
 
 from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.runner import SUMMARY_UNITS
+from ilcpmac.campaign.validation import point_results
 from ilcpmac.cli import main
 from ilcpmac.cli.run import CampaignView, duration, files_written
 from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, significant, summary_table, trials_table
 from ilcpmac.signals.harmonics import RippleFigures
 
-SETPOINTS = [1.0, 3.0, 5.0]
+#: the seed campaign's learned and validation points, (torque N m, speed Hz)
+LEARNED = [(t, s) for t in (1.0, 3.0, 5.0) for s in (0.5, 1.0, 1.5)]
+VALIDATED = [(t, s) for t in (2.0, 4.0) for s in (0.5, 1.0, 1.5)]
+#: SMALL_CAMPAIGN's one learned speed
+SMALL_SPEED_HZ = SMALL_CAMPAIGN["campaign"]["learn_speeds_hz"][0]
 #: every column of the live table, as ``trials_table`` lays it out on a wide console
 ALL_COLUMNS = 15
 
@@ -33,7 +39,8 @@ def ripple(pp: float, amp_nm: float) -> RippleFigures:
 
 def campaign_records() -> list[TrialRecord]:
     """The records of a campaign of the seed bench's size and figures: a 5 x 6 grid, a baseline and a
-    compensation per set point, then 10 ILC trials each, down to about 3000x below uncompensated."""
+    compensation per learned point, then 10 ILC trials each, down to about 3000x below uncompensated, then a
+    baseline and a validation trial per validation point, about 1200x below uncompensated."""
     records: list[TrialRecord] = []
 
     def add(phase: str, role: str, torque: float, speed: float, pp: float, amp_nm: float,
@@ -44,14 +51,17 @@ def campaign_records() -> list[TrialRecord]:
     for torque in (1.0, 2.0, 3.0, 4.0, 5.0):
         for speed in (0.5, 1.0, 1.5, 2.0, 2.5, 3.0):
             add("identify", "grid", torque, speed, 2.55 / torque, 0.26)
-    for torque in SETPOINTS:
-        add("identify", "baseline", torque, 0.75, 2.39 / torque, 0.24)
-    for torque in SETPOINTS:
-        add("compensate", "compensate", torque, 0.75, 0.06 / torque, 3.5e-4, 40.0)
-    for torque in SETPOINTS:
+    for torque, speed in LEARNED:
+        add("identify", "baseline", torque, speed, 2.39 / torque, 0.24)
+    for torque, speed in LEARNED:
+        add("compensate", "compensate", torque, speed, 0.06 / torque, 3.5e-4, 40.0)
+    for torque, speed in LEARNED:
         for k in range(10):
             pp = 8e-3 / torque / (k + 1)
-            add("ilc", "ilc", torque, 0.75, pp, 2e-6, 2.39 / torque / pp)
+            add("ilc", "learn", torque, speed, pp, 2e-6, 2.39 / torque / pp)
+    for torque, speed in VALIDATED:
+        add("validate", "baseline", torque, speed, 2.39 / torque, 0.24)
+        add("validate", "validate", torque, speed, 2e-3 / torque, 5e-6, 2.39 / 2e-3)
     return records
 
 
@@ -83,8 +93,10 @@ def test_the_live_table_fits_80_and_100_columns_with_no_cell_or_header_cut(width
         assert needed in headers
     assert len(headers) < ALL_COLUMNS
     assert re.search(r"│ +1-30 │ grid +│ +1-5 │", text)  # the grid in one row
-    assert re.search(r"│ +34 │ compensate │ +1 │", text)
-    assert re.search(r"│ +63 │ ilc +│ +5 │", text) and "747x" in text  # 3 significant digits, "x"
+    assert re.search(r"│ +40 │ compensate │ +1 │", text)
+    assert re.search(r"│ +138 │ learn +│ +5 │", text) and "747x" in text  # 3 significant digits, "x"
+    assert re.search(r"│ +149 │ baseline +│ +4 │", text) and re.search(r"│ +150 │ validate +│ +4 │", text)
+    assert sum(line.startswith("│") for line in text.splitlines()) == 1 + len(records) - 30  # no cell wrapped
 
 
 def test_a_wider_console_gets_more_columns_and_a_wide_one_all():
@@ -104,26 +116,64 @@ figure = st.floats(1e-7, 50.0)
 factor = st.none() | st.floats(0.01, 1e6)
 
 
-@given(st.lists(st.tuples(st.sampled_from(["baseline", "compensate", "ilc"]), st.sampled_from([0.5, 1.0, 12.5]),
-                          figure, figure, factor, factor), min_size=1, max_size=12),
+#: the phase of each role after the grid
+PHASES = {"baseline": "identify", "compensate": "compensate", "learn": "ilc", "validate": "validate"}
+
+
+@given(st.lists(st.tuples(st.sampled_from(sorted(PHASES)), st.sampled_from([0.5, 1.0, 12.5]),
+                          st.sampled_from([0.05, 0.75, 125.0]), figure, figure, factor, factor), min_size=1,
+                max_size=12),
        st.integers(1, 990), st.sampled_from([80, 100]))
 @settings(max_examples=40, deadline=None)
 def test_no_figure_of_any_size_is_cut_at_80_or_100_columns(rows, first, width):
-    records = [TrialRecord(first + i, "ilc" if role == "ilc" else "identify", role, torque, 0.75,
-                           ripple(pp, amp), ripple(pp / 3, amp / 3), f, f_true)
-               for i, (role, torque, pp, amp, f, f_true) in enumerate(rows)]
+    records = [TrialRecord(first + i, PHASES[role], role, torque, speed, ripple(pp, amp), ripple(pp / 3, amp / 3),
+                           f, f_true)
+               for i, (role, torque, speed, pp, amp, f, f_true) in enumerate(rows)]
     table = trials_table(records, width)
     assert_nothing_cut(table, render(table, width=width), width)
 
 
+def body(text: str) -> list[list[str]]:
+    """The cells of each row of a rendered table."""
+    return [[cell.strip() for cell in line.strip().strip("│").split("│")] for line in text.splitlines()
+            if line.startswith("│")]
+
+
 @pytest.mark.parametrize("width", [80, 100])
 def test_the_summary_fits_with_its_title_on_a_line_of_its_own(width):
-    table = summary_table(campaign_records(), SETPOINTS)
+    table = summary_table(campaign_records(), LEARNED, VALIDATED)
     text = render(SUMMARY_TITLE, table, width=width)
     assert_nothing_cut(table, text, width)
     lines = text.splitlines()
     assert lines[0].rstrip() == SUMMARY_TITLE and lines[1].startswith("┏")
-    assert re.search(r"│ +1 │ +241 │ +0.0808 │ +239 │ +0.0800 │ +747x │ +2988x │ +10 │", text)
+    rows = body(text)
+    assert [(float(row[0]), float(row[1]), row[2]) for row in rows] == \
+        [(*p, "learned") for p in LEARNED] + [(*p, "valid.") for p in VALIDATED]  # one row per point, learned first
+    assert rows[0] == ["1", "0.5", "learned", "0.0808", "0.0800", "747x", "2988x", "10"]
+    assert rows[-1] == ["4", "1.5", "valid.", "0.0505", "0.0500", "299x", "1195x", "-"]
+
+
+#: set points as a config gives them, up to 6 characters wide
+setpoint = st.sampled_from([0.05, 0.75, 12.5, 125.0, 0.0625])
+
+
+@given(st.lists(st.tuples(setpoint, setpoint, figure, figure, figure, factor, factor), min_size=2, max_size=8,
+                unique_by=lambda row: row[:2]),
+       st.sampled_from([80, 100]))
+@settings(max_examples=40, deadline=None)
+def test_no_summary_figure_of_any_size_is_cut_at_80_or_100_columns(rows, width):
+    """Per point a baseline and its last trial, learned and validation points alternating."""
+    records = []
+    for k, (torque, speed, before, after, after_true, f, f_true) in enumerate(rows):
+        phase, role = ("ilc", "learn") if k % 2 else ("validate", "validate")
+        records.append(TrialRecord(len(records) + 1, "identify", "baseline", torque, speed, ripple(before, 1.0)))
+        records.append(TrialRecord(len(records) + 1, phase, role, torque, speed, ripple(after, 1.0),
+                                   ripple(after_true, 1.0), f, f_true))
+    points = [row[:2] for row in rows]
+    table = summary_table(records, points[1::2], points[::2])
+    text = render(SUMMARY_TITLE, table, width=width)
+    assert_nothing_cut(table, text, width)
+    assert len(body(text)) == len(points)
 
 
 @pytest.mark.parametrize("value, text", [(2.3899, "2.39"), (238.92, "239"), (2934.6, "2935"), (0.08141, "0.0814"),
@@ -132,41 +182,68 @@ def test_figures_have_3_significant_digits_and_no_exponent(value, text):
     assert significant(value) == text
 
 
+def validation_json(records: list[TrialRecord]) -> list[dict]:
+    """summary.json's "validation" of ``records``."""
+    return [r.to_json() for r in point_results(records, LEARNED, VALIDATED) if not r.learned]
+
+
 def test_the_final_figures_are_words_with_units():
     final = {"ripple_pp_true": 0.00081411, "ripple_pp_measured": 0.0039536, "ripple_rms_true": 0.000119,
              "ripple_rms_measured": 0.000679, "reduction_factor": 418.39, "reduction_factor_true": 2034.98}
-    assert final_lines(final) == [
-        "true ripple 0.0814 % of mean torque, 2035x below uncompensated",
-        "measured ripple 0.395 % of mean torque, 418x below uncompensated"]
-    measured_only = {k: v for k, v in final.items() if "true" not in k}
-    assert final_lines(measured_only) == final_lines(final)[1:]
-    assert final_lines({}) == []
+    summary = {"final": final, "validation": validation_json(campaign_records())}
+    assert final_lines(summary) == [
+        "learned: true ripple 0.0814 % of mean torque, 2035x below uncompensated",
+        "learned: measured ripple 0.395 % of mean torque, 418x below uncompensated",
+        # the worst validation point: 2 N m, against 2.39 % uncompensated
+        "validation: true ripple 0.100 % of mean torque, 1195x below uncompensated",
+        "validation: measured ripple 0.101 % of mean torque, 299x below uncompensated"]
+    measured_only = {"final": {k: v for k, v in final.items() if "true" not in k},
+                     "validation": [{k: v for k, v in point.items() if "true" not in k}
+                                    for point in summary["validation"]]}
+    assert final_lines(measured_only) == [final_lines(summary)[i] for i in (1, 3)]
+    assert final_lines({"final": final}) == final_lines(summary)[:2]
+    assert final_lines({"final": {}, "validation": []}) == []
 
 
-def test_summary_json_units_cover_every_figure_of_a_trial_and_of_final():
-    numbers = {k for k in campaign_records()[-1].to_json() if k not in ("index", "phase", "role")}
-    assert set(SUMMARY_UNITS) == numbers
+def test_the_validation_line_is_the_worst_point():
+    records = campaign_records()
+    worse = dataclasses.replace(records[-1], measured=ripple(0.05, 1e-3), reduction_factor=0.5)
+    assert final_lines({"validation": validation_json([*records[:-1], worse])}) == [
+        "validation: true ripple 0.100 % of mean torque, 1195x below uncompensated",
+        "validation: measured ripple 5.00 % of mean torque, 0.500x below uncompensated"]
+
+
+def test_summary_json_units_cover_every_number_of_a_trial_a_validation_point_and_the_compensation():
+    records = campaign_records()
+    numbers = {k for k in records[-1].to_json() if k not in ("index", "phase", "role")}
+    points = {k for k in validation_json(records)[0]
+              if k not in ("learned", "uncompensated_trial", "compensated_trial", "worse_than_uncompensated")}
+    assert set(SUMMARY_UNITS) == numbers | points | {"fade_full_hz", "fade_zero_hz"}
     assert SUMMARY_UNITS["ripple_pp_true"] == "fraction of mean torque"
+    assert SUMMARY_UNITS["uncompensated_pp_measured"] == "fraction of mean torque"
     assert SUMMARY_UNITS["amp_1x_measured_nm"] == "N m" and SUMMARY_UNITS["speed_setpoint"] == "Hz"
     assert SUMMARY_UNITS["reduction_factor_true"].startswith("x ")
+    assert SUMMARY_UNITS["fade_full_hz"].startswith("Hz ") and SUMMARY_UNITS["fade_zero_hz"].startswith("Hz ")
 
 
 # ---------------------------------------------------------------- the status line and the plan's bound
 
 
 def record(index: int, role: str, torque: float, pp: float = 0.01) -> TrialRecord:
-    phase = {"grid": "identify", "baseline": "identify"}.get(role, role)
-    return TrialRecord(index, phase, role, torque, 0.75, ripple(pp, 1e-3))
+    """A trial of SMALL_CAMPAIGN after the grid, at its one learned speed."""
+    phase = {"grid": "identify", "baseline": "identify", "learn": "ilc"}.get(role, role)
+    return TrialRecord(index, phase, role, torque, SMALL_SPEED_HZ, ripple(pp, 1e-3))
 
 
 def test_the_plan_bounds_the_trials_left(plan):
-    """SMALL_CAMPAIGN: a 2 x 2 grid, 2 ILC set points (2 and 4 N m) of at most 4 ILC trials."""
-    assert plan.most_remaining([]) == 4 + 2 + 2 + 2 * 4
+    """SMALL_CAMPAIGN: a 2 x 2 grid, 2 learned points (2 and 4 N m) of at most 4 learning trials, 1 validation
+    point (3 N m): an uncompensated and a validation trial."""
+    assert plan.most_remaining([]) == 4 + 2 + 2 + 2 * 4 + 2
     records = [record(i + 1, "grid", 2.0) for i in range(4)]
     records += [record(5, "baseline", 2.0), record(6, "baseline", 4.0), record(7, "compensate", 2.0)]
-    assert plan.most_remaining(records) == 1 + 2 * 4
-    records += [record(8 + k, "ilc", 2.0, 0.01 * (k + 1)) for k in range(4)]  # set point 2 N m done
-    assert plan.most_remaining(records) == 1 + 4
+    assert plan.most_remaining(records) == 1 + 2 * 4 + 2
+    records += [record(8 + k, "learn", 2.0, 0.01 * (k + 1)) for k in range(4)]  # point (2 N m, 0.9 Hz) done
+    assert plan.most_remaining(records) == 1 + 4 + 2
     assert plan.next_step(records).role == "compensate"
 
 
@@ -182,22 +259,90 @@ def test_the_status_line_names_the_running_trial_and_bounds_the_time_left(plan):
     clock = Clock()
     view = CampaignView(Console(file=io.StringIO()), plan, "run", [], clock)
     clock.now += 0.5
-    assert "trial 1/4 grid, 0.5 s | 0 done, 0.5 s | ≤ 16 to go" in view.status()
+    assert "trial 1/4 grid, 0.5 s | 0 done, 0.5 s | ≤ 18 to go" in view.status()
     assert view.time_left_s() is None
     records = []
     for k, (role, torque, seconds) in enumerate([("grid", 2.0, 1.0)] * 4 + [("baseline", 2.0, 3.0)]):
         clock.now += seconds
         records.append(record(k + 1, role, torque))
         view.trial(records[-1], records)
-    assert view.time_left_s() == 11 * 3.0  # 1 baseline, 2 compensations, 2 x 4 ILC trials at 3 s each
+    # 1 baseline, 2 compensations, 2 x 4 learning trials, 2 validation trials at 3 s each
+    assert view.time_left_s() == 13 * 3.0
     clock.now += 1.25
     status = view.status()
-    assert "trial 6 baseline 4 N m 0.75 Hz, 1.2 s | 5 done, 8.8 s | ≤ 11 to go, ~33.0 s" in status
+    assert "trial 6 baseline 4 N m 0.9 Hz, 1.2 s | 5 done, 8.8 s | ≤ 13 to go, ~39.0 s" in status
     assert status[0] in "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
     text = render(view, width=80)
     assert "1-4" in text and "trial 6 baseline" in text and "…" not in text
     view.end("done")
     assert view.status() == "done: 5 trials, 8.8 s"
+
+
+def run_grid(view: CampaignView, plan, clock: Clock, seconds: float) -> list[TrialRecord]:
+    """Finish the plan's grid in ``view``, ``seconds`` per trial; the records."""
+    records: list[TrialRecord] = []
+    while (step := plan.next_step(records)).role == "grid":
+        clock.now += seconds
+        records.append(record(len(records) + 1, "grid", step.request.torque_setpoint_nm))
+        view.trial(records[-1], records)
+    return records
+
+
+def test_the_status_line_shows_the_running_trials_progress_and_the_eta_follows_it(plan):
+    clock = Clock()
+    view = CampaignView(Console(file=io.StringIO()), plan, "run", [], clock)
+    records = run_grid(view, plan, clock, 1.0)
+    step = plan.next_step(records)
+    left = plan.most_remaining(records)
+    assert view.time_left_s() is None  # no trial after the grid has finished yet
+    clock.now += 10.0
+    view.progress(0.0)  # warming up: nothing recorded yet
+    assert view.time_left_s() is None
+    r = step.request
+    assert f"trial {len(records) + 1} {step.role} {r.torque_setpoint_nm:g} N m {r.speed_setpoint_hz:g} Hz 0 %, 10.0 s" \
+        in view.status(200)
+    view.progress(0.25)  # 10 s for a quarter: 40 s a trial, 30 s left of this one
+    assert view.time_left_s() == pytest.approx((left - 1) * 40.0 + 30.0)
+    assert f"Hz 25 %, 10.0 s | {len(records)} done" in view.status(200)
+    assert view.status().endswith(f"to go, ~{duration((left - 1) * 40.0 + 30.0)}")
+    for ignored in (float("nan"), -0.1, 1.5):
+        view.progress(ignored)
+    view.progress(0.999)
+    assert "Hz 99 %, 10.0 s" in view.status(200)  # never 100 % before the trial is complete
+    clock.now += 30.0
+    records.append(record(len(records) + 1, step.role, r.torque_setpoint_nm))
+    view.trial(records[-1], records)
+    assert view.fraction is None and " %" not in view.status()
+    assert view.time_left_s() == pytest.approx(plan.most_remaining(records) * 40.0)
+
+
+def test_the_status_line_leaves_out_the_speed_then_the_trials_done_when_narrow(plan):
+    clock = Clock()
+    view = CampaignView(Console(file=io.StringIO()), plan, "run", [], clock)
+    records = run_grid(view, plan, clock, 1.0)
+    clock.now += 7300.0
+    view.progress(0.5)
+    full = view.status(200)
+    speed = f" {plan.next_step(records).request.speed_setpoint_hz:g} Hz"
+    assert speed + " 50 %, 2h01m | " in full and view.status(len(full)) == full
+    assert view.status(len(full) - 1) == full.replace(speed, "")
+    short = view.status(len(full) - len(speed) - 1)
+    assert " done" not in short and short.startswith(full[:2] + "trial ") and " 50 %, 2h01m | ≤ " in short
+
+
+@pytest.mark.parametrize("width", [80, 100])
+def test_a_trial_in_progress_fits_80_and_100_columns_on_one_line(plan, width):
+    clock = Clock()
+    view = CampaignView(Console(file=io.StringIO()), plan, "ilcpmac run  runs/seed-bench-20260101-120000", [],
+                        clock)
+    records = run_grid(view, plan, clock, 100.0)
+    clock.now += 3725.0
+    view.progress(0.37)
+    text = render(view, width=width)
+    assert "…" not in text and max(map(len, text.splitlines())) <= width
+    status = text.rstrip("\n").splitlines()[-1]
+    assert " 37 %, 1h02m | " in status and re.search(r"≤ \d+ to go, ~\d+h\d\dm$", status.rstrip())
+    assert status.startswith(view.status(width)[:2] + f"trial {len(records) + 1} ")
 
 
 def test_a_resumed_view_waits_for_its_first_trial(plan):
@@ -234,7 +379,12 @@ def test_ilcpmac_run_ends_with_what_it_wrote_and_the_next_command(write_config, 
     assert f"next: ilcpmac report {out}" in text
     final = text[text.index(FINAL_TITLE):text.index("wrote ")]
     assert "ripple peak-to-peak" in final and "% of mean torque" in final and "x below uncompensated" in final
+    assert "\n  learned: true ripple " in final and "\n  validation: measured ripple " in final
     assert not re.search(r"[a-z]+_[a-z]+", final)  # no snake_case keys for people
     summary = json.loads((out / "summary.json").read_text())
     assert summary["units"] == SUMMARY_UNITS
     assert set(summary["final"]) <= set(summary["units"])
+    (point,) = summary["validation"]
+    assert (point["torque_setpoint"], point["speed_setpoint"], point["learned"]) == (3.0, SMALL_SPEED_HZ, False)
+    assert {k for k, v in point.items() if isinstance(v, float)} <= set(summary["units"])
+    assert set(summary["compensation"]) - {"file"} <= set(summary["units"])

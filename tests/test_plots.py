@@ -56,12 +56,18 @@ def _data_lines(axis) -> list:
     return [line for line in axis.get_lines() if len(line.get_xdata()) > 0]
 
 
+def _panels(fig) -> list:
+    """The axes that draw data: colorbars left out."""
+    return [axis for axis in fig.axes if axis.get_label() != "<colorbar>"]
+
+
 def assert_readable(name: str, fig) -> None:
-    """Every axis label has a unit, the bottom axes has an x label, every axes with two lines or more has a
-    legend that names groups rather than lines, position is in mechanical degrees within one revolution."""
+    """Every axis label (a colorbar's too) has a unit, the bottom axes has an x label, every axes with two lines
+    or more has a legend that names groups rather than lines, position is in mechanical degrees within one
+    revolution."""
     axes = fig.axes
     assert axes, name
-    assert axes[-1].get_xlabel(), f"{name}: no x label on the bottom axes"
+    assert _panels(fig)[-1].get_xlabel(), f"{name}: no x label on the bottom axes"
     for axis in axes:
         for label in (axis.get_xlabel(), axis.get_ylabel()):
             assert label == "" or UNIT.search(label), f"{name}: axis label {label!r} has no unit"
@@ -183,7 +189,8 @@ def test_cli_refuses_an_unknown_format_before_reading(tmp_path):
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
-    """A tiny campaign's run directory: 2 ILC set points (2 and 4 N m), 2 ILC trials each."""
+    """A tiny campaign's run directory: 2 learned points (2 and 4 N m at 0.9 Hz), 2 learning trials each, a
+    validation point (3 N m at 0.9 Hz)."""
     from campaign_helpers import SMALL_CAMPAIGN, run_campaign
     from conftest import SEED_CONFIG, toml_text
 
@@ -195,7 +202,7 @@ def run_dir(tmp_path_factory) -> Path:
         for key, value in values.items():
             data.setdefault(table, {})[key] = dict(data.get(table, {}).get(key, {}), **value) \
                 if isinstance(value, dict) else value
-    data["campaign"]["ilc_trials"] = 2
+    data["campaign"]["learn_trials"] = 2
     (folder / "campaign.toml").write_text(toml_text(data))
     run_campaign(load_config(folder / "campaign.toml"), folder / "run")
     return folder / "run"
@@ -217,14 +224,16 @@ def report_figures(run_report):
     return figures
 
 
-REPORT_FIGURES = ["ripple_per_trial", "before_after_2Nm", "before_after_4Nm", "learned_2Nm", "learned_4Nm"]
+#: SMALL_CAMPAIGN's figures: per learned point (2 and 4 N m at 0.9 Hz), and the operating range
+REPORT_FIGURES = ["ripple_per_trial", "before_after_2Nm_0.9Hz", "before_after_4Nm_0.9Hz", "operating_range",
+                  "learned_2Nm_0.9Hz", "learned_4Nm_0.9Hz"]
 
 
 def _legend_texts(axis) -> list[str]:
     return [t.get_text() for t in axis.get_legend().get_texts()]
 
 
-def test_the_report_has_its_figures_per_ilc_set_point(report_figures):
+def test_the_report_has_its_figures_per_learned_point(report_figures):
     assert list(report_figures) == REPORT_FIGURES
 
 
@@ -239,20 +248,20 @@ def test_ripple_per_trial_marks_set_points_and_phases(run_report, report_figures
     assert axis.get_ylabel() == "ripple peak-to-peak (% of mean torque)"
     assert axis.get_yscale() == "log"
     texts = _legend_texts(axis)
-    assert {"2 N m set point", "4 N m set point", "measured", "true (simulator)"} <= set(texts)
-    assert [t.get_text() for t in axis.texts] == ["identify", "compensate", "ilc"]
-    assert len(axis.patches) == 3  # one band per phase
+    assert {"2 N m set point", "3 N m set point", "4 N m set point", "measured", "true (simulator)"} <= set(texts)
+    assert [t.get_text() for t in axis.texts] == ["identify", "compensate", "ilc", "validate"]
+    assert len(axis.patches) == 4  # one band per phase
     markers = {(line.get_marker(), tuple(line.get_color())) for line in _data_lines(axis)
                if line.get_marker() != "None"}
-    assert len({colour for _, colour in markers}) == 2  # a colour per set point
+    assert len({colour for _, colour in markers}) == 3  # a colour per torque set point, 3 N m validated
     assert {marker for marker, _ in markers} == {"o", "x"}
 
 
 def test_before_after_shows_measured_and_true_torque_over_one_revolution(report_figures):
-    fig = report_figures["before_after_2Nm"]
+    fig = report_figures["before_after_2Nm_0.9Hz"]
     top, middle, spectrum = fig.axes
     for axis, when in ((top, "uncompensated"), (middle, "final")):
-        assert when in axis.get_title()
+        assert axis.get_title().startswith(f"2 N m at 0.9 Hz, {when} (trial ")
         assert axis.get_ylabel() == "torque (mN m)"
         assert axis.get_xlabel() == plotting.ANGLE_LABEL and axis.get_xlim() == (0.0, 360.0)
         assert _legend_texts(axis) == ["measured", "true"]
@@ -262,28 +271,29 @@ def test_before_after_shows_measured_and_true_torque_over_one_revolution(report_
                                        "final, true"]
 
 
-def test_learned_shows_each_stage_per_set_point_as_spectrum_and_over_a_cogging_period(run_report, report_figures):
+def test_learned_shows_each_stage_per_point_as_spectrum_and_over_a_cogging_period(run_report, report_figures):
     motor = run_report.description.motor
     for torque in (2, 4):
-        top, bottom = report_figures[f"learned_{torque}Nm"].axes
+        top, bottom = report_figures[f"learned_{torque}Nm_0.9Hz"].axes
         assert top.get_yscale() == "log" and top.get_xlabel() == "harmonic (per mechanical revolution)"
         assert _legend_texts(top) == ["cogging", "ilc"]
         assert "current-sensor: no feed-forward" in top.get_title()
-        assert f"{torque} N m" in top.get_title()
+        assert top.get_title().startswith(f"{torque} N m at 0.9 Hz: ")
         assert bottom.get_xlim() == (0.0, 360.0 / motor.cogging_order)
         assert bottom.get_ylabel() == "feed-forward torque (mN m)"
         assert _legend_texts(bottom) == ["cogging", "ilc", "sum"]
 
 
 def test_each_stage_learned_part_adds_up_to_the_next_requests_feedforward(run_report):
-    """Rebuilt from the states of trial 9 (the first ILC trial at 2 N m), the stages' parts add up to the
-    feed-forward trial 10 (the next at 2 N m) ran with."""
+    """Rebuilt from the states of trial 9 (the first learning trial at 2 N m, 0.9 Hz), the stages' parts add up
+    to the feed-forward trial 10 (the next there) ran with."""
     from dataclasses import replace
 
     from ilcpmac.report.plots import learned_feedforward
 
     records = run_report.records
-    assert [(r.index, r.role, r.torque_setpoint_nm) for r in records[8:10]] == [(9, "ilc", 2.0), (10, "ilc", 2.0)]
+    assert [(r.index, r.phase, r.role, r.point) for r in records[8:10]] == [(9, "ilc", "learn", (2.0, 0.9)),
+                                                                            (10, "ilc", "learn", (2.0, 0.9))]
     learned = learned_feedforward(replace(run_report, records=records[:9]))[0]
     assert learned.record.index == 9 and list(learned.tables_nm) == ["current-sensor", "cogging", "ilc"]
     assert not learned.tables_nm["current-sensor"].any()
@@ -314,10 +324,86 @@ def test_a_stage_that_is_not_installed_leaves_out_only_what_it_learned(run_dir, 
     assert out.exit_code == 0, out.output
     assert " ".join(out.output.split()).startswith(
         "warning: what each stage learned is not drawn: [pipeline] stages: no stage named 'absent'")
-    assert sorted(p.name for p in (copy / "plots").iterdir()) == sorted(f"{n}.pdf" for n in REPORT_FIGURES[:3])
+    assert sorted(p.name for p in (copy / "plots").iterdir()) == sorted(f"{n}.pdf" for n in REPORT_FIGURES[:4])
 
 
 def test_report_of_a_folder_without_a_run_is_one_error_line(tmp_path):
     out = CliRunner().invoke(main, ["report", str(tmp_path)])
     assert out.exit_code == 2
     assert out.output == f"error: {tmp_path}: no summary.json (not a run directory of ilcpmac run)\n"
+
+
+# ---------------------------------------------------------------- the operating range
+
+
+def _scatters(axis) -> dict[str, object]:
+    """The point collections of an operating-range panel by legend label."""
+    return {c.get_label(): c for c in axis.collections}
+
+
+def test_operating_range_shows_learned_and_validation_points_measured_and_true(run_report, report_figures):
+    fig = report_figures["operating_range"]
+    panels = _panels(fig)
+    assert [a.get_label() for a in fig.axes].count("<colorbar>") == len(panels) == 2
+    bars = [a for a in fig.axes if a.get_label() == "<colorbar>"]
+    assert [bar.get_ylabel() for bar in bars] == [f"{kind} pp (% of mean)" for kind in ("measured", "true")]
+    for axis, kind in zip(panels, ("measured", "true")):
+        assert axis.get_xlabel() == "speed (Hz, mechanical)"
+        assert axis.get_ylabel() == "torque set point (N m)"
+        assert kind in axis.get_title()
+        assert _legend_texts(axis) == ["learned", "validation (never learned)"]
+        scatters = _scatters(axis)
+        np.testing.assert_array_equal(scatters["learned"].get_offsets(), [[0.9, 2.0], [0.9, 4.0]])
+        np.testing.assert_array_equal(scatters["validation (never learned)"].get_offsets(), [[0.9, 3.0]])
+        last = {r.point: r for r in run_report.records if r.role in ("learn", "validate")}
+        np.testing.assert_allclose(scatters["learned"].get_array(),
+                                   [100 * last[p].figures(kind).pp for p in ((2.0, 0.9), (4.0, 0.9))])
+        for collection in scatters.values():
+            np.testing.assert_array_equal(collection.get_edgecolor()[:, :3], 0.0)  # better than none: black
+
+
+def _point_records(points: dict, true: bool = True) -> list:
+    """By hand: per point (torque, speed) -> (learned, uncompensated pp %, compensated pp %), its uncompensated
+    trial and its compensated one (learn or validate) with their reduction factor; true figures if ``true``."""
+    from ilcpmac.campaign.record import TrialRecord
+    from ilcpmac.signals.harmonics import RippleFigures
+
+    def ripple(pp_percent: float) -> RippleFigures:
+        return RippleFigures(pp_percent / 100, *(1e-3,) * 7)
+
+    records = []
+    for (torque, speed), (learned, before, after) in points.items():
+        phases = ("identify", "ilc", "learn") if learned else ("validate", "validate", "validate")
+        factor = before / after
+        records.append(TrialRecord(len(records) + 1, phases[0], "baseline", torque, speed, ripple(before),
+                                   ripple(before) if true else None))
+        records.append(TrialRecord(len(records) + 1, phases[1], phases[2], torque, speed, ripple(after),
+                                   ripple(after) if true else None, factor, factor if true else None))
+    return records
+
+
+def test_operating_range_edges_a_point_worse_than_none_in_red():
+    from ilcpmac.report.plots import operating_range
+
+    points = {(1.0, 0.5): (True, 2.0, 0.01), (1.0, 1.5): (True, 2.0, 0.02), (2.0, 0.5): (False, 1.0, 0.05),
+              (2.0, 1.5): (False, 1.0, 1.25)}
+    records = _point_records(points)
+    fig = operating_range(records, [(1.0, 0.5), (1.0, 1.5)], [(2.0, 0.5), (2.0, 1.5)])
+    assert_readable("operating_range", fig)
+    for axis in _panels(fig):
+        scatters = _scatters(axis)
+        assert scatters["learned"].get_edgecolor()[:, :3].tolist() == [[0, 0, 0]] * 2
+        assert scatters["validation (never learned)"].get_edgecolor()[:, :3].tolist() == [[0, 0, 0], [1, 0, 0]]
+        np.testing.assert_allclose(scatters["validation (never learned)"].get_array(), [0.05, 1.25])
+        assert sorted(t.get_text() for t in axis.texts) == ["0.01 %\n200x", "0.02 %\n100x", "0.05 %\n20x",
+                                                            "1.25 %\n0.8x"]
+
+
+def test_operating_range_of_a_real_bench_has_the_measured_panel_alone():
+    from ilcpmac.report.plots import operating_range
+
+    records = _point_records({(1.0, 0.5): (True, 2.0, 0.01), (2.0, 0.5): (False, 1.0, 0.05)}, true=False)
+    fig = operating_range(records, [(1.0, 0.5)], [(2.0, 0.5)])
+    (panel,) = _panels(fig)
+    assert "measured" in panel.get_title()
+    assert _legend_texts(panel) == ["learned", "validation (never learned)"]

@@ -364,7 +364,7 @@ class FailingRunner:
         pass
 
     def run(self) -> dict:
-        raise ConfigError("campaign.toml: [campaign] ilc_speed_setpoint_hz: beyond the bench's limit")
+        raise ConfigError("campaign.toml: [campaign] learn_speeds_hz: beyond the bench's limit")
 
 
 def test_an_error_raised_under_the_live_table_starts_its_own_line(tmp_path, write_config, monkeypatch):
@@ -372,7 +372,7 @@ def test_an_error_raised_under_the_live_table_starts_its_own_line(tmp_path, writ
     out = CliRunner().invoke(main, ["run", str(write_config()), "--out", str(tmp_path / "run")])
     assert out.exit_code == 2, out.output
     assert "┘" in out.stderr  # the table was on screen
-    assert error_lines(out.stderr) == ["error: campaign.toml: [campaign] ilc_speed_setpoint_hz: beyond the bench's "
+    assert error_lines(out.stderr) == ["error: campaign.toml: [campaign] learn_speeds_hz: beyond the bench's "
                                        "limit"]
 
 

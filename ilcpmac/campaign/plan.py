@@ -1,4 +1,5 @@
-"""The campaign's plan: its limits and grid, checked before anything runs, and which trial comes next.
+"""The campaign's plan: its limits, grid and operating points, checked before anything runs, and which trial
+comes next.
 
 The next trial is a function of the records of the trials done so far alone
 (`CampaignPlan.next_step`), so ``--resume`` continues exactly where a run stopped.
@@ -10,7 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ilcpmac.campaign.record import TrialRecord
+from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.config import CampaignConfig, check_bench
 from ilcpmac.errors import ConfigError
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan, torque_violation, trust_edges
@@ -18,35 +19,32 @@ from ilcpmac.records import BenchDescription, TrialRequest
 from ilcpmac.sim.grid import grid_plan, grid_requests
 from ilcpmac.sim.simulator import trial_seed
 
-__all__ = ["CampaignPlan", "Step", "base_request", "records_at"]
+__all__ = ["CampaignPlan", "Step", "learning_phase", "records_at"]
 
 
 @dataclass(frozen=True)
 class Step:
-    """The next trial: its phase, its role in the phase and its unshaped request."""
+    """The next trial: its phase, its role in the phase and its unshaped (uncompensated) request."""
 
     phase: str
     role: str
     request: TrialRequest
 
 
-def base_request(config: CampaignConfig, description: BenchDescription, torque_nm: float,
-                 seed: int) -> TrialRequest:
-    """An uncompensated request at an ILC set point, with the bench's own calibration."""
-    cpr = description.motor.counts_per_rev
-    c = config.campaign
-    return TrialRequest(torque_nm, c.ilc_speed_setpoint_hz, c.revolutions_at(torque_nm), np.zeros(cpr),
-                        np.zeros(cpr), description.calibration, seed=seed)
+def records_at(records: list[TrialRecord], point: Point, roles: tuple[str, ...]) -> list[TrialRecord]:
+    """The records of ``roles`` at operating point ``point`` (torque N m, speed Hz), in order."""
+    return [r for r in records if r.role in roles and r.point == point]
 
 
-def records_at(records: list[TrialRecord], torque_nm: float, roles: tuple[str, ...]) -> list[TrialRecord]:
-    """The records of ``roles`` at the ILC set point ``torque_nm``, in order."""
-    return [r for r in records if r.role in roles and r.torque_setpoint_nm == torque_nm]
+def learning_phase(stages: tuple[str, ...]) -> str:
+    """The learning phase's name for what runs in it: "ilc" when the ``ilc`` stage does, else "learn"."""
+    return "ilc" if "ilc" in stages else "learn"
 
 
 @dataclass(frozen=True)
 class CampaignPlan:
-    """The limits of a campaign and its grid, checked against the bench before anything runs or is written.
+    """The limits of a campaign, its grid and operating points, checked against the bench before anything
+    runs or is written.
 
     Attributes
     ----------
@@ -55,6 +53,8 @@ class CampaignPlan:
     seed : trial k (1-based) is seeded with ``trial_seed(seed, k)``.
     limits : the config's limits, tightened by the bench's.
     grid : the identification grid's requests.
+    learned : the operating points learned at, (torque N m, speed Hz) (`CampaignConfig.learned_points`).
+    validated : the operating points validated at (`CampaignConfig.validation_points`).
     """
 
     config: CampaignConfig
@@ -62,66 +62,88 @@ class CampaignPlan:
     seed: int
     limits: SafetyLimits
     grid: list[TrialRequest]
+    learned: list[Point]
+    validated: list[Point]
 
     @classmethod
     def build(cls, config: CampaignConfig, description: BenchDescription, seed: int) -> CampaignPlan:
         """Check the bench against [bench] (`check_bench`) and every request the campaign will make: the grid,
-        each ILC set point as its baseline runs it, and as the stages may run it (any calibration of the trust
-        region); raise `ConfigError` naming the keys."""
+        each operating point as its uncompensated trial runs it, and as the stages may run it (any calibration
+        of the trust region); raise `ConfigError` naming the keys."""
         check_bench(config, description)
         limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
         grid = [replace(r, seed=trial_seed(seed, i + 1))
                 for i, r in enumerate(grid_requests(config, description.calibration, seed, config.grid.revolutions))]
-        c = config.campaign
-        baselines = [(f"{config.path}: [campaign] ilc_torque_setpoints_nm {torque:g} N m at ilc_speed_setpoint_hz "
-                      f"{c.ilc_speed_setpoint_hz:g} Hz, ilc_revolutions {c.revolutions_at(torque)}",
-                      base_request(config, description, torque, 0)) for torque in c.ilc_torque_setpoints_nm]
-        check_plan([*grid_plan(config, grid), *baselines], description, limits)
-        for place, request in baselines:
+        plan = cls(config, description, seed, limits, grid, config.learned_points(), config.validation_points())
+        points = [(f"{config.path}: [campaign] {kind}_torques_nm {t:g} N m at {kind}_speeds_hz {s:g} Hz, "
+                   f"{kind}_revolutions {config.trial_revolutions(point)}", plan.base_request(point, 0))
+                  for kind, chosen in (("learn", plan.learned), ("validate", plan.validated))
+                  for point in chosen for t, s in [point]]
+        check_plan([*grid_plan(config, grid), *points], description, limits)
+        for place, request in points:
             for edge in trust_edges(limits):
                 why = torque_violation(request.torque_reference_nm(), description.backemf_nm_per_a, limits, edge)
                 if why is not None:
                     raise ConfigError(f"{place}: with a calibration at the edge of the trust region ([limits] "
                                       f"max_scale_deviation, max_offset_deviation_a): {why}")
-        return cls(config, description, seed, limits, grid)
+        return plan
 
-    def ilc_finished(self, records: list[TrialRecord], torque_nm: float) -> bool:
-        """Whether the ILC phase at ``torque_nm`` is over: [campaign] ilc_trials done, or the measured
-        repeatable ripple has not improved by min_improvement for patience trials."""
+    @property
+    def learning_phase(self) -> str:
+        """The learning phase's name (`learning_phase`)."""
+        return learning_phase(self.config.pipeline.stages)
+
+    def base_request(self, point: Point, seed: int) -> TrialRequest:
+        """An uncompensated request at ``point``, with the bench's own calibration."""
+        cpr = self.description.motor.counts_per_rev
+        return TrialRequest(point[0], point[1], self.config.trial_revolutions(point), np.zeros(cpr), np.zeros(cpr),
+                            self.description.calibration, seed=seed)
+
+    def learn_finished(self, records: list[TrialRecord], point: Point) -> bool:
+        """Whether learning at ``point`` is over: [campaign] learn_trials done, or the measured repeatable
+        ripple has not improved by min_improvement for patience trials."""
         c = self.config.campaign
-        if len(records_at(records, torque_nm, ("ilc",))) >= c.ilc_trials:
+        if len(records_at(records, point, ("learn",))) >= c.learn_trials:
             return True
         # judged on the repeatable part: at low torque the noise left in the average hides progress
-        history = [r.measured.rms_repeatable for r in records_at(records, torque_nm, ("compensate", "ilc"))]
+        history = [r.measured.rms_repeatable for r in records_at(records, point, ("compensate", "learn"))]
         if len(history) <= c.patience:
             return False
         best_before = min(history[: -c.patience])
         return all(p > (1.0 - c.min_improvement) * best_before for p in history[-c.patience:])
 
     def most_remaining(self, records: list[TrialRecord]) -> int:
-        """The most trials that can follow ``records``: the grid, baselines and compensations left, and every
-        unfinished ILC set point running to [campaign] ilc_trials."""
+        """The most trials that can follow ``records``: the grid, uncompensated and compensation trials left,
+        every unfinished learned point running to [campaign] learn_trials, and the validation trials left."""
         c = self.config.campaign
         left = max(len(self.grid) - len(records), 0)
-        for torque in c.ilc_torque_setpoints_nm:
-            left += sum(not records_at(records, torque, (role,)) for role in ("baseline", "compensate"))
-            if not self.ilc_finished(records, torque):
-                left += c.ilc_trials - len(records_at(records, torque, ("ilc",)))
+        for point in self.learned:
+            left += sum(not records_at(records, point, (role,)) for role in ("baseline", "compensate"))
+            if not self.learn_finished(records, point):
+                left += c.learn_trials - len(records_at(records, point, ("learn",)))
+        for point in self.validated:
+            left += sum(not records_at(records, point, (role,)) for role in ("baseline", "validate"))
         return left
 
     def next_step(self, records: list[TrialRecord]) -> Step | None:
-        """The trial after ``records`` (every trial done so far); None when the campaign is over."""
+        """The trial after ``records`` (every trial done so far); None when the campaign is over.
+
+        Order: the grid; an uncompensated trial at every learned point; a compensation trial at each; learning
+        point by point; then, per validation point, an uncompensated and a compensated trial.
+        """
         n = len(records)
         if n < len(self.grid):
             return Step("identify", "grid", self.grid[n])
-        setpoints = self.config.campaign.ilc_torque_setpoints_nm
+        seed = trial_seed(self.seed, n + 1)
         for role, phase in (("baseline", "identify"), ("compensate", "compensate")):
-            for torque in setpoints:
-                if not records_at(records, torque, (role,)):
-                    return Step(phase, role, base_request(self.config, self.description, torque,
-                                                          trial_seed(self.seed, n + 1)))
-        for torque in setpoints:
-            if not self.ilc_finished(records, torque):
-                return Step("ilc", "ilc", base_request(self.config, self.description, torque,
-                                                       trial_seed(self.seed, n + 1)))
+            for point in self.learned:
+                if not records_at(records, point, (role,)):
+                    return Step(phase, role, self.base_request(point, seed))
+        for point in self.learned:
+            if not self.learn_finished(records, point):
+                return Step(self.learning_phase, "learn", self.base_request(point, seed))
+        for point in self.validated:
+            for role in ("baseline", "validate"):
+                if not records_at(records, point, (role,)):
+                    return Step("validate", role, self.base_request(point, seed))
         return None

@@ -6,7 +6,10 @@ from dataclasses import dataclass
 
 from ilcpmac.signals.harmonics import RippleFigures
 
-__all__ = ["FIGURE_KEYS", "TrialRecord", "records_of"]
+__all__ = ["FIGURE_KEYS", "Point", "TrialRecord", "records_of"]
+
+#: an operating point: (torque set point N m, speed set point Hz)
+Point = tuple[float, float]
 
 #: summary.json's key of each `RippleFigures` field; ``{}`` is "measured" or "true"
 FIGURE_KEYS = (("pp", "ripple_pp_{}"), ("rms", "ripple_rms_{}"), ("rest_rms", "rest_rms_{}"),
@@ -33,17 +36,19 @@ class TrialRecord:
     index : int
         1-based, in the order trials ran.
     phase : str
-        "identify", "compensate" or "ilc".
+        "identify", "compensate", the learning phase ("ilc" when the ilc stage runs, else "learn") or
+        "validate".
     role : str
-        "grid", "baseline", "compensate" or "ilc".
+        "grid", "baseline" (uncompensated, at a learned or a validation point), "compensate", "learn" or
+        "validate" (the final compensation, no learning).
     torque_setpoint_nm, speed_setpoint_hz : float
     measured : RippleFigures or None
         Of the measured torque; None until the identification (which gives the mean it refers to).
     true : RippleFigures or None
         Of the true torque (simulator only).
     reduction_factor, reduction_factor_true : float or None
-        The set point's baseline peak-to-peak ripple over this trial's, measured and true
-        (compensate and ilc trials; None where the trial's ripple is zero).
+        The operating point's uncompensated peak-to-peak ripple over this trial's, measured and true
+        (compensate, learn and validate trials; None where the trial's ripple is zero).
     """
 
     index: int
@@ -58,8 +63,13 @@ class TrialRecord:
 
     @property
     def learns(self) -> bool:
-        """Whether the pipeline learns from this trial (the compensate and ilc roles)."""
-        return self.role in ("compensate", "ilc")
+        """Whether the pipeline learns from this trial (the compensate and learn roles)."""
+        return self.role in ("compensate", "learn")
+
+    @property
+    def point(self) -> Point:
+        """Its operating point, (torque set point N m, speed set point Hz)."""
+        return (self.torque_setpoint_nm, self.speed_setpoint_hz)
 
     def figures(self, kind: str) -> RippleFigures | None:
         """`measured` or `true` by name."""

@@ -12,6 +12,8 @@ Layout::
       states/trial_001.json  after each trial: the request, every stage's state,
                            the campaign's own state and the trial's ripple figures
       states/identification.json
+      compensation.json    what the drive applies (ilcpmac.compensation; written when learning ends, again
+                           with its fade-out once validation ends; ilcpmac export reads it)
       summary.json
       .lock, .lock.holder  the run's lock, and which process holds it
 
@@ -61,6 +63,7 @@ from ilcpmac.bench.format import (
     write_backemf_csv,
     write_trial,
 )
+from ilcpmac.compensation import COMPENSATION_FILE
 from ilcpmac.config import read_toml
 from ilcpmac.errors import BenchFormatError, IlcpmacError
 from ilcpmac.records import BenchDescription, TrialData
@@ -110,6 +113,7 @@ class RunFiles:
         self.states = self.path / STATES
         self.settings = self.states / RUN_FILE
         self.identification = self.states / IDENTIFICATION_FILE
+        self.compensation = self.path / COMPENSATION_FILE
         self.plots = self.path / PLOTS
 
     def trial(self, index: int) -> Path:
@@ -474,6 +478,12 @@ class RunDir:
     def read_identification(self) -> dict | None:
         """states/identification.json, or None when it does not exist."""
         return self.files.read_json(self.files.identification)
+
+    def write_compensation(self, data: dict) -> None:
+        """Write compensation.json atomically."""
+        target = self.files.compensation
+        with _writing(target, self._resumable):
+            atomic_write(target, _json_text(data, target, indent=1))
 
     def write_summary(self, summary: dict) -> None:
         """Write summary.json atomically (not fsynced: it is rebuilt from the states on resume)."""

@@ -4,11 +4,18 @@ Phases (report ch. 1-4, then beyond):
 
 1. ``identify``: the multisine set-point grid of [trials] x [excitation],
    identified as ``ilcpmac identify`` does; then one uncompensated trial
-   (no excitation) per ILC set point, the baseline of every reduction factor.
-2. ``compensate``: one trial per ILC set point with the pipeline's corrections
+   (no excitation) per learned operating point (torque x speed), the baseline
+   of every reduction factor.
+2. ``compensate``: one trial per learned point with the pipeline's corrections
    (current-sensor calibration, cogging feed-forward) applied.
-3. ``ilc``: per ILC set point in turn, trials until the measured ripple stops
-   improving or [campaign] ilc_trials.
+3. learning (``ilc``, or ``learn`` when the pipeline has no ilc stage): per
+   learned point in turn, trials until the measured ripple stops improving or
+   [campaign] learn_trials. When it ends, the compensation the drive applies
+   (`ilcpmac.compensation.Compensation`: the pipeline's calibration and its
+   feed-forward at every learned point) is written to compensation.json.
+4. ``validate``: per validation point (never learned), an uncompensated trial
+   and one with the compensation, no learning; then compensation.json is
+   written again with its fade-out (`ilcpmac.campaign.validation`).
 
 The next trial is always a function of the trials done so far and the states
 saved with them, so ``--resume`` continues exactly where a run stopped and
@@ -17,6 +24,7 @@ ends with the same result as an uninterrupted run with the same seed.
 
 from __future__ import annotations
 
+import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
@@ -24,13 +32,15 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from ilcpmac.backends.base import Backend
+from ilcpmac.backends.base import Backend, report_progress_to
 from ilcpmac.bench.format import Bench, as_written
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
-from ilcpmac.campaign.record import FIGURE_KEYS, TrialRecord
+from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir
+from ilcpmac.campaign.validation import fade_out, point_results
+from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
-from ilcpmac.errors import IdentificationError
+from ilcpmac.errors import IdentificationError, IlcpmacError
 from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import LimitGuard, identified_truth
@@ -46,7 +56,11 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                  **{key.format(kind): "N m" if key.endswith("_nm") else "fraction of mean torque"
                     for _, key in FIGURE_KEYS for kind in ("measured", "true")},
                  "reduction_factor": "x (uncompensated peak-to-peak ripple over this one, measured)",
-                 "reduction_factor_true": "x (uncompensated peak-to-peak ripple over this one, true)"}
+                 "reduction_factor_true": "x (uncompensated peak-to-peak ripple over this one, true)",
+                 **{f"{name}_pp_{kind}": "fraction of mean torque" for name in ("uncompensated", "ripple")
+                    for kind in ("measured", "true")},
+                 "fade_full_hz": "Hz (the feed-forward applies fully up to this speed; null: always)",
+                 "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
 
 
 class CampaignEvents(Protocol):
@@ -57,6 +71,9 @@ class CampaignEvents(Protocol):
 
     def message(self, text: str) -> None:
         """Something worth saying (phase changes, the guard acting)."""
+
+    def progress(self, fraction: float) -> None:
+        """The running trial is ``fraction`` (0..1) done, where the backend reports it; called from any thread."""
 
 
 class CampaignRunner:
@@ -85,10 +102,13 @@ class CampaignRunner:
         self.plan = CampaignPlan.build(config, self.description, seed)
         #: every request of every phase passes the limits here (the identified sensors join them later)
         self.backend = LimitGuard(backend, self.description, self.plan.limits)
+        report_progress_to(self.backend, events.progress)
         self.records: list[TrialRecord] = []
         self.identified: Identified | None = None
         self.identification_json: dict | None = None
         self.pipeline: Pipeline | None = None
+        #: what the drive applies, built from the pipeline when learning ends
+        self.compensation: Compensation | None = None
         self.gains: dict[str, float] = {}
         self._grid_data: dict[int, TrialData] = {}
         #: the measured torque's analysis of the grid trials run by this process, for their measured ripple
@@ -111,6 +131,7 @@ class CampaignRunner:
             self._resume()
             self._loop()
             self.run_dir.flush()
+            self._conclude()
             summary = self.summary()
             self.run_dir.write_summary(summary)
         finally:
@@ -125,8 +146,10 @@ class CampaignRunner:
             if self.pipeline is None:
                 self._start_pipeline()
             request = step.request
-            if step.role != "baseline":
+            if step.role in ("compensate", "learn"):
                 request = self.pipeline.shape(request)
+            elif step.role == "validate":
+                request = self._compensation().apply(request)
             trial = self._run(request)
             self._finish(step, trial)
 
@@ -155,13 +178,13 @@ class CampaignRunner:
             self.pipeline.learn(trial, self.gains.get(key, 1.0), analysis.measured)
         if self.identified is not None:
             record = replace(record, measured=self._measured_figures(trial.request, analysis.measured))
-        if record.learns:
+        if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)
-        guard = self._guard(request.torque_setpoint_nm, key) if step.role == "ilc" else None
+        guard = self._guard(record.point, key) if step.role == "learn" else None
         state = {"record": record.to_json(), "pipeline": self.pipeline.state() if self.pipeline else None,
                  "gains": dict(self.gains), "guard": guard,
-                 "request": {"calibration": request.calibration.to_json(),
+                 "request": {"calibration": trial.request.calibration.to_json(),
                              "feedforward_nm": trial.request.feedforward_nm.tolist(),
                              "revolutions": request.revolutions, "seed": request.seed}}
         self.run_dir.add_trial(trial, state, self.summary())
@@ -173,8 +196,8 @@ class CampaignRunner:
         self.events.trial(record, self.records)
 
     def _with_reductions(self, record: TrialRecord) -> TrialRecord:
-        """``record`` with its reduction factors against its set point's baseline."""
-        baseline = records_at(self.records, record.torque_setpoint_nm, ("baseline",))
+        """``record`` with its reduction factors against its operating point's uncompensated trial."""
+        baseline = records_at(self.records, record.point, ("baseline",))
         if not baseline:
             return record
         factors = {}
@@ -251,19 +274,67 @@ class CampaignRunner:
         self.pipeline = Pipeline(stages, self.description, self.identified, self.plan.limits,
                                  self.config.campaign.ripple_harmonics, self.events.message)
 
-    def _guard(self, torque_nm: float, key: str) -> dict | None:
-        """Revert to the best correction and halve the learning gain when the ripple grew twice in a row."""
-        history = records_at(self.records, torque_nm, ("compensate", "ilc"))
+    def _guard(self, point: Point, key: str) -> dict | None:
+        """Revert this point's correction to its best and halve its learning gain when the ripple grew twice in
+        a row (`Pipeline.revert`: what the stages learned at other points stays)."""
+        history = records_at(self.records, point, ("compensate", "learn"))
         pp = [r.measured.pp for r in history]
         if len(pp) < 3 or not (pp[-1] > pp[-2] > pp[-3]):
             return None
         best = min(history, key=lambda r: r.measured.pp)
-        self.pipeline.restore(self.run_dir.state(best.index)["pipeline"])
+        self.pipeline.revert(self.run_dir.state(best.index)["pipeline"], key)
         self.gains[key] = self.gains.get(key, 1.0) * 0.5
         event = {"set_point": key, "reverted_to_trial": best.index, "learning_gain": self.gains[key]}
         self.events.message(f"guard: measured ripple at {key} grew twice in a row; reverted to the correction "
                             f"of trial {best.index} and halved the learning gain to {self.gains[key]:g}")
         return event
+
+    # ---------------------------------------------------------------- the compensation
+
+    def _compensation(self) -> Compensation:
+        """The compensation the drive applies: built from the pipeline (and written) when first asked for."""
+        if self.compensation is None:
+            requests = [self.pipeline.shape(self.plan.base_request(point, 0)) for point in self.plan.learned]
+            calibration = requests[0].calibration
+            if any(r.calibration.to_json() != calibration.to_json() for r in requests):
+                raise IlcpmacError("the stages set different calibrations at different operating points; a "
+                                   "compensation holds one calibration (docs/writing-a-stage.md)")
+            torques, speeds = self.config.learned_torques_nm(), self.config.learned_speeds_hz()
+            tables = np.stack([r.feedforward_nm for r in requests]).reshape(
+                len(torques), len(speeds), self.description.motor.counts_per_rev)
+            self.compensation = Compensation(self.description.motor.counts_per_rev, calibration,
+                                             np.array(torques), np.array(speeds), tables,
+                                             fade_out(self._results()))
+            self.run_dir.write_compensation(self.compensation.to_json())
+            self.events.message(f"{self.plan.learning_phase}: the compensation over the learned points "
+                                f"({len(torques)} torques x {len(speeds)} speeds) is in "
+                                f"{self.run_dir.files.compensation.name}")
+        return self.compensation
+
+    def _results(self):
+        return point_results(self.records, self.plan.learned, self.plan.validated)
+
+    def _conclude(self) -> None:
+        """After the last trial: the compensation's fade-out from every point's result, and what it means."""
+        if self.pipeline is None:
+            return
+        compensation = self._compensation()
+        results = self._results()
+        fade = fade_out(results)
+        if fade != compensation.fade:
+            self.compensation = replace(compensation, fade=fade)
+            self.run_dir.write_compensation(self.compensation.to_json())
+        worse = [r for r in results if r.worse]
+        if worse:
+            where = ", ".join(f"{r.point[0]:g} N m at {r.point[1]:g} Hz" for r in worse)
+            applies = ("never applies" if fade.zero_hz == 0 else
+                       f"fades it out from {fade.full_hz:g} Hz to {fade.zero_hz:g} Hz")
+            self.events.message(f"validate: the compensation is WORSE than none at {where}; compensation.json "
+                                f"{applies} (docs/export.md)")
+        elif results:
+            validated = sum(not r.learned for r in results)
+            self.events.message(f"validate: the compensation beats none at every point ({len(results) - validated} "
+                                f"learned, {validated} validated)")
 
     # ---------------------------------------------------------------- resume and summary
 
@@ -289,12 +360,12 @@ class CampaignRunner:
         self.events.message(f"resume: {done} trials already complete in {self.run_dir.path}")
 
     def summary(self) -> dict:
-        """summary.json: the units of its figures, every trial, the identification and the final figures
-        (docs/campaign.md)."""
-        setpoints = self.config.campaign.ilc_torque_setpoints_nm
-        last = [done[-1] for t in setpoints if (done := records_at(self.records, t, ("compensate", "ilc")))]
+        """summary.json: the units of its figures, every trial, the identification, the final figures of the
+        learned points, the validation points' results and the compensation's fade-out (docs/campaign.md)."""
+        points = self.plan.learned
+        last = [done[-1] for p in points if (done := records_at(self.records, p, ("compensate", "learn")))]
         final = {}
-        if last and len(last) == len(setpoints):
+        if last and len(last) == len(points):
             for name, kind in (("pp", "true"), ("pp", "measured"), ("rms", "true"), ("rms", "measured")):
                 figures = [r.figures(kind) for r in last]
                 if all(f is not None for f in figures):
@@ -303,5 +374,12 @@ class CampaignRunner:
                 factors = [getattr(r, key) for r in last]
                 if all(f is not None for f in factors):
                     final[key] = min(factors)
-        return {"units": dict(SUMMARY_UNITS), "trials": [r.to_json() for r in self.records],
-                "identification": self.identification_json, "final": final}
+        summary = {"units": dict(SUMMARY_UNITS), "trials": [r.to_json() for r in self.records],
+                   "identification": self.identification_json, "final": final,
+                   "validation": [r.to_json() for r in self._results() if not r.learned]}
+        if self.compensation is not None:
+            fade = self.compensation.fade
+            summary["compensation"] = {"file": self.run_dir.files.compensation.name,
+                                       "fade_full_hz": None if math.isinf(fade.full_hz) else fade.full_hz,
+                                       "fade_zero_hz": None if math.isinf(fade.zero_hz) else fade.zero_hz}
+        return summary

@@ -1,7 +1,9 @@
-"""``ilcpmac run``: the full campaign (identify, compensate, ILC) with a live table of the ripple."""
+"""``ilcpmac run``: the full campaign (identify, learn over the operating range, validate) with a live table
+of the ripple."""
 
 from __future__ import annotations
 
+import math
 import shlex
 import shutil
 import time
@@ -37,8 +39,9 @@ def duration(seconds: float) -> str:
 
 class CampaignView:
     """The live display of ``ilcpmac run`` and the campaign's events (`CampaignEvents`): the table of trials
-    laid out for the console's width, under it a status line with the trial running, its elapsed time, and
-    the trials and time left at most (the plan's bound on the trials, at the mean time of the trials so far).
+    laid out for the console's width, under it a status line with the trial running, how far it is where the
+    backend reports it, its elapsed time, and the trials and time left at most (the plan's bound on the
+    trials, at the mean time of the trials so far).
 
     Parameters
     ----------
@@ -59,6 +62,8 @@ class CampaignView:
         self.started_s = self.last_s = clock()
         #: wall seconds of each trial finished in this process, grid trials (run in parallel) apart
         self.seconds: dict[bool, list[float]] = {True: [], False: []}
+        #: the fraction of the running trial done, as the backend last reported it; None if not reported
+        self.fraction: float | None = None
         self.ended: str | None = None
 
     def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
@@ -66,7 +71,13 @@ class CampaignView:
         now = self.clock()
         self.seconds[record.role == "grid"].append(now - self.last_s)
         self.last_s = now
+        self.fraction = None
         self.records = list(records)
+
+    def progress(self, fraction: float) -> None:
+        """The running trial is ``fraction`` (0..1) done (from any thread); anything else is ignored."""
+        if 0.0 <= fraction <= 1.0:
+            self.fraction = fraction
 
     def message(self, text: str) -> None:
         """Say ``text`` above the display."""
@@ -78,17 +89,27 @@ class CampaignView:
 
     def time_left_s(self) -> float | None:
         """At most how long the campaign still runs: the plan's bound on the grid trials and the others left,
-        each at the mean time of its kind so far in this process; None while a kind left has no time yet."""
+        each at the mean time of its kind so far in this process, the running trial at the pace of its
+        progress where reported (which then stands for its kind until one has finished); None while a kind
+        left has no time yet."""
         if self.records is None:
             return None
         grid_left = max(len(self.plan.grid) - len(self.records), 0)
         left = {True: grid_left, False: self.plan.most_remaining(self.records) - grid_left}
-        if any(n and not self.seconds[grid] for grid, n in left.items()):
+        mean_s = {grid: sum(s) / len(s) for grid, s in self.seconds.items() if s}
+        kind = grid_left > 0  # the running trial's
+        correction_s = 0.0  # the running trial's time left, less the mean counted for it
+        if self.fraction and left[kind]:
+            elapsed_s = self.clock() - self.last_s
+            mean_s.setdefault(kind, elapsed_s / self.fraction)
+            correction_s = elapsed_s * (1.0 - self.fraction) / self.fraction - mean_s[kind]
+        if any(n and grid not in mean_s for grid, n in left.items()):
             return None
-        return sum(n * sum(self.seconds[grid]) / len(self.seconds[grid]) for grid, n in left.items() if n)
+        return sum(n * mean_s[grid] for grid, n in left.items() if n) + correction_s
 
-    def status(self) -> str:
-        """The status line."""
+    def status(self, width: int = 80) -> str:
+        """The status line, within ``width`` characters: the running trial's speed, then the trials done and
+        the time elapsed, are left out if need be."""
         now = self.clock()
         elapsed = duration(now - self.started_s)
         if self.ended is not None:
@@ -98,23 +119,31 @@ class CampaignView:
             return f"{_SPINNER[0]} starting, {elapsed}"
         done = len(self.records)
         step = self.plan.next_step(self.records)
+        speed = percent = ""
         if step is None:
             running = "writing the summary"
-        elif step.role == "grid":
-            running = f"trial {done + 1}/{len(self.plan.grid)} grid"
         else:
-            r = step.request
-            running = f"trial {done + 1} {step.role} {r.torque_setpoint_nm:g} N m {r.speed_setpoint_hz:g} Hz"
+            if step.role == "grid":
+                running = f"trial {done + 1}/{len(self.plan.grid)} grid"
+            else:
+                running = f"trial {done + 1} {step.role} {step.request.torque_setpoint_nm:g} N m"
+                speed = f" {step.request.speed_setpoint_hz:g} Hz"
+            if self.fraction is not None:
+                percent = f" {math.floor(100 * self.fraction)} %"
+        spinner = _SPINNER[int(now * REFRESH_HZ) % len(_SPINNER)]
+        trial = duration(now - self.last_s)
         left = self.time_left_s()
         bound = f"≤ {self.plan.most_remaining(self.records)} to go" + ("" if left is None else f", ~{duration(left)}")
-        return (f"{_SPINNER[int(now * REFRESH_HZ) % len(_SPINNER)]} {running}, {duration(now - self.last_s)} | "
-                f"{done} done, {elapsed} | {bound}")
+        lines = [f"{spinner} {running}{speed}{percent}, {trial} | {done} done, {elapsed} | {bound}",
+                 f"{spinner} {running}{percent}, {trial} | {done} done, {elapsed} | {bound}",
+                 f"{spinner} {running}{percent}, {trial} | {bound}"]
+        return next((line for line in lines if len(line) <= width), lines[-1])
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         from ilcpmac.report.table import trials_table
 
         yield trials_table(self.records or [], options.max_width, self.title)
-        yield Text(self.status())
+        yield Text(self.status(options.max_width))
 
 
 def files_written(path: Path) -> tuple[int, int]:
@@ -143,13 +172,13 @@ class LiveTable(Live):
                    "remote, a bench target (docs/protocol.md).")
 @click.option("--address", help="Where the bench is, for backends that need it (remote: HOST:PORT).")
 @click.option("--trials", type=click.IntRange(min=1), default=None,
-              help="Most ILC trials per set point (overrides [campaign] ilc_trials).")
+              help="Most learning trials per learned point (overrides [campaign] learn_trials).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override [trials] seed.")
 @click.option("--resume", "resume_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Continue the run in this directory from its last complete trial.")
 def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: str | None, trials: int | None,
         seed: int | None, resume_dir: Path | None) -> None:
-    """Run a campaign: identify, compensate, then learn with ILC.
+    """Run a campaign: identify, learn, validate a compensation.
 
     With no CONFIG, runs the packaged seed-bench.toml on the simulator. Every trial is
     persisted as it finishes in the run directory (a bench folder); see
@@ -182,7 +211,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             config_path = config or packaged_config(DEFAULT_CONFIG)
         cfg = load_config(config_path)
         if trials is not None:
-            cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, ilc_trials=trials))
+            cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, learn_trials=trials))
         if seed is not None:
             cfg = dataclasses.replace(cfg, grid=dataclasses.replace(cfg.grid, seed=seed))
         check_config(cfg)  # the overrides obey the same ranges as the file
@@ -217,8 +246,8 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
         if made_out_dir and run_dir is None:  # nothing was created: leave no empty directory behind
             shutil.rmtree(out_dir, ignore_errors=True)
     console.print(Text(SUMMARY_TITLE))
-    console.print(summary_table(records_of(summary), list(cfg.campaign.ilc_torque_setpoints_nm)))
-    lines = final_lines(summary["final"])
+    console.print(summary_table(records_of(summary), plan.learned, plan.validated))
+    lines = final_lines(summary)
     if lines:
         console.print(Text("\n  ".join([FINAL_TITLE, *lines])))
     count, size = files_written(run_dir.path)

@@ -2,10 +2,11 @@
 
 - ``ripple_per_trial``: peak-to-peak ripple of every trial, coloured by torque set point, the campaign's
   phases as bands;
-- ``before_after_<T>Nm``: per ILC set point, the measured and (simulator) true torque ripple over one
-  revolution before compensation and after the last trial, and their spectra;
-- ``learned_<T>Nm``: per ILC set point, the feed-forward each stage has learned by the last trial, as a
-  spectrum and over one cogging period.
+- ``before_after_<T>Nm_<S>Hz``: per learned operating point, the measured and (simulator) true torque ripple
+  over one revolution before compensation and after the last trial, and their spectra;
+- ``learned_<T>Nm_<S>Hz``: per learned point, the feed-forward each stage has learned by the last trial, as
+  a spectrum and over one cogging period;
+- ``operating_range``: the final ripple over torque x speed at the learned and the validation points.
 
 Each builder returns a `matplotlib.figure.Figure`; `write_report` writes them all.
 """
@@ -18,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from ilcpmac import plotting
 from ilcpmac.campaign.plan import records_at
-from ilcpmac.campaign.record import TrialRecord, records_of
+from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
+from ilcpmac.campaign.validation import point_results
 from ilcpmac.config import CampaignConfig, load_config
 from ilcpmac.errors import ConfigError
 from ilcpmac.pipeline.analysis import TorqueSpectrum
@@ -31,10 +34,11 @@ from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, Tr
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
 __all__ = ["LearnedFeedForward", "RunReport", "before_after", "build_figures", "learned_feedforward",
-           "learned_figure", "ripple_per_trial", "write_report"]
+           "learned_figure", "operating_range", "ripple_per_trial", "write_report"]
 
 #: the shade of each phase's band in the ripple plot
-PHASE_SHADES = {"identify": "0.85", "compensate": "tab:orange", "ilc": "tab:blue"}
+PHASE_SHADES = {"identify": "0.85", "compensate": "tab:orange", "ilc": "tab:blue", "learn": "tab:blue",
+                "validate": "tab:green"}
 #: the ripple figure everything aims below, % of the mean torque
 TARGET_PERCENT = 0.1
 #: spectrum amplitudes below this fraction of a figure's largest are numerical zeros and not drawn
@@ -85,9 +89,13 @@ class RunReport:
         """H, the campaign's ripple band."""
         return self.config.campaign.ripple_harmonics
 
-    def ilc_setpoints(self) -> list[float]:
-        """The torque set points the pipeline learned at, in order."""
-        return sorted({r.torque_setpoint_nm for r in self.records if r.learns})
+    def learned_points(self) -> list[Point]:
+        """The operating points the pipeline learned at, in order."""
+        return sorted({r.point for r in self.records if r.learns})
+
+
+def _point_name(point: Point) -> str:
+    return f"{point[0]:g}Nm_{point[1]:g}Hz"
 
 
 def _legend_proxy(axis: Axes, style: str, label: str, **options) -> None:
@@ -144,16 +152,16 @@ def _spectrum_points(axis: Axes, amplitudes_nm: dict[str, np.ndarray], **style) 
 
 
 def before_after(report: RunReport) -> dict[str, Figure]:
-    """Per ILC set point: measured and true torque ripple over one revolution, uncompensated (baseline) and
+    """Per learned point: measured and true torque ripple over one revolution, uncompensated (baseline) and
     after the last trial, and their spectra; by file name."""
     cpr, H = report.description.motor.counts_per_rev, report.max_harmonic
     degrees = plotting.mechanical_degrees(np.arange(cpr), cpr)
     figures = {}
-    for torque in report.ilc_setpoints():
-        base = records_at(report.records, torque, ("baseline",))
+    for point in report.learned_points():
+        base = records_at(report.records, point, ("baseline",))
         if not base:
             continue
-        final = records_at(report.records, torque, ("compensate", "ilc"))[-1]
+        final = records_at(report.records, point, ("compensate", "learn"))[-1]
         fig, axes = plotting.figure(3, 2.8, sharex=False)
         amplitudes = {}
         for axis, record, when in zip(axes, (base[0], final), ("uncompensated", "final")):
@@ -161,24 +169,25 @@ def before_after(report: RunReport) -> dict[str, Figure]:
             for kind, spectrum in _spectra(trial, cpr, H).items():
                 axis.plot(degrees, 1000 * spectrum.ripple_table(), lw=0.8, label=kind)
                 amplitudes[f"{when}, {kind}"] = np.abs(spectrum.harmonics_nm[1:])
-            axis.set_title(f"{torque:g} N m, {when} (trial {record.index}): torque ripple, harmonics 1..{H}")
+            axis.set_title(f"{point[0]:g} N m at {point[1]:g} Hz, {when} (trial {record.index}): torque ripple, "
+                           f"harmonics 1..{H}", fontsize=9)
             axis.set_ylabel(TORQUE_LABEL)
             plotting.angle_axis(axis)
             plotting.legend(axis, loc="upper right")
         _spectrum_points(axes[2], amplitudes, marker=".", ms=3, ls="none")
         axes[2].set_title("spectrum of the torque ripple")
         plotting.legend(axes[2], ncol=2)
-        figures[f"before_after_{torque:g}Nm"] = fig
+        figures[f"before_after_{_point_name(point)}"] = fig
     return figures
 
 
 @dataclass(frozen=True)
 class LearnedFeedForward:
-    """What each stage feeds forward at one set point after its last trial.
+    """What each stage feeds forward at one learned point after its last trial.
 
     Attributes
     ----------
-    record : the set point's last trial (compensate or ilc).
+    record : the point's last trial (compensate or learn).
     tables_nm : each stage's own feed-forward per encoder count, N m, in the pipeline's order (zero for a
         stage that feeds nothing forward).
     """
@@ -188,7 +197,7 @@ class LearnedFeedForward:
 
 
 def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
-    """Per ILC set point, each stage's feed-forward rebuilt from the states of its last trial.
+    """Per learned point, each stage's feed-forward rebuilt from the states of its last trial.
 
     The stages of the config are built from the run's identification and restored from the state saved
     with that trial; a request at that set point then passes through them in order, and what each adds
@@ -206,8 +215,8 @@ def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
 
     files, cfg = report.files, report.config
     identification = files.read_json(files.identification)
-    setpoints = report.ilc_setpoints()
-    if identification is None or not setpoints:
+    points = report.learned_points()
+    if identification is None or not points:
         return []
     description = report.description
     names = list(cfg.pipeline.stages)
@@ -220,8 +229,8 @@ def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
     stages = build_stages(names, setups)
     cpr = description.motor.counts_per_rev
     learned = []
-    for torque in setpoints:
-        record = records_at(report.records, torque, ("compensate", "ilc"))[-1]
+    for point in points:
+        record = records_at(report.records, point, ("compensate", "learn"))[-1]
         path = files.state(record.index)
         state = files.read_state(record.index)
         try:
@@ -230,7 +239,7 @@ def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
             calibration = SensorCalibration.from_json(state["request"]["calibration"])
         except (KeyError, TypeError, ValueError) as e:
             raise RunDirError(f"{path}: unreadable ({e!r})") from None
-        request = TrialRequest(torque, record.speed_setpoint_hz, 1, np.zeros(cpr), np.zeros(cpr), calibration)
+        request = TrialRequest(point[0], point[1], 1, np.zeros(cpr), np.zeros(cpr), calibration)
         tables = {}
         for stage in stages:
             shaped = stage.shape(request)
@@ -241,7 +250,7 @@ def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
 
 
 def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
-    """What each stage learned at one set point: its feed-forward's spectrum and its first cogging period."""
+    """What each stage learned at one learned point: its feed-forward's spectrum and its first cogging period."""
     motor, H = report.description.motor, report.max_harmonic
     record = learned.record
     feeding = {name: table for name, table in learned.tables_nm.items() if np.any(table)}
@@ -268,16 +277,60 @@ def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
     return fig
 
 
+def operating_range(records: list[TrialRecord], learned: list[Point], validated: list[Point]) -> Figure:
+    """The final peak-to-peak ripple over torque x speed, measured and (simulator) true: learned points as
+    circles, validation points as squares, each labelled with its ripple and its reduction; a red edge where
+    the compensation is worse than none."""
+    results = point_results(records, learned, validated)
+    kinds = [kind for kind in ("measured", "true") if all(r.after.figures(kind) is not None for r in results)]
+    fig, axes = plotting.figure(len(kinds), 3.2, sharex=False)
+    for axis, kind in zip(axes, kinds):
+        ripple = [100 * r.after.figures(kind).pp for r in results]
+        positive = [p for p in ripple if p > 0]  # a flat trace has no place on a log scale
+        norm = LogNorm(min(positive), max(positive)) if positive else None
+        factor = "reduction_factor" if kind == "measured" else "reduction_factor_true"
+        for marker, learned_here, label in (("o", True, "learned"), ("s", False, "validation (never learned)")):
+            chosen = [(r, p) for r, p in zip(results, ripple) if r.learned == learned_here]
+            if not chosen:
+                continue
+            shown = axis.scatter([r.point[1] for r, _ in chosen], [r.point[0] for r, _ in chosen],
+                                 c=[p for _, p in chosen], cmap="viridis", norm=norm,
+                                 marker=marker, s=120, edgecolors=["r" if r.worse else "k" for r, _ in chosen],
+                                 label=label)
+            for r, p in chosen:
+                reduction = getattr(r.after, factor)
+                text = f"{p:.3g} %"
+                if reduction is not None:
+                    text += f"\n{reduction:.0f}x" if reduction >= 100 else f"\n{reduction:.2g}x"
+                axis.annotate(text, (r.point[1], r.point[0]), xytext=(9, -4), textcoords="offset points",
+                              fontsize=7)
+        fig.colorbar(shown, ax=axis, label=f"{kind} pp (% of mean)")
+        axis.set_title(f"final {kind} ripple, % of mean torque, over the operating range (labels: ripple, "
+                       "reduction)", fontsize=9, pad=20)
+        axis.set_xlabel("speed (Hz, mechanical)")
+        axis.set_ylabel("torque set point (N m)")
+        speeds = [r.point[1] for r in results]
+        axis.set_xlim(min(speeds) - 0.1 * (max(speeds) - min(speeds) + 0.1),
+                      max(speeds) + 0.35 * (max(speeds) - min(speeds) + 0.1))
+        axis.margins(y=0.15)
+        plotting.legend(axis, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=2, borderaxespad=0.0)
+    return fig
+
+
 def build_figures(report: RunReport) -> tuple[dict[str, Figure], str | None]:
     """Every figure of the run by file name (without suffix), and why the learned feed-forward could not be
     drawn (a stage of the config that is not installed or cannot be built), or None."""
     figures = {"ripple_per_trial": ripple_per_trial(report.records), **before_after(report)}
+    learned = report.learned_points()
+    validated = sorted({r.point for r in report.records if r.role == "validate"})
+    if point_results(report.records, learned, validated):
+        figures["operating_range"] = operating_range(report.records, learned, validated)
     try:
         learned = learned_feedforward(report)
     except ConfigError as e:
         return figures, str(e)
     for item in learned:
-        figures[f"learned_{item.record.torque_setpoint_nm:g}Nm"] = learned_figure(item, report)
+        figures[f"learned_{_point_name(item.record.point)}"] = learned_figure(item, report)
     return figures, None
 
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 from rich.table import Table
 
-from ilcpmac.campaign.plan import records_at
-from ilcpmac.campaign.record import TrialRecord
+from ilcpmac.campaign.record import Point, TrialRecord
+from ilcpmac.campaign.validation import point_results
 
 __all__ = ["FINAL_TITLE", "SUMMARY_TITLE", "final_lines", "significant", "summary_table", "trials_table"]
 
@@ -130,39 +130,44 @@ def trials_table(records: list[TrialRecord], width: int, title: str | None = Non
 
 
 #: the summary's title, printed on a line of its own above `summary_table`
-SUMMARY_TITLE = "summary per ILC set point (ripple peak-to-peak, % of mean torque)"
+SUMMARY_TITLE = "summary per operating point (ripple peak-to-peak after, % of mean torque)"
 
 
-def summary_table(records: list[TrialRecord], setpoints: list[float]) -> Table:
-    """Per ILC set point: uncompensated and final ripple, reduction factors, ILC trials used (`SUMMARY_TITLE`)."""
+def summary_table(records: list[TrialRecord], learned: list[Point], validated: list[Point]) -> Table:
+    """Per learned, then validation point: the final ripple, the reduction factors against the uncompensated
+    trial there, and the learning trials used (`SUMMARY_TITLE`)."""
     rows = []
-    for torque in setpoints:
-        base = records_at(records, torque, ("baseline",))
-        done = records_at(records, torque, ("compensate", "ilc"))
-        if base and done:
-            b, f = base[0], done[-1]
-            rows.append([f"{torque:g}", _worst([b], "measured", "pp", 100), _worst([f], "measured", "pp", 100),
-                         _worst([b], "true", "pp", 100), _worst([f], "true", "pp", 100),
-                         _factor([f], "reduction_factor"), _factor([f], "reduction_factor_true"),
-                         str(sum(r.role == "ilc" for r in done))])
-    headers = ["torque\nN m", "meas %\nbefore", "meas %\nafter", "true %\nbefore", "true %\nafter",
-               "reduction\nmeas", "reduction\ntrue", "ILC\ntrials"]
+    for result in point_results(records, learned, validated):
+        after = result.after
+        trials = sum(r.role == "learn" and r.point == result.point for r in records)
+        rows.append([f"{result.point[0]:g}", f"{result.point[1]:g}", "learned" if result.learned else "valid.",
+                     _worst([after], "measured", "pp", 100), _worst([after], "true", "pp", 100),
+                     _factor([after], "reduction_factor"), _factor([after], "reduction_factor_true"),
+                     str(trials) if result.learned else "-"])
+    headers = ["torque\nN m", "speed\nHz", "point", "meas\n%", "true\n%", "reduction\nmeas",
+               "reduction\ntrue", "learn\ntrials"]
     return _table([(h, "right", list(cells)) for h, cells in zip(headers, zip(*rows) if rows else [[]] * 8)])
 
 
 #: the line above `final_lines`
-FINAL_TITLE = "final, the worst over the ILC set points (ripple peak-to-peak):"
+FINAL_TITLE = "final ripple peak-to-peak, the worst over the learned and the validation points:"
 
 
-def final_lines(final: dict) -> list[str]:
-    """summary.json's ``final`` in words, one line per kind of peak-to-peak ripple (true, then measured);
-    `FINAL_TITLE` heads them."""
+def final_lines(summary: dict) -> list[str]:
+    """summary.json's ``final`` and ``validation`` in words, one line per kind of peak-to-peak ripple (true,
+    then measured) and set of points; `FINAL_TITLE` heads them."""
+    validation = summary.get("validation", [])
+    worst = {f"ripple_pp_{kind}": max(v[f"ripple_pp_{kind}"] for v in validation)
+             for kind in ("true", "measured") if validation and all(f"ripple_pp_{kind}" in v for v in validation)}
+    worst |= {factor: min(v[factor] for v in validation) for factor in ("reduction_factor", "reduction_factor_true")
+              if validation and all(factor in v for v in validation)}
     lines = []
-    for kind, factor in (("true", "reduction_factor_true"), ("measured", "reduction_factor")):
-        if f"ripple_pp_{kind}" not in final:
-            continue
-        words = f"{kind} ripple {significant(100 * final[f'ripple_pp_{kind}'])} % of mean torque"
-        if factor in final:
-            words += f", {significant(final[factor])}x below uncompensated"
-        lines.append(words)
+    for where, figures in (("learned", summary.get("final", {})), ("validation", worst)):
+        for kind, factor in (("true", "reduction_factor_true"), ("measured", "reduction_factor")):
+            if f"ripple_pp_{kind}" not in figures:
+                continue
+            words = f"{where}: {kind} ripple {significant(100 * figures[f'ripple_pp_{kind}'])} % of mean torque"
+            if factor in figures:
+                words += f", {significant(figures[factor])}x below uncompensated"
+            lines.append(words)
     return lines
