@@ -294,3 +294,15 @@ def test_every_request_of_a_campaign_obeys_the_limits_whatever_a_stage_asks(writ
         assert np.abs(truth.epsilon * truth.alpha * i_ref + truth.beta_a).max() <= 20.0 * (1 + 1e-6)
     # the simulated true current within the limit plus the tolerance tests/test_limits_property.py justifies
     assert max(np.abs(t.i_true_a).max() for t in recording.trials) <= 20.25
+
+
+def test_a_trials_saved_state_holds_the_calibration_it_ran_with(campaign_config, tmp_path):
+    """The state recorded the unshaped request's calibration (the bench's) for every trial; it is the one
+    the current-sensor stage set, which the stage's state after the trial before announces."""
+    summary = run_campaign(campaign_config, tmp_path / "run")
+    states = [json.loads(p.read_text()) for p in sorted((tmp_path / "run" / "states").glob("trial_*.json"))]
+    first = next(i for i, r in enumerate(summary["trials"]) if r["role"] == "compensate")
+    for before, state in zip(states[first - 1:], states[first:first + 3]):
+        ran = state["request"]["calibration"]
+        assert ran == {key: before["pipeline"]["current-sensor"][key] for key in ran}
+        assert ran["current_scale"] != states[0]["request"]["calibration"]["current_scale"]
