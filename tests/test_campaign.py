@@ -306,3 +306,39 @@ def test_a_trials_saved_state_holds_the_calibration_it_ran_with(campaign_config,
         ran = state["request"]["calibration"]
         assert ran == {key: before["pipeline"]["current-sensor"][key] for key in ran}
         assert ran["current_scale"] != states[0]["request"]["calibration"]["current_scale"]
+
+
+def test_the_exported_compensation_replayed_gives_the_campaigns_validation_figures(campaign_config, tmp_path):
+    """Issue 11: export the run's compensation, load it back in a pipeline whose only stage replays it, run the
+    validation points on the simulator: the same trials (the same seeds) and the same figures as the campaign's."""
+    from click.testing import CliRunner
+
+    from ilcpmac.bench.format import as_written
+    from ilcpmac.campaign.plan import CampaignPlan
+    from ilcpmac.cli import main
+    from ilcpmac.pipeline.analysis import TrialAnalysis
+    from ilcpmac.sim.simulator import trial_seed
+    from ilcpmac.stages.base import Identified, StageSetup
+    from ilcpmac.stages.registry import build_stages
+
+    run = tmp_path / "run"
+    summary = run_campaign(campaign_config, run)
+    out = CliRunner().invoke(main, ["export", str(run), "--format", "json", "--out", str(tmp_path / "fw")])
+    assert out.exit_code == 0, out.output
+    sim = simulator_backend(campaign_config)
+    description = sim.describe()
+    identified = Identified.from_result(summary["identification"], description.calibration)
+    (replay,) = build_stages(["replay"], {"replay": StageSetup(description, identified, 100,
+                                                                {"file": str(tmp_path / "fw" / "compensation.json")})})
+    plan = CampaignPlan.build(campaign_config, description, 7)
+    motor = description.motor
+    assert summary["validation"]
+    for point in summary["validation"]:
+        index = point["compensated_trial"]
+        request = replay.shape(plan.base_request((point["torque_setpoint"], point["speed_setpoint"]),
+                                                 trial_seed(7, index)))
+        trial = as_written(dataclasses.replace(sim.run_trial(request), request=request))
+        np.testing.assert_array_equal(trial.torque_nm, read_bench(run).trials[index - 1].torque_nm)
+        analysis = TrialAnalysis.of(trial, motor.counts_per_rev, campaign_config.campaign.ripple_harmonics)
+        true = analysis.true.figures(analysis.true_mean_nm, motor.pole_pairs, motor.cogging_order)
+        assert true.pp == point["ripple_pp_true"]
