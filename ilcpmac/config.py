@@ -78,8 +78,9 @@ class CampaignSettings:
     """[campaign]: the learning and validation phases of ``ilcpmac run`` (optional; defaults shown).
 
     The compensation is learned at every operating point of learn_torques_nm x learn_speeds_hz and then
-    validated, with no learning, at validate_torques_nm x validate_speeds_hz. An empty list is derived from
-    the grid and the limits (`CampaignConfig.learned_points`, `CampaignConfig.validation_points`).
+    validated, with no learning, at validate_torques_nm x validate_speeds_hz. A list left out is derived from
+    the grid and the limits (`CampaignConfig.learned_points`, `CampaignConfig.validation_points`); an empty
+    validation list means no validation.
     """
 
     #: keys of earlier releases, and what replaced them
@@ -87,14 +88,14 @@ class CampaignSettings:
         "ilc_torque_setpoints_nm": "learn_torques_nm", "ilc_speed_setpoint_hz": "learn_speeds_hz (a list)",
         "ilc_revolutions": "learn_revolutions", "ilc_trials": "learn_trials"}
 
-    learn_torques_nm: tuple[float, ...] = _check(
-        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
-        f"torques learned at, N m: up to {MAX_OPERATING_POINTS} distinct positive values; empty: the grid's "
-        "smallest, middle and largest torque set point", ())
-    learn_speeds_hz: tuple[float, ...] = _check(
-        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
-        f"speeds learned at, Hz: up to {MAX_OPERATING_POINTS} distinct positive values; empty: the grid's "
-        "slowest speed, [limits] max_speed_hz and midway", ())
+    learn_torques_nm: tuple[float, ...] | None = _check(
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
+        f"torques learned at, N m: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
+        "smallest, middle and largest torque set point", None)
+    learn_speeds_hz: tuple[float, ...] | None = _check(
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
+        f"speeds learned at, Hz: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
+        "slowest speed, [limits] max_speed_hz and midway", None)
     learn_revolutions: tuple[int, ...] = _check(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(1, 2**24)),
         "recorded revolutions per learning trial at the slowest learned speed (more at a faster speed, "
@@ -107,13 +108,14 @@ class CampaignSettings:
                            "learning trials without improvement before an operating point stops, 1..1000", 4)
     ripple_harmonics: int = _check(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, "
                                    "below counts_per_rev / 2", 150)
-    validate_torques_nm: tuple[float, ...] = _check(
+    validate_torques_nm: tuple[float, ...] | None = _check(
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
-        "torques validated at, N m: distinct positive values; empty: midway between the learned torques", ())
-    validate_speeds_hz: tuple[float, ...] = _check(
+        "torques validated at, N m: distinct positive values; left out: midway between the learned torques; "
+        "empty: no validation", None)
+    validate_speeds_hz: tuple[float, ...] | None = _check(
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
-        "speeds validated at, Hz: distinct positive values; empty: the slowest, middle and fastest learned "
-        "speed", ())
+        "speeds validated at, Hz: distinct positive values; left out: the slowest, middle and fastest learned "
+        "speed; empty: no validation", None)
     validate_revolutions: int = _check(
         in_range(1, 2**24), "recorded revolutions per validation trial at the slowest learned speed (more at a "
         "faster speed)", 32)
@@ -242,18 +244,18 @@ class CampaignConfig:
     model: MotorModel | None = None
 
     def learned_torques_nm(self) -> tuple[float, ...]:
-        """[campaign] learn_torques_nm, ascending; empty: the grid's smallest, middle and largest torque."""
+        """[campaign] learn_torques_nm, ascending; left out: the grid's smallest, middle and largest torque."""
         given = self.campaign.learn_torques_nm
-        if given:
+        if given is not None:
             return tuple(sorted(given))
         low, high = min(self.grid.torque_setpoints_nm), max(self.grid.torque_setpoints_nm)
         return tuple(sorted({low, (low + high) / 2, high}))
 
     def learned_speeds_hz(self) -> tuple[float, ...]:
-        """[campaign] learn_speeds_hz, ascending; empty: the grid's slowest speed, [limits] max_speed_hz and
+        """[campaign] learn_speeds_hz, ascending; left out: the grid's slowest speed, [limits] max_speed_hz and
         midway (a loop's lag grows faster than linearly with speed: two speeds alone interpolate it badly)."""
         given = self.campaign.learn_speeds_hz
-        if given:
+        if given is not None:
             return tuple(sorted(given))
         low, high = min(self.grid.speed_setpoints_hz), self.limits.max_speed_hz
         return tuple(sorted({low, (low + high) / 2, high}))
@@ -279,12 +281,16 @@ class CampaignConfig:
 
     def validation_points(self) -> list[tuple[float, float]]:
         """The operating points validated at, (torque N m, speed Hz): [campaign] validate_torques_nm x
-        validate_speeds_hz; an empty list is midway between learned torques, and the slowest, middle and
-        fastest learned speed."""
+        validate_speeds_hz; a list left out is midway between learned torques, and the slowest, middle and
+        fastest learned speed; an empty one means no validation."""
         c = self.campaign
         torques, speeds = self.learned_torques_nm(), self.learned_speeds_hz()
-        validated_t = c.validate_torques_nm or tuple((a + b) / 2 for a, b in zip(torques, torques[1:]))
-        validated_s = c.validate_speeds_hz or tuple(sorted({speeds[0], (speeds[0] + speeds[-1]) / 2, speeds[-1]}))
+        validated_t = c.validate_torques_nm
+        if validated_t is None:
+            validated_t = tuple((a + b) / 2 for a, b in zip(torques, torques[1:]))
+        validated_s = c.validate_speeds_hz
+        if validated_s is None:
+            validated_s = tuple(sorted({speeds[0], (speeds[0] + speeds[-1]) / 2, speeds[-1]}))
         return [(t, s) for t in sorted(validated_t) for s in sorted(validated_s)]
 
     def simulated_model(self) -> MotorModel:

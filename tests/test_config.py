@@ -110,11 +110,14 @@ def test_learn_revolutions_are_one_number_or_one_per_learned_torque(write_config
 
 
 def test_the_operating_points_are_derived_from_the_grid_and_limits_when_not_given(write_config):
-    cfg = load_config(write_config({"campaign": {"learn_torques_nm": [], "learn_speeds_hz": [],
-                                                 "validate_torques_nm": [], "validate_speeds_hz": [],
-                                                 "learn_revolutions": [32]}}))
+    keys = ("learn_torques_nm", "learn_speeds_hz", "validate_torques_nm", "validate_speeds_hz")
+    cfg = load_config(write_config(drop=[f"campaign.{key}" for key in keys]))
     assert cfg.learned_points() == [(t, s) for t in (1.0, 3.0, 5.0) for s in (0.5, 1.0, 1.5)]
     assert cfg.validation_points() == [(t, s) for t in (2.0, 4.0) for s in (0.5, 1.0, 1.5)]
+    # an empty validation list: no validation; an empty learned one is refused
+    assert load_config(write_config({"campaign": {"validate_speeds_hz": []}})).validation_points() == []
+    with pytest.raises(ConfigError, match=r"\[campaign\] learn_speeds_hz: invalid value \[\]"):
+        load_config(write_config({"campaign": {"learn_speeds_hz": []}}))
 
 
 def test_the_seed_config_learns_at_nine_points_and_validates_at_six_others(seed_config):
