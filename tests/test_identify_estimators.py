@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from ilcpmac.bench.format import MotorInfo
 from ilcpmac.identify import corrected_calibration
@@ -13,8 +15,17 @@ from ilcpmac.identify.reduction import BenchTables, TrialTables, trial_amplitude
 from ilcpmac.identify.sensor_gain import TrialResponse, fit_inertia
 from ilcpmac.identify.system_gain import excluded_harmonics
 from ilcpmac.model.current_loop import CurrentLoop, lagged
+from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.records import SensorCalibration
-from ilcpmac.signals.harmonics import harmonic_amplitudes, slow_trend, synchronous_table, table_from_amplitudes
+from ilcpmac.signals.harmonics import (
+    harmonic_amplitudes,
+    linear_trend,
+    revolution_harmonics,
+    revolution_table,
+    slow_trend,
+    synchronous_table,
+    table_from_amplitudes,
+)
 
 CPR = 512
 
@@ -75,6 +86,78 @@ def test_synchronous_table_fills_unsampled_counts():
     values = np.cos(2 * np.pi * count / CPR)
     table = synchronous_table(count, values, CPR)
     np.testing.assert_allclose(table, np.cos(2 * np.pi * np.arange(CPR) / CPR), atol=1e-4)
+
+
+def _skipping_trial(skipped: list[int], revolutions: int = 3, cpr: int = 64):
+    """Counts over whole revolutions with ``skipped`` counts (indices into them) left out, and two torques."""
+    count = np.delete(np.arange(5 * cpr, (5 + revolutions) * cpr), skipped)
+    rng = np.random.default_rng(len(skipped))
+    time_s = count * 1e-3 + 1e-5 * rng.standard_normal(count.size)
+    theta = 2 * np.pi * count / cpr
+    torques = [2.0 + 0.3 * time_s + np.sin(3 * theta) + 0.1 * rng.standard_normal(count.size),
+               1.0 + 0.5 * np.cos(5 * theta + 0.2) + 0.01 * rng.standard_normal(count.size)]
+    return count, time_s, torques, cpr
+
+
+@given(st.lists(st.integers(0, 3 * 64 - 1).filter(lambda i: 0 < i % 64 < 63), max_size=20, unique=True))
+def test_revolution_table_holds_the_samples_and_interpolates_skipped_counts(skipped):
+    """A ramp in position is linear between any two sampled counts of a revolution (the first and last count
+    of each are kept: no wrap-around): the fill reproduces it, and the samples stay where they are."""
+    count, _, _, cpr = _skipping_trial(skipped)
+    ramp = np.stack([count % cpr, -2.0 * (count % cpr)]).astype(float)
+    table = revolution_table(count, ramp, cpr)
+    assert table.shape == (2, 3, cpr)
+    expected = np.arange(cpr) * np.array([1.0, -2.0])[:, None, None]
+    np.testing.assert_allclose(table, np.broadcast_to(expected, table.shape), atol=1e-12)
+    assert np.shares_memory(table, ramp) == (not skipped)
+
+
+@pytest.mark.parametrize("skipped", [[], [7, 8, 9, 100]])
+def test_spectra_of_a_stack_equal_each_spectrum_alone(skipped):
+    """One pass over both torques (shared mask, table and FFT) gives what one pass per torque gives, bit for bit."""
+    count, time_s, torques, cpr = _skipping_trial(skipped)
+    together = TorqueSpectrum.of_each(count, time_s, torques, cpr, 12)
+    for spectrum, torque in zip(together, torques):
+        alone = TorqueSpectrum.of(count, time_s, torque, cpr, 12)
+        np.testing.assert_array_equal(spectrum.harmonics_nm, alone.harmonics_nm)
+        np.testing.assert_array_equal(spectrum.variance_nm2, alone.variance_nm2)
+        assert spectrum.rest_rms_nm == alone.rest_rms_nm
+        # and what the definitions give sample by sample: detrend, average per revolution, subtract
+        detrended = torque - linear_trend(time_s, torque)
+        harmonics, variance = revolution_harmonics(count, detrended, cpr, 12)
+        np.testing.assert_allclose(spectrum.harmonics_nm, harmonics, rtol=0, atol=1e-12)
+        rest = detrended - spectrum.ripple_table()[count % cpr]
+        assert spectrum.rest_rms_nm == pytest.approx(np.std(rest), rel=1e-12)
+    assert together[0].harmonics_nm[3] == pytest.approx(-1j, abs=0.05)  # sin(3 theta)
+    assert together[1].harmonics_nm[5] == pytest.approx(0.5 * np.exp(0.2j), abs=0.01)
+
+
+def test_linear_trend_of_a_stack_is_each_line_s_trend():
+    x = np.linspace(0.0, 2.0, 101)
+    lines = np.stack([3.0 + 0.5 * x, -1.0 - 2.0 * x + np.sin(7 * x)])
+    trend = linear_trend(x, lines)
+    np.testing.assert_array_equal(trend, np.stack([linear_trend(x, line) for line in lines]))
+    np.testing.assert_allclose(trend[0], lines[0], atol=1e-12)
+
+
+def test_harmonic_amplitudes_along_any_axis():
+    table = np.random.default_rng(5).standard_normal((4, 32, 3))
+    along_counts = harmonic_amplitudes(np.moveaxis(table, 1, 0), 9)
+    np.testing.assert_array_equal(harmonic_amplitudes(table, 9, axis=1), np.moveaxis(along_counts, 0, 1))
+    np.testing.assert_array_equal(harmonic_amplitudes(table[..., 0], None, axis=-1),
+                                  harmonic_amplitudes(table[..., 0].T).T)
+
+
+@pytest.mark.parametrize("start", [0, 3 * CPR, 5])
+def test_synchronous_table_of_whole_revolutions_is_the_per_count_mean(start):
+    """Whole revolutions sampled at every count (averaged as revolutions) or not from a revolution's start
+    (summed per count): the same numbers as summing per count."""
+    count = np.arange(start, start + 3 * CPR)
+    values = np.random.default_rng(start).standard_normal((count.size, 2))
+    hits = np.bincount(count % CPR, minlength=CPR)[:, None]
+    expected = np.stack([np.bincount(count % CPR, weights=v, minlength=CPR) for v in values.T], axis=1) / hits
+    np.testing.assert_array_equal(synchronous_table(count, values, CPR), expected)
+    np.testing.assert_array_equal(synchronous_table(count, values[:, 1], CPR), expected[:, 1])
 
 
 def test_excluded_harmonics_are_multiples_of_pole_pairs_and_cogging_order():

@@ -45,7 +45,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.optimize import least_squares
 
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
@@ -372,8 +371,9 @@ def _time_shift_kernel(tables, count_period_s, shift_s, out):
         period = count_period_s[k].sum()
         t = np.empty(3 * cpr + 1)
         t[0] = -period
-        for i in range(3 * cpr):
-            t[i + 1] = t[i] + count_period_s[k, i % cpr]
+        for r in range(3):
+            for c in range(cpr):
+                t[r * cpr + c + 1] = t[r * cpr + c] + count_period_s[k, c]
         base = cpr
         for c in range(cpr):
             target = t[cpr + c] + shift_s
@@ -381,13 +381,16 @@ def _time_shift_kernel(tables, count_period_s, shift_s, out):
                 base -= 1
             while base < 3 * cpr - 2 and target >= t[base + 1]:
                 base += 1
+            t0, t1, t2, t3 = t[base - 1], t[base], t[base + 1], t[base + 2]
+            d0, d1, d2, d3 = target - t0, target - t1, target - t2, target - t3
+            first = (base - 1) % cpr
             value = 0.0
-            for i in range(base - 1, base + 3):
-                weight = 1.0
-                for j in range(base - 1, base + 3):
-                    if i != j:
-                        weight *= (target - t[j]) / (t[i] - t[j])
-                value += weight * tables[k, i % cpr]
+            for i, weight in enumerate((d1 * d2 * d3 / ((t0 - t1) * (t0 - t2) * (t0 - t3)),
+                                        d0 * d2 * d3 / ((t1 - t0) * (t1 - t2) * (t1 - t3)),
+                                        d0 * d1 * d3 / ((t2 - t0) * (t2 - t1) * (t2 - t3)),
+                                        d0 * d1 * d2 / ((t3 - t0) * (t3 - t1) * (t3 - t2)))):
+                index = first + i
+                value += weight * tables[k, index - cpr if index >= cpr else index]
             out[k, c] = value
 
 
@@ -440,6 +443,8 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
 
     Returns (weighted residual sum of squares, phi, active, saturation column, linear parameters, residual).
     """
+    from scipy.optimize import least_squares  # 0.35 s to import: only when fitting
+
     phi = np.array([*loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s, 0.01, 1e-3, 0.0])
     lower = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])[active]
     saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])

@@ -174,5 +174,4 @@ def reduce_bench(bench: Bench) -> BenchTables:
 
 def trial_amplitudes(tables: np.ndarray, max_harmonic: int) -> np.ndarray:
     """Harmonic amplitudes 0..max_harmonic of per-count tables stacked along axis 0 (trials)."""
-    c = harmonic_amplitudes(np.moveaxis(tables, 1, 0), max_harmonic)
-    return np.moveaxis(c, 0, 1)
+    return harmonic_amplitudes(tables, max_harmonic, axis=1)

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
@@ -154,6 +153,8 @@ def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses
     loop : CurrentLoop
         The same time constant for all phases.
     """
+    from scipy.optimize import least_squares  # 0.35 s to import: only when fitting
+
     root = np.sqrt(weights / weights.max())
     valid = root > 0
 

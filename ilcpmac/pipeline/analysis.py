@@ -17,14 +17,20 @@ from ilcpmac.records import TrialData
 from ilcpmac.signals.harmonics import (
     RippleFigures,
     linear_trend,
-    revolution_harmonics,
+    revolution_table,
     table_from_amplitudes,
+    table_harmonics,
     whole_revolutions,
 )
 
+__all__ = ["TorqueSpectrum", "TrialAnalysis"]
+
 
 def _ripple_table(harmonics: np.ndarray, counts_per_rev: int) -> np.ndarray:
-    return table_from_amplitudes(np.concatenate([[0.0], harmonics[1:]]), counts_per_rev)
+    """Harmonics 1..H (axis 0, the mean left out) as per-count tables along axis 0."""
+    ripple = np.array(harmonics)
+    ripple[0] = 0.0
+    return table_from_amplitudes(ripple, counts_per_rev)
 
 
 @dataclass(frozen=True)
@@ -51,12 +57,24 @@ class TorqueSpectrum:
     def of(cls, count: np.ndarray, time_s: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int,
            max_harmonic: int) -> TorqueSpectrum:
         """The spectrum of harmonics 0..``max_harmonic`` of ``torque_nm`` sampled at ``count``, ``time_s``."""
+        return cls.of_each(count, time_s, [torque_nm], counts_per_rev, max_harmonic)[0]
+
+    @classmethod
+    def of_each(cls, count: np.ndarray, time_s: np.ndarray, torques_nm: list[np.ndarray], counts_per_rev: int,
+                max_harmonic: int) -> list[TorqueSpectrum]:
+        """`of` for several torques sampled at the same ``count`` and ``time_s``, in one pass."""
         mask = whole_revolutions(count, counts_per_rev)
-        count, time_s, torque = count[mask], time_s[mask], np.asarray(torque_nm, float)[mask]
+        count, time_s = count[mask], time_s[mask]
+        torque = np.stack([np.asarray(t, float)[mask] for t in torques_nm])
         detrended = torque - linear_trend(time_s, torque)
-        harmonics, variance = revolution_harmonics(count, detrended, counts_per_rev, max_harmonic)
-        rest = detrended - _ripple_table(harmonics, counts_per_rev)[count % counts_per_rev]
-        return cls(harmonics, variance, float(np.std(rest)), counts_per_rev)
+        table = revolution_table(count, detrended, counts_per_rev)
+        harmonics, variance = table_harmonics(table, max_harmonic)
+        ripple = _ripple_table(harmonics.T, counts_per_rev).T
+        if table[0].size == count.size:  # the table holds exactly the samples
+            rest = table - ripple[:, None, :]
+        else:
+            rest = detrended - ripple[:, count % counts_per_rev]
+        return [cls(h, v, float(np.std(r)), counts_per_rev) for h, v, r in zip(harmonics, variance, rest)]
 
     @property
     def max_harmonic(self) -> int:
@@ -114,8 +132,8 @@ class TrialAnalysis:
     @classmethod
     def of(cls, trial: TrialData, counts_per_rev: int, max_harmonic: int) -> TrialAnalysis:
         """Analyse ``trial`` up to harmonic ``max_harmonic`` (H)."""
-        measured = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)
+        torques = [trial.torque_nm] if trial.torque_true_nm is None else [trial.torque_nm, trial.torque_true_nm]
+        spectra = TorqueSpectrum.of_each(trial.count, trial.time_s, torques, counts_per_rev, max_harmonic)
         if trial.torque_true_nm is None:
-            return cls(measured)
-        return cls(measured, TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_true_nm, counts_per_rev,
-                                               max_harmonic), float(trial.torque_true_nm.mean()))
+            return cls(spectra[0])
+        return cls(*spectra, float(trial.torque_true_nm.mean()))

@@ -36,27 +36,30 @@ def synchronous_average(count: np.ndarray, values: np.ndarray, counts_per_rev: i
 
 
 def linear_trend(x: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """The least-squares straight line through ``values`` against ``x``, at ``x``."""
+    """The least-squares straight line through ``values`` against ``x``, at ``x``.
+
+    ``values`` holds the samples along its last axis (one line per row of a stack).
+    """
     dx = np.asarray(x, float)
     dx = dx - dx.mean()
-    mean = values.mean()
-    slope = np.dot(dx, values) / max(np.dot(dx, dx), 1e-300)  # sum(dx) = 0: no need to centre values
-    dx *= slope
-    dx += mean
-    return dx
+    mean = values.mean(axis=-1, keepdims=True)
+    # sum(dx) = 0: no need to centre values; one dot per line, as for a single line
+    slope = np.array([np.dot(dx, line) for line in values.reshape(-1, dx.size)]) / max(np.dot(dx, dx), 1e-300)
+    return dx * slope.reshape(mean.shape) + mean
 
 
-def harmonic_amplitudes(table: np.ndarray, max_harmonic: int | None = None) -> np.ndarray:
+def harmonic_amplitudes(table: np.ndarray, max_harmonic: int | None = None, axis: int = 0) -> np.ndarray:
     """Complex amplitudes c_h, h = 0..N/2 (or 0..max_harmonic), of a per-count table over one revolution.
 
-    ``table = Re(sum_h c_h exp(j h theta))`` with c_0 the mean (one-sided spectrum).
+    ``table = Re(sum_h c_h exp(j h theta))`` with c_0 the mean (one-sided spectrum); the counts run
+    along ``axis``, and so do the amplitudes.
     """
-    n = table.shape[0]
-    c = np.fft.rfft(table, axis=0)[: None if max_harmonic is None else max_harmonic + 1] / n
+    n = table.shape[axis]
+    c = np.moveaxis(np.fft.rfft(table, axis=axis), axis, 0)[: None if max_harmonic is None else max_harmonic + 1] / n
     c[1:] *= 2.0
     if n % 2 == 0 and c.shape[0] == n // 2 + 1:
         c[-1] /= 2.0
-    return c
+    return np.moveaxis(c, 0, axis)
 
 
 def table_from_amplitudes(amplitudes: np.ndarray, n_points: int) -> np.ndarray:
@@ -122,34 +125,53 @@ class RippleFigures:
     amp_rest: float
 
 
-def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: int,
-                         max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
-    """Harmonics 0..max_harmonic averaged over whole revolutions, and the variance of that mean.
+def revolution_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
+    """Position-sampled ``values`` as one row per revolution, shape ``values.shape[:-1] + (n_revs, counts_per_rev)``.
+
+    ``count`` (strictly increasing) must cover whole revolutions (`whole_revolutions`); ``values`` holds
+    its samples along the last axis. Skipped counts are filled by linear interpolation within their
+    revolution. When no count is skipped the table is a view of ``values``.
+    """
+    values = np.asarray(values, float)
+    rev = count // counts_per_rev
+    n_revs = int(rev[-1] - rev[0]) + 1
+    shape = values.shape[:-1] + (n_revs, counts_per_rev)
+    if count.size == n_revs * counts_per_rev:
+        return values.reshape(shape)
+    table = np.full(shape, np.nan)
+    table[..., rev - rev[0], count % counts_per_rev] = values
+    grid = np.arange(counts_per_rev)
+    for row in table.reshape(-1, counts_per_rev):
+        missing = np.isnan(row)
+        if missing.any():
+            row[missing] = np.interp(grid[missing], grid[~missing], row[~missing], period=counts_per_rev)
+    return table
+
+
+def table_harmonics(table: np.ndarray, max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
+    """Harmonics 0..max_harmonic of a `revolution_table` averaged over its revolutions, and the variance of that mean.
 
     Each revolution's DFT gives complex amplitudes c_h^(r) (as `harmonic_amplitudes`);
     the mean over revolutions is the synchronous average's spectrum, and the
     revolution-to-revolution scatter gives its variance per harmonic,
     E|c_h - mean|^2 / n_revs (the non-repeatable part, e.g. sensor noise).
-    Skipped counts are filled by linear interpolation within their revolution.
+    Both have shape ``table.shape[:-2] + (max_harmonic + 1,)``.
     """
-    mask = whole_revolutions(count, counts_per_rev)
-    count, values = count[mask], np.asarray(values, float)[mask]
-    rev = count // counts_per_rev
-    rev -= rev[0]
-    n_revs = int(rev[-1]) + 1
+    n_revs = table.shape[-2]
     if n_revs < 2:
         raise ValueError("the variance of revolution harmonics needs at least 2 whole revolutions")
-    table = np.full((n_revs, counts_per_rev), np.nan)
-    table[rev, count % counts_per_rev] = values
-    grid = np.arange(counts_per_rev)
-    for row in table:
-        missing = np.isnan(row)
-        if missing.any():
-            row[missing] = np.interp(grid[missing], grid[~missing], row[~missing], period=counts_per_rev)
-    c = harmonic_amplitudes(table.T, max_harmonic).T
-    mean = c.mean(axis=0)
-    variance = np.sum(np.abs(c - mean) ** 2, axis=0) / (n_revs - 1) / n_revs
+    c = harmonic_amplitudes(table, max_harmonic, axis=-1)
+    mean = c.mean(axis=-2)
+    variance = np.sum(np.abs(c - mean[..., None, :]) ** 2, axis=-2) / (n_revs - 1) / n_revs
     return mean, variance
+
+
+def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: int,
+                         max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
+    """`table_harmonics` of ``values`` (shape (n,)) over the whole revolutions of ``count``."""
+    mask = whole_revolutions(count, counts_per_rev)
+    return table_harmonics(revolution_table(count[mask], np.asarray(values, float)[mask], counts_per_rev),
+                           max_harmonic)
 
 
 def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
@@ -157,12 +179,16 @@ def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int
 
     The same table as `synchronous_average` for samples that already lie in
     whole revolutions, computed with one ``bincount`` per column (fast for
-    many columns). Counts never sampled are filled by periodic linear
-    interpolation.
+    many columns), or as the mean of the revolutions (the same sums, in the
+    same order) when every count of them is sampled. Counts never sampled are
+    filled by periodic linear interpolation. ``count`` must be strictly
+    increasing (as in `TrialData`).
     """
+    values = np.asarray(values, float)
+    if count[0] % counts_per_rev == 0 and count.size % counts_per_rev == 0 and count[-1] - count[0] + 1 == count.size:
+        return values.reshape((-1, counts_per_rev) + values.shape[1:]).mean(axis=0)
     position = count % counts_per_rev
     hits = np.bincount(position, minlength=counts_per_rev)
-    values = np.asarray(values, float)
     columns = values.reshape(values.shape[0], -1)
     seen = hits > 0
     grid = np.arange(counts_per_rev)
