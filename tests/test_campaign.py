@@ -342,3 +342,16 @@ def test_the_exported_compensation_replayed_gives_the_campaigns_validation_figur
         analysis = TrialAnalysis.of(trial, motor.counts_per_rev, campaign_config.campaign.ripple_harmonics)
         true = analysis.true.figures(analysis.true_mean_nm, motor.pole_pairs, motor.cogging_order)
         assert true.pp == point["ripple_pp_true"]
+
+
+def test_resume_after_a_crash_in_the_parallel_validation_ends_as_an_uninterrupted_run(campaign_config, tmp_path):
+    """The validation's trials run at once (neither learns); a crash among them loses none that finished
+    before it, and the resumed run ends as the uninterrupted one."""
+    reference = run_campaign(campaign_config, tmp_path / "reference")
+    total = len(reference["trials"])
+    assert [r["role"] for r in reference["trials"][-2:]] == ["baseline", "validate"]
+    crashed = tmp_path / "crashed"
+    with pytest.raises(Crash):
+        run_campaign(campaign_config, crashed, CrashingBackend(simulator_backend(campaign_config), total))
+    assert len(read_bench(crashed).trials) in (total - 2, total - 1)
+    assert run_campaign(campaign_config, crashed, resume=True) == reference

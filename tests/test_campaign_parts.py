@@ -327,3 +327,22 @@ def test_the_custom_stage_example_prints_typed_records(capsys):
     figures = RippleFigures(*(0.001,) * len(dataclasses.fields(RippleFigures)))
     Printer().trial(TrialRecord(34, "ilc", "ilc", 3.0, 0.75, true=figures), [])
     assert capsys.readouterr().out == "trial 34 ilc        3 N m: true ripple   0.100 % pp\n"
+
+
+def test_trials_that_neither_learn_nor_wait_for_learning_come_together_as_the_plan_gives_them(plan):
+    """The grid alone (what follows waits for the identification), then the uncompensated trials at the
+    learned points; the same requests and seeds as `next_step` one by one."""
+    records: list[TrialRecord] = []
+    batches = []
+    while (step := plan.next_step(records)) is not None:
+        batch = plan.independent_steps(records) if step.role in ("grid", "baseline", "validate") else [step]
+        batches.append([s.role for s in batch])
+        for s in batch:
+            expected = plan.next_step(records)
+            assert (expected.role, expected.request.seed, expected.request.torque_setpoint_nm) == \
+                (s.role, s.request.seed, s.request.torque_setpoint_nm)
+            records.append(done(len(records) + 1, s.role, s.request.torque_setpoint_nm,
+                                speed=s.request.speed_setpoint_hz))
+    assert batches[0] == ["grid"] * len(plan.grid)
+    assert batches[1] == ["baseline"] * len(plan.learned)
+    assert batches[-1] == ["baseline", "validate"] * len(plan.validated)

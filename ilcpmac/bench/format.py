@@ -617,8 +617,14 @@ def as_written(trial: TrialData) -> TrialData:
     d-decimal text (CSV) or decimal (Parquet), so a campaign that learns from
     this and one resumed from the files learn from identical numbers.
     """
-    changes = {attr: np.round(getattr(trial, attr) * 10.0**d) / 10.0**d
-               for _, attr, d in _trial_columns(trial) if attr != "count"}
+    changes = {}
+    for _, attr, d in _trial_columns(trial):
+        if attr != "count":
+            scale = 10.0**d
+            value = getattr(trial, attr) * scale  # the one new array; the rest in place
+            np.rint(value, out=value)  # np.round to 0 decimals, half to even
+            value /= scale
+            changes[attr] = value
     return replace(trial, **changes)
 
 

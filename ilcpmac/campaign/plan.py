@@ -19,7 +19,10 @@ from ilcpmac.records import BenchDescription, TrialRequest
 from ilcpmac.sim.grid import grid_plan, grid_requests
 from ilcpmac.sim.simulator import trial_seed
 
-__all__ = ["CampaignPlan", "Step", "learning_phase", "records_at"]
+__all__ = ["INDEPENDENT_ROLES", "CampaignPlan", "Step", "learning_phase", "records_at"]
+
+#: roles of trials that neither learn nor depend on learning (the campaign runs them at once)
+INDEPENDENT_ROLES = ("grid", "baseline", "validate")
 
 
 @dataclass(frozen=True)
@@ -124,6 +127,20 @@ class CampaignPlan:
         for point in self.validated:
             left += sum(not records_at(records, point, (role,)) for role in ("baseline", "validate"))
         return left
+
+    def independent_steps(self, records: list[TrialRecord]) -> list[Step]:
+        """The steps after ``records`` up to the next that learns or depends on learning: grid, uncompensated
+        and validation trials (`INDEPENDENT_ROLES`), which may run at once; their requests and seeds are those
+        `next_step` gives one by one. The grid's steps come alone: what follows them waits for the
+        identification, which also bounds the current that flows (`LimitGuard`)."""
+        steps, done = [], list(records)
+        while (step := self.next_step(done)) is not None and step.role in INDEPENDENT_ROLES:
+            if steps and (step.role == "grid") != (steps[0].role == "grid"):
+                break
+            steps.append(step)
+            done.append(TrialRecord(len(done) + 1, step.phase, step.role, step.request.torque_setpoint_nm,
+                                    step.request.speed_setpoint_hz))
+        return steps
 
     def next_step(self, records: list[TrialRecord]) -> Step | None:
         """The trial after ``records`` (every trial done so far); None when the campaign is over.

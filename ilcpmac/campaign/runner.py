@@ -141,30 +141,26 @@ class CampaignRunner:
     def _loop(self) -> None:
         while (step := self.next_step()) is not None:
             if step.role == "grid":
-                self._run_grid()
-                continue
-            if self.pipeline is None:
+                self.events.message(f"identify: {len(self.grid)} multisine trials over the set-point grid")
+            elif self.pipeline is None:
                 self._start_pipeline()
-            request = step.request
             if step.role in ("compensate", "learn"):
-                request = self.pipeline.shape(request)
-            elif step.role == "validate":
-                request = self._compensation().apply(request)
-            trial = self._run(request)
-            self._finish(step, trial)
+                self._finish(step, self._run(self.pipeline.shape(step.request)))
+            else:
+                self._run_at_once(self.plan.independent_steps(self.records))
 
     def _run(self, request: TrialRequest) -> TrialData:
         trial = self.backend.run_trial(request)
         return as_written(replace(trial, request=request))
 
-    def _run_grid(self) -> None:
-        """Run the remaining grid trials (in parallel where the backend allows), persist them in order."""
-        steps = self.grid[len(self.records):]
-        self.events.message(f"identify: {len(self.grid)} multisine trials over the set-point grid")
-        workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1)
+    def _run_at_once(self, steps: list[Step]) -> None:
+        """Run trials that neither learn nor depend on learning (`CampaignPlan.independent_steps`) in parallel
+        where the backend allows; finish them in the plan's order, as if they had run one by one."""
+        requests = [self._compensation().apply(s.request) if s.role == "validate" else s.request for s in steps]
+        workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1, len(steps))
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
-            for request, trial in zip(steps, pool.map(self._run, steps)):
-                self._finish(Step("identify", "grid", request), trial)
+            for step, trial in zip(steps, pool.map(self._run, requests)):
+                self._finish(step, trial)
 
     def _finish(self, step: Step, trial: TrialData) -> None:
         """Analyse a finished trial once, teach the pipeline from it, record its ripple, persist it, tell the user."""
