@@ -355,3 +355,40 @@ def test_resume_after_a_crash_in_the_parallel_validation_ends_as_an_uninterrupte
         run_campaign(campaign_config, crashed, CrashingBackend(simulator_backend(campaign_config), total))
     assert len(read_bench(crashed).trials) in (total - 2, total - 1)
     assert run_campaign(campaign_config, crashed, resume=True) == reference
+
+
+class WorseWhenFast:
+    """A bench on which the compensation goes wrong above 0.8 Hz: a compensated trial there gets a ripple at
+    harmonic 20 larger than the uncompensated ripple (what the compensation cannot have learned)."""
+
+    def __init__(self, backend: SimulatorBackend) -> None:
+        self.backend = backend
+        self.max_parallel_trials = 1
+
+    def describe(self):
+        return self.backend.describe()
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        trial = self.backend.run_trial(request)
+        if request.speed_setpoint_hz < 0.8 or not np.any(request.feedforward_nm) or np.any(request.excitation_nm):
+            return trial
+        theta = 2 * np.pi * trial.count / 1024
+        return dataclasses.replace(trial, torque_nm=trial.torque_nm + 6.0 * np.cos(20 * theta))
+
+
+def test_where_the_compensation_is_worse_than_none_it_fades_out_and_the_campaign_says_so(write_config, tmp_path):
+    """Issue 11: learned at 0.6 Hz, validated at 0.6 and 0.9 Hz; at 0.9 Hz the compensated trial is worse than
+    the uncompensated one, so compensation.json fades the feed-forward out from 0.6 Hz to 0.9 Hz."""
+    from ilcpmac.compensation import Compensation
+
+    cfg = load_config(write_config({**SMALL_CAMPAIGN, "campaign": {
+        **SMALL_CAMPAIGN["campaign"], "learn_speeds_hz": [0.6], "learn_trials": 2, "validate_speeds_hz": [0.6, 0.9]}}))
+    events = Quiet()
+    summary = run_campaign(cfg, tmp_path / "run", WorseWhenFast(simulator_backend(cfg)), events=events)
+    worse = {(v["torque_setpoint"], v["speed_setpoint"]): v["worse_than_uncompensated"] for v in summary["validation"]}
+    assert worse == {(3.0, 0.6): False, (3.0, 0.9): True}
+    assert summary["compensation"] == {"file": "compensation.json", "fade_full_hz": 0.6, "fade_zero_hz": 0.9}
+    fade = Compensation.read(tmp_path / "run" / "compensation.json").fade
+    assert (fade.factor(0.6), fade.factor(0.75), fade.factor(0.9)) == (1.0, 0.5, 0.0)
+    (said,) = [m for m in events.messages if m.startswith("validate:")]
+    assert "WORSE than none at 3 N m at 0.9 Hz" in said and "fades it out from 0.6 Hz to 0.9 Hz" in said
