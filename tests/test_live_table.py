@@ -153,8 +153,8 @@ def test_the_summary_fits_with_its_title_on_a_line_of_its_own(width):
     assert rows[-1] == ["4", "1.5", "valid.", "0.0505", "0.0500", "299x", "1195x", "-"]
 
 
-#: set points as a config gives them, up to 6 characters wide
-setpoint = st.sampled_from([0.05, 0.75, 12.5, 125.0, 0.0625])
+#: set points as a config gives them, and the odd ones (shown to 4 significant digits: at most 6 characters)
+setpoint = st.sampled_from([0.05, 0.75, 12.5, 125.0, 0.0625, 1 / 3, 2 / 3, 1234.5678])
 
 
 @given(st.lists(st.tuples(setpoint, setpoint, figure, figure, figure, factor, factor), min_size=2, max_size=8,

@@ -140,7 +140,7 @@ def summary_table(records: list[TrialRecord], learned: list[Point], validated: l
     for result in point_results(records, learned, validated):
         after = result.after
         trials = sum(r.role == "learn" and r.point == result.point for r in records)
-        rows.append([f"{result.point[0]:g}", f"{result.point[1]:g}", "learned" if result.learned else "valid.",
+        rows.append([f"{result.point[0]:.4g}", f"{result.point[1]:.4g}", "learned" if result.learned else "valid.",
                      _worst([after], "measured", "pp", 100), _worst([after], "true", "pp", 100),
                      _factor([after], "reduction_factor"), _factor([after], "reduction_factor_true"),
                      str(trials) if result.learned else "-"])
