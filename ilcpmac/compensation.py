@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +35,7 @@ import numpy as np
 
 from ilcpmac.bench.format import MAX_CALIBRATION, MAX_SPEED_HZ, MAX_TORQUE_NM
 from ilcpmac.errors import BenchFormatError
+from ilcpmac.files import read_bounded
 from ilcpmac.model.motor import MAX_GRID_SETPOINTS, MOTOR_RANGES, finite_number, shown
 from ilcpmac.records import SensorCalibration, TrialRequest
 
@@ -273,23 +272,7 @@ class Compensation:
     def read(cls, path: Path) -> Compensation:
         """The record in the JSON file ``path``: a regular file of at most `MAX_FILE_BYTES`; anything else raises
         `BenchFormatError` naming the file (and the key)."""
-        try:
-            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-        except FileNotFoundError:
-            raise BenchFormatError(f"{path}: no such file") from None
-        except (OSError, ValueError) as e:
-            raise BenchFormatError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-        try:
-            if not stat.S_ISREG(os.fstat(fd).st_mode):
-                raise BenchFormatError(f"{path}: not a regular file (a folder, FIFO or device is refused)")
-            with open(fd, "rb", closefd=False) as f:
-                raw = f.read(MAX_FILE_BYTES + 1)
-        except OSError as e:
-            raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
-        finally:
-            os.close(fd)
-        if len(raw) > MAX_FILE_BYTES:
-            raise BenchFormatError(f"{path}: more than {MAX_FILE_BYTES} bytes (refused)")
+        raw = read_bounded(path, MAX_FILE_BYTES, BenchFormatError)
         try:
             data = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
         except UnicodeDecodeError as e:

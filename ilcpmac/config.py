@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import re
-import stat
 import tomllib
 import types
 import typing
@@ -26,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.errors import ConfigError, IlcpmacError
+from ilcpmac.files import read_bounded
 from ilcpmac.model.motor import (
     BackEmf,
     Cogging,
@@ -378,21 +377,7 @@ def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict:
     and checked to be a regular file before a byte is read. A file that is
     too large, not UTF-8 or nested too deeply for the parser is refused too.
     """
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-    except (OSError, ValueError) as e:
-        raise error(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise error(f"{path}: not a regular file (a folder, FIFO or device is refused)")
-        with open(fd, "rb", closefd=False) as f:
-            raw = f.read(MAX_TOML_BYTES + 1)
-    except OSError as e:
-        raise error(f"{path}: cannot read ({e.strerror or e})") from None
-    finally:
-        os.close(fd)
-    if len(raw) > MAX_TOML_BYTES:
-        raise error(f"{path}: more than {MAX_TOML_BYTES} bytes (refused)")
+    raw = read_bounded(path, MAX_TOML_BYTES, error)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:

@@ -93,7 +93,7 @@ def test_malformed_toml_names_file_and_line(tmp_path):
 
 def test_missing_file(tmp_path):
     path = tmp_path / "absent.toml"
-    with pytest.raises(ConfigError, match=re.escape(str(path)) + ": cannot read"):
+    with pytest.raises(ConfigError, match=re.escape(str(path)) + ": no such file"):
         load_config(path)
 
 

@@ -1,0 +1,37 @@
+"""Reading a file the user names, bounded: a regular file only, and no more bytes than a limit."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+from ilcpmac.errors import IlcpmacError
+
+__all__ = ["read_bounded"]
+
+
+def read_bounded(path: Path, max_bytes: int, error: type[IlcpmacError]) -> bytes:
+    """The bytes of the regular file ``path``, at most ``max_bytes``; anything else raises ``error`` naming it.
+
+    A folder, FIFO or device is refused: the file is opened without blocking and checked to be a regular file
+    before a byte is read.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        raise error(f"{path}: no such file") from None
+    except (OSError, ValueError) as e:
+        raise error(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise error(f"{path}: not a regular file (a folder, FIFO or device is refused)")
+        with open(fd, "rb", closefd=False) as f:
+            raw = f.read(max_bytes + 1)
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    finally:
+        os.close(fd)
+    if len(raw) > max_bytes:
+        raise error(f"{path}: more than {max_bytes} bytes (refused)")
+    return raw
