@@ -1,0 +1,423 @@
+"""Torque ripple from the encoder's time stamps: no torque sensor (issue 12).
+
+Every encoder count carries a time stamp, so the dwell time per radian
+u(theta) = dt/dtheta = 1 / omega(theta) over each count interval follows from
+the data, and the mechanics (the report's eq. 3.1)
+
+    J domega/dt = tau(theta) - b omega
+
+turn the speed ripple into the torque ripple. Angles are mechanical, theta_c =
+c Delta with Delta = 2 pi / N_c (N_c counts per revolution); harmonics follow
+`ilcpmac.signals.harmonics.harmonic_amplitudes` (x = Re sum_h x_h e^{j h theta}).
+
+Estimator
+---------
+1. Count interval [c, c + 1] lasts T_c = t_{c+1} - t_c = integral of u over it,
+   exactly: u_c = T_c / Delta is the mean of u over the interval (a gap of k
+   counts gives its mean to each of its k counts). Its harmonics are u_h
+   sinc(h Delta / 2) e^{j h Delta / 2} (a boxcar centred on the mid-angle,
+   half a count after c); dividing that out gives u at the counts, exactly
+   up to the aliasing of harmonics above N_c / 2.
+2. Over the trial's whole revolutions a straight line against time is taken
+   out of the periodic-free part of u (`slow_trend`, as analysis.py detrends:
+   a slow speed drift does not leak, and the ripple does not bias the line);
+   the synchronous average (`revolution_table`) gives u at each count,
+   omega = 1 / u and omega^2 there.
+3. Since domega/dt = omega domega/dtheta = (1/2) d(omega^2)/dtheta, eq. 3.1 in
+   the position domain is, harmonic by harmonic and exactly for a periodic
+   motion,
+
+       tau_h = j h (J / 2) (omega^2)_h + b omega_h.                        (1)
+
+   To first order in the relative speed ripple eps = |omega - Omega| / Omega
+   (the position-to-time mapping linear: a harmonic h of the revolution at the
+   mean speed Omega has the frequency h Omega),
+
+       tau_h = g_h omega_h,   g_h = j h J Omega + b                        (2)
+
+   with the relative error O(eps) (the term j h (J / 2) (w^2)_h, w = omega -
+   Omega). (1) is what is estimated; (2) carries the noise and the encoder
+   errors below, whose effects are small.
+
+Noise
+-----
+(a) Timer quantisation q: each stamp has an error e_n uniform in +-q/2,
+variance q^2/12, so each duration T_c errs by e_{c+1} - e_c: variance q^2/6,
+covariance -q^2/12 with each neighbour. Over N = R N_c intervals (R whole
+revolutions) the synchronous average's harmonic of u_c is
+(2 / (N Delta)) sum_c (e_{c+1} - e_c) e^{-j h theta_c}; summing by parts,
+
+    E|du_h|^2 = q^2 / (3 N^2 Delta^2) [(N - 1) 4 sin^2(h Delta / 2) + 2]
+
+(the 2 from the first and the last stamp, each in one interval only; the
+errors taken as independent, which a motion with some non-repeatable part
+makes them: an exactly periodic one repeats them revolution after revolution
+in a quasi-periodic pattern, and the average gains or loses accordingly). The
+deconvolution of step 1 divides by sinc(h Delta / 2), and 4 sin^2(x) / sinc^2(x)
+= 4 x^2; d omega = -Omega^2 du and (2) give
+
+    E|dtau_h|^2 = |g_h|^2 Omega^4 q^2 / (3 N^2 Delta^2) [(N - 1) h^2 Delta^2 + 2 / sinc^2(h Delta / 2)]   (3)
+
+(`quantisation_variance_nm2`). The slope taken out changes it by a relative
+O(1 / (N h Delta)^2).
+
+(b) The revolution-to-revolution scatter of each harmonic, as `TorqueSpectrum`:
+everything that does not repeat (quantisation included), estimated from R
+revolutions with 2 (R - 1) degrees of freedom. A fit weights each harmonic
+with the larger of (a) and (b) (`EncoderTorqueSpectrum.weight_variance_nm2`):
+(b) alone scatters at small R, and (a) is a floor no trial goes below. (b)
+over-states the quantisation at low h: each revolution's harmonic carries its
+first and last stamps' errors, which cancel in the average, a factor up to
+[(N_c - 1) h^2 Delta^2 + 2] / [(N_c - 1) h^2 Delta^2 + 2 / R] (7 at h 1 for
+N_c 1024, R 8). A speed drift leaks only through its curvature against time
+(second order in the drift); it also modulates the ripple, which (b) sees.
+
+Floor
+-----
+For h Delta << 1, N h^2 Delta^2 >> 2 and b << h J Omega, (3) is
+
+    std(tau_h) = J h^2 Omega^3 q / sqrt(3 R N_c),   Omega = 2 pi f,
+
+rising as h^2 and as the cube of the speed, falling as the square root of the
+number of stamps. On the seed bench (N_c 4096, q 1 us, J 0.01056 kg m^2, R 64)
+it is 8.3e-6 N m at h 150 and 0.5 Hz, 2.2e-4 N m at 1.5 Hz: a peak-to-peak
+2 std of 0.0017 % and 0.045 % of 1 N m (`benchmarks/sensorless_floor.py`
+tabulates it; the viscous b adds |b|^2 to |g_h|^2, which matters at low h).
+
+Encoder graduation errors
+-------------------------
+Line c at the true angle (c + e_c) Delta makes interval c last as long as an
+interval of Delta (1 + e_{c+1} - e_c): an apparent relative speed ripple
+-(e_{c+1} - e_c), the same at every speed. After step 1 its harmonic is
+-j h Delta Omega e_h (exactly: (e^{j h Delta} - 1) e^{-j h Delta / 2} / sinc(h Delta / 2)
+= j h Delta), so to first order in e the apparent torque is
+
+    tau_h,apparent = tau_h + m_h e_h,   m_h = -g_h j h Delta Omega          (4)
+
+with m_h ~ Omega^2 while the torque's speed ripple tau_h / g_h falls with
+Omega: trials at two or more speeds separate them (`separate_encoder_error`).
+A constant e (h = 0) is a shift of the zero angle and is not observed.
+(4) is first order in e; the cross terms of e with the speed ripple, and of
+e with itself (a line-to-line error reaches every harmonic through 1 / u),
+leak into the other harmonics at second order. A known e is taken out of the
+stamps exactly to second order (`at_nominal_angles`); to estimate an unknown
+one, separate over harmonics up to N_c / 2 - 1 (every harmonic of e), then
+again from the stamps corrected for that estimate, and add the two.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ilcpmac.signals.harmonics import (
+    filtered,
+    harmonic_amplitudes,
+    revolution_table,
+    slow_trend,
+    table_from_amplitudes,
+    table_harmonics,
+    whole_revolutions,
+)
+
+__all__ = [
+    "EncoderSeparation",
+    "EncoderTorqueSpectrum",
+    "at_nominal_angles",
+    "count_speeds",
+    "encoder_error_gain",
+    "encoder_error_table",
+    "quantisation_variance_nm2",
+    "separate_encoder_error",
+    "speed_to_torque_gain",
+    "without_encoder_error",
+]
+
+
+def count_speeds(count: np.ndarray, time_s: np.ndarray,
+                 counts_per_rev: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mean mechanical speed over each count interval [c, c + 1] between the samples.
+
+    A gap of k counts between two samples gives its mean speed (k Delta over its duration) to each of
+    its k count intervals; the last sample starts no interval.
+
+    Returns
+    -------
+    interval_count : ndarray of int64, shape (count[-1] - count[0],)
+        c, from count[0] to count[-1] - 1, every one.
+    mid_time_s : ndarray, same shape
+        The time at the interval's mid-angle (linear within a gap), s.
+    speed_rad_s : ndarray, same shape
+        Mechanical rad/s.
+    """
+    count, time_s = np.asarray(count), np.asarray(time_s, float)
+    _check_samples(count, time_s, counts_per_rev)
+    gap = np.diff(count)
+    duration_s = np.diff(time_s)
+    sample = np.repeat(np.arange(gap.size), gap)
+    interval_count = np.arange(count[0], count[-1], dtype=np.int64)
+    step_s = duration_s[sample] / gap[sample]
+    mid_time_s = time_s[sample] + (interval_count - count[sample] + 0.5) * step_s
+    return interval_count, mid_time_s, (2.0 * np.pi / counts_per_rev) / step_s
+
+
+def at_nominal_angles(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int,
+                      line_errors_counts: np.ndarray) -> np.ndarray:
+    """The time stamps moved from the lines' true angles (c + e_c) Delta to c Delta, s.
+
+    t_c - e_c Delta u_c, with u_c the mean dwell per radian of the sample's two count intervals (its one
+    interval at the trial's ends) over their true lengths: exact to second order in e, the cross terms
+    with the speed ripple included.
+    ``line_errors_counts`` holds e_c for the counts 0..counts_per_rev - 1 of a revolution, each within +-0.5.
+    """
+    count, time_s = np.asarray(count), np.asarray(time_s, float)
+    _check_samples(count, time_s, counts_per_rev)
+    e = np.asarray(line_errors_counts, float)
+    if e.shape != (counts_per_rev,) or not np.all(np.abs(e) < 0.5):
+        raise ValueError(f"line_errors_counts must hold {counts_per_rev} values within +-0.5 counts")
+    e_c = e[count % counts_per_rev]
+    step_s = np.diff(time_s) / (np.diff(count) + np.diff(e_c))
+    local_step_s = np.concatenate([step_s[:1], (step_s[:-1] + step_s[1:]) / 2.0, step_s[-1:]])
+    return time_s - e_c * local_step_s
+
+
+def speed_to_torque_gain(harmonics: np.ndarray, inertia_kgm2: float, speed_rad_s: float,
+                         viscous_nm_s: float) -> np.ndarray:
+    """g_h = j h J Omega + b of eq. (2): tau_h = g_h omega_h to first order, N m per rad/s."""
+    return 1j * np.asarray(harmonics) * inertia_kgm2 * speed_rad_s + viscous_nm_s
+
+
+def encoder_error_gain(harmonics: np.ndarray, counts_per_rev: int, inertia_kgm2: float, speed_rad_s: float,
+                       viscous_nm_s: float) -> np.ndarray:
+    """m_h of eq. (4): the apparent torque harmonic per count of encoder error harmonic, N m per count."""
+    h = np.asarray(harmonics)
+    return (-speed_to_torque_gain(h, inertia_kgm2, speed_rad_s, viscous_nm_s)
+            * 1j * h * (2.0 * np.pi / counts_per_rev) * speed_rad_s)
+
+
+def quantisation_variance_nm2(harmonics: np.ndarray, counts_per_rev: int, timer_resolution_s: float,
+                              inertia_kgm2: float, speed_hz: float, revolutions: int,
+                              viscous_nm_s: float = 0.0) -> np.ndarray:
+    """E|dtau_h|^2 of eq. (3): the variance the timer quantisation leaves in each torque harmonic, N^2 m^2.
+
+    For a trial of ``revolutions`` whole revolutions at the mean speed ``speed_hz``, stamps rounded to
+    ``timer_resolution_s``; to first order in the speed ripple.
+    """
+    h = np.asarray(harmonics, float)
+    delta = 2.0 * np.pi / counts_per_rev
+    speed = 2.0 * np.pi * speed_hz
+    n = revolutions * counts_per_rev
+    bracket = (n - 1) * (h * delta) ** 2 + 2.0 / np.sinc(h / counts_per_rev) ** 2
+    gain = np.abs(speed_to_torque_gain(h, inertia_kgm2, speed, viscous_nm_s)) ** 2
+    return gain * speed**4 * timer_resolution_s**2 / (3.0 * n**2 * delta**2) * bracket
+
+
+@dataclass(frozen=True)
+class EncoderTorqueSpectrum:
+    """The torque ripple of one trial estimated from its encoder time stamps, as revolution harmonics.
+
+    Attributes
+    ----------
+    harmonics_nm : ndarray of complex, shape (H + 1,)
+        tau_h, h = 0..H, by eq. (1) (as `harmonic_amplitudes`); tau_0 = b omega_0 is the viscous part of
+        the mean torque only (Coulomb friction and a constant load are not seen).
+    variance_nm2 : ndarray, shape (H + 1,)
+        E|dtau_h|^2 from the revolution-to-revolution scatter, to first order (as `TorqueSpectrum`).
+    quantisation_variance_nm2 : ndarray, shape (H + 1,)
+        E|dtau_h|^2 the timer quantisation alone predicts (eq. 3).
+    speed_harmonics_rad_s : ndarray of complex, shape (H + 1,)
+        omega_h of the mechanical speed, rad/s; omega_0 its mean over the angle.
+    speed_variance_rad2_s2 : ndarray, shape (H + 1,)
+        Their revolution-to-revolution scatter variance.
+    mean_speed_hz : float
+        Whole revolutions over their duration, Hz.
+    revolutions : int
+        Whole revolutions analysed (R).
+    counts_per_rev : int
+    inertia_kgm2 : float
+        J used, kg m^2.
+    viscous_nm_s : float
+        b used, N m s/rad.
+    """
+
+    harmonics_nm: np.ndarray
+    variance_nm2: np.ndarray
+    quantisation_variance_nm2: np.ndarray
+    speed_harmonics_rad_s: np.ndarray
+    speed_variance_rad2_s2: np.ndarray
+    mean_speed_hz: float
+    revolutions: int
+    counts_per_rev: int
+    inertia_kgm2: float
+    viscous_nm_s: float
+
+    @classmethod
+    def of(cls, count: np.ndarray, time_s: np.ndarray, counts_per_rev: int, max_harmonic: int,
+           inertia_kgm2: float, timer_resolution_s: float, viscous_nm_s: float = 0.0,
+           line_errors_counts: np.ndarray | None = None) -> EncoderTorqueSpectrum:
+        """The torque harmonics 0..``max_harmonic`` of a trial sampled at ``count``, ``time_s``.
+
+        ``count`` (int, strictly increasing, gaps allowed) and ``time_s`` (strictly increasing, s) as in
+        `TrialData`; the time stamps are quantised to ``timer_resolution_s`` (s, 0 for exact stamps).
+        A known encoder error ``line_errors_counts`` (e_c per count of a revolution) is taken out of the
+        stamps first (`at_nominal_angles`).
+        """
+        if line_errors_counts is not None:
+            time_s = at_nominal_angles(count, time_s, counts_per_rev, line_errors_counts)
+        interval_count, mid_time_s, speed_rad_s = count_speeds(count, time_s, counts_per_rev)
+        _check_mechanics(counts_per_rev, max_harmonic, inertia_kgm2, timer_resolution_s, viscous_nm_s)
+        mask = whole_revolutions(interval_count, counts_per_rev)
+        revolutions = int(np.count_nonzero(mask)) // counts_per_rev
+        if revolutions < 2:
+            raise ValueError(f"the encoder torque needs at least 2 whole revolutions, the trial has {revolutions}")
+        interval_count, mid_time_s = interval_count[mask], mid_time_s[mask]
+        dwell_s_per_rad = 1.0 / speed_rad_s[mask]
+        mean_speed_hz = revolutions / float(np.sum(dwell_s_per_rad) * (2.0 * np.pi / counts_per_rev))
+        trend, _ = slow_trend(interval_count, mid_time_s, dwell_s_per_rad, counts_per_rev, 1)
+        table = revolution_table(interval_count, dwell_s_per_rad - trend, counts_per_rev)
+
+        h_all = np.arange(counts_per_rev // 2 + 1)
+        to_counts = np.exp(-1j * np.pi * h_all / counts_per_rev) / np.sinc(h_all / counts_per_rev)
+        speed = 1.0 / filtered(table.mean(axis=0), to_counts)
+        speed_harmonics = harmonic_amplitudes(speed, max_harmonic)
+        h = h_all[: max_harmonic + 1]
+        harmonics = 0.5j * h * inertia_kgm2 * harmonic_amplitudes(speed**2, max_harmonic) \
+            + viscous_nm_s * speed_harmonics
+
+        _, dwell_variance = table_harmonics(table, max_harmonic)
+        omega = 2.0 * np.pi * mean_speed_hz
+        speed_variance = dwell_variance * np.abs(to_counts[h]) ** 2 * omega**4
+        gain2 = np.abs(speed_to_torque_gain(h, inertia_kgm2, omega, viscous_nm_s)) ** 2
+        quantisation = quantisation_variance_nm2(h, counts_per_rev, timer_resolution_s, inertia_kgm2,
+                                                 mean_speed_hz, revolutions, viscous_nm_s)
+        return cls(harmonics, speed_variance * gain2, quantisation, speed_harmonics, speed_variance,
+                   mean_speed_hz, revolutions, counts_per_rev, float(inertia_kgm2), float(viscous_nm_s))
+
+    @property
+    def max_harmonic(self) -> int:
+        """H, the highest harmonic held."""
+        return self.harmonics_nm.size - 1
+
+    @property
+    def weight_variance_nm2(self) -> np.ndarray:
+        """The variance a fit weights each harmonic with: the larger of the scatter and the quantisation floor."""
+        return np.maximum(self.variance_nm2, self.quantisation_variance_nm2)
+
+    def encoder_error_gain(self) -> np.ndarray:
+        """m_h of eq. (4) at this trial's speed and mechanics, shape (H + 1,), N m per count."""
+        return encoder_error_gain(np.arange(self.max_harmonic + 1), self.counts_per_rev, self.inertia_kgm2,
+                                  2.0 * np.pi * self.mean_speed_hz, self.viscous_nm_s)
+
+
+@dataclass(frozen=True)
+class EncoderSeparation:
+    """Torque ripple and encoder graduation error separated over trials at several speeds (eq. 4).
+
+    Attributes
+    ----------
+    torque_nm : ndarray of complex, shape (H + 1,)
+        tau_h, N m; entry 0 is 0 (not separated).
+    encoder_error_counts : ndarray of complex, shape (H + 1,)
+        e_h of the line errors e_c (as `harmonic_amplitudes`), counts; entry 0 is 0 (not observed).
+    covariance : ndarray of complex, shape (H + 1, 2, 2)
+        E[d x d x^H] of x = (tau_h, e_h) per harmonic, N^2 m^2, N m counts and counts^2; entry 0 is 0.
+    """
+
+    torque_nm: np.ndarray
+    encoder_error_counts: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def torque_variance_nm2(self) -> np.ndarray:
+        """E|d tau_h|^2, shape (H + 1,)."""
+        return self.covariance[:, 0, 0].real
+
+    @property
+    def encoder_error_variance_counts2(self) -> np.ndarray:
+        """E|d e_h|^2, shape (H + 1,)."""
+        return self.covariance[:, 1, 1].real
+
+
+def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum]) -> EncoderSeparation:
+    """Separate the torque ripple from the encoder error over trials at two or more mean speeds.
+
+    The caller's assumption: the trials share the torque ripple tau_h (position-fixed: cogging,
+    back-EMF and sensor errors at the same torque) and the encoder. Per harmonic h = 1..H, the
+    apparent tau_h,k = tau_h + m_h,k e_h (eq. 4) is solved for (tau_h, e_h) in least squares weighted
+    by each trial's `EncoderTorqueSpectrum.weight_variance_nm2`; harmonics up to the smallest H.
+    First order in e (the module's notes say how to refine it).
+    """
+    if len(spectra) < 2:
+        raise ValueError(f"separating the encoder error needs trials at 2 or more speeds, got {len(spectra)}")
+    if len({s.counts_per_rev for s in spectra}) > 1:
+        raise ValueError("separating the encoder error needs trials of one encoder (equal counts_per_rev)")
+    speeds = np.array([s.mean_speed_hz for s in spectra])
+    if np.ptp(speeds) < 0.05 * speeds.max():
+        raise ValueError(f"separating the encoder error needs distinct speeds, got {np.round(speeds, 4).tolist()} Hz")
+    size = min(s.max_harmonic for s in spectra) + 1
+    y = np.stack([s.harmonics_nm[1:size] for s in spectra], axis=1)
+    weight = np.stack([1.0 / s.weight_variance_nm2[1:size] for s in spectra], axis=1)
+    design = np.stack([np.ones_like(y), np.stack([s.encoder_error_gain()[1:size] for s in spectra], axis=1)],
+                      axis=2)
+    weighted = design.conj() * weight[..., None]
+    covariance = np.linalg.inv(np.einsum("hki,hkj->hij", weighted, design))
+    x = np.einsum("hij,hj->hi", covariance, np.einsum("hki,hk->hi", weighted, y))
+    full_x = np.zeros((size, 2), complex)
+    full_x[1:] = x
+    full_covariance = np.zeros((size, 2, 2), complex)
+    full_covariance[1:] = covariance
+    return EncoderSeparation(full_x[:, 0], full_x[:, 1], full_covariance)
+
+
+def encoder_error_table(encoder_error_counts: np.ndarray, counts_per_rev: int) -> np.ndarray:
+    """The line errors e_c per count, shape (counts_per_rev,), counts, from their harmonics (entry 0 ignored)."""
+    harmonics = np.array(encoder_error_counts, complex)
+    harmonics[0] = 0.0
+    return table_from_amplitudes(harmonics, counts_per_rev)
+
+
+def without_encoder_error(spectrum: EncoderTorqueSpectrum, encoder_error_counts: np.ndarray) -> EncoderTorqueSpectrum:
+    """``spectrum`` corrected for a known encoder error e_h (counts, harmonics 0..>= H; entry 0 ignored).
+
+    Removes the apparent torque m_h e_h and speed ripple -j h Delta Omega e_h of eq. (4), to first order
+    in e; the variances stay. `EncoderTorqueSpectrum.of` with ``line_errors_counts`` is exact to second order.
+    """
+    e = np.array(encoder_error_counts[: spectrum.max_harmonic + 1], complex)
+    e[0] = 0.0
+    m = spectrum.encoder_error_gain()
+    h = np.arange(e.size)
+    omega = 2.0 * np.pi * spectrum.mean_speed_hz
+    return replace(spectrum, harmonics_nm=spectrum.harmonics_nm - m * e,
+                   speed_harmonics_rad_s=spectrum.speed_harmonics_rad_s
+                   + 1j * h * (2.0 * np.pi / spectrum.counts_per_rev) * omega * e)
+
+
+def _check_samples(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int) -> None:
+    if isinstance(counts_per_rev, bool) or not isinstance(counts_per_rev, (int, np.integer)) or counts_per_rev < 4:
+        raise ValueError(f"counts_per_rev must be an integer >= 4, got {counts_per_rev!r}")
+    if count.ndim != 1 or time_s.shape != count.shape or count.size < 2:
+        raise ValueError(f"count and time_s must be 1-D of one length >= 2, got shapes {count.shape} and "
+                         f"{time_s.shape}")
+    if not np.issubdtype(count.dtype, np.integer):
+        raise ValueError(f"count must hold integers, got {count.dtype}")
+    if not np.all(np.isfinite(time_s)):
+        raise ValueError("time_s holds a NaN or an infinity")
+    if np.any(np.diff(count) <= 0):
+        raise ValueError(f"count must be strictly increasing (sample {int(np.argmin(np.diff(count))) + 1} is not)")
+    if np.any(np.diff(time_s) <= 0):
+        raise ValueError(f"time_s must be strictly increasing (sample {int(np.argmin(np.diff(time_s))) + 1} is not)")
+
+
+def _check_mechanics(counts_per_rev: int, max_harmonic: int, inertia_kgm2: float, timer_resolution_s: float,
+                     viscous_nm_s: float) -> None:
+    if isinstance(max_harmonic, bool) or not isinstance(max_harmonic, (int, np.integer)) \
+            or not 0 <= max_harmonic < counts_per_rev // 2:
+        raise ValueError(f"max_harmonic must be an integer in [0, counts_per_rev / 2), got {max_harmonic!r}")
+    if not (np.isfinite(inertia_kgm2) and inertia_kgm2 > 0):
+        raise ValueError(f"inertia_kgm2 must be finite and > 0, got {inertia_kgm2!r}")
+    if not (np.isfinite(timer_resolution_s) and timer_resolution_s >= 0):
+        raise ValueError(f"timer_resolution_s must be finite and >= 0, got {timer_resolution_s!r}")
+    if not np.isfinite(viscous_nm_s):
+        raise ValueError(f"viscous_nm_s must be finite, got {viscous_nm_s!r}")
