@@ -307,6 +307,12 @@ def _with(model: MotorModel, table: str, **changes) -> MotorModel:
     ("encoder", {"counts_per_rev": 2 * MAX_COUNTS_PER_REV},
      r"model \[encoder\] counts_per_rev: 524288 is more than the simulator's 262144"),
     ("cogging", {"amplitudes_nm": (0.5,)}, r"model \[cogging\] multiples, amplitudes_nm, phases_rad: must have equal"),
+    ("encoder", {"eccentricity_counts": 0.5}, r"model \[encoder\] eccentricity_counts: invalid value 0.5"),
+    ("encoder", {"line_std_counts": np.nan}, r"model \[encoder\] line_std_counts: invalid value nan"),
+    # each within its range, the lines drawn are not
+    ("encoder", {"eccentricity_counts": 0.4, "line_std_counts": 0.1},
+     r"model \[encoder\] eccentricity_counts, line_std_counts, line_seed: line 219 errs by 0\.701 counts, not "
+     r"within 0\.5"),
 ])
 def test_bad_model_raises(small_model, table, changes, message):
     with pytest.raises(SimulationError, match=message):
@@ -357,6 +363,10 @@ cases = {
     "one-row table": short("fine", 1),
     "two-phase references": {"i_ref_table": np.ascontiguousarray(valid["i_ref_table"][:, :2])},
     "two-phase resistance": short("resistance_ohm", 2),
+    "short line table": short("lines_counts", 258),
+    # lines in no order, or not numbers: whatever count the kernel finds, it indexes within its tables
+    "lines in no order": {"lines_counts": np.random.default_rng(1).uniform(-300.0, 300.0, 259)},
+    "NaN lines": {"lines_counts": np.full(259, np.nan)},
 }
 done = {}
 for name, change in cases.items():
@@ -375,4 +385,5 @@ def test_kernel_stays_within_its_arrays_on_hostile_arguments():
     assert samples.pop("valid") == samples.pop("backwards") == 2 * 256  # the rotor turns round, and on
     diverged = {"control rate 0.001 Hz", "speed 1e-6 Hz", "NaN speed", "tiny inertia"}
     assert all(samples[name] < 2 * 256 for name in diverged), samples
+    assert all(0 <= samples.pop(name) <= 2 * 256 for name in ("lines in no order", "NaN lines")), samples
     assert all(samples[name] == 0 for name in set(samples) - diverged), samples

@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from ilcpmac.model.encoder import MAX_LINE_ERROR_COUNTS, line_errors_counts, line_errors_problem
 from ilcpmac.records import SensorCalibration
 
 #: Most terms of one sum of sines (back-EMF, cogging, disturbance).
@@ -223,11 +224,32 @@ class TorqueSensor:
 
 @dataclass(frozen=True)
 class Encoder:
-    """Incremental encoder with position-triggered sampling."""
+    """Incremental encoder with position-triggered sampling and graduation errors.
+
+    Line c sits at the true angle (c + e_c) 2 pi / counts_per_rev, e_c from
+    `ilcpmac.model.encoder.line_errors_counts` (counts; positive: late). The
+    defaults are a perfect encoder. Every error stays below half a count, so
+    that the lines keep their order: ``eccentricity_counts`` by its range, the
+    lines drawn by `ilcpmac.model.encoder.line_errors_problem` when a
+    simulator is built.
+    """
 
     counts_per_rev: int = _param(in_range(*MOTOR_RANGES["counts_per_rev"]),
                                  "encoder counts per mechanical revolution, 4..2^20")
     timer_resolution_s: float = _param(in_range(0.0, 1e-3, low_open=True), "time-stamp quantum, s, within (0, 1e-3]")
+    eccentricity_counts: float = _param(in_range(0.0, MAX_LINE_ERROR_COUNTS, high_open=True),
+                                        "once-per-revolution line error amplitude, counts, within [0, 0.5)",
+                                        default=0.0)
+    eccentricity_phase_rad: float = _param(in_range(-2 * math.pi, 2 * math.pi),
+                                           "the eccentricity's phase at line 0, rad, within [-2 pi, 2 pi]", default=0.0)
+    line_std_counts: float = _param(in_range(0.0, 0.25), "random error of each line, counts RMS, within [0, 0.25]",
+                                    default=0.0)
+    line_seed: int = _param(in_range(0, 2**63 - 1), "seed of the lines' random errors, 0..2^63-1", default=0)
+
+    def line_errors_counts(self) -> np.ndarray:
+        """e_c of each line, counts, shape (counts_per_rev,): the same every trial."""
+        return line_errors_counts(self.counts_per_rev, self.eccentricity_counts, self.eccentricity_phase_rad,
+                                  self.line_std_counts, self.line_seed)
 
 
 @dataclass(frozen=True)
@@ -344,8 +366,9 @@ def model_problem(model: MotorModel, name: Callable[[str, str], str] = config_ke
 
     Each field's own check, then the checks across keys: the fundamental of
     the back-EMF, every order within the encoder's Nyquist limit, the current
-    bandwidth within a tenth of the control rate. ``name(table, key)`` names a
-    key as the model's reader knows it (default ``"[table] key"``).
+    bandwidth within a tenth of the control rate, the encoder's lines within
+    half a count of their places. ``name(table, key)`` names a key as the
+    model's reader knows it (default ``"[table] key"``).
     """
     for section in fields(model):
         problem = section_problem(section.name, getattr(model, section.name), name)
@@ -367,4 +390,7 @@ def model_problem(model: MotorModel, name: Callable[[str, str], str] = config_ke
         return (f"{name('controller', 'bandwidth_hz')}: {ctrl.bandwidth_hz:g} Hz is above control_rate_hz / 10 = "
                 f"{ctrl.control_rate_hz / 10:g} Hz (a discrete current loop needs ten control periods per "
                 "bandwidth period)")
+    problem = line_errors_problem(model.encoder.line_errors_counts(), model.encoder.counts_per_rev)
+    if problem is not None:
+        return f"{name('encoder', 'eccentricity_counts')}, line_std_counts, line_seed: {problem}"
     return None

@@ -5,8 +5,9 @@ loop reading a sensor with scale, offset and noise, the winding
 L di/dt = v - R i - K_p(theta) omega (exact zero-order-hold step), torque
 sum_p K_p i_p (1 - c i_p^2) + tau_pos(theta), mechanics J domega/dt = tau -
 b omega - coulomb, a piezo torque sensor, and position-triggered sampling
-once per encoder count. Inputs are validated by ``ilcpmac.sim.simulator``;
-whatever it is given, the kernel reads and writes only within its arrays.
+once per encoder line crossed, each line where it truly sits. Inputs are
+validated by ``ilcpmac.sim.simulator``; whatever it is given, the kernel
+reads and writes only within its arrays.
 """
 
 import numpy as np
@@ -50,9 +51,11 @@ def _torque(fine, pos, ia, ib, ic, c_sat):
 
 
 @njit(cache=True)
-def _shapes_fit(fine, i_ref_table, gauss_table, per_phase, record_counts, out_1d, out_3):
+def _shapes_fit(fine, i_ref_table, lines_counts, gauss_table, per_phase, record_counts, out_1d, out_3):
     """Whether every index the kernel computes stays within its arrays."""
     if fine.ndim != 2 or fine.shape[0] < 2 or fine.shape[1] != 4 or i_ref_table.shape[0] < 1:
+        return False
+    if lines_counts.shape[0] != i_ref_table.shape[0] + 3:
         return False
     if i_ref_table.shape[1] != 3 or gauss_table.shape[0] < 1 << GAUSS_BITS:
         return False
@@ -95,7 +98,7 @@ FASTMATH = {"contract", "reassoc", "arcp", "nsz", "afn"}
 
 @njit(cache=True, nogil=True, fastmath=FASTMATH)
 def simulate_trial(
-    fine, i_ref_table, gauss_table,
+    fine, i_ref_table, lines_counts, gauss_table,
     resistance_ohm, inductance_h, kp_v_per_a, ki_v_per_as, voltage_limit_v, dt_s,
     scale_true, offset_true, scale_cal, offset_cal, current_noise_counts, saturation_per_a2,
     inertia_kgm2, brake_nms, coulomb_nm, omega0_rad_s,
@@ -107,12 +110,18 @@ def simulate_trial(
 
     ``fine`` has shape (M + 1, 4): K_a, K_b, K_c (N m / A) and the position
     torque (cogging plus disturbance, N m) at M equally spaced angles over a
-    revolution, the first row repeated at the end. Per-phase parameters are
-    arrays of 3. Fewer than ``record_counts`` samples means the trial hit
-    ``max_steps`` (the rotor stalled) or diverged (the angle left its
-    revolution); arrays too small for the indices return 0 samples.
+    revolution, the first row repeated at the end. ``lines_counts`` has shape
+    (N + 3,) for N = ``i_ref_table.shape[0]`` counts per revolution: the true
+    positions of lines -1 .. N + 1, counts from angle 0 (line c at c + e_c;
+    lines -1, N and N + 1 are lines N - 1, 0 and 1 of the neighbouring
+    revolutions), each within half a count of its nominal position. A
+    sample is taken when the true angle crosses a line; the measured count
+    is that line's. Per-phase parameters are arrays of 3. Fewer than
+    ``record_counts`` samples means the trial hit ``max_steps`` (the rotor
+    stalled) or diverged (the angle left its revolution); arrays too small
+    for the indices return 0 samples.
     """
-    if not _shapes_fit(fine, i_ref_table, gauss_table,
+    if not _shapes_fit(fine, i_ref_table, lines_counts, gauss_table,
                        (resistance_ohm, inductance_h, kp_v_per_a, ki_v_per_as, scale_true, offset_true,
                         scale_cal, offset_cal),
                        record_counts, (out_time, out_torque, out_torque_true, out_speed),
@@ -144,6 +153,7 @@ def simulate_trial(
     revs = 0
     t = 0.0
     count_in_rev = 0
+    line_from, line_to = 1.0, 0.0  # positions of the last line found and of the next, counts: none yet
     last_count = 0
     n = 0
     end_count = warmup_counts + record_counts
@@ -185,8 +195,23 @@ def simulate_trial(
             revs -= 1
         if not 0.0 <= theta_rev <= TWO_PI:
             break  # NaN, or more than a revolution in one step: out of the validated ranges
-        count_in_rev = min(int(theta_rev * counts_per_rad), counts_per_rev - 1)
-        count = revs * counts_per_rev + count_in_rev
+        position_counts = theta_rev * counts_per_rad
+        if line_from <= position_counts < line_to:
+            continue  # no line crossed
+        # the last line crossed: the nearest below, or one on either side (lines lie within half a count)
+        line = min(int(position_counts), counts_per_rev - 1)
+        if position_counts < lines_counts[line + 1]:
+            line -= 1
+        elif position_counts >= lines_counts[line + 2]:
+            line += 1
+        line_from, line_to = lines_counts[line + 1], lines_counts[line + 2]
+        count = revs * counts_per_rev + line
+        if line < 0:
+            count_in_rev = line + counts_per_rev
+        elif line == counts_per_rev:
+            count_in_rev = 0
+        else:
+            count_in_rev = line
         if count <= last_count:
             continue
         last_count = count
@@ -194,8 +219,8 @@ def simulate_trial(
             continue
         if count >= end_count:
             break
-        # position-triggered sample at the crossing of this count (skipped counts are not recorded)
-        t_c = t - dt_s + dt_s * (count_in_rev / counts_per_rad - theta_old) / (theta_rev - theta_old)
+        # position-triggered sample at the crossing of this line (lines skipped are not recorded)
+        t_c = t - dt_s + dt_s * (line_from / counts_per_rad - theta_old) / (theta_rev - theta_old)
         out_count[n] = count - warmup_counts
         out_time[n] = np.round(t_c / timer_resolution_s) * timer_resolution_s
         out_i_ref[n] = i_ref_table[count_in_rev]

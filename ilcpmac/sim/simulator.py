@@ -2,7 +2,8 @@
 
 Every input of the kernel is checked here first (`SimulationError`, one line
 naming the value): the model's ranges, the request's values, shapes and
-dtypes, and the trial's size against `MAX_SAMPLES` and `MAX_STEPS`.
+dtypes, the encoder's line errors, and the trial's size against
+`MAX_SAMPLES` and `MAX_STEPS`.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ilcpmac.errors import SimulationError
+from ilcpmac.model.encoder import line_errors_problem
 from ilcpmac.model.motor import MotorModel, finite_number, model_problem, shown
 from ilcpmac.model.tables import backemf_table, cogging_table, current_references, disturbance_table
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
@@ -81,6 +83,12 @@ class Simulator:
         self.fine = np.ascontiguousarray(np.vstack([fine, fine[:1]]))  # periodic: first row repeated
         #: the back-EMF table per encoder count (backemf.csv, the controller's K*)
         self.backemf_counts = np.ascontiguousarray(backemf[::OVERSAMPLE])
+        errors = model.encoder.line_errors_counts()
+        problem = line_errors_problem(errors, cpr)
+        if problem is not None:
+            raise SimulationError(f"model [encoder] eccentricity_counts, line_std_counts, line_seed: {problem}")
+        #: true positions of lines -1 .. counts_per_rev + 1 from angle 0, counts (the kernel's ``lines_counts``)
+        self.lines_counts = np.arange(-1, cpr + 2) + np.concatenate([errors[-1:], errors, errors[:2]])
         self.gauss_table = np.random.default_rng(0).standard_normal(2**GAUSS_BITS)
         start = model.controller.calibration()
         self.scale_true = model.current_sensors.true_scale_counts_per_a(start)
@@ -182,7 +190,7 @@ class Simulator:
         record = request.revolutions * cpr
         out = _allocate(record)
         n = simulate_trial(
-            self.fine, i_ref, self.gauss_table,
+            self.fine, i_ref, self.lines_counts, self.gauss_table,
             r, ell, w_bw * ell, w_bw * r, m.controller.voltage_limit_v, dt,
             self.scale_true, self.offset_true, np.ascontiguousarray(request.calibration.current_scale),
             np.ascontiguousarray(request.calibration.current_offset), m.current_sensors.noise_counts,
