@@ -55,6 +55,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import fuzz_targets as ft  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+REAL_CONFIG = ROOT / "configs" / "real-bench.toml"
 SEED_CONFIG = ROOT / "configs" / "seed-bench.toml"
 TIMEOUT_S = 30.0
 MEMORY_CAP_BYTES = 4 << 30
@@ -970,6 +971,10 @@ def main() -> int:
         config_text = small_config(SEED_CONFIG.read_text())
         config = scratch / "small.toml"
         config.write_text(config_text)
+        # what the controller knows alone (the real-bench template): a hostile target's bench is checked against
+        # [bench] only where the config gives it, so its attacks reach the trials
+        remote = scratch / "remote.toml"
+        remote.write_text(small_config(REAL_CONFIG.read_text()))
         base = scratch / "base-bench"
         made = run_process([ILCPMAC, "simulate", str(config), "--out", str(base)], scratch)
         if made.code != 0:
@@ -982,7 +987,7 @@ def main() -> int:
             ("emulator", "emulator vs hostile clients",
              lambda: emulator_verdicts(config, scratch, args.quick, args.match)),
             ("targets", "remote client vs hostile targets",
-             lambda: run_cases(pick([target_case(t, config) for t in ft.TARGETS]), scratch)),
+             lambda: run_cases(pick([target_case(t, remote) for t in ft.TARGETS]), scratch)),
         ]
         for flag, category, stage in stages:
             if flag not in only:
