@@ -408,6 +408,25 @@ def test_emulate_command_serves_the_simulator(tmp_path, remote):
     assert "fault on trial 1: drop" in stderr and "stopped after 2 trial requests" in stderr
 
 
+def test_emulate_plays_trials_at_the_pace_asked(monkeypatch):
+    seen = {}
+
+    class Recorded:
+        def __init__(self, *args, **kwargs) -> None:
+            seen.update(kwargs)
+
+        def start(self):
+            raise BackendError("recorded")
+
+    monkeypatch.setattr("ilcpmac.backends.emulator.BenchEmulator", Recorded)
+    args = ["emulate", "--port", "0", "--config", str(SEED_CONFIG)]
+    assert CliRunner().invoke(main, [*args, "--pace", "2.5"]).output == "error: recorded\n"
+    assert seen["pace"] == 2.5
+    assert CliRunner().invoke(main, args).exit_code == 2 and seen["pace"] is None
+    refused = CliRunner().invoke(main, [*args, "--pace", "0"])
+    assert refused.exit_code == 2 and "--pace" in refused.output
+
+
 def test_emulate_reports_a_bad_fault_spec_in_one_line():
     result = CliRunner().invoke(main, ["emulate", "--port", "0", "--config", str(SEED_CONFIG), "--stall", "two"])
     assert result.exit_code == 2

@@ -50,13 +50,17 @@ _FAULT_HELP = "N: on trial N only; N+: on trial N and every later one (trials co
               help="Disconnect a client that takes longer to send a frame, or to take one sent to it, s.")
 @click.option("--max-connections", default=4, show_default=True, type=click.IntRange(min=1),
               help="Connections open at once; more are answered ERROR BUSY and closed.")
+@click.option("--pace", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Play each trial back at this many times a bench's speed (1: as a bench records it, so a "
+                   "client shows its progress) [default: as fast as the client takes it].")
 @click.option("--max-samples", "max_trial_samples", default=None, type=click.IntRange(min=2),
               help="Largest trial (revolutions x counts per revolution); larger requests get LIMIT_EXCEEDED "
                    "[default: the bench format's 4194304 rows].")
 def emulate(port: int, host: str, config: Path | None, max_current: float, max_torque: float, max_speed: float,
             chunk_samples: int, heartbeat_s: float, drop: str | None, stall: str | None, stall_s: float,
             corrupt: str | None, wrong_version: str | None, restart: str | None, restart_delay_s: float,
-            idle_timeout_s: float, frame_timeout_s: float, max_connections: int, max_trial_samples: int | None) -> None:
+            idle_timeout_s: float, frame_timeout_s: float, max_connections: int, pace: float | None,
+            max_trial_samples: int | None) -> None:
     """Serve the simulated drive of --config as a bench target.
 
     It speaks the bench protocol of docs/protocol.md.
@@ -83,7 +87,7 @@ def emulate(port: int, host: str, config: Path | None, max_current: float, max_t
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])
     limits = {} if max_trial_samples is None else {"max_trial_samples": max_trial_samples}
-    emulator = BenchEmulator(backend, host, port, faults=faults, chunk_samples=chunk_samples,
+    emulator = BenchEmulator(backend, host, port, faults=faults, chunk_samples=chunk_samples, pace=pace,
                              heartbeat_s=heartbeat_s, restart_delay_s=restart_delay_s, idle_timeout_s=idle_timeout_s,
                              frame_timeout_s=frame_timeout_s, max_connections=max_connections, **limits).start()
     stopped = threading.Event()
