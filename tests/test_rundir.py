@@ -360,7 +360,7 @@ def test_json_of_a_run_never_holds_a_non_finite_number(tmp_path):
 class FailingRunner:
     """A campaign that finds a config error once the live table is on screen (as the runner's checks do)."""
 
-    def __init__(self, *args) -> None:
+    def __init__(self, *args, **kwargs) -> None:
         pass
 
     def run(self) -> dict:

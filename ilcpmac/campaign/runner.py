@@ -88,18 +88,21 @@ class CampaignRunner:
     identify : the identification, ``identify(bench) -> result``.
     events : the user interface.
     extra_stages : stage factories by name, for stages a script defines without packaging them.
+    plan : the campaign's plan, when the caller has built it (`CampaignPlan.build` of the same config, bench and
+        seed); built here otherwise.
     """
 
     def __init__(self, config: CampaignConfig, backend: Backend, run_dir: RunDir, seed: int,
                  identify: Callable[[Bench], IdentificationResult], events: CampaignEvents,
-                 extra_stages: dict[str, Callable[[StageSetup], object]] | None = None) -> None:
+                 extra_stages: dict[str, Callable[[StageSetup], object]] | None = None,
+                 plan: CampaignPlan | None = None) -> None:
         self.extra_stages = extra_stages
         self.config = config
         self.run_dir = run_dir
         self.identify = identify
         self.events = events
         self.description: BenchDescription = run_dir.description
-        self.plan = CampaignPlan.build(config, self.description, seed)
+        self.plan = plan or CampaignPlan.build(config, self.description, seed)
         #: every request of every phase passes the limits here (the identified sensors join them later)
         self.backend = LimitGuard(backend, self.description, self.plan.limits)
         report_progress_to(self.backend, events.progress)

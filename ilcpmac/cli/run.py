@@ -233,7 +233,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
                                 None if resume_dir is not None else [])
             with LiveTable(view, console=console, refresh_per_second=REFRESH_HZ, vertical_overflow="visible"):
                 try:
-                    summary = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, view).run()
+                    summary = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, view, plan=plan).run()
                 except BaseException:
                     view.end("stopped")
                     raise
