@@ -10,12 +10,12 @@ import threading
 import time
 import tracemalloc
 import zlib
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from protocol_helpers import documented_frames
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.backends.protocol import (
@@ -58,7 +58,6 @@ from ilcpmac.bench.format import MotorInfo
 from ilcpmac.errors import BackendError
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 
-DOC = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 CAL = SensorCalibration([14.0, 14.0, 14.0], [0.0, 0.0, 0.0], 0.908)
 #: sample bounds no toy trial reaches
 LOOSE = SampleBounds(10**6, dict.fromkeys(["i_ref_a", "i_meas_a", "i_true_a", "torque_nm", "torque_true_nm",
@@ -463,9 +462,8 @@ def test_check_request_bounds_the_current_references():
 
 
 def test_worked_example_in_the_docs_matches_the_implementation():
-    dumps = re.findall(r"```text\n(\w+) \((client|target), seq (\d+)\), (\d+) bytes\n((?:[0-9a-f]{4} .*\n)+)```",
-                       DOC.read_text())
-    assert [d[0] for d in dumps] == ["HELLO", "DESCRIBE", "REQUEST", "ACCEPT", "DATA", "DATA", "END_OF_TRIAL",
+    dumps = documented_frames()
+    assert [d.name for d in dumps] == ["HELLO", "DESCRIBE", "REQUEST", "ACCEPT", "DATA", "DATA", "END_OF_TRIAL",
                                      "ERROR"]
     a, b = socket.socketpair()
     try:
@@ -482,7 +480,6 @@ def test_worked_example_in_the_docs_matches_the_implementation():
     finally:
         a.close()
         b.close()
-    for (name, _, seq, size, hexdump), frame in zip(dumps, frames):
-        documented = bytes.fromhex("".join(line[6:] for line in hexdump.splitlines()))
-        assert int(size) == len(documented) and struct.unpack_from("<I", documented, 8)[0] == int(seq)
-        assert documented == bytes(frame), name
+    for dump, frame in zip(dumps, frames):
+        assert dump.size == len(dump.data) and struct.unpack_from("<I", dump.data, 8)[0] == dump.seq
+        assert dump.data == bytes(frame), dump.name
