@@ -501,6 +501,9 @@ ilcp_status ilcp_request_decode(const uint8_t *payload, size_t length, uint32_t 
     if ((uint64_t)length != ILCP_REQUEST_HEAD_SIZE + 16u * (uint64_t)n) {
         return ILCP_E_SIZE;
     }
+    if (out->trial_id < 1u) { /* section 5.2: 0 names no trial in an ERROR */
+        return ILCP_E_RANGE;
+    }
     if (n != counts_per_rev) {
         return ILCP_E_TABLE_LENGTH;
     }

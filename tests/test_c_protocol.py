@@ -44,6 +44,7 @@ from ilcpmac.backends.protocol import (
     TargetError,
     TrialAssembler,
     check_request,
+    check_trial_id,
     data_bound,
     decode_accept,
     decode_describe,
@@ -758,8 +759,8 @@ def python_verdict(kind: str, payload: bytes) -> str:
     view = memoryview(payload)
     try:
         if kind == "request":
-            _, request = decode_request(view)
-            answer = check_request(request, DESCRIPTION)
+            trial_id, request = decode_request(view)
+            answer = check_trial_id(trial_id) or check_request(request, DESCRIPTION)
             return "ok" if answer is None else answer[0].name
         if kind == "data":
             TrialAssembler(int.from_bytes(payload[:4], "little"), 10**6, SampleBounds(10**6, {})).add(view)
@@ -779,6 +780,7 @@ _ONE_DATA = payload_of(next(encode_trial(7, TrialData(1.0, 1.0, np.arange(3), np
 
 #: hostile payloads: (kind, payload, C status, Python verdict)
 HOSTILE_PAYLOADS = {
+    "REQUEST of trial 0": ("request", request_payload(trial_id=0), "E_RANGE", "BAD_REQUEST"),
     "REQUEST with tables of 63": ("request", request_payload(feedforward_nm=np.zeros(63), excitation_nm=np.zeros(63)),
                                   "E_TABLE_LENGTH", "BAD_REQUEST"),
     "REQUEST with tables of 65": ("request", request_payload(feedforward_nm=np.zeros(65), excitation_nm=np.zeros(65)),
@@ -846,7 +848,7 @@ def test_the_hostile_payloads_get_the_python_verdict(driver):
         out = line.split()
         assert (out[0], python_verdict(kind, payload)) == (status, verdict), name
         if kind == "request" and len(payload) >= 88:
-            assert out[1] == "7", name  # a refusal can name the trial
+            assert out[1] == ("0" if name == "REQUEST of trial 0" else "7"), name  # a refusal can name the trial
 
 
 # ---------------------------------------------------------------- property tests: random input, both codecs
@@ -924,7 +926,7 @@ def test_random_requests_get_the_python_verdict(driver, payloads):
         except ProtocolError:
             assert c[0] == "E_SIZE"
             continue
-        malformed = form_violation(request, 4) is not None
+        malformed = form_violation(request, 4) is not None or check_trial_id(trial_id) is not None
         assert int(codes[c[0]]) == (ErrorCode.BAD_REQUEST if malformed else 0), (c[0], payload.hex())
         assert int(c[1], 16) == trial_id
         if not malformed:

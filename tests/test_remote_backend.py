@@ -431,3 +431,22 @@ def test_emulate_reports_a_bad_fault_spec_in_one_line():
     result = CliRunner().invoke(main, ["emulate", "--port", "0", "--config", str(SEED_CONFIG), "--stall", "two"])
     assert result.exit_code == 2
     assert result.output == "error: fault trial 'two' must be N (trial N only) or N+ (trial N and later)\n"
+
+
+def test_the_emulator_refuses_a_request_of_trial_0(emulator, requests):
+    """Section 5.2: a REQUEST's trial_id is at least 1 (0 names no trial in an ERROR)."""
+    from ilcpmac.backends.protocol import Channel, FrameType, decode_error, encode_request
+
+    server = emulator()
+    host, port = server.address.rsplit(":", 1)
+    with socket.create_connection((host, int(port)), timeout=5.0) as sock:
+        channel = Channel(sock, "emulator")
+        channel.send(FrameType.HELLO)
+        assert channel.recv().type is FrameType.DESCRIBE
+        channel.send(FrameType.REQUEST, encode_request(0, requests[0]))
+        frame = channel.recv()
+        assert frame.type is FrameType.ERROR
+        error = decode_error(frame.payload)
+        assert (error.code, error.trial_id) == (ErrorCode.BAD_REQUEST, 0) and "trial_id 0" in str(error)
+        channel.send(FrameType.REQUEST, encode_request(1, requests[0]))  # the connection goes on
+        assert channel.recv().type is FrameType.ACCEPT

@@ -42,6 +42,7 @@ from ilcpmac.backends.protocol import (
     ProtocolError,
     ProtocolVersionError,
     check_request,
+    check_trial_id,
     decode_request,
     encode_accept,
     encode_describe,
@@ -365,7 +366,7 @@ class BenchEmulator:
             self._requests += 1
             number = self._requests
         max_samples = request.revolutions * self._description.motor.counts_per_rev
-        refusal = check_request(request, self._description)
+        refusal = check_trial_id(trial_id) or check_request(request, self._description)
         if refusal is None and max_samples > self.max_trial_samples:
             refusal = (ErrorCode.LIMIT_EXCEEDED, f"{max_samples} samples (revolutions x counts_per_rev) exceed "
                                                  f"the {self.max_trial_samples} this target records per trial")

@@ -713,6 +713,14 @@ class TrialAssembler:
 # ---------------------------------------------------------------- requests a target accepts
 
 
+def check_trial_id(trial_id: int) -> tuple[ErrorCode, str] | None:
+    """Why a target must refuse a REQUEST's ``trial_id`` (section 5.2: at least 1; 0 names no trial in an
+    ERROR), or None."""
+    if trial_id >= 1:
+        return None
+    return ErrorCode.BAD_REQUEST, f"trial_id {trial_id}: a REQUEST's trial_id is at least 1 (0 names no trial)"
+
+
 def check_request(request: TrialRequest, description: BenchDescription) -> tuple[ErrorCode, str] | None:
     """Why a target described by ``description`` must refuse ``request``, or None.
 
