@@ -60,7 +60,8 @@ MAX_OPERATING_POINTS = 32
 BACKEMF_TOLERANCE = 1e-6
 
 
-def _check(check, doc: str, default):
+def setting(check, doc: str, default):
+    """A field of a config section: its default, the check a value must pass and the doc its error quotes."""
     return dataclasses.field(default=default, metadata={"check": check, "doc": doc})
 
 
@@ -87,35 +88,35 @@ class CampaignSettings:
         "ilc_torque_setpoints_nm": "learn_torques_nm", "ilc_speed_setpoint_hz": "learn_speeds_hz (a list)",
         "ilc_revolutions": "learn_revolutions", "ilc_trials": "learn_trials"}
 
-    learn_torques_nm: tuple[float, ...] | None = _check(
+    learn_torques_nm: tuple[float, ...] | None = setting(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
         f"torques learned at, N m: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
         "smallest, middle and largest torque set point", None)
-    learn_speeds_hz: tuple[float, ...] | None = _check(
+    learn_speeds_hz: tuple[float, ...] | None = setting(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
         f"speeds learned at, Hz: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
         "slowest speed, [limits] max_speed_hz and midway", None)
-    learn_revolutions: tuple[int, ...] = _check(
+    learn_revolutions: tuple[int, ...] = setting(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(1, 2**24)),
         "recorded revolutions per learning trial at the slowest learned speed (more at a faster speed, "
         "`CampaignConfig.trial_revolutions`): one for all learned torques, or one per learned torque", (32,))
-    learn_trials: int = _check(in_range(1, 1000), "most learning trials per learned operating point, 1..1000",
+    learn_trials: int = setting(in_range(1, 1000), "most learning trials per learned operating point, 1..1000",
                                10)
-    min_improvement: float = _check(lambda x: 0 <= x < 1, "relative ripple improvement that counts, within [0, 1)",
+    min_improvement: float = setting(lambda x: 0 <= x < 1, "relative ripple improvement that counts, within [0, 1)",
                                     0.05)
-    patience: int = _check(in_range(1, 1000),
+    patience: int = setting(in_range(1, 1000),
                            "learning trials without improvement before an operating point stops, 1..1000", 4)
-    ripple_harmonics: int = _check(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, "
+    ripple_harmonics: int = setting(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, "
                                    "below counts_per_rev / 2", 150)
-    validate_torques_nm: tuple[float, ...] | None = _check(
+    validate_torques_nm: tuple[float, ...] | None = setting(
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
         "torques validated at, N m: distinct positive values; left out: midway between the learned torques; "
         "empty: no validation", None)
-    validate_speeds_hz: tuple[float, ...] | None = _check(
+    validate_speeds_hz: tuple[float, ...] | None = setting(
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
         "speeds validated at, Hz: distinct positive values; left out: the slowest, middle and fastest learned "
         "speed; empty: no validation", None)
-    validate_revolutions: int = _check(
+    validate_revolutions: int = setting(
         in_range(1, 2**24), "recorded revolutions per validation trial at the slowest learned speed (more at a "
         "faster speed)", 32)
 
@@ -125,23 +126,23 @@ class LimitSettings:
     """[limits]: what every request obeys, never beyond the bench's own (optional; defaults shown;
     docs/safety.md)."""
 
-    max_current_a: float = _check(
+    max_current_a: float = setting(
         _positive, "|current reference| per phase, and the flowing current once the sensors are identified, A", 30.0)
-    max_torque_nm: float = _check(_positive, "|torque reference| per count, N m", 8.0)
-    max_speed_hz: float = _check(_positive, "speed set point, Hz", 1.5)
-    max_correction_nm: float = _check(_positive, "|torque feed-forward| per count (clipped), N m", 1.5)
-    max_scale_deviation: float = _check(
+    max_torque_nm: float = setting(_positive, "|torque reference| per count, N m", 8.0)
+    max_speed_hz: float = setting(_positive, "speed set point, Hz", 1.5)
+    max_correction_nm: float = setting(_positive, "|torque feed-forward| per count (clipped), N m", 1.5)
+    max_scale_deviation: float = setting(
         lambda x: 0 < x < 1, "trust region of each phase's current scale around the bench's calibration or the "
         "identified sensors, relative", 0.1)
-    max_offset_deviation_a: float = _check(
+    max_offset_deviation_a: float = setting(
         _positive, "trust region of each phase's current offset around the bench's calibration or the identified "
         "sensors, A", 0.5)
-    max_torque_gain_deviation: float = _check(
+    max_torque_gain_deviation: float = setting(
         lambda x: 0 < x < 1, "trust region of the torque gain around the bench's calibration or the identified "
         "sensors, relative", 0.1)
-    max_samples_per_trial: int = _check(
+    max_samples_per_trial: int = setting(
         _positive, "recorded encoder counts per trial (revolutions x counts_per_rev)", 2_000_000)
-    max_trial_duration_s: float = _check(
+    max_trial_duration_s: float = setting(
         _positive, "duration of one trial, warm-up included, s", 600.0)
 
 
@@ -149,7 +150,7 @@ class LimitSettings:
 class PipelineSettings:
     """[pipeline]: the stages, in order (optional; defaults shown). Options go in [stages.NAME]."""
 
-    stages: tuple[str, ...] = _check(lambda x: len(set(x)) == len(x), "stage names, built-in or plugins, each once",
+    stages: tuple[str, ...] = setting(lambda x: len(set(x)) == len(x), "stage names, built-in or plugins, each once",
                                      ("current-sensor", "cogging", "ilc"))
 
 
@@ -182,7 +183,7 @@ class BenchSettings:
     slots: int = field_like(Winding, "slots")
     counts_per_rev: int = field_like(Encoder, "counts_per_rev")
     inertia_kgm2: float | None = field_like(Mechanics, "inertia_kgm2", default=None)
-    backemf_file: str | None = _check(
+    backemf_file: str | None = setting(
         None, "the back-EMF table as a CSV (count,k_a,k_b,k_c per count, docs/bench-format.md), relative to the "
         "config's folder; instead of [bench.backemf]", None)
     backemf: BackEmf | None = _table(BackEmf)

@@ -73,6 +73,7 @@ from ilcpmac.cli import (  # noqa: E402
     emulate,  # noqa: E402,F401
     export,  # noqa: E402,F401
     identify,  # noqa: E402,F401
+    import_,  # noqa: E402,F401
     report,  # noqa: E402,F401
     run,  # noqa: E402,F401
     simulate,  # noqa: E402,F401

@@ -1,0 +1,420 @@
+"""Drive logs into a bench folder: ``ilcpmac import LOG... --map MAPPING.toml --out BENCH_DIR``.
+
+A drive logs rows at a fixed rate (time, position, currents, torque); a bench
+folder holds one row per encoder count (docs/bench-format.md). A mapping file
+names the log's columns, units and scales, the motor as a campaign config's
+[bench] describes it, and optionally each log's operating point. Each log is
+resampled onto the encoder counts it crosses, by linear interpolation between
+rows, with an estimate of the interpolation error (`InterpolationError`).
+Every problem raises `ConfigError` (the mapping, naming its key) or
+`BenchFormatError` (a log, naming its line and column), one line each.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ilcpmac.bench.fastcsv import parse_rows
+from ilcpmac.bench.format import (
+    BENCH_FILE,
+    MAX_COUNT,
+    MAX_HEADER_BYTES,
+    MAX_REVOLUTIONS,
+    MAX_TRIAL_ROWS,
+    Bench,
+    MotorInfo,
+    check_backemf,
+    check_trial,
+    read_backemf_csv,
+    write_bench,
+)
+from ilcpmac.config import BenchSettings, model_key, parse_section, read_toml, setting
+from ilcpmac.errors import BenchFormatError, ConfigError
+from ilcpmac.files import read_bounded
+from ilcpmac.model.motor import backemf_problem, in_range, shown
+from ilcpmac.model.tables import backemf_table
+from ilcpmac.records import SensorCalibration, TrialData
+
+__all__ = ["MAX_LOG_ROWS", "ImportMapping", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint",
+           "import_log", "import_logs", "read_log", "read_mapping", "resample_to_counts"]
+
+#: most data rows of one log (20 kHz for 200 s) ...
+MAX_LOG_ROWS = 2**22
+#: ... and bytes per row on average: a larger file is refused before it is parsed
+MAX_LOG_ROW_BYTES = 128
+_NO_TORQUE = "a bench folder needs one until identification without a torque sensor lands"
+_PHASE_SHIFTS_RAD = 2.0 * np.pi * np.arange(3) / 3.0
+
+
+def _one_of(*choices: str):
+    return lambda x: x in choices
+
+
+def _nonzero(x: float) -> bool:
+    return x != 0 and abs(x) <= 1e9
+
+
+@dataclass(frozen=True)
+class LogLayout:
+    """[log] of a mapping file: the columns of a drive log, their units and scales.
+
+    Column keys name a column of the log's last header line; a value in the
+    log times its ``*_per_unit`` scale is in the unit the key names.
+    """
+
+    time: str = setting(None, "column of the time stamps", dataclasses.MISSING)
+    position: str = setting(None, "column of the mechanical position (multi-turn or wrapping once per revolution)",
+                           dataclasses.MISSING)
+    position_unit: str = setting(_one_of("rad", "counts"), 'unit of the position: "rad" or "counts"',
+                                dataclasses.MISSING)
+    delimiter: str = setting(lambda x: len(x) == 1 and x not in "0123456789.+-eE\r\n\"",
+                            "the one character between fields", ",")
+    header_lines: int = setting(in_range(1, 1000), "lines before the first row, 1..1000; the last names the columns",
+                               1)
+    time_s_per_unit: float = setting(in_range(0.0, 1e6, low_open=True), "seconds per unit of the time column", 1.0)
+    position_counts_per_rev: int | None = setting(
+        in_range(1, 2**40), 'counts per revolution of the position, when position_unit = "counts"', None)
+    phase_currents: tuple[str, ...] | None = setting(
+        lambda x: len(x) == 3, "columns of the phase currents a, b, c (three names); or i_q", None)
+    i_q: str | None = setting(None, "column of the q-axis current (amplitude-invariant Park, i_d = 0); or "
+                             "phase_currents", None)
+    angle_offset_rad: float = setting(
+        in_range(-2 * math.pi, 2 * math.pi), "theta_e = pole_pairs * theta + angle_offset_rad in the inverse Park "
+        "transform of i_q, within [-2 pi, 2 pi]", 0.0)
+    current: str = setting(_one_of("commanded", "measured"),
+                          'the currents logged: "commanded" (references) or "measured" (by the controller)',
+                          "commanded")
+    current_a_per_unit: float = setting(_nonzero, "amperes per unit of the current columns, non-zero", 1.0)
+    torque: str | None = setting(None, "column of the torque-sensor output", None)
+    torque_nm_per_unit: float = setting(_nonzero, "N m per unit of the torque column, non-zero", 1.0)
+    highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
+                                   "(two rows per period or more)", 150)
+
+
+@dataclass(frozen=True)
+class LogPoint:
+    """[[points]] of a mapping file: the operating point of one log, when the data do not give it."""
+
+    file: str = setting(None, "the log's file name, as given on the command line (its last part)",
+                       dataclasses.MISSING)
+    torque_setpoint_nm: float = setting(in_range(0.0, 1e5, low_open=True), "N m, within (0, 1e5]",
+                                       dataclasses.MISSING)
+    speed_setpoint_hz: float = setting(in_range(0.0, 1e3, low_open=True), "Hz, within (0, 1e3]",
+                                      dataclasses.MISSING)
+
+
+@dataclass(frozen=True)
+class ImportMapping:
+    """A parsed mapping file.
+
+    Attributes
+    ----------
+    path : the mapping file.
+    motor : MotorInfo
+        From [bench] (as a campaign config's; inertia_kgm2 required).
+    backemf_nm_per_a : ndarray, shape (counts_per_rev, 3)
+        From [bench] backemf_file or [bench.backemf].
+    sensors : SensorCalibration or None
+        From [bench.calibration].
+    layout : LogLayout
+    points : dict of str to (float, float)
+        Log file name -> (torque set point N m, speed set point Hz).
+    """
+
+    path: Path
+    motor: MotorInfo
+    backemf_nm_per_a: np.ndarray
+    sensors: SensorCalibration | None
+    layout: LogLayout
+    points: dict[str, tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class InterpolationError:
+    """Estimated largest error of a log resampled onto encoder counts, per quantity.
+
+    Linear interpolation over a row interval errs by at most half the larger
+    |second difference| of the two rows bounding it (a bound for a function
+    smooth, or linear between kinks, over three rows); a value's error adds
+    its slope times the crossing time's error. The largest over the trial.
+    """
+
+    time_s: float
+    current_a: float
+    torque_nm: float
+
+
+@dataclass(frozen=True)
+class ImportedLog:
+    """One log resampled: its trial, the error estimate and the highest harmonic its rows resolve (two rows
+    per period, and within the counts' Nyquist limit counts_per_rev / 2)."""
+
+    log: Path
+    trial: TrialData
+    error: InterpolationError
+    resolved_harmonic: int
+
+
+def read_mapping(path: str | Path) -> ImportMapping:
+    """Read and check a mapping file; each problem raises `ConfigError` naming the file and key."""
+    path = Path(path)
+    data = read_toml(path)
+    known = ("bench", "log", "points")
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ConfigError(f"{path}: unknown table [{shown(unknown[0])}] (known: {', '.join(known)})")
+    for name in known[:2]:
+        if name not in data:
+            raise ConfigError(f"{path}: missing table [{name}]")
+    bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
+    if bench.inertia_kgm2 is None:
+        raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
+    motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2)
+    layout = parse_section(data["log"], LogLayout, str(path), "log")
+    _check_layout(layout, motor, path)
+    points = data.get("points", [])
+    if not isinstance(points, list):
+        raise ConfigError(f"{path}: [points] must be a list of [[points]] tables")
+    parsed = [parse_section(p, LogPoint, str(path), f"points #{i}") for i, p in enumerate(points, start=1)]
+    by_file = {p.file: (p.torque_setpoint_nm, p.speed_setpoint_hz) for p in parsed}
+    if len(by_file) < len(parsed):
+        raise ConfigError(f"{path}: [[points]] lists a file twice")
+    return ImportMapping(path, motor, _backemf(bench, motor, path), None if bench.calibration is None
+                         else bench.calibration.calibration(), layout, by_file)
+
+
+def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
+    """The [log] keys that go together: one kind of current, counts per revolution for counts, harmonics the
+    counts resolve."""
+    if layout.highest_harmonic > motor.counts_per_rev // 2:
+        raise ConfigError(f"{path}: [log] highest_harmonic: {layout.highest_harmonic} is beyond the Nyquist limit "
+                          f"of [bench] counts_per_rev {motor.counts_per_rev}")
+    if (layout.phase_currents is None) == (layout.i_q is None):
+        raise ConfigError(f"{path}: [log] phase_currents, i_q: give exactly one")
+    if (layout.position_unit == "counts") != (layout.position_counts_per_rev is not None):
+        raise ConfigError(f"{path}: [log] position_counts_per_rev: give it when, and only when, "
+                          'position_unit = "counts"')
+
+
+def _backemf(bench: BenchSettings, motor: MotorInfo, path: Path) -> np.ndarray:
+    """The back-EMF table of [bench]: backemf_file (relative to the mapping) or [bench.backemf]."""
+    if (bench.backemf_file is None) == (bench.backemf is None):
+        raise ConfigError(f"{path}: [bench] backemf_file, [bench.backemf]: give exactly one")
+    if bench.backemf_file is not None:
+        try:
+            return read_backemf_csv(path.parent / bench.backemf_file, motor)
+        except BenchFormatError as e:
+            raise ConfigError(f"{path}: [bench] backemf_file: {e}") from None
+    problem = backemf_problem(bench.backemf, motor.pole_pairs, motor.counts_per_rev, model_key)
+    if problem is not None:
+        raise ConfigError(f"{path}: {problem}")
+    table = backemf_table(motor, bench.backemf, motor.counts_per_rev)
+    check_backemf(table, motor, f"{path}: [bench.backemf]")
+    return table
+
+
+def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
+    """The columns of a drive log that ``layout`` names, as floats, by column name.
+
+    The file is at most `MAX_LOG_ROWS` rows of `MAX_LOG_ROW_BYTES` on average
+    (read bounded); every named column must be in the header and every value
+    finite, or `BenchFormatError` names the file, line and column.
+    """
+    raw = read_bounded(path, layout.header_lines * MAX_HEADER_BYTES + MAX_LOG_ROWS * MAX_LOG_ROW_BYTES,
+                       BenchFormatError)
+    start = 0
+    for line in range(1, layout.header_lines + 1):
+        end = raw.find(b"\n", start, start + MAX_HEADER_BYTES)
+        if end < 0:
+            raise BenchFormatError(f"{path}: line {line}: no end of the header line in {MAX_HEADER_BYTES} bytes "
+                                   f"([log] header_lines = {layout.header_lines})")
+        header, start = raw[start:end], end + 1
+    try:
+        names = [n.strip().strip('"') for n in header.decode("utf-8").strip().split(layout.delimiter)]
+    except UnicodeDecodeError:
+        raise BenchFormatError(f"{path}: line {layout.header_lines}: the column names are not UTF-8 text") from None
+    wanted = _columns(layout)
+    missing = [w for w in wanted if w not in names]
+    if missing:
+        raise BenchFormatError(f"{path}: line {layout.header_lines}: no column {shown(missing[0])} (the header "
+                               f"has {shown(names)})")
+    rows = _rows(path, raw[start:], len(names), layout)
+    columns = {}
+    for name in wanted:
+        values = rows[:, names.index(name)]
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise BenchFormatError(f"{path}: line {layout.header_lines + 1 + bad[0]}: {name} is not a finite number")
+        columns[name] = values
+    return columns
+
+
+def _columns(layout: LogLayout) -> list[str]:
+    """The log columns ``layout`` names: time, position, currents, torque."""
+    currents = list(layout.phase_currents) if layout.phase_currents is not None else [layout.i_q]
+    return [layout.time, layout.position, *currents] + ([layout.torque] if layout.torque is not None else [])
+
+
+def _rows(path: Path, body: bytes, width: int, layout: LogLayout) -> np.ndarray:
+    """The data rows: plain decimals by the compiled parser, anything else by numpy."""
+    delimiter = layout.delimiter.encode()
+    rows = None
+    if delimiter == b"," or b"," not in body:
+        rows = parse_rows(body.replace(delimiter, b","), width, MAX_LOG_ROWS)
+    if rows is None:
+        try:
+            rows = np.loadtxt(io.BytesIO(body), delimiter=layout.delimiter, ndmin=2, dtype=float,
+                              max_rows=MAX_LOG_ROWS + 1)
+        except ValueError as e:
+            text = str(e)
+            raise BenchFormatError(f"{path}: after line {layout.header_lines}: not rows of {width} numbers "
+                                   f"separated by {layout.delimiter!r} ({text[:160]})") from None
+    if rows.shape[0] > MAX_LOG_ROWS:
+        raise BenchFormatError(f"{path}: more than {MAX_LOG_ROWS} rows (refused)")
+    if rows.shape[0] < 3:
+        raise BenchFormatError(f"{path}: {rows.shape[0]} rows after the header; a log needs 3 or more")
+    if rows.shape[1] != width:
+        raise BenchFormatError(f"{path}: line {layout.header_lines + 1} has {rows.shape[1]} fields, the header "
+                               f"has {width}")
+    return rows
+
+
+def _interval_error(values: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Half the larger |second difference| at rows k-1 and k of ``values`` (n, m), per interval (k-1, k),
+    2 <= k <= n-2."""
+    second = np.abs(values[2:] - 2.0 * values[1:-1] + values[:-2])  # at rows 1..n-2
+    return 0.5 * np.maximum(second[k - 2], second[k - 1])
+
+
+def resample_to_counts(time_s: np.ndarray, position_counts: np.ndarray, values: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Time-sampled rows at the encoder counts the position crosses.
+
+    Parameters
+    ----------
+    time_s : ndarray, shape (n,)
+        Strictly increasing.
+    position_counts : ndarray, shape (n,)
+        Unwrapped, non-decreasing, in counts; it rises above its first value.
+    values : ndarray, shape (n, m)
+
+    Returns
+    -------
+    count : ndarray of int64, shape (c,)
+        Every integer position the rows cross, but in the first and the last row interval (no second
+        difference there states their error).
+    time_s, values : ndarray, shapes (c,) and (c, m)
+        Linearly interpolated where the position reaches each count.
+    time_error_s, value_error : ndarray, shapes (c,) and (c, m)
+        Their estimated errors (`InterpolationError`).
+    """
+    p = position_counts
+    count = np.arange(math.floor(p[0]) + 1, math.floor(p[-1]) + 1, dtype=np.int64)
+    k = np.searchsorted(p, count, side="left")  # p[k-1] < count <= p[k]
+    inner = (k >= 2) & (k <= p.size - 2)
+    count, k = count[inner], k[inner]
+    dp, dt = p[k] - p[k - 1], time_s[k] - time_s[k - 1]
+    frac = (count - p[k - 1]) / dp
+    at = time_s[k - 1] + frac * dt
+    values_at = values[k - 1] + frac[:, None] * (values[k] - values[k - 1])
+    time_error = _interval_error(p[:, None], k)[:, 0] * dt / dp
+    slope = np.abs(values[k] - values[k - 1]) / dt[:, None]
+    value_error = _interval_error(values, k) + slope * time_error[:, None]
+    return count, at, values_at, time_error, value_error
+
+
+def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
+    """One drive log resampled onto encoder counts as a bench trial, checked as `read_bench` checks one.
+
+    Raises
+    ------
+    BenchFormatError
+        Naming the log: no torque column, time not increasing, a position
+        that runs backwards, rows too coarse for [log] highest_harmonic (with
+        the highest harmonic they resolve), a trial at odds with [bench].
+    """
+    layout, motor = mapping.layout, mapping.motor
+    cpr = motor.counts_per_rev
+    if layout.torque is None:
+        raise BenchFormatError(f"{log}: has no torque column ([log] torque of {mapping.path}); {_NO_TORQUE}")
+    columns = read_log(log, layout)
+    time_s = columns[layout.time] * layout.time_s_per_unit
+    back = np.flatnonzero(np.diff(time_s) <= 0)
+    if back.size:
+        raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.time} does not increase")
+    per_rev = 2.0 * np.pi if layout.position_unit == "rad" else layout.position_counts_per_rev
+    position = columns[layout.position] * (cpr / per_rev)
+    if not (np.isfinite(time_s[-1] - time_s[0]) and np.all(np.abs(position) <= MAX_COUNT)):
+        raise BenchFormatError(f"{log}: {layout.time} or {layout.position} beyond the range of a double or of "
+                               f"{MAX_COUNT} counts once scaled (wrong scale or unit in {mapping.path}?)")
+    position = np.unwrap(position, period=cpr)
+    step = np.diff(position)
+    if np.all(step <= 0):
+        raise BenchFormatError(f"{log}: the position never increases: reverse laps are not imported yet (log "
+                               "forward laps)")
+    back = np.flatnonzero(step < 0)
+    if back.size:
+        raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.position} runs backwards: "
+                               "reverse laps are not imported yet (cut the log into forward laps)")
+    largest = float(step.max())
+    resolved = min(math.floor(cpr / (2.0 * largest)), cpr // 2)
+    if resolved < layout.highest_harmonic:
+        raise BenchFormatError(
+            f"{log}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
+            f"at the fastest, fewer than two per period of harmonic {layout.highest_harmonic} ([log] "
+            f"highest_harmonic); the data resolve harmonics up to {resolved}")
+    current_names = list(layout.phase_currents) if layout.phase_currents is not None else [layout.i_q]
+    values = np.column_stack([columns[n] for n in current_names] + [columns[layout.torque]])
+    values *= np.array([layout.current_a_per_unit] * len(current_names) + [layout.torque_nm_per_unit])
+    count, at, values_at, time_error, value_error = resample_to_counts(time_s, position, values)
+    max_rows = min(MAX_REVOLUTIONS * cpr, MAX_TRIAL_ROWS)
+    if count.size > max_rows or count.size < 2:
+        raise BenchFormatError(f"{log}: crosses {count.size} encoder counts; a trial holds 2 to {max_rows}")
+    if layout.i_q is not None:
+        theta_e = motor.pole_pairs * 2.0 * np.pi * count / cpr + layout.angle_offset_rad
+        park = np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD)
+        currents = values_at[:, :1] * park
+        current_error = value_error[:, 0]
+    else:
+        currents = values_at[:, :3]
+        current_error = value_error[:, :3].max(axis=1)
+    point = mapping.points.get(log.name)
+    torque, speed = point if point is not None else _operating_point(log, count, at, currents, mapping)
+    trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents), values_at[:, -1].copy(),
+                      i_meas_a=currents.copy() if layout.current == "measured" else None)
+    check_trial(trial, motor, str(log))
+    error = InterpolationError(float(time_error.max()), float(current_error.max()), float(value_error[:, -1].max()))
+    return ImportedLog(log, trial, error, resolved)
+
+
+def _operating_point(log: Path, count: np.ndarray, time_s: np.ndarray, currents: np.ndarray,
+                     mapping: ImportMapping) -> tuple[float, float]:
+    """(torque N m, speed Hz) of a log [[points]] does not list, to 3 significant digits: the mean of
+    K(count) . i_ref (the current law's torque reference) and the mean speed."""
+    cpr = mapping.motor.counts_per_rev
+    torque = float(np.mean(np.sum(mapping.backemf_nm_per_a[count % cpr] * currents, axis=1)))
+    speed = (count[-1] - count[0]) / cpr / (time_s[-1] - time_s[0])
+    if torque <= 0:
+        raise BenchFormatError(f"{log}: the mean torque reference is {torque:.3g} N m: give the log's operating "
+                               f"point in [[points]] of {mapping.path}")
+    return float(f"{torque:.3g}"), float(f"{speed:.3g}")
+
+
+def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str = ".csv") -> list[ImportedLog]:
+    """Import every log, then write the bench folder ``out`` (trial_01 ... in the format of ``suffix``).
+
+    Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
+    """
+    if (out / BENCH_FILE).exists():
+        raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+    imported = [import_log(log, mapping) for log in logs]
+    names = tuple(f"trial_{i:02d}{suffix}" for i in range(1, len(imported) + 1))
+    write_bench(out, Bench(mapping.motor, mapping.backemf_nm_per_a, mapping.sensors,
+                           tuple(r.trial for r in imported), names))
+    return imported

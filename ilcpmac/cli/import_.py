@@ -1,0 +1,34 @@
+"""``ilcpmac import``: drive logs (rows at a fixed rate) into a bench folder (one row per encoder count)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ilcpmac.cli import console, main
+
+
+@main.command("import")
+@click.argument("logs", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--map", "mapping_file", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Mapping file: the logs' columns, units and scales, the motor (docs/bench-format.md).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Bench folder to write (must not hold a bench.toml yet).")
+@click.option("--format", "trial_format", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True,
+              help="File format of the trials.")
+def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_format: str) -> None:
+    """Turn drive LOGS into a bench folder.
+
+    Each log (rows at a fixed rate) is resampled onto encoder counts, one trial per log; prints each trial
+    written with its set point and the estimated interpolation error (docs/bench-format.md).
+    """
+    from ilcpmac.bench.importer import import_logs, read_mapping
+
+    imported = import_logs(list(logs), read_mapping(mapping_file), out_dir, f".{trial_format}")
+    for i, r in enumerate(imported, start=1):
+        t, e = r.trial, r.error
+        console.print(f"{r.log} -> trial_{i:02d}.{trial_format}: {t.n_samples} counts, {t.torque_setpoint_nm:g} N m "
+                      f"at {t.speed_setpoint_hz:g} Hz, harmonics up to {r.resolved_harmonic} resolved; "
+                      f"interpolation error <= {e.time_s:.2g} s, {e.current_a:.2g} A, {e.torque_nm:.2g} N m")
+    console.print(f"wrote {len(imported)} trials, backemf.csv and bench.toml to {out_dir}")

@@ -1,0 +1,276 @@
+"""ilcpmac import: a simulated trial logged at a fixed rate and imported back matches the native trial."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from conftest import COUNTS_PER_REV
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import ilcpmac.cli.import_  # noqa: F401  (registers the command on main)
+from ilcpmac.bench import read_bench
+from ilcpmac.bench.format import write_backemf_csv
+from ilcpmac.bench.importer import import_log, read_mapping, resample_to_counts
+from ilcpmac.cli import main
+from ilcpmac.errors import BenchFormatError, ConfigError
+from ilcpmac.records import TrialData
+from ilcpmac.sim.simulator import Simulator
+
+#: counts per revolution of the logs' 16-bit single-turn position (q-axis layout)
+LOG_COUNTS_PER_REV = 2**16
+
+BENCH = f"""\
+[bench]
+pole_pairs = 8
+slots = 48
+counts_per_rev = {COUNTS_PER_REV}
+inertia_kgm2 = 0.01056
+backemf_file = "backemf.csv"
+"""
+
+PHASE_LOG = """\
+[log]
+time = "t"
+position = "theta"
+position_unit = "rad"
+phase_currents = ["ia", "ib", "ic"]
+torque = "tq"
+"""
+
+Q_LOG = f"""\
+[log]
+delimiter = ";"
+header_lines = 3
+time = "t_ms"
+time_s_per_unit = 1e-3
+position = "pos"
+position_unit = "counts"
+position_counts_per_rev = {LOG_COUNTS_PER_REV}
+i_q = "iq"
+current_a_per_unit = 0.01
+torque = "tq"
+"""
+
+
+@pytest.fixture(scope="module")
+def sine_model(ideal_model):
+    """The ideal drive with a noisy torque sensor and a sinusoidal, symmetric back-EMF (the inverse Park
+    transform gives its current law exactly)."""
+    return dataclasses.replace(
+        ideal_model,
+        backemf=dataclasses.replace(ideal_model.backemf, harmonics=(1,), amplitudes_nm_per_a=(0.2,),
+                                    phases_rad=(0.0,), asymmetry=(0.0, 0.0, 0.0)),
+        torque_sensor=dataclasses.replace(ideal_model.torque_sensor, noise_nm=0.02))
+
+
+@pytest.fixture(scope="module")
+def native(small_model, make_request) -> tuple[TrialData, np.ndarray]:
+    """A trial of the small seed bench (every error present) at 2 N m, 0.5 Hz, and its back-EMF table."""
+    simulator = Simulator(small_model)
+    return simulator.run_trial(make_request(small_model, 2.0, 0.5)), simulator.backemf_counts
+
+
+@pytest.fixture(scope="module")
+def sine_native(sine_model, make_request) -> tuple[TrialData, np.ndarray]:
+    simulator = Simulator(sine_model)
+    return simulator.run_trial(make_request(sine_model, 3.0, 0.5)), simulator.backemf_counts
+
+
+def sampled(trial: TrialData, rate_hz: float) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """The trial at a fixed rate from two rows before its first count to two past its last (an importer
+    leaves out the first and last row interval): time, position in counts (on at the first and last
+    count's speed), and the three current references and the torque, linearly interpolated between counts."""
+    duration = trial.time_s[-1] - trial.time_s[0]
+    t = trial.time_s[0] + np.arange(-2, int(np.ceil(duration * rate_hz)) + 3) / rate_hz
+    position = np.interp(t, trial.time_s, trial.count)
+    for end in (0, -1):
+        outside = t < trial.time_s[0] if end == 0 else t > trial.time_s[-1]
+        speed = 1.0 / abs(trial.time_s[end] - trial.time_s[end + (1 if end == 0 else -1)])
+        position[outside] = trial.count[end] + (t[outside] - trial.time_s[end]) * speed
+    values = [np.interp(t, trial.time_s, v) for v in (*trial.i_ref_a.T, trial.torque_nm)]
+    return t, position, values
+
+
+def write_folder(folder: Path, backemf: np.ndarray, log_table: str, extra: str = "") -> Path:
+    folder.mkdir(exist_ok=True)
+    write_backemf_csv(folder / "backemf.csv", backemf)
+    path = folder / "map.toml"
+    path.write_text(BENCH + log_table + extra)
+    return path
+
+
+def write_phase_log(path: Path, trial: TrialData, rate_hz: float) -> Path:
+    t, position, values = sampled(trial, rate_hz)
+    table = np.column_stack([t, position * 2 * np.pi / COUNTS_PER_REV, *values])
+    np.savetxt(path, table, delimiter=",", header="t,theta,ia,ib,ic,tq", comments="", fmt="%.12g")
+    return path
+
+
+def write_q_log(path: Path, trial: TrialData, rate_hz: float) -> Path:
+    """A q-axis log: time in ms, a wrapping 16-bit position, i_q in 10 mA (from the phase references by the
+    Park transform at theta_e = pole_pairs theta), ';' between fields, three header lines."""
+    t, position, values = sampled(trial, rate_hz)
+    theta_e = 8 * 2 * np.pi * position / COUNTS_PER_REV
+    i_q = 2 / 3 * sum(values[p] * np.sin(theta_e - 2 * np.pi * p / 3) for p in range(3))
+    wrapped = np.mod(position * LOG_COUNTS_PER_REV / COUNTS_PER_REV, LOG_COUNTS_PER_REV)
+    table = np.column_stack([1e3 * t, wrapped, 100 * i_q, values[3]])
+    np.savetxt(path, table, delimiter=";", header="drive log\nrate 1 kHz\nt_ms;pos;iq;tq", comments="",
+               fmt="%.12g")
+    return path
+
+
+@pytest.mark.parametrize("rate_hz", [10_000.0, 1_000.0])
+def test_phase_log_reproduces_native_trial_within_stated_error(tmp_path, native, rate_hz):
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
+    imported = import_log(write_phase_log(tmp_path / "log.csv", trial, rate_hz), mapping)
+    got, error = imported.trial, imported.error
+    np.testing.assert_array_equal(got.count, trial.count)
+    actual = {"time": np.abs(got.time_s - trial.time_s).max(), "current": np.abs(got.i_ref_a - trial.i_ref_a).max(),
+              "torque": np.abs(got.torque_nm - trial.torque_nm).max()}
+    stated = {"time": error.time_s, "current": error.current_a, "torque": error.torque_nm}
+    for key in actual:
+        # within the stated error, and the statement no more than 4x the worst error seen
+        assert actual[key] <= stated[key] <= 4 * actual[key], (key, actual[key], stated[key])
+    # up to 0.56 counts per row at 1 kHz (0.5 Hz and its ripple): still two rows per count, Nyquist's 512
+    assert imported.resolved_harmonic == COUNTS_PER_REV // 2
+    assert got.torque_setpoint_nm == 2.0  # from K . i_ref, to 3 digits
+
+
+def test_q_axis_log_gives_phase_references_by_inverse_park(tmp_path, sine_native):
+    trial, backemf = sine_native
+    mapping = read_mapping(write_folder(tmp_path, backemf, Q_LOG))
+    imported = import_log(write_q_log(tmp_path / "log.csv", trial, 1_000.0), mapping)
+    got = imported.trial
+    # the log starts just before its position wraps (at 65535.x): one revolution on, the same angles
+    np.testing.assert_array_equal(got.count, trial.count + COUNTS_PER_REV)
+    error = np.abs(got.i_ref_a - trial.i_ref_a).max()
+    assert error <= imported.error.current_a
+    assert error < 1e-3 * np.abs(trial.i_ref_a).max() < imported.error.current_a * 1e3
+    assert np.abs(got.time_s - trial.time_s).max() <= imported.error.time_s < 2e-5
+
+
+def test_operating_point_from_mapping(tmp_path, native):
+    trial, backemf = native
+    points = '\n[[points]]\nfile = "log.csv"\ntorque_setpoint_nm = 2.5\nspeed_setpoint_hz = 0.45\n'
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG, points))
+    got = import_log(write_phase_log(tmp_path / "log.csv", trial, 2_000.0), mapping).trial
+    assert (got.torque_setpoint_nm, got.speed_setpoint_hz) == (2.5, 0.45)
+
+
+def test_too_coarse_log_refused_with_the_numbers(tmp_path, native):
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
+    log = write_phase_log(tmp_path / "log.csv", trial, 100.0)  # about 200 rows per revolution at 0.5 Hz
+    with pytest.raises(BenchFormatError) as e:
+        import_log(log, mapping)
+    message = str(e.value)
+    assert "\n" not in message and str(log) in message
+    assert "fewer than two per period of harmonic 150" in message
+    largest_step = np.diff(np.loadtxt(log, delimiter=",", skiprows=1)[:, 1]).max() * COUNTS_PER_REV / (2 * np.pi)
+    assert 5 < largest_step < 7  # the speed varies about its 0.5 Hz mean
+    assert message.endswith(f"the data resolve harmonics up to {int(COUNTS_PER_REV / (2 * largest_step))}")
+
+
+@pytest.mark.parametrize("turn_row", [0, 1000])
+def test_reverse_lap_refused(tmp_path, native, turn_row):
+    """A log running backwards from ``turn_row`` on (a mirrored lap): one line, naming the row where it turns."""
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
+    log = write_phase_log(tmp_path / "log.csv", trial, 2_000.0)
+    table = np.loadtxt(log, delimiter=",", skiprows=1)
+    table[turn_row:, 1] = 2 * table[turn_row, 1] - table[turn_row:, 1]
+    np.savetxt(log, table, delimiter=",", header="t,theta,ia,ib,ic,tq", comments="", fmt="%.12g")
+    expected = ("never increases" if turn_row == 0 else f"line {turn_row + 3}: theta runs backwards")
+    with pytest.raises(BenchFormatError, match=f"{expected}: reverse laps are not imported yet"):
+        import_log(log, mapping)
+
+
+@pytest.mark.parametrize(("change", "expected"), [
+    (('time = "t"', 'time = "t"\nspeed_units = 2'), r"\[log\] unknown key 'speed_units'"),
+    (('position_unit = "rad"', 'position_unit = "deg"'), r"\[log\] position_unit: invalid value 'deg'"),
+    (('time = "t"', 'time = "t"\ntime_s_per_unit = -1.0'), r"\[log\] time_s_per_unit: invalid value -1.0"),
+    (('torque = "tq"', 'torque = "tq"\ni_q = "iq"'), r"\[log\] phase_currents, i_q: give exactly one"),
+    (('position_unit = "rad"', 'position_unit = "counts"'), r"\[log\] position_counts_per_rev: give it"),
+    (('torque = "tq"', 'torque = "tq"\nhighest_harmonic = 600'), r"\[log\] highest_harmonic: 600 is beyond"),
+    (('time = "t"', 'time = 3'), r"\[log\] time: expected a string"),
+])
+def test_hostile_mapping_one_line_naming_the_key(tmp_path, native, change, expected):
+    mapping = write_folder(tmp_path, native[1], PHASE_LOG.replace(*change))
+    with pytest.raises(ConfigError, match=expected) as e:
+        read_mapping(mapping)
+    assert "\n" not in str(e.value) and str(e.value).startswith(str(mapping))
+
+
+@pytest.mark.parametrize(("change", "expected"), [
+    (('torque = "tq"', 'torque = "torque"'), r"line 1: no column 'torque'"),
+    (('torque = "tq"\n', ""), r"has no torque column .*a bench folder needs one until identification without a "
+                              "torque sensor lands"),
+])
+def test_log_at_odds_with_mapping_one_line(tmp_path, native, change, expected):
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG.replace(*change)))
+    log = write_phase_log(tmp_path / "log.csv", trial, 2_000.0)
+    with pytest.raises(BenchFormatError, match=expected) as e:
+        import_log(log, mapping)
+    assert "\n" not in str(e.value) and str(e.value).startswith(str(log))
+
+
+def test_position_beyond_range_refused(tmp_path, native):
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
+    log = tmp_path / "log.csv"
+    log.write_text("t,theta,ia,ib,ic,tq\n" + "".join(f"{i},{1e300 * i},1,2,3,4\n" for i in range(10)))
+    with pytest.raises(BenchFormatError, match=r"log.csv: t or theta beyond the range of a double or of "):
+        import_log(log, mapping)
+
+
+def test_bad_row_named_by_line(tmp_path, native):
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
+    log = write_phase_log(tmp_path / "log.csv", trial, 2_000.0)
+    lines = log.read_text().splitlines()
+    lines[41] = lines[41].rsplit(",", 1)[0] + ",nan"  # file line 42's torque
+    log.write_text("\n".join(lines) + "\n")
+    with pytest.raises(BenchFormatError, match=r"log.csv: line 42: tq is not a finite number"):
+        import_log(log, mapping)
+
+
+@settings(max_examples=30, deadline=None)
+@given(speed_counts_per_s=st.floats(50.0, 5000.0), rate_hz=st.floats(1e3, 2e4), start=st.floats(-3.0, 3.0))
+def test_constant_speed_resampled_exactly(speed_counts_per_s, rate_hz, start):
+    """Linear motion and linear values: every crossing time and value exact, and the stated error nil."""
+    t = np.arange(2000) / rate_hz
+    position = start + speed_counts_per_s * t
+    values = np.column_stack([2.0 - 3.0 * t, 0.5 + t])
+    count, at, values_at, time_error, value_error = resample_to_counts(t, position, values)
+    # every count crossed but in the first and last row interval
+    np.testing.assert_array_equal(count, np.arange(np.floor(position[1]) + 1, np.floor(position[-2]) + 1))
+    exact = (count - start) / speed_counts_per_s
+    np.testing.assert_allclose(at, exact, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(values_at, np.column_stack([2.0 - 3.0 * exact, 0.5 + exact]), rtol=0, atol=1e-11)
+    assert time_error.max() < 1e-12 and value_error.max() < 1e-9
+
+
+def test_cli_writes_a_bench_folder_and_refuses_to_overwrite(tmp_path, native):
+    trial, backemf = native
+    mapping = write_folder(tmp_path, backemf, PHASE_LOG)
+    logs = [str(write_phase_log(tmp_path / f"log{k}.csv", trial, rate)) for k, rate in enumerate((4e3, 2e3))]
+    out = tmp_path / "bench"
+    args = ["import", *logs, "--map", str(mapping), "--out", str(out), "--format", "parquet"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    output = " ".join(result.output.split())
+    assert re.search(r"log1.csv -> trial_02.parquet: 2048 counts, 2 N m at 0\.4\d+ Hz, harmonics up to 512 "
+                     r"resolved; interpolation error <= [\d.e-]+ s, [\d.e-]+ A, [\d.e-]+ N m", output), output
+    bench = read_bench(out)
+    assert bench.trial_files == ("trial_01.parquet", "trial_02.parquet")
+    np.testing.assert_array_equal(bench.trials[1].count, trial.count)
+    again = CliRunner().invoke(main, args)
+    assert again.exit_code == 2 and "holds a bench.toml already" in again.output
