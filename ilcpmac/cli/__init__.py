@@ -78,4 +78,5 @@ from ilcpmac.cli import (  # noqa: E402
     run,  # noqa: E402,F401
     simulate,  # noqa: E402,F401
     stages,  # noqa: E402,F401
+    sweep,  # noqa: E402,F401
 )

@@ -103,6 +103,9 @@ class Winding:
     phase_resistance_ohm: float = _param(in_range(1e-6, 1e3), "R per phase, ohm, within [1e-6, 1e3] "
                                          "(the winding's exact step divides by R)")
     phase_inductance_h: float = _param(in_range(1e-9, 10.0), "L per phase, H, within [1e-9, 10]")
+    backemf_scale: float = _param(in_range(0.0, 10.0, low_open=True),
+                                  "true back-EMF over [bench.backemf], the controller's (the magnets' strength, "
+                                  "e.g. at their temperature), within (0, 10]", default=1.0)
 
     @property
     def cogging_order(self) -> int:
@@ -153,10 +156,20 @@ class Unexplained:
 
 @dataclass(frozen=True)
 class Mechanics:
-    """J d(omega)/dt = torque - b omega - coulomb sign(omega) (eq. 3.1)."""
+    """J d(omega)/dt = torque - b omega - coulomb sign(omega) (eq. 3.1).
+
+    ``inertia_kgm2`` is what the controller knows; the rotor's J is ``true_inertia_kgm2``.
+    """
 
     inertia_kgm2: float = _param(in_range(*MOTOR_RANGES["inertia"]), "J, kg m^2, within [1e-8, 1e4]")
     coulomb_friction_nm: float = _param(in_range(0.0, 1e4), "Coulomb friction, N m, within [0, 1e4]")
+    inertia_scale: float = _param(in_range(0.01, 100.0), "true inertia over [bench] inertia_kgm2, the "
+                                  "controller's, within [0.01, 100]", default=1.0)
+
+    @property
+    def true_inertia_kgm2(self) -> float:
+        """The inertia the rotor has, kg m^2."""
+        return self.inertia_kgm2 * self.inertia_scale
 
 
 @dataclass(frozen=True)

@@ -50,12 +50,13 @@ def truth_dict(simulator: Simulator, request: TrialRequest) -> dict:
     t = simulator.truth(request.calibration)
     cpr = simulator.model.encoder.counts_per_rev
     return {
-        "total_system_gain": t.delta * t.epsilon,
+        # the true back-EMF over the controller's table scales the torque per reference ampere, as epsilon does
+        "total_system_gain": t.delta * t.epsilon * simulator.model.winding.backemf_scale,
         "torque_sensor_gain": t.delta,
         "epsilon": t.epsilon,
         "alpha": t.alpha.tolist(),
         "beta": t.beta_a.tolist(),
-        "inertia_estimate": t.delta * simulator.model.mechanics.inertia_kgm2,
+        "inertia_estimate": t.delta * simulator.model.mechanics.true_inertia_kgm2,
         "cogging": {"count": list(range(cpr)), "torque": simulator.cogging_counts().tolist()},
         # the PI loop closes on the measured current, 1 / (epsilon alpha_p) times the true one
         "current_loop_bandwidth_per_phase_hz": (simulator.model.controller.bandwidth_hz

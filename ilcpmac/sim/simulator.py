@@ -79,7 +79,7 @@ class Simulator:
         backemf = backemf_table(model.winding, model.backemf, n_fine)
         self.cogging_fine = cogging_table(model.winding, model.cogging, n_fine)
         self.torque_pos_fine = self.cogging_fine + disturbance_table(model.unexplained, n_fine)
-        fine = np.column_stack([backemf, self.torque_pos_fine])
+        fine = np.column_stack([model.winding.backemf_scale * backemf, self.torque_pos_fine])
         self.fine = np.ascontiguousarray(np.vstack([fine, fine[:1]]))  # periodic: first row repeated
         #: the back-EMF table per encoder count (backemf.csv, the controller's K*)
         self.backemf_counts = np.ascontiguousarray(backemf[::OVERSAMPLE])
@@ -154,7 +154,8 @@ class Simulator:
         truth = self.truth(request.calibration)
         i_true = truth.epsilon * truth.alpha * i_ref + truth.beta_a
         c = self.model.unexplained.saturation_per_a2
-        tau = np.sum(self.backemf_counts * i_true * (1.0 - c * i_true**2), axis=1)
+        backemf = self.model.winding.backemf_scale * self.backemf_counts
+        tau = np.sum(backemf * i_true * (1.0 - c * i_true**2), axis=1)
         return tau + self.torque_pos_fine[::OVERSAMPLE]
 
     def run_trial(self, request: TrialRequest) -> TrialData:
@@ -174,7 +175,7 @@ class Simulator:
                 "not enough to turn the rotor against friction")
         brake = (mean_torque - m.mechanics.coulomb_friction_nm) / omega0
         dt = 1.0 / m.controller.control_rate_hz
-        if not brake * dt / m.mechanics.inertia_kgm2 < 1.0:
+        if not brake * dt / m.mechanics.true_inertia_kgm2 < 1.0:
             raise SimulationError(
                 f"set point {request.torque_setpoint_nm} N m at {request.speed_setpoint_hz:g} Hz needs a brake of "
                 f"{brake:.3g} N m s, too strong for the explicit speed update (brake x control period / inertia "
@@ -195,7 +196,7 @@ class Simulator:
             self.scale_true, self.offset_true, np.ascontiguousarray(request.calibration.current_scale),
             np.ascontiguousarray(request.calibration.current_offset), m.current_sensors.noise_counts,
             m.unexplained.saturation_per_a2,
-            m.mechanics.inertia_kgm2, brake, m.mechanics.coulomb_friction_nm, omega0,
+            m.mechanics.true_inertia_kgm2, brake, m.mechanics.coulomb_friction_nm, omega0,
             delta, 1.0 / (1.0 + 2.0 * np.pi * m.torque_sensor.highpass_hz * dt), dc, drift,
             m.torque_sensor.noise_nm,
             warmup, record, m.encoder.timer_resolution_s, max_steps, request.seed, *out,

@@ -1,0 +1,117 @@
+"""``ilcpmac sweep``: many simulated campaigns (or identifications) with drawn parameters, on Dask."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from ilcpmac.cli import FIGURE_FORMATS, console, main, progress_bar
+
+#: the combined table's formats (ilcpmac.sweep.results.TABLE_FORMATS, named here so that --help imports no Dask)
+TABLE_FORMATS = ("parquet", "csv")
+
+
+class _Progress:
+    """The sweep's events on a rich progress bar: tasks done, and failures so far in its description."""
+
+    def __init__(self, progress) -> None:
+        self.progress = progress
+        self.bar = None
+        self.failed = 0
+
+    def started(self, total: int, done: int) -> None:
+        self.bar = self.progress.add_task("sweeping", total=total, completed=done)
+
+    def finished(self, result) -> None:
+        self.failed += result.failure is not None
+        self.progress.update(self.bar, advance=1,
+                             description=f"sweeping ({self.failed} failed)" if self.failed else "sweeping")
+
+
+def _percent(column: str, value: float) -> str:
+    return f"{100 * value:.3g} %" if "pp_true" in column else f"{value:.3g}"
+
+
+@main.command()
+@click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--spec", "spec_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="The sweep spec: what varies and how (docs/sweep.md).")
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Sweep folder: tasks/, results/, results.parquet, summary.json, plots/.")
+@click.option("--scheduler", default=None, help="A Dask scheduler, tcp://HOST:PORT (default: a local cluster).")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes of the local cluster (default: one per core).")
+@click.option("--resume", is_flag=True, help="Continue the sweep in --out: its finished tasks are skipped.")
+@click.option("--table-format", type=click.Choice(TABLE_FORMATS), default="parquet", show_default=True,
+              help="Format of the combined results table.")
+@click.option("--format", "plot_format", type=click.Choice(FIGURE_FORMATS), default="png", show_default=True,
+              help="Format of the plots.")
+@click.option("--worst", type=click.IntRange(min=0), default=5, show_default=True,
+              help="How many of the worst tasks to name, with the command that reruns each.")
+def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, workers: int | None, resume: bool,
+          table_format: str, plot_format: str, worst: int) -> None:
+    """Run CONFIG many times with drawn parameters, on Dask.
+
+    Each task's config is written to OUT/tasks/task_NNNN.toml; its results stream to OUT/results/ as it
+    finishes. At the end: the combined table, the percentiles (summary.json), the failures and the worst
+    tasks with the command that reruns each alone, and plots (docs/sweep.md).
+    """
+    from rich.table import Table
+
+    from ilcpmac.errors import ConfigError
+    from ilcpmac.sweep.plots import write_plots
+    from ilcpmac.sweep.results import combine, main_figure, percentiles, read_results, worst_tasks
+    from ilcpmac.sweep.runner import SweepRunner, local_client
+    from ilcpmac.sweep.spec import load_spec
+
+    if scheduler is not None and workers is not None:
+        raise ConfigError("--workers sizes the local cluster: with --scheduler, the cluster's own workers run")
+    spec = load_spec(spec_path, config)
+    runner = SweepRunner(spec, out_dir)
+    tasks = runner.prepare(resume)
+    console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'}")
+    if scheduler is None:
+        client = local_client(workers)
+    else:
+        from distributed import Client
+
+        client = Client(scheduler)
+    try:
+        with progress_bar() as progress:
+            runner.run(client, tasks, _Progress(progress))
+    finally:
+        client.close()
+        if client.cluster is not None and scheduler is None:
+            client.cluster.close()
+    table_path = combine(out_dir, table_format)
+    table = read_results(out_dir)
+    by_index = {t.index: t for t in tasks}
+    statuses = table.column("status").to_pylist()
+    failed = [(i, s, r) for i, s, r, st in zip(table.column("task").to_pylist(), table.column("seed").to_pylist(),
+                                               table.column("reason").to_pylist(), statuses) if st == "failed"]
+    spread = percentiles(table)
+    view = Table(title=f"sweep: {len(statuses) - len(failed)} of {len(tasks)} tasks ok", title_justify="left",
+                 header_style="bold")
+    for name in ("figure", "tasks", "median", "95th", "99th", "worst"):
+        view.add_column(name, justify="left" if name == "figure" else "right")
+    for p in spread:
+        view.add_row(p.column, str(p.count), *(_percent(p.column, v) for v in (p.median, p.p95, p.p99, p.worst)))
+    console.print(view)
+    for index, seed, reason in failed:
+        console.print(f"task {index} (seed {seed}) failed: {reason}\n  rerun: {by_index[index].rerun_command()}",
+                      soft_wrap=True)
+    column = main_figure(table)
+    worst_list = worst_tasks(table, column, worst) if column is not None else []
+    for index, seed, value in worst_list:
+        console.print(f"worst {column} {_percent(column, value)}: task {index} (seed {seed})\n"
+                      f"  rerun: {by_index[index].rerun_command()}", soft_wrap=True)
+    summary = {"kind": spec.kind, "tasks": len(tasks), "finished": len(statuses), "failed": [
+        {"task": i, "seed": s, "reason": r, "rerun": by_index[i].rerun_command()} for i, s, r in failed],
+        "percentiles": [p.to_json() for p in spread], "main_figure": column,
+        "worst": [{"task": i, "seed": s, "value": v, "rerun": by_index[i].rerun_command()} for i, s, v in worst_list]}
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    plots = write_plots(table, column, out_dir / "plots", plot_format) if column is not None else []
+    console.print(f"wrote {table_path}, {out_dir / 'summary.json'} and {len(plots)} plots in {out_dir / 'plots'}",
+                  soft_wrap=True)

@@ -1,0 +1,146 @@
+"""A sweep's results: one Parquet file per finished task, the combined table, and its percentiles.
+
+Each task's row is written to DIR/results/task_NNNN.parquet as it finishes (atomically: a file there is a
+finished task, which ``--resume`` skips); `combine` joins them into DIR/results.parquet (or .csv).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from ilcpmac.errors import IlcpmacError
+from ilcpmac.sweep.task import TaskResult
+
+__all__ = ["RESULTS_DIR", "TABLE_FORMATS", "Percentiles", "SweepResultsError", "combine", "finished_tasks",
+           "column_values", "main_figure", "percentiles", "read_results", "result_file", "worst_tasks", "write_result"]
+
+#: DIR/results: one file per finished task
+RESULTS_DIR = "results"
+#: the combined table's formats
+TABLE_FORMATS = ("parquet", "csv")
+#: the percentiles of the summary, %
+LEVELS = (50.0, 95.0, 99.0)
+
+
+class SweepResultsError(IlcpmacError):
+    """A sweep folder's results cannot be read."""
+
+
+def result_file(out_dir: Path, index: int) -> Path:
+    """DIR/results/task_NNNN.parquet."""
+    return out_dir / RESULTS_DIR / f"task_{index:04d}.parquet"
+
+
+def write_result(out_dir: Path, result: TaskResult) -> Path:
+    """Write ``result``'s row, atomically (a temporary file renamed), and return its path."""
+    path = result_file(out_dir, result.task.index)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.partial")
+    pq.write_table(pa.Table.from_pylist([result.row()]), partial)
+    os.replace(partial, path)
+    return path
+
+
+def finished_tasks(out_dir: Path) -> set[int]:
+    """The indices of the tasks whose results DIR/results holds."""
+    folder = out_dir / RESULTS_DIR
+    if not folder.is_dir():
+        return set()
+    return {int(p.stem.removeprefix("task_")) for p in folder.glob("task_*.parquet")
+            if p.stem.removeprefix("task_").isdigit()}
+
+
+def read_results(out_dir: Path) -> pa.Table:
+    """Every finished task's row, by task number; columns a task lacks are null in its row."""
+    files = sorted(result_file(out_dir, i) for i in finished_tasks(out_dir))
+    if not files:
+        return pa.table({})
+    try:
+        tables = [pq.read_table(p) for p in files]
+    except (OSError, pa.ArrowException) as e:
+        raise SweepResultsError(f"{out_dir / RESULTS_DIR}: unreadable result ({e})") from None
+    return pa.concat_tables(tables, promote_options="permissive").sort_by("task")
+
+
+def combine(out_dir: Path, fmt: str = "parquet") -> Path:
+    """Write every finished task's row to DIR/results.parquet or DIR/results.csv; return its path."""
+    table = read_results(out_dir)
+    path = out_dir / f"results.{fmt}"
+    partial = path.with_name(f".{path.name}.partial")
+    if fmt == "csv":
+        pacsv.write_csv(table, partial)
+    else:
+        pq.write_table(table, partial)
+    os.replace(partial, path)
+    return path
+
+
+@dataclass(frozen=True)
+class Percentiles:
+    """One column's spread over the tasks that gave it.
+
+    Attributes
+    ----------
+    column : the results table's column; identification errors are taken as magnitudes.
+    count : tasks with a finite value.
+    median, p95, p99, worst : in the column's unit (ripple: fraction of mean torque).
+    """
+
+    column: str
+    count: int
+    median: float
+    p95: float
+    p99: float
+    worst: float
+
+    def to_json(self) -> dict:
+        """Its object in summary.json."""
+        return {"column": self.column, "count": self.count, "median": self.median, "p95": self.p95,
+                "p99": self.p99, "worst": self.worst}
+
+
+def column_values(table: pa.Table, column: str) -> np.ndarray:
+    """Column ``column`` as floats, NaN where null; an identification error as its magnitude."""
+    x = np.array([np.nan if v is None else v for v in table.column(column).to_pylist()], float)
+    return np.abs(x) if column.startswith("id_error:") else x
+
+
+def percentiles(table: pa.Table) -> tuple[Percentiles, ...]:
+    """The median, 95th and 99th percentile (linear between order statistics) and the worst of every figure
+    column: final and validation ripple, each point's ripple, trials, guard events, identification errors."""
+    out = []
+    for column in table.column_names:
+        if not (column.startswith(("id_error:", "pp_true:")) or column in (
+                "final_pp_true", "validation_pp_true", "trials", "guard_events", "worse_points")):
+            continue
+        x = column_values(table, column)
+        x = x[np.isfinite(x)]
+        if len(x):
+            median, p95, p99 = (float(v) for v in np.percentile(x, LEVELS))
+            out.append(Percentiles(column, len(x), median, p95, p99, float(x.max())))
+    return tuple(out)
+
+
+def main_figure(table: pa.Table) -> str | None:
+    """The column that says whether a task went well: a campaign's final true ripple at its learned points,
+    else the identification's delta epsilon error; None if no task gave either."""
+    for column in ("final_pp_true", "id_error:delta_epsilon"):
+        if column in table.column_names and np.isfinite(column_values(table, column)).any():
+            return column
+    return None
+
+
+def worst_tasks(table: pa.Table, column: str, n: int) -> list[tuple[int, int, float]]:
+    """The ``n`` tasks with the largest ``column`` (magnitude for an error): (task, seed, value), worst first."""
+    x = column_values(table, column)
+    tasks, seeds = table.column("task").to_pylist(), table.column("seed").to_pylist()
+    order = [i for i in np.argsort(-np.nan_to_num(x, nan=-math.inf)) if np.isfinite(x[i])][:n]
+    return [(tasks[i], seeds[i], float(x[i])) for i in order]

@@ -1,0 +1,199 @@
+"""ilcpmac sweep: the spec and its draws, the truth keys it sweeps, a 4-task sweep on a local Dask cluster."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from campaign_helpers import SMALL_CAMPAIGN
+from click.testing import CliRunner
+
+from ilcpmac.cli import main
+from ilcpmac.config import load_config
+from ilcpmac.sim.grid import simulated_description
+from ilcpmac.sim.simulator import Simulator, trial_seed
+from ilcpmac.sweep.results import read_results, result_file
+from ilcpmac.sweep.runner import SweepRunError, SweepRunner, local_client
+from ilcpmac.sweep.spec import SweepSpecError, load_spec
+
+#: four identification tasks: two per friction value; 100 N m of friction stops the rotor (a failing task)
+SPEC = """
+[sweep]
+kind = "identify"
+tasks = 2
+seed = 7
+
+[draw."simulator.mechanics.inertia_scale"]
+distribution = "uniform"
+relative = 0.2
+
+[draw."simulator.current_sensors.beta_a[1]"]
+distribution = "normal"
+std = 0.05
+
+[draw."simulator.mechanics.coulomb_friction_nm"]
+distribution = "grid"
+values = [0.0, 100.0]
+
+[magnets]
+temperature_rise_k = [0.0, 80.0]
+coefficient_per_k = -0.001
+"""
+
+
+@pytest.fixture
+def small_config(write_config) -> Path:
+    return write_config(SMALL_CAMPAIGN)
+
+
+@pytest.fixture
+def spec_file(tmp_path: Path) -> Path:
+    path = tmp_path / "sweep.toml"
+    path.write_text(SPEC)
+    return path
+
+
+def test_draws_are_seeded_per_task_and_land_in_each_config(spec_file, small_config, tmp_path):
+    spec = load_spec(spec_file, small_config)
+    assert spec.task_count == 4
+    more = load_spec(spec_file, small_config)
+    more = dataclasses.replace(more, tasks_per_point=3)
+    # task k's random draws depend on (seed, k) only, not on how many tasks there are
+    assert spec.draw(1).parameters[:2] == more.draw(1).parameters[:2]
+    assert spec.draw(0).parameters != spec.draw(1).parameters
+    draw = spec.draw(3)
+    assert draw.seed == trial_seed(7, 3)
+    values = dict(draw.parameters)
+    assert values["simulator.mechanics.coulomb_friction_nm"] == 100.0
+    assert 0.8 <= values["simulator.mechanics.inertia_scale"] <= 1.2
+    assert 0.0 <= values["magnet_temperature_rise_k"] <= 80.0
+    path = tmp_path / "task.toml"
+    path.write_text(spec.task_config(draw))
+    cfg = spec.check_task(draw, path)
+    assert cfg.grid.seed == draw.seed
+    assert cfg.model.mechanics.inertia_scale == pytest.approx(values["simulator.mechanics.inertia_scale"])
+    assert cfg.model.winding.backemf_scale == pytest.approx(1 - 0.001 * values["magnet_temperature_rise_k"])
+    assert cfg.model.current_sensors.beta_a[1] == pytest.approx(values["simulator.current_sensors.beta_a[1]"])
+    assert cfg.model.current_sensors.beta_a[0] == 1.0  # the other elements as the base config gives them
+
+
+@pytest.mark.parametrize("table, expected", [
+    ('[sweep]\nkinds = "identify"', 'spec.toml: [sweep] unknown key'),
+    ('[sweep]\nkind = "fit"', "[sweep] kind: 'fit' is not one of identify, campaign"),
+    ('[draw."simulator.mechanics.mass"]\ndistribution = "normal"\nstd = 1.0',
+     '[draw."simulator.mechanics.mass"]: [simulator.mechanics] has no key \'mass\''),
+    ('[draw."simulator.mechanics.inertia_kgm2"]\ndistribution = "normal"\nstd = 1.0',
+     "the controller knows it: draw [bench] inertia_kgm2"),
+    ('[draw."simulator.current_sensors.alpha"]\ndistribution = "gauss"', "distribution: 'gauss' is not one of"),
+    ('[draw."simulator.current_sensors.alpha"]\ndistribution = "normal"\nstd = [0.1, 0.1]',
+     "std: expected a finite number or a list of 3"),
+    ('[draw."simulator.current_sensors.alpha[3]"]\ndistribution = "normal"\nstd = 0.1', "has no element 3"),
+    ('[draw."simulator.winding.backemf_scale"]\ndistribution = "uniform"\nlow = 1.0', "high: missing"),
+    ('[draw."excitation.phases"]\ndistribution = "normal"\nstd = 0.1', "is not a number: draw it with choice"),
+    ('[magnets]\ntemperature_rise_k = [0, 80]\ncoefficient_per_k = -0.02', "makes the back-EMF vanish"),
+])
+def test_spec_errors_are_one_line_naming_the_key(tmp_path, small_config, table, expected):
+    path = tmp_path / "spec.toml"
+    path.write_text(table)
+    with pytest.raises(SweepSpecError) as error:
+        load_spec(path, small_config)
+    assert expected in str(error.value) and "\n" not in str(error.value)
+
+
+def test_a_draw_out_of_range_names_the_key_and_the_task(tmp_path, small_config):
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text('[sweep]\ntasks = 50\nseed = 1\n[draw."simulator.current_sensors.epsilon"]\n'
+                         'distribution = "normal"\nmean = 0.1\nstd = 0.1\n')
+    result = CliRunner().invoke(main, ["sweep", str(small_config), "--spec", str(spec_path),
+                                       "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    message = result.output.strip()
+    assert '[draw."simulator.current_sensors.epsilon"] task ' in message and "out of range" in message
+    assert len(message.splitlines()) == 1
+
+
+def test_true_backemf_and_inertia_differ_from_what_the_controller_knows(small_model, make_request):
+    nominal = Simulator(small_model)
+    changed = dataclasses.replace(
+        small_model, winding=dataclasses.replace(small_model.winding, backemf_scale=1.1),
+        mechanics=dataclasses.replace(small_model.mechanics, inertia_scale=1.5))
+    sim = Simulator(changed)
+    assert changed.mechanics.true_inertia_kgm2 == pytest.approx(1.5 * small_model.mechanics.inertia_kgm2)
+    assert simulated_description(sim, None).motor.inertia_kgm2 == small_model.mechanics.inertia_kgm2
+    np.testing.assert_array_equal(sim.backemf_counts, nominal.backemf_counts)  # the controller's table
+    request = make_request(changed, torque_nm=3.0)
+    a, b = nominal.run_trial(request), sim.run_trial(request)
+    assert b.torque_true_nm.mean() / a.torque_true_nm.mean() == pytest.approx(1.1, rel=0.01)
+
+
+def test_sweep_on_a_local_cluster_records_failures_and_resumes(spec_file, small_config, tmp_path):
+    out = tmp_path / "out"
+    spec = load_spec(spec_file, small_config)
+    runner = SweepRunner(spec, out)
+    tasks = runner.prepare(resume=False)
+    assert sorted(p.name for p in (out / "tasks").iterdir()) == [f"task_{i:04d}.toml" for i in range(4)]
+    assert load_config(out / "tasks" / "task_0001.toml").grid.seed == tasks[1].seed
+
+    class Recorder:
+        """The sweep's events, kept."""
+
+        def __init__(self):
+            self.starts, self.indices = [], []
+
+        def started(self, total, done):
+            self.starts.append((total, done))
+
+        def finished(self, result):
+            self.indices.append(result.task.index)
+
+    events = Recorder()
+    client = local_client(2)
+    try:
+        runner.run(client, tasks[:1] + tasks[2:3], events)  # one good and one failing task, then stop
+        first = {i: result_file(out, i).stat().st_mtime_ns for i in (0, 2)}
+        with pytest.raises(SweepRunError, match="holds a sweep's results"):
+            SweepRunner(spec, out).prepare(resume=False)
+        resumed = SweepRunner(spec, out)
+        runner_tasks = resumed.prepare(resume=True)
+        resumed.run(client, runner_tasks, events)
+    finally:
+        client.close()
+        client.cluster.close()
+    assert events.starts[1] == (4, 2) and sorted(events.indices) == [0, 1, 2, 3]
+    assert {i: result_file(out, i).stat().st_mtime_ns for i in (0, 2)} == first  # not run again
+    table = read_results(out)
+    rows = table.to_pylist()
+    assert [r["task"] for r in rows] == [0, 1, 2, 3]
+    assert [r["seed"] for r in rows] == [trial_seed(7, i) for i in range(4)]
+    assert [r["status"] for r in rows] == ["ok", "ok", "failed", "failed"]
+    assert all("not enough to turn the rotor against friction" in r["reason"] for r in rows[2:])
+    for r in rows[:2]:
+        assert abs(r["id_error:alpha"]) < 0.05 and np.isfinite(r["id_error:cogging"])
+        assert r["draw:simulator.mechanics.coulomb_friction_nm"] == 0.0
+    assert rows[2]["id_error:alpha"] is None
+
+
+def test_cli_resume_of_a_finished_sweep_writes_its_table_summary_and_plots(spec_file, small_config, tmp_path):
+    out = tmp_path / "out"
+    spec = load_spec(spec_file, small_config)
+    runner = SweepRunner(spec, out)
+    tasks = runner.prepare(resume=False)
+    from ilcpmac.sweep.results import write_result
+    from ilcpmac.sweep.task import run_task
+
+    for task in tasks:
+        write_result(out, run_task(task))  # the same results a cluster would give, run here
+    result = CliRunner().invoke(main, ["sweep", str(small_config), "--spec", str(spec_file), "--out", str(out),
+                                       "--resume", "--workers", "1", "--table-format", "csv"])
+    assert result.exit_code == 0, result.output
+    assert "sweep: 2 of 4 tasks ok" in result.output
+    assert f"rerun: ilcpmac simulate {out}/tasks/task_0002.toml" in result.output
+    assert (out / "results.csv").read_text().count("\n") == 5
+    assert (out / "plots" / "distribution.png").is_file()
+    import json
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert [f["task"] for f in summary["failed"]] == [2, 3]
+    assert summary["main_figure"] == "id_error:delta_epsilon"
