@@ -72,19 +72,20 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, w
     runner = SweepRunner(spec, out_dir)
     tasks = runner.prepare(resume)
     console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'}")
-    if scheduler is None:
-        client = local_client(workers)
-    else:
-        from distributed import Client
+    if runner.pending(tasks):  # a resumed sweep with nothing left starts no cluster
+        if scheduler is None:
+            client = local_client(workers)
+        else:
+            from distributed import Client
 
-        client = Client(scheduler)
-    try:
-        with progress_bar() as progress:
-            runner.run(client, tasks, _Progress(progress))
-    finally:
-        client.close()
-        if client.cluster is not None and scheduler is None:
-            client.cluster.close()
+            client = Client(scheduler)
+        try:
+            with progress_bar() as progress:
+                runner.run(client, tasks, _Progress(progress))
+        finally:
+            client.close()
+            if client.cluster is not None and scheduler is None:
+                client.cluster.close()
     table_path = combine(out_dir, table_format)
     table = read_results(out_dir)
     by_index = {t.index: t for t in tasks}

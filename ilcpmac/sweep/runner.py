@@ -145,11 +145,15 @@ class SweepRunner:
             tasks.append(SweepTask(index, draw.seed, spec.kind, text, str(path), draw.parameters))
         return tasks
 
-    def run(self, client: Client, tasks: list[SweepTask], events: SweepEvents) -> list[TaskResult]:
-        """Run the tasks the folder has no result of on ``client``'s workers, each warmed first (then
-        ``events.started``); write each result as it arrives; return them in the order they finished."""
+    def pending(self, tasks: list[SweepTask]) -> list[SweepTask]:
+        """The tasks the folder has no result of."""
         done = finished_tasks(self.out_dir)
-        todo = [t for t in tasks if t.index not in done]
+        return [t for t in tasks if t.index not in done]
+
+    def run(self, client: Client, tasks: list[SweepTask], events: SweepEvents) -> list[TaskResult]:
+        """Run the tasks the folder has no result of (`pending`) on ``client``'s workers, each warmed first
+        (then ``events.started``); write each result as it arrives; return them in the order they finished."""
+        todo = self.pending(tasks)
         if todo:
             client.register_plugin(NumbaWarmup(self.spec.kind))
         events.started(len(tasks), len(tasks) - len(todo))
