@@ -37,7 +37,7 @@ from ilcpmac.bench.format import Bench, as_written
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
 from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir
-from ilcpmac.campaign.validation import fade_out, point_results
+from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
 from ilcpmac.errors import IdentificationError, IlcpmacError
@@ -310,7 +310,8 @@ class CampaignRunner:
                                 f"{self.run_dir.files.compensation.name}")
         return self.compensation
 
-    def _results(self):
+    def _results(self) -> list[PointResult]:
+        """Each learned and validation point whose trials are done (`point_results`)."""
         return point_results(self.records, self.plan.learned, self.plan.validated)
 
     def _conclude(self) -> None:
