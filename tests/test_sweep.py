@@ -203,3 +203,22 @@ def test_cli_resume_of_a_finished_sweep_writes_its_table_summary_and_plots(spec_
     summary = json.loads((out / "summary.json").read_text())
     assert [f["task"] for f in summary["failed"]] == [2, 3]
     assert summary["main_figure"] == "id_error:delta_epsilon"
+
+
+def test_summary_names_failures_percentiles_and_the_worst_tasks_in_order():
+    import pyarrow as pa
+
+    from ilcpmac.sweep.results import summarize
+
+    table = pa.table({"task": [0, 1, 2, 3], "seed": [10, 11, 12, 13],
+                      "status": ["ok", "failed", "ok", "ok"], "reason": [None, "diverged", None, None],
+                      "final_pp_true": [0.001, None, 0.003, 0.002]})
+    summary = summarize(table, "campaign", 5, lambda i: f"rerun {i}", worst=2)
+    assert (summary.tasks, summary.finished, summary.main_figure) == (5, 4, "final_pp_true")
+    assert [(t.task, t.seed, t.detail, t.rerun) for t in summary.failed] == [(1, 11, "diverged", "rerun 1")]
+    assert [(t.task, t.detail) for t in summary.worst] == [(2, 0.003), (3, 0.002)]
+    (final,) = [p for p in summary.spread if p.column == "final_pp_true"]
+    assert (final.count, final.median, final.worst) == (3, 0.002, 0.003)
+    json = summary.to_json()
+    assert json["failed"] == [{"task": 1, "seed": 11, "reason": "diverged", "rerun": "rerun 1"}]
+    assert json["worst"][0] == {"task": 2, "seed": 12, "value": 0.003, "rerun": "rerun 2"}

@@ -62,7 +62,7 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, w
 
     from ilcpmac.errors import ConfigError
     from ilcpmac.sweep.plots import write_plots
-    from ilcpmac.sweep.results import combine, main_figure, percentiles, read_results, worst_tasks
+    from ilcpmac.sweep.results import SUMMARY_FILE, combine, read_results, summarize
     from ilcpmac.sweep.runner import SweepRunner, local_client
     from ilcpmac.sweep.spec import load_spec
 
@@ -89,30 +89,22 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, w
     table_path = combine(out_dir, table_format)
     table = read_results(out_dir)
     by_index = {t.index: t for t in tasks}
-    statuses = table.column("status").to_pylist()
-    failed = [(i, s, r) for i, s, r, st in zip(table.column("task").to_pylist(), table.column("seed").to_pylist(),
-                                               table.column("reason").to_pylist(), statuses) if st == "failed"]
-    spread = percentiles(table)
-    view = Table(title=f"sweep: {len(statuses) - len(failed)} of {len(tasks)} tasks ok", title_justify="left",
-                 header_style="bold")
+    summary = summarize(table, spec.kind, len(tasks), lambda i: by_index[i].rerun_command(), worst)
+    view = Table(title=f"sweep: {summary.finished - len(summary.failed)} of {len(tasks)} tasks ok",
+                 title_justify="left", header_style="bold")
     for name in ("figure", "tasks", "median", "95th", "99th", "worst"):
         view.add_column(name, justify="left" if name == "figure" else "right")
-    for p in spread:
+    for p in summary.spread:
         view.add_row(p.column, str(p.count), *(_percent(p.column, v) for v in (p.median, p.p95, p.p99, p.worst)))
     console.print(view)
-    for index, seed, reason in failed:
-        console.print(f"task {index} (seed {seed}) failed: {reason}\n  rerun: {by_index[index].rerun_command()}",
+    for task in summary.failed:
+        console.print(f"task {task.task} (seed {task.seed}) failed: {task.detail}\n  rerun: {task.rerun}",
                       soft_wrap=True)
-    column = main_figure(table)
-    worst_list = worst_tasks(table, column, worst) if column is not None else []
-    for index, seed, value in worst_list:
-        console.print(f"worst {column} {_percent(column, value)}: task {index} (seed {seed})\n"
-                      f"  rerun: {by_index[index].rerun_command()}", soft_wrap=True)
-    summary = {"kind": spec.kind, "tasks": len(tasks), "finished": len(statuses), "failed": [
-        {"task": i, "seed": s, "reason": r, "rerun": by_index[i].rerun_command()} for i, s, r in failed],
-        "percentiles": [p.to_json() for p in spread], "main_figure": column,
-        "worst": [{"task": i, "seed": s, "value": v, "rerun": by_index[i].rerun_command()} for i, s, v in worst_list]}
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=1))
+    column = summary.main_figure
+    for task in summary.worst:
+        console.print(f"worst {column} {_percent(column, task.detail)}: task {task.task} (seed {task.seed})\n"
+                      f"  rerun: {task.rerun}", soft_wrap=True)
+    (out_dir / SUMMARY_FILE).write_text(json.dumps(summary.to_json(), indent=1))
     plots = write_plots(table, column, out_dir / "plots", plot_format) if column is not None else []
-    console.print(f"wrote {table_path}, {out_dir / 'summary.json'} and {len(plots)} plots in {out_dir / 'plots'}",
+    console.print(f"wrote {table_path}, {out_dir / SUMMARY_FILE} and {len(plots)} plots in {out_dir / 'plots'}",
                   soft_wrap=True)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,11 +20,14 @@ import pyarrow.parquet as pq
 from ilcpmac.errors import IlcpmacError
 from ilcpmac.sweep.task import TaskResult
 
-__all__ = ["RESULTS_DIR", "TABLE_FORMATS", "Percentiles", "SweepResultsError", "combine", "finished_tasks",
-           "column_values", "main_figure", "percentiles", "read_results", "result_file", "worst_tasks", "write_result"]
+__all__ = ["RESULTS_DIR", "SUMMARY_FILE", "TABLE_FORMATS", "Percentiles", "SweepResultsError", "SweepSummary",
+           "TaskOutcome", "column_values", "combine", "finished_tasks", "main_figure", "percentiles", "read_results",
+           "result_file", "summarize", "worst_tasks", "write_result"]
 
 #: DIR/results: one file per finished task
 RESULTS_DIR = "results"
+#: DIR/summary.json: `SweepSummary.to_json`
+SUMMARY_FILE = "summary.json"
 #: the combined table's formats
 TABLE_FORMATS = ("parquet", "csv")
 #: the percentiles of the summary, %
@@ -144,3 +148,58 @@ def worst_tasks(table: pa.Table, column: str, n: int) -> list[tuple[int, int, fl
     tasks, seeds = table.column("task").to_pylist(), table.column("seed").to_pylist()
     order = [i for i in np.argsort(-np.nan_to_num(x, nan=-math.inf)) if np.isfinite(x[i])][:n]
     return [(tasks[i], seeds[i], float(x[i])) for i in order]
+
+
+@dataclass(frozen=True)
+class TaskOutcome:
+    """One task named in the summary: a failure (``detail`` its reason) or one of the worst (``detail`` its
+    value of the main figure), with the command that reruns it alone."""
+
+    task: int
+    seed: int
+    detail: str | float
+    rerun: str
+
+
+@dataclass(frozen=True)
+class SweepSummary:
+    """What summary.json holds: the tasks' spread, failures and worst cases.
+
+    Attributes
+    ----------
+    kind : "campaign" or "identify".
+    tasks, finished : the sweep's tasks, and how many have a result (failed ones included).
+    failed : the failed tasks, in task order, ``detail`` their one-line reason.
+    spread : the `Percentiles` of every figure column.
+    main_figure : `main_figure`'s column, or None.
+    worst : the tasks with the largest main figure, worst first, ``detail`` the value.
+    """
+
+    kind: str
+    tasks: int
+    finished: int
+    failed: tuple[TaskOutcome, ...]
+    spread: tuple[Percentiles, ...]
+    main_figure: str | None
+    worst: tuple[TaskOutcome, ...]
+
+    def to_json(self) -> dict:
+        """Its summary.json object."""
+        def named(outcome: TaskOutcome, detail: str) -> dict:
+            return {"task": outcome.task, "seed": outcome.seed, detail: outcome.detail, "rerun": outcome.rerun}
+
+        return {"kind": self.kind, "tasks": self.tasks, "finished": self.finished,
+                "failed": [named(o, "reason") for o in self.failed],
+                "percentiles": [p.to_json() for p in self.spread], "main_figure": self.main_figure,
+                "worst": [named(o, "value") for o in self.worst]}
+
+
+def summarize(table: pa.Table, kind: str, tasks: int, rerun: Callable[[int], str], worst: int) -> SweepSummary:
+    """The summary of results ``table`` of a sweep of ``tasks`` tasks of ``kind``, naming its ``worst`` worst
+    tasks; ``rerun(task)`` is the command that reruns a task alone."""
+    columns = [table.column(name).to_pylist() for name in ("task", "seed", "reason", "status")]
+    failed = tuple(TaskOutcome(i, s, r, rerun(i)) for i, s, r, status in zip(*columns) if status == "failed")
+    column = main_figure(table)
+    worst_list = worst_tasks(table, column, worst) if column is not None else []
+    return SweepSummary(kind, tasks, table.num_rows, failed, percentiles(table), column,
+                        tuple(TaskOutcome(i, s, v, rerun(i)) for i, s, v in worst_list))
