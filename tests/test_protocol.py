@@ -483,3 +483,24 @@ def test_worked_example_in_the_docs_matches_the_implementation():
     for dump, frame in zip(dumps, frames):
         assert dump.size == len(dump.data) and struct.unpack_from("<I", dump.data, 8)[0] == dump.seq
         assert dump.data == bytes(frame), dump.name
+
+
+def test_a_bench_finer_than_a_describe_frame_carries_is_refused_before_serving():
+    from ilcpmac.backends.emulator import BenchEmulator
+    from ilcpmac.backends.protocol import MAX_COUNTS_PER_REV, MAX_PAYLOAD, check_servable
+
+    fits = toy_description(4)
+    fits = dataclasses.replace(fits, motor=MotorInfo(8, 48, MAX_COUNTS_PER_REV, 0.01),
+                               backemf_nm_per_a=np.zeros((MAX_COUNTS_PER_REV, 3)))
+    assert sum(memoryview(p).cast("B").nbytes for p in encode_describe(fits)) <= MAX_PAYLOAD
+    too_fine = dataclasses.replace(fits, motor=MotorInfo(8, 48, MAX_COUNTS_PER_REV + 1, 0.01),
+                                   backemf_nm_per_a=np.zeros((MAX_COUNTS_PER_REV + 1, 3)))
+    with pytest.raises(BackendError, match=f"^counts_per_rev {MAX_COUNTS_PER_REV + 1} is more than the protocol's"):
+        check_servable(too_fine)
+
+    class Fine:
+        def describe(self):
+            return too_fine
+
+    with pytest.raises(BackendError, match="serve the encoder at a divided resolution$"):
+        BenchEmulator(Fine())

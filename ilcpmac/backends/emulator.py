@@ -42,6 +42,7 @@ from ilcpmac.backends.protocol import (
     ProtocolError,
     ProtocolVersionError,
     check_request,
+    check_servable,
     check_trial_id,
     decode_request,
     encode_accept,
@@ -177,6 +178,7 @@ class BenchEmulator:
                                "max_connections >= 1 and max_trial_samples >= 2")
         self.backend = backend
         self._description = backend.describe()
+        check_servable(self._description)
         self.host = host
         self.port = port
         self.faults = faults

@@ -50,6 +50,9 @@ _HEARTBEAT = struct.Struct("<II")
 _ERROR_HEAD = struct.Struct("<II")
 _F64 = np.dtype("<f8")
 _I64 = np.dtype("<i8")
+#: Most encoder counts per revolution a bench can serve: its DESCRIBE carries 24 bytes per count
+#: (docs/protocol.md, 5.1) within MAX_PAYLOAD. A finer encoder is served at a divided resolution.
+MAX_COUNTS_PER_REV = (MAX_PAYLOAD - _DESCRIBE_HEAD.size) // 24
 
 
 class FrameType(IntEnum):
@@ -389,8 +392,18 @@ def _expect_size(payload: memoryview, size: int, what: str) -> None:
         raise ProtocolError(f"{what} payload is {payload.nbytes} bytes, expected {size}")
 
 
+def check_servable(description: BenchDescription) -> None:
+    """Raise `BackendError` if ``description``'s DESCRIBE would not fit in a frame (`MAX_COUNTS_PER_REV`)."""
+    cpr = description.motor.counts_per_rev
+    if cpr > MAX_COUNTS_PER_REV:
+        raise BackendError(f"counts_per_rev {cpr} is more than the protocol's {MAX_COUNTS_PER_REV}: DESCRIBE "
+                           f"carries 24 bytes per count within {MAX_PAYLOAD} bytes; serve the encoder at a divided "
+                           "resolution")
+
+
 def encode_describe(description: BenchDescription) -> list:
     """Payload parts of DESCRIBE: the [motor] and [sensors] data, the limits and the back-EMF table."""
+    check_servable(description)
     m, cal, lim = description.motor, description.calibration, description.limits
     backemf = _f64(description.backemf_nm_per_a)
     if backemf.shape != (m.counts_per_rev, 3):
