@@ -6,6 +6,9 @@ names the log's columns, units and scales, the motor as a campaign config's
 [bench] describes it, and optionally each log's operating point. Each log is
 resampled onto the encoder counts it crosses, by linear interpolation between
 rows, with an estimate of the interpolation error (`InterpolationError`).
+A mapping with ``[log] kind = "scan"`` marks its logs as a standstill
+position scan (`ilcpmac.bench.standstill`): their rows are kept as they are,
+in standard units, with the direction of motion, and written as a scan folder.
 Every problem raises `ConfigError` (the mapping, naming its key) or
 `BenchFormatError` (a log, naming its line and column), one line each.
 """
@@ -34,6 +37,7 @@ from ilcpmac.bench.format import (
     read_backemf_csv,
     write_bench,
 )
+from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan, write_scan
 from ilcpmac.config import BenchSettings, model_key, parse_section, read_toml, setting
 from ilcpmac.errors import BenchFormatError, ConfigError
 from ilcpmac.files import read_bounded
@@ -42,7 +46,8 @@ from ilcpmac.model.tables import backemf_table
 from ilcpmac.records import SensorCalibration, TrialData
 
 __all__ = ["MAX_LOG_ROWS", "ImportMapping", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint",
-           "import_log", "import_logs", "read_log", "read_mapping", "resample_to_counts"]
+           "import_log", "import_logs", "import_scan", "read_log", "read_mapping", "resample_to_counts",
+           "write_scan_folder"]
 
 #: most data rows of one log (20 kHz for 200 s) ...
 MAX_LOG_ROWS = 2**22
@@ -95,6 +100,10 @@ class LogLayout:
     torque_nm_per_unit: float = setting(_nonzero, "N m per unit of the torque column, non-zero", 1.0)
     highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
                                    "(two rows per period or more)", 150)
+    kind: str = setting(_one_of("run", "scan"), '"run" (turning laps, resampled onto counts) or "scan" (a standstill '
+                       "position scan, forward and back)", "run")
+    direction: str | None = setting(None, "column of the direction of motion of a scan (> 0 forward, < 0 reverse); "
+                                   "without it, the sign of the position's last change", None)
 
 
 @dataclass(frozen=True)
@@ -125,6 +134,8 @@ class ImportMapping:
     layout : LogLayout
     points : dict of str to (float, float)
         Log file name -> (torque set point N m, speed set point Hz).
+    scan_errors : SensorErrors
+        From [scan] (a scan's sensor errors; the defaults without it).
     """
 
     path: Path
@@ -133,6 +144,7 @@ class ImportMapping:
     sensors: SensorCalibration | None
     layout: LogLayout
     points: dict[str, tuple[float, float]]
+    scan_errors: SensorErrors = SensorErrors()
 
 
 @dataclass(frozen=True)
@@ -165,7 +177,7 @@ def read_mapping(path: str | Path) -> ImportMapping:
     """Read and check a mapping file; each problem raises `ConfigError` naming the file and key."""
     path = Path(path)
     data = read_toml(path)
-    known = ("bench", "log", "points")
+    known = ("bench", "log", "points", "scan")
     unknown = sorted(set(data) - set(known))
     if unknown:
         raise ConfigError(f"{path}: unknown table [{shown(unknown[0])}] (known: {', '.join(known)})")
@@ -185,8 +197,11 @@ def read_mapping(path: str | Path) -> ImportMapping:
     by_file = {p.file: (p.torque_setpoint_nm, p.speed_setpoint_hz) for p in parsed}
     if len(by_file) < len(parsed):
         raise ConfigError(f"{path}: [[points]] lists a file twice")
+    if "scan" in data and layout.kind != "scan":
+        raise ConfigError(f'{path}: [scan]: only for a standstill scan ([log] kind = "scan")')
+    errors = SensorErrors.parse(data.get("scan", {}), str(path), "scan")
     return ImportMapping(path, motor, _backemf(bench, motor, path), None if bench.calibration is None
-                         else bench.calibration.calibration(), layout, by_file)
+                         else bench.calibration.calibration(), layout, by_file, errors)
 
 
 def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
@@ -195,8 +210,15 @@ def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
     if layout.highest_harmonic > motor.counts_per_rev // 2:
         raise ConfigError(f"{path}: [log] highest_harmonic: {layout.highest_harmonic} is beyond the Nyquist limit "
                           f"of [bench] counts_per_rev {motor.counts_per_rev}")
-    if (layout.phase_currents is None) == (layout.i_q is None):
+    currents = (layout.phase_currents is not None) + (layout.i_q is not None)
+    if layout.kind == "scan":
+        if currents > 1 or (currents == 1) == (layout.torque is not None):
+            raise ConfigError(f"{path}: [log] phase_currents, i_q, torque: a scan gives exactly one of them (the "
+                              "holding currents or the holding torque)")
+    elif currents != 1:
         raise ConfigError(f"{path}: [log] phase_currents, i_q: give exactly one")
+    if layout.direction is not None and layout.kind != "scan":
+        raise ConfigError(f'{path}: [log] direction: only for a standstill scan ([log] kind = "scan")')
     if (layout.position_unit == "counts") != (layout.position_counts_per_rev is not None):
         raise ConfigError(f"{path}: [log] position_counts_per_rev: give it when, and only when, "
                           'position_unit = "counts"')
@@ -256,9 +278,23 @@ def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
 
 
 def _columns(layout: LogLayout) -> list[str]:
-    """The log columns ``layout`` names: time, position, currents, torque."""
-    currents = list(layout.phase_currents) if layout.phase_currents is not None else [layout.i_q]
-    return [layout.time, layout.position, *currents] + ([layout.torque] if layout.torque is not None else [])
+    """The log columns ``layout`` names: time, position, currents, torque, direction."""
+    return [layout.time, layout.position, *_current_columns(layout)] + [
+        c for c in (layout.torque, layout.direction) if c is not None]
+
+
+def _current_columns(layout: LogLayout) -> list[str]:
+    """The current columns ``layout`` names: three phases, the q axis, or none."""
+    if layout.phase_currents is not None:
+        return list(layout.phase_currents)
+    return [] if layout.i_q is None else [layout.i_q]
+
+
+def _inverse_park(i_q: np.ndarray, position_counts: np.ndarray, motor: MotorInfo, offset_rad: float) -> np.ndarray:
+    """Phase currents i_p = i_q sin(theta_e - 2 pi p / 3), theta_e = pole_pairs 2 pi position / counts_per_rev
+    + offset_rad, shape (n, 3)."""
+    theta_e = motor.pole_pairs * 2.0 * np.pi * position_counts / motor.counts_per_rev + offset_rad
+    return i_q[:, None] * np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD)
 
 
 def _rows(path: Path, body: bytes, width: int, layout: LogLayout) -> np.ndarray:
@@ -343,17 +379,7 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     cpr = motor.counts_per_rev
     if layout.torque is None:
         raise BenchFormatError(f"{log}: has no torque column ([log] torque of {mapping.path}); {_NO_TORQUE}")
-    columns = read_log(log, layout)
-    time_s = columns[layout.time] * layout.time_s_per_unit
-    back = np.flatnonzero(np.diff(time_s) <= 0)
-    if back.size:
-        raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.time} does not increase")
-    per_rev = 2.0 * np.pi if layout.position_unit == "rad" else layout.position_counts_per_rev
-    position = columns[layout.position] * (cpr / per_rev)
-    if not (np.isfinite(time_s[-1] - time_s[0]) and np.all(np.abs(position) <= MAX_COUNT)):
-        raise BenchFormatError(f"{log}: {layout.time} or {layout.position} beyond the range of a double or of "
-                               f"{MAX_COUNT} counts once scaled (wrong scale or unit in {mapping.path}?)")
-    position = np.unwrap(position, period=cpr)
+    columns, time_s, position = _time_and_position(log, mapping)
     step = np.diff(position)
     if np.all(step <= 0):
         raise BenchFormatError(f"{log}: the position never increases: reverse laps are not imported yet (log "
@@ -369,7 +395,7 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
             f"{log}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
             f"at the fastest, fewer than two per period of harmonic {layout.highest_harmonic} ([log] "
             f"highest_harmonic); the data resolve harmonics up to {resolved}")
-    current_names = list(layout.phase_currents) if layout.phase_currents is not None else [layout.i_q]
+    current_names = _current_columns(layout)
     values = np.column_stack([columns[n] for n in current_names] + [columns[layout.torque]])
     values *= np.array([layout.current_a_per_unit] * len(current_names) + [layout.torque_nm_per_unit])
     count, at, values_at, time_error, value_error = resample_to_counts(time_s, position, values)
@@ -377,9 +403,7 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     if count.size > max_rows or count.size < 2:
         raise BenchFormatError(f"{log}: crosses {count.size} encoder counts; a trial holds 2 to {max_rows}")
     if layout.i_q is not None:
-        theta_e = motor.pole_pairs * 2.0 * np.pi * count / cpr + layout.angle_offset_rad
-        park = np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD)
-        currents = values_at[:, :1] * park
+        currents = _inverse_park(values_at[:, 0], count, motor, layout.angle_offset_rad)
         current_error = value_error[:, 0]
     else:
         currents = values_at[:, :3]
@@ -391,6 +415,75 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     check_trial(trial, motor, str(log))
     error = InterpolationError(float(time_error.max()), float(current_error.max()), float(value_error[:, -1].max()))
     return ImportedLog(log, trial, error, resolved)
+
+
+def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """A log's columns, its time stamps in s (strictly increasing) and its unwrapped position in counts of
+    [bench] counts_per_rev."""
+    layout, cpr = mapping.layout, mapping.motor.counts_per_rev
+    columns = read_log(log, layout)
+    time_s = columns[layout.time] * layout.time_s_per_unit
+    back = np.flatnonzero(np.diff(time_s) <= 0)
+    if back.size:
+        raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.time} does not increase")
+    per_rev = 2.0 * np.pi if layout.position_unit == "rad" else layout.position_counts_per_rev
+    position = columns[layout.position] * (cpr / per_rev)
+    if not (np.isfinite(time_s[-1] - time_s[0]) and np.all(np.abs(position) <= MAX_COUNT)):
+        raise BenchFormatError(f"{log}: {layout.time} or {layout.position} beyond the range of a double or of "
+                               f"{MAX_COUNT} counts once scaled (wrong scale or unit in {mapping.path}?)")
+    return columns, time_s, np.unwrap(position, period=cpr)
+
+
+def import_scan(log: Path, mapping: ImportMapping) -> ScanData:
+    """One standstill-scan log in standard units, row by row (docs/standstill.md).
+
+    The direction of each row is the sign of [log] direction, or else of the
+    position's last change at or before it (rows before the first change take
+    its sign). q-axis currents become phase currents by the inverse Park
+    transform at each row's position, as for a run.
+    """
+    layout, motor = mapping.layout, mapping.motor
+    columns, time_s, position = _time_and_position(log, mapping)
+    if layout.direction is not None:
+        direction = np.sign(columns[layout.direction])
+        still = np.flatnonzero(direction == 0)
+        if still.size:
+            raise BenchFormatError(f"{log}: line {layout.header_lines + 1 + still[0]}: {layout.direction} is 0 "
+                                   "(> 0 forward, < 0 reverse)")
+    else:
+        step = np.sign(np.diff(position))
+        moved = np.flatnonzero(step)
+        if not moved.size:
+            raise BenchFormatError(f"{log}: the position never changes: not a scan")
+        last = np.maximum.accumulate(np.where(step != 0, np.arange(step.size), moved[0]))
+        direction = np.concatenate([step[moved[:1]], step[last]])
+    scale = layout.current_a_per_unit
+    if layout.phase_currents is not None:
+        currents = np.column_stack([columns[c] for c in layout.phase_currents]) * scale
+    elif layout.i_q is not None:
+        currents = _inverse_park(columns[layout.i_q] * scale, position, motor, layout.angle_offset_rad)
+    else:
+        currents = None
+    torque = None if layout.torque is None else columns[layout.torque] * layout.torque_nm_per_unit
+    scan = ScanData(time_s, position, direction.astype(float), currents, torque)
+    check_scan(scan, str(log))
+    return scan
+
+
+def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> ScanData:
+    """Import every scan log (`import_scan`) and write them, one after the other, as the scan folder ``out``.
+
+    Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
+    """
+    if (out / BENCH_FILE).exists():
+        raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+    scans = [import_scan(log, mapping) for log in logs]
+    names = [f.name for f in dataclasses.fields(ScanData)]
+    joined = ScanData(*(None if getattr(scans[0], name) is None else np.concatenate([getattr(s, name) for s in scans])
+                        for name in names))
+    check_scan(joined, str(out))
+    write_scan(out, mapping.motor, mapping.backemf_nm_per_a, mapping.sensors, mapping.scan_errors, joined)
+    return joined
 
 
 def _operating_point(log: Path, count: np.ndarray, time_s: np.ndarray, currents: np.ndarray,
@@ -413,6 +506,8 @@ def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str
     """
     if (out / BENCH_FILE).exists():
         raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+    if mapping.layout.kind == "scan":
+        raise BenchFormatError(f'{mapping.path}: [log] kind = "scan": a scan makes a scan folder (write_scan_folder)')
     imported = [import_log(log, mapping) for log in logs]
     names = tuple(f"trial_{i:02d}{suffix}" for i in range(1, len(imported) + 1))
     write_bench(out, Bench(mapping.motor, mapping.backemf_nm_per_a, mapping.sensors,

@@ -132,8 +132,13 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     estimate's error.
     """
     from ilcpmac.bench.format import read_bench
+    from ilcpmac.bench.standstill import SCAN_FILE, identify_scan
     from ilcpmac.identify import STEPS, identify_bench
 
+    if (bench_dir / SCAN_FILE).exists():  # a standstill scan folder (docs/standstill.md)
+        for line in identify_scan(bench_dir, output):
+            console.print(line)
+        return
     truth = read_truth(bench_dir)
     with progress_bar() as progress:
         task = progress.add_task("reading bench folder", total=len(STEPS) + 1)

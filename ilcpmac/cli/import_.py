@@ -21,11 +21,20 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
     """Turn drive LOGS into a bench folder.
 
     Each log (rows at a fixed rate) is resampled onto encoder counts, one trial per log; prints each trial
-    written with its set point and the estimated interpolation error (docs/bench-format.md).
+    written with its set point and the estimated interpolation error (docs/bench-format.md). Logs of a
+    standstill scan ([log] kind = "scan") become one scan folder (docs/standstill.md).
     """
-    from ilcpmac.bench.importer import import_logs, read_mapping
+    from ilcpmac.bench.importer import import_logs, read_mapping, write_scan_folder
 
-    imported = import_logs(list(logs), read_mapping(mapping_file), out_dir, f".{trial_format}")
+    mapping = read_mapping(mapping_file)
+    if mapping.layout.kind == "scan":
+        scan = write_scan_folder(list(logs), mapping, out_dir)
+        forward = int((scan.direction > 0).sum())
+        console.print(f"{len(logs)} scan logs -> scan.csv: {forward} forward and {scan.direction.size - forward} "
+                      f"reverse samples, holding {'torque' if scan.torque_nm is not None else 'currents'}")
+        console.print(f"wrote scan.csv, scan.toml, backemf.csv and bench.toml to {out_dir}")
+        return
+    imported = import_logs(list(logs), mapping, out_dir, f".{trial_format}")
     for i, r in enumerate(imported, start=1):
         t, e = r.trial, r.error
         console.print(f"{r.log} -> trial_{i:02d}.{trial_format}: {t.n_samples} counts, {t.torque_setpoint_nm:g} N m "

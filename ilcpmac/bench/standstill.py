@@ -1,0 +1,448 @@
+"""Standstill position scans: the position torque and the cogging map from holding torques, forward and back.
+
+A scan moves the rotor slowly over whole revolutions, forward then back, and
+logs at each position what holds it there: the motor's own currents (the
+drive holds the rotor in position control) or a DC torque sensor's reading
+(an external drive turns the unpowered motor). Quasi-statically the holding
+torque is h_s(theta) = -tau_pos(theta) + s f(theta) with s = +-1 the direction
+of motion and f the friction and hysteresis, so (docs/standstill.md)
+
+    tau_pos = -(h_+ + h_-) / 2,    f = (h_+ - h_-) / 2.
+
+A *scan folder* is a bench folder without trials (bench.toml's [motor] and
+[sensors], backemf.csv) plus ``scan.toml`` and the samples (``scan.csv``);
+`read_scan` reads it, `reduce_scan` gives a `ScanResult`, `identify_scan`
+is ``ilcpmac identify SCAN_FOLDER``. Every problem of a file raises
+`BenchFormatError` naming the file and the key, line or count.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ilcpmac.bench.fastcsv import format_rows
+from ilcpmac.bench.format import (
+    BENCH_FILE,
+    MAX_CURRENT_A,
+    MAX_HEADER_BYTES,
+    MAX_TORQUE_NM,
+    MotorInfo,
+    atomic_write,
+    bench_toml_text,
+    read_bench_head,
+    write_backemf_csv,
+)
+from ilcpmac.config import parse_section, read_toml, setting
+from ilcpmac.errors import BenchFormatError, ConfigError
+from ilcpmac.files import read_bounded
+from ilcpmac.model.motor import all_of, in_range, length_in, shown
+from ilcpmac.records import SensorCalibration, finite_json
+from ilcpmac.signals.harmonics import filtered, harmonic_amplitudes, harmonic_band
+
+__all__ = ["CURRENT_COLUMNS", "SCAN_DATA_FILE", "SCAN_FILE", "ScanData", "ScanResult", "SensorErrors",
+           "identify_scan", "read_scan", "reduce_scan", "write_scan"]
+
+#: the file that makes a folder a scan folder, and the samples' file it names by default
+SCAN_FILE = "scan.toml"
+SCAN_DATA_FILE = "scan.csv"
+#: a simulated scan's truth beside scan.toml (`ilcpmac.sim.standstill`)
+TRUTH_FILE = "truth.json"
+#: columns of scan.csv: always time (s), position (counts of [motor] counts_per_rev) and direction (+1 forward,
+#: -1 reverse), then the phase currents (A) or the torque (N m)
+BASE_COLUMNS = ("time", "position", "direction")
+CURRENT_COLUMNS = ("i_a", "i_b", "i_c")
+TORQUE_COLUMN = "torque"
+#: most samples of one scan
+MAX_SCAN_ROWS = 2**22
+_THREE = length_in(3, 3)
+
+
+@dataclass(frozen=True)
+class SensorErrors:
+    """The sensors' errors while the scan was recorded, at its calibration ([scan] of scan.toml or of a mapping).
+
+    The result keys of an identification at that calibration (eqs. 1.4-1.7);
+    the defaults say the calibration is exact. The true phase current is
+    epsilon alpha_p i_p + beta_p for a logged i_p; the true torque is the
+    logged one over torque_sensor_gain. The standard errors enter the map's.
+    """
+
+    epsilon: float = setting(in_range(0.0, 10.0, low_open=True), "mean current-sensor gain error, (0, 10]", 1.0)
+    epsilon_std: float = setting(in_range(0.0, 10.0), "its standard error, [0, 10]", 0.0)
+    alpha: tuple[float, ...] = setting(all_of(_THREE, in_range(0.0, 10.0, low_open=True)),
+                                       "scale imbalance per phase, three values in (0, 10]", (1.0, 1.0, 1.0))
+    alpha_std: tuple[float, ...] = setting(all_of(_THREE, in_range(0.0, 10.0)), "their standard errors, three "
+                                           "values in [0, 10]", (0.0, 0.0, 0.0))
+    beta_a: tuple[float, ...] = setting(all_of(_THREE, in_range(-1e3, 1e3)), "offset error per phase, A, three "
+                                        "values within +-1e3", (0.0, 0.0, 0.0))
+    beta_std_a: tuple[float, ...] = setting(all_of(_THREE, in_range(0.0, 1e3)), "their standard errors, A, three "
+                                            "values in [0, 1e3]", (0.0, 0.0, 0.0))
+    torque_sensor_gain: float = setting(in_range(0.0, 10.0, low_open=True), "delta = g_t / g*_t, (0, 10]", 1.0)
+    torque_sensor_gain_std: float = setting(in_range(0.0, 10.0), "its standard error, [0, 10]", 0.0)
+
+    @staticmethod
+    def parse(table, source: str, section: str) -> SensorErrors:
+        """From a TOML table; each problem raises `ConfigError` naming ``source`` and the key."""
+        return parse_section(table, SensorErrors, source, section)
+
+    def toml_lines(self) -> list[str]:
+        """The keys that differ from the defaults, as TOML lines."""
+        default = SensorErrors()
+        return [f"{f.name} = {json.dumps(list(v) if isinstance(v, tuple) else v)}"
+                for f in dataclasses.fields(self) if (v := getattr(self, f.name)) != getattr(default, f.name)]
+
+
+@dataclass(frozen=True)
+class ScanData:
+    """A scan's samples in acquisition order.
+
+    Attributes
+    ----------
+    time_s : ndarray, shape (n,)
+    position_counts : ndarray, shape (n,)
+        Mechanical position in counts of [motor] counts_per_rev, real-valued, count 0 at the back-EMF table's 0.
+    direction : ndarray, shape (n,)
+        +1 while moving forward, -1 in reverse.
+    currents_a : ndarray, shape (n, 3), or None
+        Phase currents as the controller had them (commanded or measured), A.
+    torque_nm : ndarray, shape (n,), or None
+        The torque sensor's reading with today's g*_t, N m (a sensor that holds DC).
+    """
+
+    time_s: np.ndarray
+    position_counts: np.ndarray
+    direction: np.ndarray
+    currents_a: np.ndarray | None = None
+    torque_nm: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Scan:
+    """A scan folder in memory: the motor, its back-EMF table (N m / A, shape (counts_per_rev, 3)), the
+    calibration it ran with, the sensors' errors and the samples."""
+
+    path: Path
+    motor: MotorInfo
+    backemf_nm_per_a: np.ndarray
+    sensors: SensorCalibration | None
+    errors: SensorErrors
+    data: ScanData
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    """The reduction of a scan (`reduce_scan`), per count of one revolution (shape (counts_per_rev,)) in N m.
+
+    Attributes
+    ----------
+    source : "currents" or "torque"
+    position_torque_nm, position_torque_std_nm
+        tau_pos = -(h_+ + h_-) / 2 minus its mean, and its standard error.
+    cogging_nm, cogging_std_nm
+        tau_pos on the multiples of the cogging order (the cogging torque), and its standard error.
+    friction_nm, friction_std_nm
+        f = (h_+ - h_-) / 2: Coulomb friction plus hysteresis, per count.
+    orders : ndarray of int, shape (k,)
+        The cogging order's multiples up to counts_per_rev / 2.
+    coefficients_nm, coefficients_std_nm : ndarray, shape (k, 2)
+        tau_c = sum a_h cos(h theta) + b_h sin(h theta): (a_h, b_h) and their standard errors.
+    noise_std_nm : float
+        Scatter of one sample about its count's mean (pooled).
+    samples : (int, int)
+        Forward and reverse samples.
+    """
+
+    counts_per_rev: int
+    cogging_order: int
+    source: str
+    position_torque_nm: np.ndarray
+    position_torque_std_nm: np.ndarray
+    cogging_nm: np.ndarray
+    cogging_std_nm: np.ndarray
+    friction_nm: np.ndarray
+    friction_std_nm: np.ndarray
+    orders: np.ndarray
+    coefficients_nm: np.ndarray
+    coefficients_std_nm: np.ndarray
+    noise_std_nm: float
+    samples: tuple[int, int]
+
+    def to_json(self) -> dict:
+        """The scan result JSON (docs/standstill.md); its ``cogging`` reads as an identification's."""
+        count = list(range(self.counts_per_rev))
+        return finite_json({
+            "kind": "standstill_scan", "counts_per_rev": self.counts_per_rev, "cogging_order": self.cogging_order,
+            "source": self.source,
+            "cogging": {"count": count, "torque": self.cogging_nm.tolist(), "std": self.cogging_std_nm.tolist()},
+            "position_torque": {"count": count, "torque": self.position_torque_nm.tolist(),
+                                "std": self.position_torque_std_nm.tolist()},
+            "friction": {"count": count, "torque": self.friction_nm.tolist(), "std": self.friction_std_nm.tolist()},
+            "friction_mean_nm": float(self.friction_nm.mean()),
+            "cogging_harmonics": {"orders": self.orders.tolist(), "cos_nm": self.coefficients_nm[:, 0].tolist(),
+                                  "sin_nm": self.coefficients_nm[:, 1].tolist(),
+                                  "cos_std_nm": self.coefficients_std_nm[:, 0].tolist(),
+                                  "sin_std_nm": self.coefficients_std_nm[:, 1].tolist()},
+            "noise_std_nm": self.noise_std_nm,
+            "samples": {"forward": self.samples[0], "reverse": self.samples[1]},
+        })
+
+
+# ---------------------------------------------------------------- reading
+
+
+def read_scan(folder: str | Path) -> Scan:
+    """Read a scan folder: bench.toml (no [[trials]]) and backemf.csv as `read_bench_head` checks them,
+    scan.toml and its samples."""
+    from ilcpmac.bench.importer import LogLayout, read_log  # the importer writes scan folders
+
+    folder = Path(folder)
+    head = read_bench_head(folder)
+    path = folder / SCAN_FILE
+    if head.entries is not None:
+        raise BenchFormatError(f"{folder / BENCH_FILE}: a scan folder lists no [[trials]] ({SCAN_FILE} names "
+                               "its samples)")
+    data = read_toml(path, BenchFormatError)
+    if set(data) != {"scan"}:
+        raise BenchFormatError(f"{path}: needs exactly the table [scan], got {shown(sorted(data))}")
+    table = dict(data["scan"]) if isinstance(data["scan"], dict) else data["scan"]
+    name = table.pop("file", SCAN_DATA_FILE) if isinstance(table, dict) else None
+    if not (isinstance(name, str) and name and "/" not in name and "\\" not in name and name not in (".", "..")):
+        raise BenchFormatError(f"{path}: [scan] file: a file name in the folder, got {shown(name)}")
+    try:
+        errors = SensorErrors.parse(table, str(path), "scan")
+    except ConfigError as e:
+        raise BenchFormatError(str(e)) from None
+    samples = folder / name
+    if not samples.resolve().is_relative_to(folder.resolve()):
+        raise BenchFormatError(f"{path}: [scan] file: {name!r} leads outside the folder (refused)")
+    header = _header(samples)
+    kind = CURRENT_COLUMNS if set(CURRENT_COLUMNS) <= set(header) else (TORQUE_COLUMN,)
+    if (TORQUE_COLUMN in header) == (kind == CURRENT_COLUMNS):
+        raise BenchFormatError(f"{samples}: line 1: needs the columns {', '.join(CURRENT_COLUMNS)} or "
+                               f"{TORQUE_COLUMN}, not both (the header has {shown(header)})")
+    columns = read_log(samples, LogLayout(time="time", position="position", position_unit="counts",
+                                          position_counts_per_rev=head.motor.counts_per_rev,
+                                          phase_currents=CURRENT_COLUMNS if kind == CURRENT_COLUMNS else None,
+                                          torque=TORQUE_COLUMN if kind != CURRENT_COLUMNS else None,
+                                          direction="direction", kind="scan"))
+    scan = ScanData(columns["time"], columns["position"], columns["direction"],
+                    np.column_stack([columns[c] for c in CURRENT_COLUMNS]) if kind == CURRENT_COLUMNS else None,
+                    columns.get(TORQUE_COLUMN))
+    check_scan(scan, str(samples))
+    return Scan(folder, head.motor, head.backemf_nm_per_a, head.sensors, errors, scan)
+
+
+def _header(path: Path) -> list[str]:
+    """The column names on the first line of ``path`` (bounded read)."""
+    if not path.is_file():
+        raise BenchFormatError(f"{path}: no such file (named by {SCAN_FILE} [scan] file)")
+    try:
+        with open(path, "rb") as f:
+            line = f.readline(MAX_HEADER_BYTES)
+    except OSError as e:
+        raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
+    try:
+        return [n.strip() for n in line.decode("utf-8").strip().split(",")]
+    except UnicodeDecodeError:
+        raise BenchFormatError(f"{path}: line 1: the column names are not UTF-8 text") from None
+
+
+def check_scan(scan: ScanData, where: str) -> None:
+    """Directions of +-1, positions within 2^40 counts, currents and torque within a bench's bounds."""
+    n = scan.position_counts.size
+    if n > MAX_SCAN_ROWS:
+        raise BenchFormatError(f"{where}: {n} samples; a scan holds at most {MAX_SCAN_ROWS}")
+    bad = np.flatnonzero(np.abs(scan.direction) != 1)
+    if bad.size:
+        raise BenchFormatError(f"{where}: line {bad[0] + 2}: direction must be 1 (forward) or -1 (reverse), got "
+                               f"{scan.direction[bad[0]]:g}")
+    checks = [("position", scan.position_counts, 2.0**40)]
+    if scan.currents_a is not None:
+        checks.append(("current", np.abs(scan.currents_a).max(axis=1), MAX_CURRENT_A))
+    if scan.torque_nm is not None:
+        checks.append(("torque", scan.torque_nm, MAX_TORQUE_NM))
+    for name, values, bound in checks:
+        bad = np.flatnonzero(np.abs(values) > bound)
+        if bad.size:
+            raise BenchFormatError(f"{where}: line {bad[0] + 2}: {name} beyond +-{bound:g} (wrong unit or scale?)")
+
+
+# ---------------------------------------------------------------- reduction
+
+
+def _backemf_at(backemf_nm_per_a: np.ndarray, position_counts: np.ndarray) -> np.ndarray:
+    """K_p at real positions: the per-count table linearly interpolated, periodic, shape (n, 3)."""
+    cpr = backemf_nm_per_a.shape[0]
+    base = np.floor(position_counts)
+    frac = (position_counts - base)[:, None]
+    k = base.astype(np.int64) % cpr
+    return (1.0 - frac) * backemf_nm_per_a[k] + frac * backemf_nm_per_a[(k + 1) % cpr]
+
+
+def _holding(scan: Scan) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample the true holding torque h, N m, and its sensitivity to each sensor error times the error's
+    standard error (shape (n, j)): h = sum_p K_p (eps alpha_p i_p + beta_p), or torque / delta."""
+    d, e = scan.data, scan.errors
+    if d.torque_nm is not None:
+        h = d.torque_nm / e.torque_sensor_gain
+        return h, (-h * e.torque_sensor_gain_std / e.torque_sensor_gain)[:, None]
+    k = _backemf_at(scan.backemf_nm_per_a, d.position_counts)
+    alpha, beta = np.asarray(e.alpha), np.asarray(e.beta_a)
+    ki = k * d.currents_a
+    h = ki @ (e.epsilon * alpha) + k @ beta
+    sensitivity = np.column_stack([(ki @ alpha) * e.epsilon_std, e.epsilon * ki * np.asarray(e.alpha_std),
+                                   k * np.asarray(e.beta_std_a)])
+    return h, sensitivity
+
+
+def _binned(bins: np.ndarray, values: np.ndarray, cpr: int, hits: np.ndarray) -> np.ndarray:
+    """Per-count means of ``values`` (shape (n, m)), shape (cpr, m)."""
+    return np.column_stack([np.bincount(bins, weights=v, minlength=cpr) for v in values.T]) / hits[:, None]
+
+
+def _direction_means(scan: Scan, h: np.ndarray, sensitivity: np.ndarray, forward: bool, where: str
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One direction's holding torque per count at the count itself, its sensitivities, sample numbers and
+    squared residuals.
+
+    The samples of count c lie at c + d, |d| <= 1/2: their mean is h(c) + h'(c) mean(d) + h''(c) mean(d^2) / 2,
+    so the derivatives (central differences of the means) remove that bias, and the residuals the slope
+    within the count.
+    """
+    cpr = scan.motor.counts_per_rev
+    keep = (scan.data.direction > 0) if forward else (scan.data.direction < 0)
+    position = scan.data.position_counts[keep]
+    nearest = np.round(position)
+    bins = nearest.astype(np.int64) % cpr
+    offset = position - nearest
+    hits = np.bincount(bins, minlength=cpr).astype(float)
+    empty = np.flatnonzero(hits == 0)
+    if empty.size:
+        raise BenchFormatError(f"{where}: count {empty[0]} has no {'forward' if forward else 'reverse'} sample "
+                               f"({empty.size} counts lack one): a scan covers every count of a revolution in "
+                               "both directions")
+    means = _binned(bins, np.column_stack([h[keep], offset, offset**2, sensitivity[keep]]), cpr, hits)
+    m, d1, d2 = means[:, 0], means[:, 1], means[:, 2]
+    slope = (np.roll(m, -1) - np.roll(m, 1)) / 2.0
+    curvature = np.roll(m, -1) - 2.0 * m + np.roll(m, 1)
+    at_count = m - slope * d1 - curvature * d2 / 2.0
+    residual = h[keep] - m[bins] - slope[bins] * (offset - d1[bins])
+    return at_count, means[:, 3:], hits, residual**2
+
+
+def reduce_scan(scan: Scan) -> ScanResult:
+    """The position torque, cogging, friction and the cogging harmonics of a scan, with standard errors.
+
+    tau_pos = -(h_+ + h_-) / 2 minus its mean, f = (h_+ - h_-) / 2 per count. Standard errors: the
+    pooled scatter sigma^2 of one sample about its count's mean gives var = sigma^2 (1/n_+ + 1/n_-) / 4
+    per count; each sensor error's standard error adds its sensitivity (linear, correlated over counts)
+    in quadrature; the cogging band and its harmonics propagate both exactly (linear maps).
+    """
+    where = str(scan.path / SCAN_FILE)
+    cpr, order = scan.motor.counts_per_rev, scan.motor.cogging_order
+    h, sensitivity = _holding(scan)
+    n_forward = int(np.count_nonzero(scan.data.direction > 0))
+    if n_forward == 0 or n_forward == h.size:
+        raise BenchFormatError(f"{where}: only {'forward' if n_forward else 'reverse'} samples: friction and "
+                               "hysteresis cannot be cancelled (scan forward and back)")
+    up, s_up, n_up, r_up = _direction_means(scan, h, sensitivity, True, where)
+    down, s_down, n_down, r_down = _direction_means(scan, h, sensitivity, False, where)
+    dof = h.size - 2 * cpr
+    if dof < 1:
+        raise BenchFormatError(f"{where}: {h.size} samples for {cpr} counts in two directions: the scatter needs "
+                               f"more than {2 * cpr} (two samples per count and direction or more)")
+    noise_var = float((r_up.sum() + r_down.sum()) / dof)
+    position = -(up + down) / 2.0
+    position -= position.mean()
+    friction = (up - down) / 2.0
+    var = noise_var * (1.0 / n_up + 1.0 / n_down) / 4.0
+    systematic = -(s_up + s_down) / 2.0
+    systematic -= systematic.mean(axis=0)
+    band = harmonic_band(cpr, order, cpr // 2, order)
+    impulse = np.fft.irfft(band, n=cpr)  # the cogging band's circular impulse response
+    cogging = filtered(position, band)
+    cogging_noise = np.real(np.fft.ifft(np.fft.fft(var) * np.fft.fft(impulse**2)))
+    cogging_systematic = filtered(systematic, band[:, None])
+    orders = np.arange(order, cpr // 2 + 1, order)
+    c = harmonic_amplitudes(position)[orders]
+    theta = 2.0 * np.pi * np.arange(cpr) / cpr
+    weights = np.stack([np.cos(np.outer(orders, theta)), np.sin(np.outer(orders, theta))], axis=1)
+    weights *= np.where(2 * orders == cpr, 1.0, 2.0)[:, None, None] / cpr  # (k, 2, cpr): a_h, b_h = W tau
+    coefficient_var = weights**2 @ var + np.sum((weights @ systematic) ** 2, axis=-1)
+    return ScanResult(
+        cpr, order, "torque" if scan.data.torque_nm is not None else "currents",
+        position, np.sqrt(var + np.sum(systematic**2, axis=1)),
+        cogging, np.sqrt(np.maximum(cogging_noise, 0.0) + np.sum(cogging_systematic**2, axis=1)),
+        friction, np.sqrt(var + np.sum(((s_up - s_down) / 2.0) ** 2, axis=1)),
+        orders, np.column_stack([c.real, -c.imag]), np.sqrt(coefficient_var),
+        math.sqrt(noise_var), (n_forward, int(h.size - n_forward)))
+
+
+# ---------------------------------------------------------------- writing and identify
+
+
+def write_scan(folder: str | Path, motor: MotorInfo, backemf_nm_per_a: np.ndarray,
+               sensors: SensorCalibration | None, errors: SensorErrors, scan: ScanData) -> None:
+    """Write a scan folder: backemf.csv, scan.csv, scan.toml, then bench.toml last."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    write_backemf_csv(folder / "backemf.csv", backemf_nm_per_a)
+    values = scan.currents_a if scan.currents_a is not None else scan.torque_nm[:, None]
+    names = CURRENT_COLUMNS if scan.currents_a is not None else (TORQUE_COLUMN,)
+    body = format_rows(np.column_stack([scan.time_s, scan.position_counts, scan.direction, values]),
+                       np.array([7, 6, 0] + [6] * len(names)))
+    atomic_write(folder / SCAN_DATA_FILE, ",".join(BASE_COLUMNS + names).encode() + b"\n" + body)
+    atomic_write(folder / SCAN_FILE, "\n".join(["[scan]", f'file = "{SCAN_DATA_FILE}"', *errors.toml_lines(), ""]))
+    atomic_write(folder / BENCH_FILE, bench_toml_text(motor, sensors, []))
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
+def _truth_tables(folder: Path) -> dict[str, np.ndarray]:
+    """The "cogging" and "position_torque" tables of the folder's truth.json (a simulated scan's), if any."""
+    path = folder / TRUTH_FILE
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(read_bounded(path, 2**26, BenchFormatError))
+        return {key: np.asarray(data[key]["torque"], float) for key in ("cogging", "position_torque") if key in data}
+    except (ValueError, KeyError, TypeError) as e:
+        raise BenchFormatError(f"{path}: unreadable ({e})") from None
+
+
+def identify_scan(folder: str | Path, output: str | Path) -> list[str]:
+    """``ilcpmac identify SCAN_FOLDER``: reduce the scan, write the result JSON to ``output`` and return the
+    lines to print; with a truth.json (a simulated scan's), the RMS errors against it."""
+    folder = Path(folder)
+    result = reduce_scan(read_scan(folder))
+    truth_nm = _truth_tables(folder)
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    output.write_text(json.dumps(result.to_json(), indent=1, allow_nan=False))
+    r = result
+    lines = [f"standstill scan ({r.source}): {r.samples[0]} forward, {r.samples[1]} reverse samples",
+             f"scatter of one sample: {r.noise_std_nm:.3g} N m",
+             f"position torque: {1e3 * _rms(r.position_torque_nm):.4g} mN m RMS, "
+             f"± {1e3 * _rms(r.position_torque_std_nm):.2g} mN m per count",
+             f"cogging (orders {r.cogging_order}, {2 * r.cogging_order}, ...): {1e3 * _rms(r.cogging_nm):.4g} mN m "
+             f"RMS, ± {1e3 * _rms(r.cogging_std_nm):.2g} mN m per count",
+             f"friction and hysteresis: {r.friction_nm.mean():.4g} N m mean, {r.friction_nm.min():.4g} to "
+             f"{r.friction_nm.max():.4g}"]
+    for h, (a, b), (sa, sb) in zip(r.orders[:4], r.coefficients_nm, r.coefficients_std_nm):
+        lines.append(f"  harmonic {h}: cos {a:+.5f} ± {sa:.2g}, sin {b:+.5f} ± {sb:.2g} N m")
+    for key, estimate in (("cogging", r.cogging_nm), ("position_torque", r.position_torque_nm)):
+        true = truth_nm.get(key)
+        if true is not None and true.shape == estimate.shape and np.all(np.isfinite(true)) and np.any(true != true[0]):
+            true = np.asarray(true, float) - np.mean(true)
+            lines.append(f"vs truth: {key.replace('_', ' ')} RMS error {100 * _rms(estimate - true) / _rms(true):.3g} "
+                         f"% of its RMS")
+    lines.append(f"wrote {output}")
+    return lines
