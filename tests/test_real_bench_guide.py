@@ -1,0 +1,311 @@
+"""docs/real-bench.md runs: every command of the guide, in order, in an empty folder, with the simulated seed bench
+standing in for the motor.
+
+The stand-in: `ilcpmac emulate` of the small seed bench (1024 counts, the small campaign of campaign_helpers) is the
+bench target at both the rehearsal's 127.0.0.1:5025 and "your bench" at 10.0.0.5:5025; ``configs/`` holds the seed
+and real-bench configs made small the same way; the voltages of ``emf_log.csv``, the trials of ``my-bench`` and the
+logs ``run_2nm.csv``, ``run_4nm.csv`` are simulated. The guide's files (```python and ```toml blocks whose first
+line is ``# NAME``) are written as shown, except ``counts_per_rev``, kept at the stand-in's. Only the commands of
+NOT_RUN are not run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import select
+import shlex
+import shutil
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
+from conftest import COUNTS_PER_REV, REAL_BENCH_CONFIG, SEED_CONFIG, toml_text
+
+from ilcpmac.bench.format import write_backemf_csv
+from ilcpmac.bench.importer import read_mapping
+from ilcpmac.config import load_config
+from ilcpmac.model.tables import backemf_table
+from ilcpmac.sim.grid import grid_requests
+from ilcpmac.sim.simulator import Simulator
+
+GUIDE = Path(__file__).resolve().parents[1] / "docs" / "real-bench.md"
+BIN = Path(sys.executable).parent
+#: commands the test does not run, with the reason
+NOT_RUN = {
+    "python3 -m venv .venv && .venv/bin/pip install -e .": "installs the project; the test runs in its environment",
+}
+#: programs the guide's commands may start; a command starting another fails test_every_command_is_run_or_listed
+PROGRAMS = {"ilcpmac", "python", "cp", "sed"}
+#: the guide's bench addresses, all served by the one emulator
+ADDRESSES = ("127.0.0.1:5025", "10.0.0.5:5025")
+#: the guide's log layout (my-mapping.toml): 10 kHz rows, time in ms, a 16-bit single-turn position
+LOG_RATE_HZ = 10_000.0
+LOG_COUNTS_PER_REV = 2**16
+LOG_HEADER = "t_ms,pos,ia_ref,ib_ref,ic_ref,torque_nm"
+#: the imported logs: file -> (torque set point, N m; speed, Hz), as the guide's [[points]]
+LOGS = {"run_2nm.csv": (2.0, 0.6), "run_4nm.csv": (4.0, 0.6)}
+#: the open-circuit log: speed, Hz, and its slow ripple; duration, s; rate, Hz; voltage noise, V
+EMF_SPEED_HZ, EMF_RIPPLE, EMF_DURATION_S, EMF_RATE_HZ, EMF_NOISE_V = 5.0, 0.003, 5.0, 20_000.0, 0.01
+#: the fitted back-EMF table's largest error against the truth, relative to its peak (0.05 % measured)
+BACKEMF_TOLERANCE = 2e-3
+COMMAND_TIMEOUT_S = 300
+
+
+@dataclasses.dataclass(frozen=True)
+class Command:
+    line: str
+    error: str | None  # the error line the guide shows under it: the command must fail with it
+
+
+@dataclasses.dataclass(frozen=True)
+class File:
+    name: str
+    text: str
+
+
+def guide_steps(text: str) -> list[Command | File]:
+    """The guide's ```sh commands and named ```python / ```toml files, in order."""
+    steps: list[Command | File] = []
+    for lang, body in re.findall(r"^```(\w+)\n(.*?)^```$", text, flags=re.M | re.S):
+        lines = body.splitlines()
+        if lang in ("python", "toml") and lines and re.fullmatch(r"# [\w.-]+", lines[0]):
+            steps.append(File(lines[0][2:], body))
+        elif lang == "sh":
+            for line in filter(None, (raw.strip() for raw in lines)):
+                if line.startswith("# error: "):
+                    assert steps and isinstance(steps[-1], Command) and steps[-1].error is None, line
+                    steps[-1] = Command(steps[-1].line, line[2:])
+                elif not line.startswith("#"):
+                    steps.append(Command(line, None))
+    return steps
+
+
+@pytest.fixture(scope="module")
+def steps() -> list[Command | File]:
+    return guide_steps(GUIDE.read_text())
+
+
+def test_every_command_is_run_or_listed(steps):
+    commands = [s.line for s in steps if isinstance(s, Command)]
+    assert len(commands) >= 12
+    assert set(NOT_RUN) <= set(commands), "NOT_RUN lists a command the guide no longer has"
+    for line in commands:
+        if line not in NOT_RUN:
+            assert shlex.split(line)[0] in PROGRAMS, f"the test does not know how to run: {line}"
+    files = {s.name for s in steps if isinstance(s, File)}
+    assert files == {"fit_backemf.py", "probe_target.py", "excitation_tables.py", "my-motor.toml",
+                     "my-mapping.toml"}
+
+
+def test_the_guides_mapping_is_read_as_written(steps, seed_config, tmp_path):
+    mapping = next(s for s in steps if isinstance(s, File) and s.name == "my-mapping.toml")
+    model = seed_config.model
+    write_backemf_csv(tmp_path / "backemf.csv", backemf_table(model.winding, model.backemf, 4096))
+    (tmp_path / "my-mapping.toml").write_text(mapping.text)
+    read = read_mapping(tmp_path / "my-mapping.toml")
+    assert read.layout.position_counts_per_rev == LOG_COUNTS_PER_REV and read.motor.counts_per_rev == 4096
+    assert read.points == LOGS
+
+
+def emf_log(path: Path, model) -> np.ndarray:
+    """Open-circuit phase voltages e_p = K_p(theta) omega of ``model`` turned near EMF_SPEED_HZ with a slow speed
+    ripple, noisy, against an integer encoder count, as fit_backemf.py reads them; returns the true table."""
+    cpr, fine = model.encoder.counts_per_rev, 2**16
+    k_fine = backemf_table(model.winding, model.backemf, fine)
+    t = np.arange(int(EMF_DURATION_S * EMF_RATE_HZ)) / EMF_RATE_HZ
+    omega = 2 * np.pi * EMF_SPEED_HZ * (1 + EMF_RIPPLE * np.sin(2 * np.pi * 0.7 * t))
+    theta = 0.3 + np.cumsum(omega) / EMF_RATE_HZ
+    at = theta / (2 * np.pi) * fine
+    volts = np.stack([np.interp(at, np.arange(fine), k_fine[:, p], period=fine) for p in range(3)], 1) * omega[:, None]
+    volts += np.random.default_rng(13).normal(0.0, EMF_NOISE_V, volts.shape)
+    position = np.floor(theta / (2 * np.pi) * cpr)
+    np.savetxt(path, np.column_stack([t, position, volts]), delimiter=",", fmt="%.9g", comments="",
+               header="time_s,position_counts,v_a,v_b,v_c")
+    return backemf_table(model.winding, model.backemf, cpr)
+
+
+def test_fit_backemf_recovers_the_table(steps, small_model, tmp_path, write_config):
+    """The guide's script on voltages with speed ripple and noise: the table and its harmonics against the truth."""
+    script = next(s for s in steps if isinstance(s, File) and s.name == "fit_backemf.py")
+    (tmp_path / "fit_backemf.py").write_text(script.text)
+    truth = emf_log(tmp_path / "emf_log.csv", small_model)
+    config = write_config({"bench": {"counts_per_rev": COUNTS_PER_REV}}, name="my-motor.toml")
+    done = subprocess.run([sys.executable, "fit_backemf.py", "emf_log.csv", config.name, "backemf.csv"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
+    assert done.returncode == 0, done.stderr
+    fitted = np.loadtxt(tmp_path / "backemf.csv", delimiter=",", skiprows=1)[:, 1:]
+    assert np.abs(fitted - truth).max() < BACKEMF_TOLERANCE * np.abs(truth).max()
+    printed = tomllib.loads(done.stdout.split("\n", 1)[1])["bench"]["backemf"]
+    backemf = small_model.backemf
+    scale = 1 + np.mean(backemf.asymmetry)  # the fit's asymmetry has mean 0
+    assert np.allclose(printed["amplitudes_nm_per_a"][:4], np.array(backemf.amplitudes_nm_per_a) * scale, atol=2e-4)
+    assert np.allclose(printed["phases_rad"][:4], backemf.phases_rad, atol=0.02)
+    assert np.allclose(printed["asymmetry"], (1 + np.array(backemf.asymmetry)) / scale - 1, atol=1e-3)
+    backwards = tmp_path / "backwards.csv"
+    rows = np.loadtxt(tmp_path / "emf_log.csv", delimiter=",", skiprows=1)[:2000]
+    np.savetxt(backwards, rows[::-1], delimiter=",", header="t,p,a,b,c", comments="")
+    refused = subprocess.run([sys.executable, "fit_backemf.py", backwards.name, config.name, "x.csv"],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
+    assert refused.returncode != 0 and "runs backwards" in refused.stderr and not (tmp_path / "x.csv").exists()
+
+
+# ---- the whole guide
+
+
+class Stand:
+    """The stand-in for the engineer's motor, folder and bench: the files the guide's placeholders name, made
+    on first use, and the emulator serving the bench."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        (folder / "configs").mkdir()
+        for base in (SEED_CONFIG, REAL_BENCH_CONFIG):
+            data = tomllib.loads(base.read_text())
+            for table, values in SMALL_CAMPAIGN.items():
+                if table in data or base == SEED_CONFIG:
+                    data.setdefault(table, {}).update(values)
+            (folder / "configs" / base.name).write_text(toml_text(data))
+        self.config = load_config(folder / "configs" / SEED_CONFIG.name)
+        self.backend = simulator_backend(self.config)
+        self.emulator: subprocess.Popen | None = None
+        self.address: str | None = None
+        self.makers = {"emf_log.csv": self.emf_log, "my-bench": self.my_bench, "run_2nm.csv": self.logs,
+                       "run_4nm.csv": self.logs}
+
+    def emf_log(self) -> None:
+        self.emf_truth = emf_log(self.folder / "emf_log.csv", self.config.model)
+
+    def my_bench(self) -> None:
+        """The engineer's logged trials: the simulated example bench without its truth."""
+        shutil.copytree(self.folder / "example-bench", self.folder / "my-bench",
+                        ignore=shutil.ignore_patterns("truth.json"))
+
+    def logs(self) -> None:
+        """Grid trials of the stand-in logged at LOG_RATE_HZ in the guide's layout."""
+        cpr = COUNTS_PER_REV
+        requests = grid_requests(self.config, self.backend.describe().calibration, 11, 4)
+        simulator = Simulator(self.config.model)
+        for name, (torque, speed) in LOGS.items():
+            request = next(r for r in requests if (r.torque_setpoint_nm, r.speed_setpoint_hz) == (torque, speed))
+            trial = simulator.run_trial(request)
+            t = np.arange(np.ceil(trial.time_s[0] * LOG_RATE_HZ), trial.time_s[-1] * LOG_RATE_HZ) / LOG_RATE_HZ
+            counts = np.interp(t, trial.time_s, trial.count)
+            position = np.floor(counts * LOG_COUNTS_PER_REV / cpr) % LOG_COUNTS_PER_REV
+            values = [np.interp(t, trial.time_s, v) for v in (*trial.i_ref_a.T, trial.torque_nm)]
+            np.savetxt(self.folder / name, np.column_stack([t * 1e3, position, *values]), delimiter=",",
+                       fmt="%.10g", header=LOG_HEADER, comments="")
+
+    def write(self, file: File) -> None:
+        """A file of the guide: a script as shown; the config's keys merged into the copied template and the
+        mapping as shown, both at the stand-in's counts per revolution."""
+        path = self.folder / file.name
+        if file.name == "my-motor.toml":
+            data = tomllib.loads(path.read_text())
+            for table, values in tomllib.loads(file.text).items():
+                for key, value in values.items():
+                    if isinstance(value, dict):
+                        data[table].setdefault(key, {}).update(value)
+                    else:
+                        data.setdefault(table, {})[key] = value
+            data["bench"]["counts_per_rev"] = COUNTS_PER_REV
+            path.write_text(toml_text(data))
+        elif file.name == "my-mapping.toml":
+            assert file.text.count("counts_per_rev = 4096") == 1
+            path.write_text(file.text.replace("counts_per_rev = 4096", f"counts_per_rev = {COUNTS_PER_REV}"))
+        else:
+            path.write_text(file.text)
+
+    def backemf_fitted(self) -> None:
+        """The fitted table is the stand-in's within BACKEMF_TOLERANCE; then it becomes the very table the
+        emulator serves, as a real target serves the backemf.csv it is given."""
+        served = self.backend.describe().backemf_nm_per_a
+        fitted = np.loadtxt(self.folder / "backemf.csv", delimiter=",", skiprows=1)[:, 1:]
+        assert np.abs(fitted - self.emf_truth).max() < BACKEMF_TOLERANCE * np.abs(served).max()
+        assert np.array_equal(self.emf_truth, served)
+        write_backemf_csv(self.folder / "backemf.csv", served)
+
+    def start_emulator(self, line: str) -> None:
+        assert self.emulator is None and "--port 5025" in line
+        self.emulator = subprocess.Popen(shlex.split(line.replace("--port 5025", "--port 0")), cwd=self.folder,
+                                         env=environment(), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                         text=True)
+        deadline = time.monotonic() + 60
+        while self.address is None:
+            ready, _, _ = select.select([self.emulator.stdout], [], [], max(deadline - time.monotonic(), 0))
+            assert ready, "the emulator did not say where it listens within 60 s"
+            line = self.emulator.stdout.readline()
+            assert line, "the emulator stopped"
+            if line.startswith("listening on "):
+                self.address = line.split()[-1]
+
+    def stop(self) -> None:
+        if self.emulator is not None:
+            self.emulator.terminate()
+            try:
+                self.emulator.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.emulator.kill()
+                self.emulator.wait()
+
+    def run(self, command: Command) -> None:
+        if command.line.startswith("ilcpmac emulate "):
+            self.start_emulator(command.line)
+            return
+        for name, make in self.makers.items():
+            if re.search(rf"(^|\s){re.escape(name)}(\s|$)", command.line) and not (self.folder / name).exists():
+                make()
+        line = command.line
+        for address in ADDRESSES:
+            line = line.replace(address, self.address or address)
+        started = time.monotonic()
+        done = subprocess.run(line, shell=True, cwd=self.folder, env=environment(), capture_output=True, text=True,
+                              timeout=COMMAND_TIMEOUT_S)
+        print(f"{time.monotonic() - started:6.1f} s  {line}")
+        said = f"{command.line}\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+        if command.error is None:
+            assert done.returncode == 0, said
+        else:
+            pattern = ".*".join(re.escape(part) for part in command.error.split("..."))
+            assert done.returncode == 2, said
+            assert re.fullmatch(pattern, done.stderr.strip().splitlines()[-1]), said
+        if command.line.startswith("python fit_backemf.py "):
+            self.backemf_fitted()
+
+
+def environment() -> dict[str, str]:
+    """The commands' environment: this interpreter's `python` and `ilcpmac` first on the path, plots off-screen."""
+    return {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "MPLBACKEND": "Agg"}
+
+
+@pytest.mark.slow
+def test_the_guide_runs_top_to_bottom(steps, tmp_path):
+    assert (BIN / "ilcpmac").exists() and (BIN / "python").exists()
+    stand = Stand(tmp_path)
+    try:
+        for step in steps:
+            if isinstance(step, File):
+                stand.write(step)
+            elif step.line not in NOT_RUN:
+                stand.run(step)
+    finally:
+        stand.stop()
+    grid = (tmp_path / "grid" / "grid.csv").read_text().splitlines()
+    assert len(grid) == 1 + 4 and len(list((tmp_path / "grid").glob("excitation_*.csv"))) == 4
+    truth = json.loads((tmp_path / "example-bench" / "truth.json").read_text())["total_system_gain"]
+    for result, tolerance in (("my-bench.json", 0.005), ("imported.json", 0.02)):  # 0.1 % and 0.9 % measured
+        gain = json.loads((tmp_path / result).read_text())["total_system_gain"]
+        assert abs(gain / truth - 1) < tolerance, (result, gain, truth)
+    for run in ("rehearsal", "first"):
+        assert json.loads((tmp_path / "runs" / run / "summary.json").read_text())
+    assert (tmp_path / "runs" / "first" / "compensation.json").is_file()
+    assert list((tmp_path / "runs" / "first" / "plots").glob("*.png"))
+    assert sorted(p.name for p in (tmp_path / "fw").iterdir()) == ["ilcpmac_compensation.c", "ilcpmac_compensation.h"]
+    assert not (tmp_path / "runs" / "refused").exists()
