@@ -145,8 +145,9 @@ class TrialData:
         Sample time stamps, s.
     i_ref_a : ndarray, shape (n, 3)
         Current references I*_i tracked by the controller, A.
-    torque_nm : ndarray, shape (n,)
-        Torque-sensor output converted with the trial's g*_t, N m (drifts).
+    torque_nm : ndarray, shape (n,), or None
+        Torque-sensor output converted with the trial's g*_t, N m (drifts); None on a bench without
+        a torque sensor (docs/bench-format.md).
     i_meas_a : ndarray, shape (n, 3), optional
         Currents as the controller measures them, A.
     torque_true_nm, i_true_a, speed_true_rad_s : optional
@@ -161,7 +162,7 @@ class TrialData:
     count: np.ndarray
     time_s: np.ndarray
     i_ref_a: np.ndarray
-    torque_nm: np.ndarray
+    torque_nm: np.ndarray | None
     i_meas_a: np.ndarray | None = None
     torque_true_nm: np.ndarray | None = None
     i_true_a: np.ndarray | None = None
@@ -183,6 +184,14 @@ class TrialData:
 #: the scalar and vector keys of the result JSON (docs/bench-format.md) and the fields that hold them
 RESULT_KEYS = (("total_system_gain", "delta_epsilon"), ("torque_sensor_gain", "delta"), ("epsilon", "epsilon"),
                ("alpha", "alpha"), ("beta", "beta"), ("inertia_estimate", "inertia_estimate"))
+
+
+#: the keys of the result JSON's "encoder_error" object and the `IdentificationResult` fields that hold them
+ENCODER_ERROR_KEYS = (("error_counts", "encoder_error_counts"), ("error_std_counts", "encoder_error_std_counts"),
+                      ("eccentricity_counts", "encoder_eccentricity_counts"),
+                      ("eccentricity_std_counts", "encoder_eccentricity_std_counts"),
+                      ("eccentricity_phase_rad", "encoder_eccentricity_phase_rad"),
+                      ("line_rms_counts", "encoder_line_rms_counts"))
 
 
 def finite_json(value):
@@ -293,6 +302,16 @@ class IdentificationResult(MethodEstimates):
         JSON-able details: residue, reduced chi-square, identified sensor and loop dynamics.
     details : object
         The intermediate estimates (reduction, ch. 2, ch. 3, ch. 4, joint fit), for plots; not in the JSON.
+    torque_source : str
+        "sensor" (the torque sensor's column) or "encoder" (the torque from the encoder's time stamps).
+    encoder_error_counts, encoder_error_std_counts : ndarray, shape (counts_per_rev,), or None
+        The encoder's graduation error e_c per line (line c truly at (c + e_c) 2 pi / counts_per_rev,
+        mean zero) and its standard error, counts; None when not identified (the reason in ``messages``).
+    encoder_eccentricity_counts, encoder_eccentricity_std_counts, encoder_eccentricity_phase_rad : float or None
+        Its once-per-revolution part A sin(2 pi c / counts_per_rev + phase): A and its standard error, counts,
+        and the phase, rad.
+    encoder_line_rms_counts : float or None
+        The RMS of the rest (line to line), its noise removed, counts.
     """
 
     current_loop: CurrentLoop | None = None
@@ -301,6 +320,13 @@ class IdentificationResult(MethodEstimates):
     messages: tuple = ()
     diagnostics: dict = field(default_factory=dict)
     details: object = field(default=None, compare=False, repr=False)
+    torque_source: str = "sensor"
+    encoder_error_counts: np.ndarray | None = field(default=None, repr=False)
+    encoder_error_std_counts: np.ndarray | None = field(default=None, repr=False)
+    encoder_eccentricity_counts: float | None = None
+    encoder_eccentricity_std_counts: float | None = None
+    encoder_eccentricity_phase_rad: float | None = None
+    encoder_line_rms_counts: float | None = None
 
     @property
     def current_loop_bandwidth_per_phase_hz(self) -> tuple | None:
@@ -333,6 +359,10 @@ class IdentificationResult(MethodEstimates):
         out["current_loop_delay_s"] = None if loop is None else loop.delay_s
         out["methods"] = {name: {k: v for k, v in estimates.to_json().items() if k != "cogging"}
                           for name, estimates in self.methods.items()}
+        out["torque_source"] = self.torque_source
+        out["encoder_error"] = None if self.encoder_error_counts is None else {
+            "count": list(range(self.encoder_error_counts.size)),
+            **{key: _json_value(getattr(self, name)) for key, name in ENCODER_ERROR_KEYS}}
         out["diagnostics"] = self.diagnostics
         out["messages"] = list(self.messages)
         return finite_json(out)
@@ -353,7 +383,11 @@ class IdentificationResult(MethodEstimates):
 
         loop = None if tau is None else CurrentLoop(tau, data.get("current_loop_delay_s") or 0.0)
         calibration = data.get("calibration")
+        encoder = data.get("encoder_error") or {}
         return cls(**cls.fields_from_json(data), current_loop=loop,
                    methods={name: MethodEstimates.from_json(m) for name, m in (data.get("methods") or {}).items()},
                    calibration=None if calibration is None else SensorCalibration.from_json(calibration),
-                   messages=tuple(data.get("messages") or ()), diagnostics=data.get("diagnostics") or {})
+                   messages=tuple(data.get("messages") or ()), diagnostics=data.get("diagnostics") or {},
+                   torque_source=data.get("torque_source") or "sensor",
+                   **{name: _from_json_value(encoder.get(key), key.startswith("error"))
+                      for key, name in ENCODER_ERROR_KEYS})

@@ -168,6 +168,23 @@ def test_round_trip_without_optional_parts(tmp_path):
     assert_round_trip(back.trials[0], trial)
 
 
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_round_trip_without_torque_sensor(tmp_path, suffix):
+    """No torque column, [motor] torque_sensor = false and the timer resolution, in either format."""
+    count = np.array([0, 1, 3])
+    electrical = 2 * np.pi * (count[:, None] / 4 - np.arange(3) / 3)
+    trial = TrialData(torque_setpoint_nm=1.5, speed_setpoint_hz=0.5, count=count,
+                      time_s=np.array([0.0, 0.5, 1.5]), i_ref_a=np.sin(electrical) / 7, torque_nm=None)
+    backemf = np.sin(2 * np.pi * (np.arange(4)[:, None] / 4 - np.arange(3) / 3 + 0.1))
+    motor = MotorInfo(1, 6, 4, 0.5, torque_sensor=False, timer_resolution_s=2e-6)
+    write_bench(tmp_path, Bench(motor, backemf, None, (trial,), ("only" + suffix,)))
+    assert "torque_sensor = false\ntimer_resolution_s = 2e-06\n" in (tmp_path / "bench.toml").read_text()
+    back = read_bench(tmp_path)
+    assert back.motor == motor and back.trials[0].torque_nm is None
+    assert_round_trip(back.trials[0], trial)
+    assert as_written(trial).torque_nm is None
+
+
 @pytest.mark.parametrize("edit, message", [
     # missing keys
     (("bench.toml", "slots = 3\n", ""), r"bench\.toml: \[motor\]: missing key 'slots'"),

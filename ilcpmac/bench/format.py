@@ -26,6 +26,8 @@ from ilcpmac.records import SensorCalibration, TrialData
 
 BENCH_FILE = "bench.toml"
 TRIAL_COLUMNS = ("count", "time", "i_ref_a", "i_ref_b", "i_ref_c", "torque")
+#: the column a bench without a torque sensor ([motor] torque_sensor = false) leaves out, and must
+TORQUE_COLUMN = "torque"
 #: simulator-only columns (allowed and ignored by other readers)
 EXTRA_COLUMNS = {
     "i_meas_a": ("i_meas_a", 3),
@@ -57,6 +59,8 @@ MAX_SPAN_PER_ROW = 4
 MAX_COUNT = 2**53
 #: how far (a factor) the speed given by counts and time stamps may lie from the speed set point
 SPEED_TOLERANCE = 1.5
+#: largest timer resolution of the time stamps, s
+MAX_TIMER_RESOLUTION_S = 1e-3
 #: largest magnitudes of a bench's quantities, beyond any motor a bench drives: phase current, A;
 #: torque, N m; mechanical speed, Hz; and of a calibration's numbers (counts per ampere, counts, V / N m)
 MAX_CURRENT_A = 1e4
@@ -64,18 +68,34 @@ MAX_TORQUE_NM = 1e5
 MAX_SPEED_HZ = 1e3
 MAX_CALIBRATION = 1e9
 _MOTOR_KEYS = {"pole_pairs": int, "slots": int, "counts_per_rev": int, "inertia": float, "backemf_file": str}
+#: optional [motor] keys: whether the trials carry a torque column, and the time stamps' resolution, s
+_MOTOR_OPTIONAL_KEYS = {"torque_sensor": bool, "timer_resolution_s": float}
 _SENSOR_KEYS = {"current_scale": list, "current_offset": list, "torque_gain": float}
 _TRIAL_KEYS = {"file": str, "torque_setpoint": float, "speed_setpoint": float}
 
 
 @dataclass(frozen=True)
 class MotorInfo:
-    """The [motor] table of bench.toml."""
+    """The [motor] table of bench.toml.
+
+    Attributes
+    ----------
+    pole_pairs, slots, counts_per_rev : int
+    inertia_kgm2 : float
+        J, kg m^2.
+    torque_sensor : bool
+        Whether the trials carry the torque sensor's column (docs/bench-format.md).
+    timer_resolution_s : float or None
+        The time stamps' resolution, s (None: not stated; `ilcpmac.identify.encoder.timer_resolution_s`
+        then reads it off the stamps).
+    """
 
     pole_pairs: int
     slots: int
     counts_per_rev: int
     inertia_kgm2: float
+    torque_sensor: bool = True
+    timer_resolution_s: float | None = None
 
     @property
     def cogging_order(self) -> int:
@@ -122,7 +142,8 @@ def _table_value(table: dict, key: str, kind: type, where: str):
             raise BenchFormatError(f"{where}: key {key!r} must be a positive integer, got {value!r}")
         return value
     if not isinstance(value, kind):
-        raise BenchFormatError(f"{where}: key {key!r} must be a {kind.__name__}, got {value!r}")
+        article = "true or false" if kind is bool else f"a {kind.__name__}"
+        raise BenchFormatError(f"{where}: key {key!r} must be {article}, got {value!r}")
     return value
 
 
@@ -309,35 +330,48 @@ def _check_finite(path: Path, header: list[str], data: np.ndarray, line) -> None
 
 
 def read_trial(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: float,
-               max_rows: int = MAX_TRIAL_ROWS) -> TrialData:
+               max_rows: int = MAX_TRIAL_ROWS, torque_sensor: bool = True) -> TrialData:
     """Read one trial file: Parquet when its name ends in .parquet, else CSV (docs/bench-format.md).
 
-    A file larger than ``max_rows`` rows may take is refused before it is read.
+    A file larger than ``max_rows`` rows may take is refused before it is read. Without a
+    ``torque_sensor`` the file must have no torque column, with one it must.
     """
     if path.suffix != parquet.SUFFIX:
-        return read_trial_csv(path, torque_setpoint_nm, speed_setpoint_hz, max_rows)
+        return read_trial_csv(path, torque_setpoint_nm, speed_setpoint_hz, max_rows, torque_sensor)
     _regular_file(path, MAX_HEADER_BYTES + max_rows * MAX_ROW_BYTES)
     header, data = parquet.read_columns(path, max_rows, _KNOWN_COLUMNS)
     _check_finite(path, header, data, _parquet_row)
-    return _trial(path, header, data, torque_setpoint_nm, speed_setpoint_hz, _parquet_row)
+    return _trial(path, header, data, torque_setpoint_nm, speed_setpoint_hz, _parquet_row, torque_sensor)
 
 
 def read_trial_csv(path: Path, torque_setpoint_nm: float, speed_setpoint_hz: float,
-                   max_rows: int = MAX_TRIAL_ROWS) -> TrialData:
+                   max_rows: int = MAX_TRIAL_ROWS, torque_sensor: bool = True) -> TrialData:
     """Read one trial CSV (required columns in any order; others ignored unless known extras).
 
     A file larger than ``max_rows`` rows may take is refused before it is read.
     """
     header, data = _read_csv(path, max_rows)
-    return _trial(path, header, data, torque_setpoint_nm, speed_setpoint_hz, _csv_line)
+    return _trial(path, header, data, torque_setpoint_nm, speed_setpoint_hz, _csv_line, torque_sensor)
+
+
+def _torque_column_problem(has_column: bool, torque_sensor: bool) -> str | None:
+    """Why a trial with (or without) a torque column does not fit a bench with (or without) a torque sensor."""
+    if torque_sensor and not has_column:
+        return f"missing column {TORQUE_COLUMN!r} (a bench without a torque sensor says [motor] torque_sensor = false)"
+    if has_column and not torque_sensor:
+        return f"has a {TORQUE_COLUMN!r} column, but bench.toml says [motor] torque_sensor = false"
+    return None
 
 
 def _trial(path: Path, header: list[str], data: np.ndarray, torque_setpoint_nm: float, speed_setpoint_hz: float,
-           line) -> TrialData:
+           line, torque_sensor: bool) -> TrialData:
     """The trial in ``data`` (rows, one column per ``header`` name); ``line`` names row i of the file."""
-    missing = [c for c in TRIAL_COLUMNS if c not in header]
+    missing = [c for c in TRIAL_COLUMNS if c not in header and c != TORQUE_COLUMN]
     if missing:
         raise BenchFormatError(f"{path}: {line(-1)}: missing column {missing[0]!r}")
+    problem = _torque_column_problem(TORQUE_COLUMN in header, torque_sensor)
+    if problem:
+        raise BenchFormatError(f"{path}: {line(-1)}: {problem}")
     dup = sorted({c for c in header if header.count(c) > 1})
     if dup:
         raise BenchFormatError(f"{path}: {line(-1)}: column {_shortened(dup[0])!r} appears twice")
@@ -367,15 +401,15 @@ def _trial(path: Path, header: list[str], data: np.ndarray, torque_setpoint_nm: 
     return TrialData(
         torque_setpoint_nm=torque_setpoint_nm, speed_setpoint_hz=speed_setpoint_hz,
         count=count.astype(np.int64), time_s=col["time"],
-        i_ref_a=np.column_stack([col[f"i_ref_{ph}"] for ph in _PHASES]), torque_nm=col["torque"], **extras)
+        i_ref_a=np.column_stack([col[f"i_ref_{ph}"] for ph in _PHASES]), torque_nm=col.get(TORQUE_COLUMN), **extras)
 
 
 def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
     """A trial must carry data and fit the declared motor: its speed and its electrical period.
 
     Every value must be finite; no current reference may be zero throughout,
-    nor the torque constant. The counts and time stamps give the mean speed at
-    ``counts_per_rev``; it must lie within a factor SPEED_TOLERANCE of the
+    nor the torque (which it has exactly when ``motor.torque_sensor``). The
+    counts and time stamps give the mean speed at ``counts_per_rev``; it must lie within a factor SPEED_TOLERANCE of the
     speed set point (a wrong counts_per_rev or time unit does not). Over a
     revolution or more, the current references' largest harmonic must be the
     electrical one, ``pole_pairs`` per revolution.
@@ -385,12 +419,19 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
     BenchFormatError
         Naming ``where`` (the file) and the column or key at odds with the data.
     """
-    for name, values in (("time", trial.time_s), ("i_ref", trial.i_ref_a), ("torque", trial.torque_nm)):
-        bad = np.flatnonzero(~np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1))
-        if bad.size:
+    problem = _torque_column_problem(trial.torque_nm is not None, motor.torque_sensor)
+    if problem:
+        raise BenchFormatError(f"{where}: {problem}")
+    columns = [("time", trial.time_s), ("i_ref", trial.i_ref_a), ("torque", trial.torque_nm)]
+    for name, values in columns:
+        bad = np.flatnonzero(~np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1)) if values is not None \
+            else ()
+        if len(bad):
             raise BenchFormatError(f"{where}: sample {bad[0]}: {name} is not a finite number")
     for name, values, bound, unit in (("i_ref", trial.i_ref_a, MAX_CURRENT_A, "A"),
                                       ("torque", trial.torque_nm, MAX_TORQUE_NM, "N m")):
+        if values is None:
+            continue
         big = np.flatnonzero(np.abs(values.reshape(values.shape[0], -1)).max(axis=1) > bound)
         if big.size:
             raise BenchFormatError(f"{where}: sample {big[0]}: {name} beyond {bound:g} {unit}, more than any "
@@ -398,7 +439,7 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
     for p, phase in enumerate(_PHASES):
         if not np.any(trial.i_ref_a[:, p]):
             raise BenchFormatError(f"{where}: i_ref_{phase} is zero on every line")
-    if np.all(trial.torque_nm == trial.torque_nm[0]):
+    if trial.torque_nm is not None and np.all(trial.torque_nm == trial.torque_nm[0]):
         raise BenchFormatError(f"{where}: torque is {trial.torque_nm[0]:g} on every line (the sensor recorded "
                                "nothing)")
     cpr = motor.counts_per_rev
@@ -424,7 +465,7 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
 
 def _motor(table, where: str) -> tuple[MotorInfo, str]:
     """The [motor] table: each value within MOTOR_RANGES; and the back-EMF file's name."""
-    _check_keys(table, _MOTOR_KEYS, where)
+    _check_keys(table, _MOTOR_KEYS | _MOTOR_OPTIONAL_KEYS, where)
     values = {k: _table_value(table, k, kind, where) for k, kind in _MOTOR_KEYS.items() if kind is not str}
     for key, (low, high) in MOTOR_RANGES.items():
         if not low <= values[key] <= high:
@@ -432,7 +473,11 @@ def _motor(table, where: str) -> tuple[MotorInfo, str]:
     if values["counts_per_rev"] < 4 * values["pole_pairs"]:
         raise BenchFormatError(f"{where}: key 'counts_per_rev' must be at least 4 per electrical period "
                                f"(4 x pole_pairs = {4 * values['pole_pairs']}), got {values['counts_per_rev']}")
-    motor = MotorInfo(values["pole_pairs"], values["slots"], values["counts_per_rev"], values["inertia"])
+    torque_sensor = _table_value(table, "torque_sensor", bool, where) if "torque_sensor" in table else True
+    timer = _positive(table, "timer_resolution_s", where, MAX_TIMER_RESOLUTION_S) \
+        if "timer_resolution_s" in table else None
+    motor = MotorInfo(values["pole_pairs"], values["slots"], values["counts_per_rev"], values["inertia"],
+                      torque_sensor, timer)
     return motor, _relative_name(table, "backemf_file", where)
 
 
@@ -516,7 +561,7 @@ def read_bench(folder: str | Path) -> Bench:
         if real in seen:
             raise BenchFormatError(f"{where}: file {name!r} is listed twice (also [[trials]] #{seen[real]})")
         seen[real] = i
-        trial = read_trial(path, torque, speed, max_rows)
+        trial = read_trial(path, torque, speed, max_rows, motor.torque_sensor)
         check_trial(trial, motor, str(path))
         trials.append(trial)
         files.append(name)
@@ -556,7 +601,12 @@ def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
     m = motor
     lines = ["[motor]",
              f"pole_pairs = {m.pole_pairs}", f"slots = {m.slots}", f"counts_per_rev = {m.counts_per_rev}",
-             f"inertia = {_toml_value(m.inertia_kgm2)}", f"backemf_file = {_toml_value(backemf_file)}", ""]
+             f"inertia = {_toml_value(m.inertia_kgm2)}", f"backemf_file = {_toml_value(backemf_file)}"]
+    if not m.torque_sensor:
+        lines.append("torque_sensor = false")
+    if m.timer_resolution_s is not None:
+        lines.append(f"timer_resolution_s = {_toml_value(m.timer_resolution_s)}")
+    lines.append("")
     if sensors is not None:
         lines += ["[sensors]", *(f"{key} = {_toml_value(value)}" for key, value in sensors.to_json().items()), ""]
     for name, torque, speed in trials:
@@ -577,8 +627,9 @@ def _trial_columns(trial: TrialData) -> list[tuple[list[str], str, int]]:
     Times are written to 0.1 us, currents, torques and speeds to 1e-6 of
     their unit (far below any sensor's noise: the rounding adds 3e-7 RMS).
     """
-    columns = [(["count"], "count", 0), (["time"], "time_s", 7),
-               ([f"i_ref_{ph}" for ph in _PHASES], "i_ref_a", 6), (["torque"], "torque_nm", 6)]
+    columns = [(["count"], "count", 0), (["time"], "time_s", 7), ([f"i_ref_{ph}" for ph in _PHASES], "i_ref_a", 6)]
+    if trial.torque_nm is not None:
+        columns.append(([TORQUE_COLUMN], "torque_nm", 6))
     for prefix, (attr, width) in EXTRA_COLUMNS.items():
         if getattr(trial, attr) is not None:
             columns.append((_column_names(prefix, width), attr, 6))

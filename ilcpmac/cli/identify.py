@@ -16,6 +16,14 @@ TRUTH_FILE = "truth.json"
 
 #: longest 'value ± std' at full precision; a longer one (extreme magnitudes) is shortened to fit 80 columns
 CELL_CHARACTERS = 16
+#: what a cell shows for an estimate its torque source cannot give (the reason in the table's caption)
+NOT_IDENTIFIED = "not identified"
+#: the lines a result on the encoder-derived torque cannot fill, and why
+NEEDS_A_SENSOR = ("delta*eps", "delta", "J* (kg m²)")
+#: the encoder error's lines: label, `IdentificationResult` field (with a ``_std`` one or None), comparison
+ENCODER_LINES = (("enc. 1x (cnt)", "encoder_eccentricity_counts", "encoder_eccentricity_std_counts", "rel"),
+                 ("enc. 1x (rad)", "encoder_eccentricity_phase_rad", None, "abs"),
+                 ("enc. lines (cnt)", "encoder_line_rms_counts", None, "rel"))
 
 
 def _cell(value, std) -> str:
@@ -35,10 +43,11 @@ def _rms(values) -> float:
 
 
 def _error(estimate, truth, kind: str) -> str:
-    """The estimate's error against the truth: "rel" in %, "abs" as a difference, "rms" as RMS % of the truth's."""
+    """The estimate's error against the truth: "rel" in % (a difference against a zero truth), "abs" as a
+    difference, "rms" as RMS % of the truth's."""
     if estimate is None or truth is None:
         return "-"
-    if kind == "abs":
+    if kind == "abs" or (kind == "rel" and truth == 0):
         return f"{estimate - truth:+.2g}"
     if kind == "rms":
         return "-" if len(estimate) != len(truth) else f"{100 * _rms(estimate - truth) / _rms(truth):.2g} % RMS"
@@ -67,10 +76,17 @@ def _rows(result, columns: list[str]) -> list[tuple[str, object, str, list]]:
                   for m in estimates]))
     loop = result.current_loop_bandwidth_per_phase_hz  # the joint fit's
     if loop is None:
-        return rows + [("loop (Hz)", None, "rel", [(None, None, None)] * len(columns))]
-    return rows + [(f"loop {phase} (Hz)", loop[p], "rel",
-                    [(loop[p], None, loop[p]) if name in ("joint", "result") else (None, None, None)
-                     for name in columns]) for p, phase in enumerate("abc")]
+        rows.append(("loop (Hz)", None, "rel", [(None, None, None)] * len(columns)))
+    else:
+        rows += [(f"loop {phase} (Hz)", loop[p], "rel",
+                  [(loop[p], None, loop[p]) if name in ("joint", "result") else (None, None, None)
+                   for name in columns]) for p, phase in enumerate("abc")]
+    if result.torque_source == "encoder" or result.encoder_error_counts is not None:
+        for label, name, std_name, kind in ENCODER_LINES:  # the joint fit's residual gives it
+            value, std = getattr(result, name), None if std_name is None else getattr(result, std_name)
+            rows.append((label, value, kind, [(value, std, value) if column in ("joint", "result")
+                                              else (None, None, None) for column in columns]))
+    return rows
 
 
 def read_truth(bench_dir: Path):
@@ -93,13 +109,22 @@ def estimates_table(result, truth=None) -> Table:
 
     One line per phase, so that the table fits 80 columns. The cogging line gives the RMS of the cogging
     torque (mN m) and, against the truth, the RMS of the difference relative to the truth's RMS; gains are
-    compared in relative %, alpha and beta as differences; the current loop is the joint method's.
+    compared in relative %, alpha and beta as differences; the current loop is the joint method's. On the
+    encoder-derived torque, the encoder error's once-per-revolution amplitude and phase and its line-to-line
+    RMS follow, and what needs a torque sensor reads "not identified", the reasons in the caption.
     """
     import numpy as np
 
     columns = list(result.methods) or ["result"]
+    encoder = result.torque_source == "encoder"
+    caption = None
+    if encoder:
+        caption = (f"torque from the encoder's time stamps, J given; {NOT_IDENTIFIED}: "
+                   f"{', '.join(NEEDS_A_SENSOR)} (no torque sensor)")
+        if result.encoder_error_counts is None:
+            caption += ", the encoder error (see the warnings)"
     table = Table(title="identification (value ± standard error; * the result's)", title_justify="left",
-                  header_style="bold", padding=(0, 1))
+                  header_style="bold", padding=(0, 1), caption=caption, caption_justify="left")
     table.add_column("estimate")
     for name in columns:
         table.add_column(name if name == "result" else f"{name} method")
@@ -107,6 +132,9 @@ def estimates_table(result, truth=None) -> Table:
         table.add_column("vs truth")
         truths = {label: value for label, value, _, _ in _rows(truth, ["result"])}
     for label, value, kind, cells in _rows(result, columns):
+        if encoder and value is None and (label in NEEDS_A_SENSOR or label.startswith("enc.")):
+            table.add_row(label, *[NOT_IDENTIFIED] * len(cells), *([NOT_IDENTIFIED] if truth is not None else []))
+            continue
         row = [label] + [_cell(shown, std) + (" *" if len(columns) > 1 and raw is not None and value is not None
                                               and np.array_equal(raw, value) else "")
                          for shown, std, raw in cells]
@@ -124,7 +152,11 @@ def estimates_table(result, truth=None) -> Table:
               help="Folder for the report-style figures.")
 @click.option("--format", "plot_format", type=click.Choice(FIGURE_FORMATS), default="png", show_default=True,
               help="File format of the figures written by --plots.")
-def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format: str) -> None:
+@click.option("--torque-source", "torque_source", type=click.Choice(["sensor", "encoder"]), default=None,
+              help="The torque sensor's column, or the torque from the encoder's time stamps; default: the "
+                   "sensor where the bench has one.")
+def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format: str,
+             torque_source: str | None) -> None:
     """Identify the sensors, inertia and cogging torque of BENCH_DIR.
 
     Estimates delta*eps, delta, eps, alpha, beta, J* and the cogging torque with both methods, writes the
@@ -147,7 +179,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
         def advance(step: str, index: int, total: int) -> None:
             progress.update(task, description=step, completed=index + 1)
 
-        result = identify_bench(bench, advance)
+        result = identify_bench(bench, advance, torque_source)
         progress.update(task, description="done", completed=len(STEPS) + 1)
     for message in result.messages:
         console.print(f"[yellow]warning:[/yellow] {message}")

@@ -16,10 +16,13 @@ from ilcpmac.cli import console, main, progress_bar
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override [trials] seed.")
 @click.option("--revolutions", type=click.IntRange(min=1), default=None,
               help="Override [trials] revolutions (recorded, after the warm-up).")
-def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | None) -> None:
+@click.option("--no-torque-sensor", "no_torque_sensor", is_flag=True,
+              help="A bench without a torque sensor: no torque column, [motor] torque_sensor = false.")
+def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | None, no_torque_sensor: bool) -> None:
     """Simulate CONFIG's multisine set-point grid into a bench folder.
 
-    The folder also gets truth.json: the simulator's true values under the result keys.
+    The folder also gets truth.json: the simulator's true values under the result keys (the encoder's
+    line errors included).
     """
     import dataclasses
 
@@ -35,6 +38,7 @@ def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | N
     n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
     with progress_bar() as progress:
         task = progress.add_task("simulating trials", total=n)
-        bench = simulate_bench(cfg, out_dir, on_done=lambda i, trial: progress.advance(task))
+        bench = simulate_bench(cfg, out_dir, on_done=lambda i, trial: progress.advance(task),
+                               torque_sensor=not no_torque_sensor)
     samples = sum(t.n_samples for t in bench.trials)
     console.print(f"wrote {len(bench.trials)} trials ({samples} samples) and truth.json to {out_dir}")

@@ -12,6 +12,13 @@
 
 and returns an `IdentificationResult` holding both methods' estimates and,
 in its main fields, the better one of each.
+
+Without a torque sensor (or asked to), the torque is the encoder-derived one
+(`ilcpmac.identify.encoder`): the trials are reduced on it with the encoder's
+graduation error taken out, over three joint fits that model the brake
+(step 1); ch. 3 is skipped, and what only a torque sensor shows (its gain
+delta, delta*eps, J* = delta J, its high-pass and delay) is None with the
+reason in ``messages``.
 """
 
 from __future__ import annotations
@@ -24,12 +31,14 @@ import numpy as np
 from ilcpmac.bench.format import Bench
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
+from ilcpmac.identify.encoder import EncoderIdentification, identify_on_encoder
 from ilcpmac.identify.joint import JointEstimate, fit_joint
 from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
 from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.records import IdentificationResult, MethodEstimates, SensorCalibration
+from ilcpmac.signals.encoder_torque import encoder_error_summary
 
 __all__ = ["IdentificationDetails", "IdentificationResult", "MethodEstimates", "corrected_calibration",
            "identify_bench"]
@@ -39,6 +48,17 @@ STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-se
          "decoupling (ch. 4)")
 #: the loop the joint fit starts from when ch. 2 gives none: a 200 Hz lag
 DEFAULT_LOOP = CurrentLoop(np.full(3, 1.0 / (2.0 * np.pi * 200.0)), 0.0)
+#: where the torque comes from (`identify_bench`)
+TORQUE_SOURCES = ("sensor", "encoder")
+#: what the encoder-derived torque cannot show, and why
+NOT_IDENTIFIED_WITHOUT_SENSOR = (
+    "torque-sensor gain (ch. 3): not identified - the torque comes from the encoder (no sensor reading): delta, "
+    "delta*eps and J* = delta J need a torque sensor; eps is the gain to the true torque",
+    "torque-sensor high-pass and delay: not identified - no sensor reading (the encoder-derived torque passes "
+    "neither)",
+    "Coulomb friction: not identified - the encoder sees b Omega + C only (the mean torque): taken as 0 in each "
+    "trial's brake b = mean torque / Omega",
+)
 
 
 @dataclass(frozen=True)
@@ -50,6 +70,7 @@ class IdentificationDetails:
     joint: JointEstimate | None
     sensor: SensorGainEstimate | None
     decoupling: DecouplingEstimate | None
+    encoder: EncoderIdentification | None = None
 
 
 def _attempt(messages: list, step: str, compute: Callable):
@@ -117,7 +138,8 @@ def _joint_method(joint: JointEstimate | None, sensor: SensorGainEstimate | None
         joint.cogging_table_nm(counts_per_rev) if joint else None)
 
 
-def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | None = None) -> IdentificationResult:
+def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | None = None,
+                   torque_source: str | None = None) -> IdentificationResult:
     """Identify delta*eps, delta, eps, alpha, beta, J* and the cogging torque of a bench folder.
 
     Parameters
@@ -126,55 +148,144 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         A bench folder in memory (`ilcpmac.bench.format.read_bench`).
     progress : callable, optional
         ``progress(step, index, total)`` before each step of STEPS.
+    torque_source : {"sensor", "encoder"}, optional
+        Where the torque comes from: the torque sensor's column, or the encoder's time stamps (also on a
+        bench with a sensor, to compare); None: "sensor" when the bench has a torque sensor, else "encoder".
 
     Raises
     ------
     IdentificationError
-        When no trial can be used or nothing at all can be estimated. An
-        estimate that is impossible on its own is reported in ``messages``.
+        When no trial can be used or nothing at all can be estimated, or for a "sensor" source on a
+        bench without one. An estimate that is impossible on its own is reported in ``messages``.
     """
     def step(index: int) -> None:
         if progress is not None:
             progress(STEPS[index], index, len(STEPS))
 
+    source = torque_source or ("sensor" if bench.motor.torque_sensor else "encoder")
+    if source not in TORQUE_SOURCES:
+        raise IdentificationError(f"torque source must be one of {', '.join(TORQUE_SOURCES)}, got {source!r}")
+    if source == "sensor" and not bench.motor.torque_sensor:
+        raise IdentificationError("torque source 'sensor': the bench has no torque sensor ([motor] torque_sensor "
+                                  "= false); use the encoder")
     step(0)
-    tables = reduce_bench(bench)
-    messages = list(tables.messages)
+    encoder = None
+    if source == "encoder":
+        encoder = _encoder_tables(bench)
+        tables = encoder.tables
+        messages = [*tables.messages, *encoder.messages]
+    else:
+        tables = reduce_bench(bench)
+        messages = list(tables.messages)
     step(1)
     system = _attempt(messages, STEPS[1], lambda: estimate_system_gain(tables))
     step(2)
-    joint = _attempt(messages, STEPS[2],
-                     lambda: fit_joint(tables, system.loop if system is not None else DEFAULT_LOOP))
+    if encoder is not None:
+        joint = encoder.joint
+    else:
+        joint = _attempt(messages, STEPS[2],
+                         lambda: fit_joint(tables, system.loop if system is not None else DEFAULT_LOOP))
     step(3)
     band = joint.sets.fit.max() if joint else (system.harmonics.max() if system else 2 * bench.motor.cogging_order)
-    sensor = _attempt(messages, STEPS[3], lambda: estimate_sensor_gain(
-        tables, int(band), None if joint is None else joint.sensor_response))
+    if encoder is not None:
+        sensor = None
+        messages += NOT_IDENTIFIED_WITHOUT_SENSOR
+    else:
+        sensor = _attempt(messages, STEPS[3], lambda: estimate_sensor_gain(
+            tables, int(band), None if joint is None else joint.sensor_response))
     step(4)
     decoupling = None if system is None else _attempt(messages, STEPS[4],
                                                       lambda: decouple(tables, system.delta_epsilon))
     if system is None and joint is None and sensor is None:
         raise IdentificationError("nothing can be estimated: " + "; ".join(messages))
+    messages += [w for estimate in (joint, system, decoupling) if estimate is not None for w in estimate.warnings]
 
-    report = _finite_estimates(_report_method(system, sensor, decoupling), "report method", messages)
-    joint_estimates = _finite_estimates(_joint_method(joint, sensor, bench.motor.counts_per_rev), "joint method",
-                                        messages)
+    if encoder is None:
+        report = _report_method(system, sensor, decoupling)
+        joint_estimates = _joint_method(joint, sensor, bench.motor.counts_per_rev)
+    else:
+        report = _without_sensor(_report_method(system, _UNIT_SENSOR, decoupling))
+        joint_estimates = _without_sensor(_joint_method(joint, _UNIT_SENSOR, bench.motor.counts_per_rev))
+    report = _finite_estimates(report, "report method", messages)
+    joint_estimates = _finite_estimates(joint_estimates, "joint method", messages)
     best = {name: getattr(joint_estimates, name) if getattr(joint_estimates, name) is not None
             else getattr(report, name) for name in MethodEstimates.__dataclass_fields__}
     calibration = None
-    if bench.sensors is not None and all(best[k] is not None for k in ("epsilon", "alpha", "beta", "delta")):
-        calibration = corrected_calibration(bench.sensors, best["epsilon"], best["alpha"], best["beta"],
-                                            best["delta"])
+    delta = 1.0 if encoder is not None else best["delta"]
+    if bench.sensors is not None and delta is not None and all(best[k] is not None
+                                                                 for k in ("epsilon", "alpha", "beta")):
+        calibration = corrected_calibration(bench.sensors, best["epsilon"], best["alpha"], best["beta"], delta)
         if not all(np.all(np.isfinite(v)) for v in vars(calibration).values()):
             messages.append("calibration: not finite (a gain estimate is zero) - not reported")
             calibration = None
+        elif encoder is not None:
+            messages.append("calibration: torque_gain left as bench.toml's (no torque sensor reading)")
     loop = None
     if joint is not None and not joint.loop.is_ideal and np.all(np.isfinite(joint.loop.bandwidth_hz)):
         loop = joint.loop
+    diagnostics = _diagnostics(tables, system, joint, sensor)
+    if encoder is not None:
+        diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
     return IdentificationResult(
         **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
-        messages=tuple(messages),
-        diagnostics=_diagnostics(tables, system, joint, sensor),
-        details=IdentificationDetails(tables, system, joint, sensor, decoupling))
+        messages=tuple(messages), diagnostics=diagnostics,
+        details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
+        torque_source=source, **_encoder_error_fields(encoder))
+
+
+class _UnitSensor:
+    """The encoder-derived torque's "sensor": gain 1 by construction, not an estimate (`_without_sensor`)."""
+
+    delta = corrected_delta = 1.0
+    delta_std = corrected_delta_std = 0.0
+    inertia = inertia_std = corrected_inertia = corrected_inertia_std = None
+
+
+_UNIT_SENSOR = _UnitSensor()
+
+
+def _without_sensor(estimates: MethodEstimates) -> MethodEstimates:
+    """A method's estimates on the encoder-derived torque: what needs a torque sensor made None."""
+    return replace(estimates, delta_epsilon=None, delta_epsilon_std=None, delta=None, delta_std=None,
+                   inertia_estimate=None, inertia_estimate_std=None)
+
+
+def _encoder_tables(bench: Bench) -> EncoderIdentification:
+    """`identify_on_encoder` with the joint fit from the default loop; the last fit's failure in its messages."""
+    failures: list[str] = []
+
+    def fit(tables: BenchTables) -> JointEstimate | None:
+        failures.clear()
+        return _attempt(failures, STEPS[2], lambda: fit_joint(tables, DEFAULT_LOOP))
+
+    encoder = identify_on_encoder(bench, fit)
+    return replace(encoder, messages=(*encoder.messages, *failures))
+
+
+def _encoder_error_fields(encoder: EncoderIdentification | None) -> dict:
+    """The `IdentificationResult` fields of the encoder error (none without one)."""
+    if encoder is None or encoder.line_errors_counts is None:
+        return {}
+    variance = encoder.encoder_error_variance_counts2
+    amplitude, amplitude_std, phase, line_rms = encoder_error_summary(encoder.encoder_error_counts, variance)
+    std = float(np.sqrt(np.sum(variance[1:]) / 2.0))
+    return {"encoder_error_counts": encoder.line_errors_counts,
+            "encoder_error_std_counts": np.full(encoder.line_errors_counts.size, std),
+            "encoder_eccentricity_counts": amplitude, "encoder_eccentricity_std_counts": amplitude_std,
+            "encoder_eccentricity_phase_rad": phase, "encoder_line_rms_counts": line_rms}
+
+
+def _encoder_diagnostics(diagnostics: dict, bench: Bench, encoder: EncoderIdentification) -> dict:
+    """``diagnostics`` with the sensor's dynamics (not identified) as None and the encoder path's details."""
+    joint = diagnostics.get("joint")
+    if joint is not None:
+        joint.update(dict.fromkeys(("torque_sensor_highpass_hz", "torque_sensor_highpass_std_hz",
+                                    "torque_sensor_delay_s")))
+    return {**diagnostics, "encoder": {
+        "inertia_given": bench.motor.inertia_kgm2, "timer_resolution_s": encoder.timer_resolution_s,
+        "harmonics": int(encoder.tables.trials[0].harmonic_variances_nm2.size - 1),
+        "brake_per_trial": [{"torque_setpoint": t.torque_setpoint_nm, "speed_setpoint": t.speed_setpoint_hz,
+                             "viscous_nm_s": float(b)} for t, b in zip(encoder.tables.trials, encoder.viscous_nm_s)]}}
 
 
 def corrected_calibration(sensors: SensorCalibration, epsilon: float, alpha: np.ndarray, beta_a: np.ndarray,
@@ -210,7 +321,8 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
             "harmonics_used": int(system.used.sum()),
             "median_coherence": float(np.median(system.coherence[system.used])),
             "loop_corrected_total_system_gain": system.loop_gain,
-            "loop_corner_hz": float(system.loop.bandwidth_hz[0])}
+            "loop_corner_hz": float(system.loop.bandwidth_hz[0]),
+            "structure_chi2": [float(c) for c in system.structure_chi2], "std_inflation": system.inflation}
     if joint is not None:
         out["joint"] = {
             "chi2_reduced": joint.chi2_reduced, "harmonics": [int(joint.sets.fit.min()), int(joint.sets.fit.max())],
@@ -219,7 +331,10 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
             "current_loop_delay_s": joint.loop.delay_s,
             "torque_sensor_highpass_hz": joint.highpass_hz, "torque_sensor_highpass_std_hz": joint.highpass_std,
             "torque_sensor_delay_s": joint.torque_delay_s, "winding_time_constant_s": joint.winding_time_constant_s,
-            "saturation_per_a2_over_delta2": joint.saturation_per_a2}
+            "saturation_per_a2_over_delta2": joint.saturation_per_a2,
+            "misfit": [{"family": g.label, "harmonics": [int(g.harmonics.min()), int(g.harmonics.max())],
+                        "chi2_reduced": g.chi2_reduced, "dof": g.dof, "std_inflation": g.inflation}
+                       for g in joint.misfit]}
     if sensor is not None:
         out["sensor_gain"] = {
             "inertia_per_set_point": [

@@ -35,8 +35,9 @@ The sensor's DC level and drift never enter: they were removed from the
 aperiodic part of each trial (`ilcpmac.identify.reduction`). The loop's time
 constants and delay, f_hp, L/R and D enter nonlinearly and are found by
 variable projection (the linear parameters and T are solved for at every
-step); standard errors come from the covariance sigma^2 (J^T J)^-1 of all
-parameters.
+step); standard errors come from the covariance (J^T J)^-1 of all
+parameters, inflated by the reduced chi-square of each family of harmonics
+that determines them (`_covariance`, `MisfitGroup`).
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
 SIGNIFICANT = 1e-3
+#: reduced chi-square of a harmonic family above which (and above its 99.9 % noise quantile) the fit is called off
+MISFIT_CHI2 = 1.5
 #: names of the nonlinear parameters, in order, and their typical sizes
 NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding_tau_s", "torque_delay_s")
 NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
@@ -76,6 +79,44 @@ class HarmonicSets:
     fit: np.ndarray
     table_free: np.ndarray
     cogging: np.ndarray
+
+
+@dataclass(frozen=True)
+class MisfitGroup:
+    """The joint fit's residual on one family of harmonics.
+
+    Attributes
+    ----------
+    label : str
+        The family: "electrical 1x-2x", "cogging", "other electrical" or "excitation".
+    harmonics : ndarray of int
+    chi2_reduced : float
+        Weighted residual sum of squares over its degrees of freedom (1 when only noise is left).
+    dof : float
+        Real values less the share of the parameters and of T(h) the family determines.
+    inflation : float
+        The largest factor by which its misfit alone widens a parameter's standard error.
+    """
+
+    label: str
+    harmonics: np.ndarray
+    chi2_reduced: float
+    dof: float
+    inflation: float
+
+    @property
+    def is_off(self) -> bool:
+        """Whether the residual holds structure the model lacks: chi2 beyond MISFIT_CHI2 and beyond noise."""
+        from scipy.stats import chi2
+
+        return self.chi2_reduced > max(MISFIT_CHI2, chi2.ppf(0.999, self.dof) / self.dof)
+
+    @property
+    def warning(self) -> str:
+        """One line: where the fit is off, by how much, and what it did to the standard errors."""
+        return (f"joint fit: residual chi2/dof {self.chi2_reduced:.3g} at the {self.label} harmonics "
+                f"{self.harmonics.min()}-{self.harmonics.max()} - the model misses structure there; standard "
+                f"errors inflated up to x{self.inflation:.2g}")
 
 
 @dataclass(frozen=True)
@@ -104,10 +145,15 @@ class JointEstimate:
         T(h), N m (measured), for every harmonic where it is free.
     cogging_harmonics : ndarray of int
     covariance : ndarray
-        Covariance of (LINEAR + NONLINEAR active) parameters, named in ``parameter_names``.
+        Covariance of (LINEAR + NONLINEAR active) parameters, named in ``parameter_names``, inflated
+        by the misfit of each harmonic family (`_covariance`).
+    bound_covariance : ndarray
+        (J^T J)^-1 with the measured noise alone: the Cramer-Rao bound of the model.
     parameter_names : tuple of str
     chi2_reduced : float
         Weighted residual sum of squares per degree of freedom (1 when only noise is left).
+    misfit : tuple of MisfitGroup
+        The residual per harmonic family.
     harmonic_response : ndarray, shape (n_trials, n_fit), complex
         Per trial and fit harmonic, the modelled response of the measured torque to
         the theoretical torque sum_p K_p I*_p (for plots).
@@ -129,8 +175,10 @@ class JointEstimate:
     position_table: dict
     cogging_harmonics: np.ndarray
     covariance: np.ndarray
+    bound_covariance: np.ndarray
     parameter_names: tuple
     chi2_reduced: float
+    misfit: tuple
     sets: HarmonicSets
 
     @property
@@ -140,8 +188,13 @@ class JointEstimate:
 
     @property
     def cramer_rao(self) -> np.ndarray:
-        """sigma^2 (J^T J)^-1 with sigma^2 the measured noise alone: the Cramer-Rao bound of the model."""
-        return self.covariance / max(self.chi2_reduced, 1.0)
+        """(J^T J)^-1 with the measured noise alone: the Cramer-Rao bound of the model."""
+        return self.bound_covariance
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """One line per harmonic family where the residual holds structure the model lacks."""
+        return tuple(group.warning for group in self.misfit if group.is_off)
 
     def std_of(self, weights_by_name: dict[str, float], covariance: np.ndarray | None = None) -> float:
         """Standard error of a linear combination of named parameters (``covariance`` defaults to the fit's)."""
@@ -190,6 +243,20 @@ class JointEstimate:
         return table_from_amplitudes(amplitudes, counts_per_rev)
 
 
+def misfit_groups(fit: np.ndarray, pole_pairs: int, cogging_order: int) -> list[tuple[str, np.ndarray]]:
+    """The harmonic families of the misfit test, each (label, mask over ``fit``), empty ones left out.
+
+    1x and 2x electrical (where beta and the scale errors act), the cogging
+    multiples, the other multiples of the pole pairs, and the excitation rest.
+    """
+    cogging = fit % cogging_order == 0
+    electrical = (fit % pole_pairs == 0) & ~cogging
+    first = np.isin(fit, (pole_pairs, 2 * pole_pairs)) & ~cogging
+    families = (("electrical 1x-2x", first), ("cogging", cogging), ("other electrical", electrical & ~first),
+                ("excitation", ~cogging & ~electrical))
+    return [(label, mask) for label, mask in families if mask.any()]
+
+
 def harmonic_sets(tables: BenchTables) -> HarmonicSets:
     """The harmonics of the joint fit (see `HarmonicSets`), from the data and bench.toml alone."""
     motor = tables.motor
@@ -202,7 +269,9 @@ def harmonic_sets(tables: BenchTables) -> HarmonicSets:
     fit = np.arange(1, significant.max() + 1)
     backemf = np.abs(trial_amplitudes(tables.backemf_nm_per_a[None], nyquist)[0])
     has_backemf = backemf[1:].max(axis=1) > SIGNIFICANT * backemf[1:].max()
-    cogging = np.arange(motor.cogging_order, nyquist + 1, motor.cogging_order)
+    # the encoder-derived torque holds the fit's band only (its noise grows as h^2 to h^4 beyond)
+    top = nyquist if tables.torque_source == "sensor" else int(fit.max())
+    cogging = np.arange(motor.cogging_order, top + 1, motor.cogging_order)
     table_free = ~has_backemf[fit - 1] | np.isin(fit, cogging)
     return HarmonicSets(fit=fit, table_free=table_free, cogging=cogging)
 
@@ -217,6 +286,8 @@ class _JointProblem:
         self.sets = sets
         self.backemf = tables.backemf_nm_per_a
         self.cpr = tables.motor.counts_per_rev
+        self.pole_pairs = tables.motor.pole_pairs
+        self.cogging_order = tables.motor.cogging_order
         self.max_fit = int(sets.fit.max())
         self.speeds = np.array([t.speed_hz for t in tables.trials])
         self.i_ref = np.stack([t.i_ref_table_a for t in tables.trials])
@@ -225,6 +296,13 @@ class _JointProblem:
         self.max_harmonic = int(max(self.max_fit, sets.cogging.max(initial=0)))
         self._cache: dict[str, dict] = {}
         self.variance = np.array([t.harmonic_variance_nm2 for t in tables.trials])
+        self.sensor = tables.torque_source == "sensor"
+        self.variances = None if self.sensor else np.stack([t.harmonic_variances_nm2 for t in tables.trials])
+        if not self.sensor:  # the brake's b omega leaves the data, and enters through the columns (`amplitudes`)
+            speed = np.stack([t.speed_table_rad_s for t in tables.trials])
+            mean = speed.mean(axis=1, keepdims=True)
+            self.torque = self.torque - np.array([[t.viscous_nm_s] for t in tables.trials]) * (speed - mean)
+            self.speed_ripple = trial_amplitudes(speed[:, :, None], self.max_fit)[:, sets.fit, 0] / mean
         backemf_cols = trial_amplitudes(self.backemf[None], self.max_fit)[0][sets.fit]
         self.backemf_design = np.broadcast_to(backemf_cols, (len(tables.trials),) + backemf_cols.shape)
         # back-EMF per count, e_p = K_p omega (omega over the intervals either side of the count)
@@ -242,13 +320,23 @@ class _JointProblem:
         advancing the data in time (cubic interpolation through the count
         instants) puts it back on the count instants of the model.
         """
-        return self._cached("data", (phi[6],), lambda: trial_amplitudes(
-            time_shifted(self.torque, self.count_period, phi[6])[:, :, None], self.max_harmonic)[:, :, 0])
+        shift = phi[6] if self.sensor else 0.0  # the encoder-derived torque is at the count instants
+        return self._cached("data", (shift,), lambda: trial_amplitudes(
+            time_shifted(self.torque, self.count_period, shift)[:, :, None], self.max_harmonic)[:, :, 0])
 
     def highpass(self, phi: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
-        """The piezo sensor's first-order high-pass j w / (j w + w_c), shape (n_trials, len(harmonics))."""
+        """The piezo sensor's first-order high-pass j w / (j w + w_c), shape (n_trials, len(harmonics)); 1
+        for the encoder-derived torque."""
         omega = 2.0 * np.pi * self.speeds[:, None] * harmonics[None, :]
+        if not self.sensor:
+            return np.ones(omega.shape, complex)
         return 1j * omega / (1j * omega + 2.0 * np.pi * phi[4])
+
+    def variance_at(self, harmonics: np.ndarray) -> np.ndarray:
+        """Variance of the real (and imaginary) part of each trial's ``harmonics``, shape (n_trials, len(harmonics))."""
+        if self.variances is not None:
+            return self.variances[:, harmonics]
+        return np.broadcast_to(self.variance[:, None], (self.variance.size, len(harmonics)))
 
     def _cached(self, kind: str, key: tuple, compute):
         """Memoised per-phase columns: a finite-difference step changes one parameter at a time."""
@@ -276,8 +364,16 @@ class _JointProblem:
         return np.stack([self.phase_current(phi, p) for p in range(3)], axis=2)
 
     def amplitudes(self, tables: np.ndarray) -> np.ndarray:
-        """Fit-harmonic amplitudes of per-count torque tables (n_trials, cpr, m) -> (n_trials, n_fit, m)."""
-        return trial_amplitudes(tables, self.max_fit)[:, self.sets.fit]
+        """Fit-harmonic amplitudes of per-count torque tables (n_trials, cpr, m) -> (n_trials, n_fit, m).
+
+        On the encoder-derived torque, a column's mean tau_0 also turns the brake b = tau_0 / omega_0
+        (omega_0 the speed's mean over the angle): b omega_h = tau_0 omega_h / omega_0 leaves the speed
+        ripple's torque, which the data no longer hold.
+        """
+        amplitudes = trial_amplitudes(tables, self.max_fit)
+        if self.sensor:
+            return amplitudes[:, self.sets.fit]
+        return amplitudes[:, self.sets.fit] - amplitudes[:, :1] * self.speed_ripple[:, :, None]
 
     def phase_columns(self, phi: np.ndarray, p: int) -> np.ndarray:
         """Amplitudes of K_p G_p I*_p and of K_p W (1 - G_p) e_p, shape (n_trials, n_fit, 2)."""
@@ -316,7 +412,7 @@ class _JointProblem:
     def weights(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """High-pass per trial and fit harmonic, and the weights |H_hp|^2 / variance."""
         hp = self.highpass(phi, self.sets.fit)
-        return hp, np.abs(hp) ** 2 / self.variance[:, None]
+        return hp, np.abs(hp) ** 2 / self.variance_at(self.sets.fit)
 
     def weighted(self, phi: np.ndarray, design: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Data over the high-pass and columns, weighted, with T(h) profiled out, stacked real."""
@@ -346,7 +442,7 @@ class _JointProblem:
         beyond = self.sets.cogging[self.sets.cogging > self.max_fit]
         if beyond.size:
             hp = self.highpass(phi, beyond)
-            mean = _weighted_mean(self.data(phi)[:, beyond] / hp, np.abs(hp) ** 2 / self.variance[:, None])[0]
+            mean = _weighted_mean(self.data(phi)[:, beyond] / hp, np.abs(hp) ** 2 / self.variance_at(beyond))[0]
             table.update({int(h): complex(c) for h, c in zip(beyond, mean)})
         return table
 
@@ -421,7 +517,7 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     # the lag must pay for its five more parameters (Akaike)
     _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
     design = problem.design(phi, saturation)
-    covariance, names, chi2 = _covariance(problem, phi, active, saturation, x, rest)
+    covariance, bound, names, chi2, misfit = _covariance(problem, phi, active, saturation, x, rest)
     std = dict(zip(names, np.sqrt(np.diag(covariance))))
     return JointEstimate(
         theta=x[:3], theta_std=np.array([std[f"theta_{p}"] for p in "abc"]),
@@ -432,7 +528,8 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
         highpass_hz=float(phi[4]), highpass_std=float(std["highpass_hz"]), winding_time_constant_s=float(phi[5]),
         torque_delay_s=float(phi[6]),
         position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
-        covariance=covariance, parameter_names=names, chi2_reduced=chi2, sets=sets)
+        covariance=covariance, bound_covariance=bound, parameter_names=names, chi2_reduced=chi2, misfit=misfit,
+        sets=sets)
 
 
 def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray) -> tuple:
@@ -477,13 +574,21 @@ def _check_excitation(problem: _JointProblem) -> None:
 
 
 def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, saturation: np.ndarray,
-                x: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, tuple, float]:
-    """sigma^2 (J^T J)^-1 over the linear and active nonlinear parameters.
+                x: np.ndarray, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple, float, tuple]:
+    """The group-scaled covariance over the linear and active nonlinear parameters, and its bound.
 
     J holds the weighted, T-profiled linear columns and the derivatives of the
     weighted residual with respect to each active nonlinear parameter at fixed
-    linear parameters. sigma^2 is the reduced chi-square, at least 1 (the
-    weights hold the noise variance measured off the aperiodic part).
+    linear parameters; B = (J^T J)^-1 is the Cramer-Rao bound (the weights hold
+    the noise variance measured off the aperiodic part). Each harmonic family g
+    (`misfit_groups`) has its reduced chi-square chi2_g; the covariance is
+
+        C = B (sum_g max(chi2_g, 1) J_g^T J_g) B,
+
+    so a parameter is inflated by the misfit of the harmonics that determine
+    it, and C = B where every family fits to its noise.
+
+    Returns (C, B, parameter names, overall reduced chi-square, the `MisfitGroup`s).
     """
     _, design = problem.weighted(phi, problem.design(phi, saturation))
     columns = [design]
@@ -496,7 +601,37 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
         columns.append((rest - (y - design_shifted @ x))[:, None] / step)
         names.append(NONLINEAR[i])
     jac = np.hstack(columns)
+    bound = np.linalg.pinv(jac.T @ jac)
+    n_trials, n_fit = problem.variance.shape[0], problem.sets.fit.size
+    per_harmonic = np.sum(rest.reshape(2, n_trials, n_fit) ** 2, axis=(0, 1))
+    jac_per_harmonic = jac.reshape(2, n_trials, n_fit, -1)
+    groups, information = [], np.zeros_like(bound)
+    for label, members in misfit_groups(problem.sets.fit, problem.pole_pairs, problem.cogging_order):
+        part = jac_per_harmonic[:, :, members].reshape(-1, jac.shape[1])
+        # T(h) takes one complex value where free; the parameters take their leverage trace(B J_g^T J_g)
+        dof = 2 * (n_trials * members.sum() - (members & problem.sets.table_free).sum()) - np.trace(
+            bound @ part.T @ part)
+        chi2 = float(per_harmonic[members].sum() / dof)
+        scale = max(chi2, 1.0)
+        information += scale * (part.T @ part)
+        alone = bound @ (jac.T @ jac + (scale - 1.0) * (part.T @ part)) @ bound
+        seen = np.diag(bound) > 0  # parameters the data move (not the encoder source's inert sensor ones)
+        inflation = float(np.sqrt(np.max(np.diag(alone)[seen] / np.diag(bound)[seen], initial=1.0)))
+        groups.append(MisfitGroup(label, problem.sets.fit[members], chi2, float(dof), inflation))
     dof = jac.shape[0] - jac.shape[1] - 2 * int(problem.sets.table_free.sum())
-    chi2 = float(rest @ rest / dof)
-    covariance = np.linalg.pinv(jac.T @ jac) * max(chi2, 1.0)
-    return covariance, tuple(names), chi2
+    return bound @ information @ bound, bound, tuple(names), float(rest @ rest / dof), tuple(groups)
+
+
+def fitted_columns_nm(tables: BenchTables, estimate: JointEstimate) -> np.ndarray:
+    """The joint model of ``tables``' torque less the position table T, per trial at ``estimate.sets.fit``.
+
+    The current, back-EMF and saturation columns at the fitted nonlinear parameters, the linear ones
+    solved again there, through the sensor's response, N m (measured), shape (n_trials, n_fit): what the
+    trials do not share.
+    """
+    problem = _JointProblem(tables, estimate.sets)
+    phi = np.array([*estimate.loop.time_constant_s, estimate.loop.delay_s, estimate.highpass_hz,
+                    estimate.winding_time_constant_s, estimate.torque_delay_s])
+    saturation = problem.saturation_column(phi, np.concatenate([estimate.theta, estimate.beta_star_a]))
+    x, _ = problem.solve(phi, saturation)
+    return problem.highpass(phi, estimate.sets.fit) * (problem.design(phi, saturation) @ x)

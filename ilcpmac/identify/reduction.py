@@ -6,11 +6,13 @@ mechanical revolution. The piezo torque sensor adds an unknown DC level and a
 slow drift (sec. 1.1): the drift is fitted to the part of the torque that is
 not periodic in position (`ilcpmac.signals.harmonics.slow_trend`) and removed
 before averaging, so neither can bias an estimate; what is left over gives the
-noise variance that weights every fit.
+noise variance that weights every fit. Without a torque sensor the torque
+comes from the encoder's time stamps instead (`ilcpmac.identify.encoder`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +62,13 @@ class TrialTables:
     harmonic_variance_nm2 : float
         Variance of the real (and of the imaginary) part of one harmonic
         amplitude of ``torque_table_nm`` due to that noise, N^2 m^2.
+    harmonic_variances_nm2 : ndarray, shape (H + 1,), or None
+        The same per harmonic 0..H where it depends on the harmonic (the encoder-derived torque, whose
+        ``torque_table_nm`` holds harmonics 1..H only); None: ``harmonic_variance_nm2`` at every harmonic.
+    speed_table_rad_s : ndarray, shape (counts_per_rev,), or None
+        The encoder-derived torque's mechanical speed per count, harmonics 0..H, rad/s (its mean: over the angle).
+    viscous_nm_s : float or None
+        The brake b whose torque b omega ``torque_table_nm`` includes (encoder-derived), N m s/rad.
     """
 
     torque_setpoint_nm: float
@@ -74,6 +83,9 @@ class TrialTables:
     count_period_s: np.ndarray
     noise_variance_nm2: float
     harmonic_variance_nm2: float
+    harmonic_variances_nm2: np.ndarray | None = None
+    speed_table_rad_s: np.ndarray | None = None
+    viscous_nm_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -91,6 +103,9 @@ class BenchTables:
         Their file names.
     messages : tuple of str
         Why other trials were left out.
+    torque_source : str
+        "sensor": the torque sensor's, through its gain delta, high-pass and delay; "encoder": the true
+        torque from the encoder's time stamps (`ilcpmac.identify.encoder`), through none of them.
     """
 
     motor: MotorInfo
@@ -98,6 +113,7 @@ class BenchTables:
     trials: tuple[TrialTables, ...]
     trial_files: tuple[str, ...]
     messages: tuple[str, ...]
+    torque_source: str = "sensor"
 
 
 def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
@@ -116,35 +132,56 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
         raise IdentificationError(
             f"{revolutions} whole revolution(s); at least 2 are needed to tell the torque sensor's drift "
             "from the ripple")
+    if trial.torque_nm is None:
+        raise IdentificationError("no torque column (a bench without a torque sensor): identify it with the "
+                                  "encoder-derived torque")
     degree = min(TREND_DEGREE, revolutions - 1)
     torque = trial.torque_nm[mask]
     trend, noise_variance = slow_trend(count, time_s, torque, counts_per_rev, degree)
     torque = torque - trend
+    speed_hz, i_ref_table, count_period = revolution_averages(count, time_s, trial.i_ref_a[mask], counts_per_rev)
+    return TrialTables(
+        torque_setpoint_nm=trial.torque_setpoint_nm, speed_setpoint_hz=trial.speed_setpoint_hz,
+        speed_hz=speed_hz, revolutions=revolutions, count=count, time_s=time_s,
+        torque_nm=torque,
+        torque_table_nm=synchronous_table(count, torque, counts_per_rev),
+        i_ref_table_a=i_ref_table,
+        count_period_s=count_period,
+        noise_variance_nm2=noise_variance,
+        harmonic_variance_nm2=2.0 * noise_variance * mean_inverse_hits(count, counts_per_rev) / counts_per_rev,
+    )
+
+
+def mean_inverse_hits(count: np.ndarray, counts_per_rev: int) -> float:
+    """The mean over the counts of a revolution of 1 / (samples at that count): a synchronous average's
+    noise per harmonic is 2 sigma^2 times this over counts_per_rev."""
     hits = np.bincount(count % counts_per_rev, minlength=counts_per_rev)
-    inverse_hits = 1.0 / np.maximum(hits, 1)
-    # the time of each count over one mean revolution: the linear trend plus the averaged wobble (speed ripple),
-    # so that revolutions missing a count (skipped) do not bias the average
+    return float(np.mean(1.0 / np.maximum(hits, 1)))
+
+
+def revolution_averages(count: np.ndarray, time_s: np.ndarray, i_ref_a: np.ndarray,
+                        counts_per_rev: int) -> tuple[float, np.ndarray, np.ndarray]:
+    """The mean speed (Hz), the synchronous average of the current references (counts_per_rev, 3), A, and the
+    mean time from each count to the next (counts_per_rev,), s, of samples in whole revolutions.
+
+    The time of each count over one mean revolution is the linear trend plus the averaged wobble (speed
+    ripple), so that revolutions missing a count (skipped) do not bias the average.
+    """
     seconds_per_count, start = np.polyfit(count - count[0], time_s - time_s[0], 1)
     wobble = synchronous_table(count, time_s - time_s[0] - start - seconds_per_count * (count - count[0]),
                                counts_per_rev)
     time_table = wobble + seconds_per_count * np.arange(counts_per_rev)
-    return TrialTables(
-        torque_setpoint_nm=trial.torque_setpoint_nm, speed_setpoint_hz=trial.speed_setpoint_hz,
-        speed_hz=1.0 / (seconds_per_count * counts_per_rev), revolutions=revolutions, count=count, time_s=time_s,
-        torque_nm=torque,
-        torque_table_nm=synchronous_table(count, torque, counts_per_rev),
-        i_ref_table_a=synchronous_table(count, trial.i_ref_a[mask], counts_per_rev),
-        count_period_s=np.diff(time_table, append=time_table[0] + seconds_per_count * counts_per_rev),
-        noise_variance_nm2=noise_variance,
-        harmonic_variance_nm2=2.0 * noise_variance * float(inverse_hits.mean()) / counts_per_rev,
-    )
+    return (1.0 / (seconds_per_count * counts_per_rev), synchronous_table(count, i_ref_a, counts_per_rev),
+            np.diff(time_table, append=time_table[0] + seconds_per_count * counts_per_rev))
 
 
-def reduce_bench(bench: Bench) -> BenchTables:
-    """Reduce every trial of ``bench``; trials that cannot be reduced are left out with a message.
+def reduce_bench(bench: Bench, reduce: Callable[[TrialData, int], TrialTables] = reduce_trial,
+                 torque_source: str = "sensor") -> BenchTables:
+    """Reduce every trial of ``bench`` with ``reduce``; trials that cannot be reduced are left out with a message.
 
     The data are checked first (`ilcpmac.bench.format.check_trial` and
     `check_backemf`), so that a bench built in memory gets the reader's messages.
+    ``torque_source`` names where ``reduce`` takes the torque from (`BenchTables`).
 
     Raises
     ------
@@ -160,7 +197,7 @@ def reduce_bench(bench: Bench) -> BenchTables:
     for name, trial in zip(bench.trial_files, bench.trials):
         try:
             check_trial(trial, bench.motor, name)
-            trials.append(reduce_trial(trial, cpr))
+            trials.append(reduce(trial, cpr))
             files.append(name)
         except (IdentificationError, BenchFormatError) as e:
             messages.append(f"{name} left out: {str(e).removeprefix(name + ': ')}")
@@ -169,7 +206,7 @@ def reduce_bench(bench: Bench) -> BenchTables:
     if not trials:
         raise IdentificationError("no trial can be used: " + "; ".join(messages))
     return BenchTables(bench.motor, np.asarray(bench.backemf_nm_per_a, float), tuple(trials), tuple(files),
-                       tuple(messages))
+                       tuple(messages), torque_source)
 
 
 def trial_amplitudes(tables: np.ndarray, max_harmonic: int) -> np.ndarray:

@@ -8,7 +8,11 @@ points, with its coherence. Harmonics where the report's model does not hold
 are left out: multiples of the pole-pair count (current-sensor offsets at 1x
 and scale errors at 2x electrical, and their multiples) and of the cogging
 order (sec. 2.4, fig. 2.5). A constant fitted by least squares to the
-magnitude is delta*eps; its relative misfit is the report's "residue".
+magnitude is delta*eps; its relative misfit is the report's "residue". Its
+standard error counts the misfit's structure: neighbouring harmonics whose
+magnitudes drift together (a roll-off the constant model lacks) are not
+independent samples, nor are set points whose gains differ: the error then
+holds the structure's size (`structure_variance`).
 
 Beyond the report, `fit_loop_to_response` reads the current loop's roll-off
 from the same responses: harmonic h of a trial at speed f lies at h f Hz, so
@@ -31,6 +35,8 @@ from ilcpmac.signals.harmonics import revolution_harmonics
 EXCITED = 1e-2
 #: coherence below which the response is not trusted (sec. 2.4: "should be close to one")
 MIN_COHERENCE = 0.5
+#: quantile of the block chi-square of white scatter beyond which the misfit is structure
+STRUCTURE_QUANTILE = 0.999
 
 
 @dataclass(frozen=True)
@@ -52,6 +58,12 @@ class SystemGainEstimate:
         The fitted constant and its standard error.
     residue : float
         RMS of (|H| - delta_eps) over the used harmonics, relative to delta_eps.
+    structure_chi2 : tuple of float
+        Chi-square per degree of freedom of the mean misfit |H| - delta_eps over blocks of used harmonics
+        in order (the halves or blocks of ceil(sqrt(n)), whichever finds more structure) and over set points
+        (`structure_variance`; about 1 for scatter alone).
+    inflation : float
+        How much structure in that misfit widened the standard error (1 without).
     loop_gain : float
         delta*eps from the loop-corrected fit (`fit_loop_to_response`).
     loop : CurrentLoop
@@ -67,13 +79,50 @@ class SystemGainEstimate:
     delta_epsilon: float
     delta_epsilon_std: float
     residue: float
+    structure_chi2: tuple
+    inflation: float
     loop_gain: float
     loop: CurrentLoop
+
+    @property
+    def warnings(self) -> tuple[str, ...]:
+        """Where the constant model is off: one line when |H| changes over harmonics or set points beyond chance."""
+        if self.inflation <= 1.0 + 1e-9:
+            return ()
+        h = self.harmonics[self.used]
+        over_harmonics, over_set_points = self.structure_chi2
+        return (f"total system gain (ch. 2): |H| over harmonics {h.min()}-{h.max()} is not constant (residue "
+                f"{100 * self.residue:.2g} %, chi2/dof {over_harmonics:.3g} over harmonic blocks, "
+                f"{over_set_points:.3g} over set points) - the constant model misses structure there; standard "
+                f"error inflated x{self.inflation:.2g}",)
 
 
 def theoretical_torque_tables(tables: BenchTables) -> np.ndarray:
     """sum_p K_p I*_p per trial and count, N m (eq. 1.3 with alpha eps = 1, beta = 0, no cogging)."""
     return np.stack([np.sum(tables.backemf_nm_per_a * t.i_ref_table_a, axis=1) for t in tables.trials])
+
+
+def structure_variance(means: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
+    """The variance of a structure a constant model lacks, from the means of B groups of its misfit.
+
+    For scatter alone each group mean r_j has variance e_j (``expected``), so
+    Q = sum_j r_j^2 / e_j is about chi-square with B - 1 degrees of freedom.
+    Beyond its STRUCTURE_QUANTILE the groups differ by a structure (a roll-off
+    over harmonics, a gain that changes with the set point) whose size,
+    [mean_j (r_j^2 - e_j)]+, no average over the groups removes; 0 otherwise.
+
+    Returns (that variance, Q / (B - 1)); (0, 0) when some e_j is not
+    positive (noise-free data: nothing to compare with).
+    """
+    from scipy.stats import chi2
+
+    if not np.all(expected > 0.0):
+        return 0.0, 0.0
+    dof = max(means.size - 1, 1)
+    q = float(np.sum(means**2 / expected) / dof)
+    if q <= chi2.ppf(STRUCTURE_QUANTILE, dof) / dof:
+        return 0.0, q
+    return max(float(np.mean(means**2 - expected)), 0.0), q
 
 
 def excluded_harmonics(harmonics: np.ndarray, pole_pairs: int, cogging_order: int) -> np.ndarray:
@@ -123,14 +172,34 @@ def estimate_system_gain(tables: BenchTables) -> SystemGainEstimate:
             f"reach {MIN_COHERENCE} (median {np.nanmedian(coherence[kept]):.2f})")
     magnitude = np.abs(response[used])
     gain = float(magnitude.mean())
+    # the misfit's structure over harmonics (a trend: two halves; a bump: blocks of ceil(sqrt(n))) and set points
+    scatter = float(magnitude.var(ddof=1))
+    over_harmonics, q_harmonics = max(structure_variance(*_blocks(magnitude - gain, b, scatter))
+                                      for b in (magnitude.size // 2, int(np.ceil(np.sqrt(magnitude.size)))))
+    # per set point g_k = sum_h S_yx / sum_h S_xx, with E|n|^2 = scatter / (r - 1) per revolution and harmonic
+    s_xx_used = s_xx[:, used].sum(axis=1)
+    per_set_point = np.abs(s_yx[:, used].sum(axis=1) / s_xx_used)
+    noise = np.sum(s_xx[:, used] * y_scatter[:, used] / np.maximum(r - 1.0, 1.0), axis=1) / s_xx_used**2 / 2.0
+    pooled = np.average(per_set_point, weights=1.0 / noise) if np.all(noise > 0.0) else per_set_point.mean()
+    over_set_points, q_set_points = structure_variance(per_set_point - pooled, noise)
+    variance = scatter / magnitude.size + over_harmonics + over_set_points
     speeds = np.array([t.speed_hz for t in tables.trials])
     weights = np.where(used, 1.0, 0.0)[None, :] * s_xx
     loop_gain, loop = fit_loop_to_response(h, speeds, response_per_trial, weights, cpr)
     return SystemGainEstimate(
         harmonics=h, response=response, coherence=coherence, response_per_trial=response_per_trial,
         coherence_per_trial=coherence_per_trial, used=used, delta_epsilon=gain,
-        delta_epsilon_std=float(magnitude.std(ddof=1) / np.sqrt(magnitude.size)),
-        residue=float(np.sqrt(np.mean((magnitude - gain) ** 2)) / gain), loop_gain=loop_gain, loop=loop)
+        delta_epsilon_std=float(np.sqrt(variance)),
+        residue=float(np.sqrt(np.mean((magnitude - gain) ** 2)) / gain),
+        structure_chi2=(q_harmonics, q_set_points),
+        inflation=float(np.sqrt(variance * magnitude.size / scatter)) if scatter > 0.0 else 1.0,
+        loop_gain=loop_gain, loop=loop)
+
+
+def _blocks(residual: np.ndarray, size: int, scatter: float) -> tuple[np.ndarray, np.ndarray]:
+    """Means of consecutive blocks of ``size`` samples and their variance scatter / size under scatter alone."""
+    count = residual.size // size
+    return residual[: count * size].reshape(count, size).mean(axis=1), np.full(count, scatter / size)
 
 
 def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses: np.ndarray,

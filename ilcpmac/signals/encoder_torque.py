@@ -128,10 +128,13 @@ __all__ = [
     "at_nominal_angles",
     "count_speeds",
     "encoder_error_gain",
+    "encoder_error_summary",
     "encoder_error_table",
     "quantisation_variance_nm2",
+    "revolution_torques_nm",
     "separate_encoder_error",
     "speed_to_torque_gain",
+    "with_viscous",
     "without_encoder_error",
 ]
 
@@ -240,6 +243,8 @@ class EncoderTorqueSpectrum:
         J used, kg m^2.
     viscous_nm_s : float
         b used, N m s/rad.
+    timer_resolution_s : float
+        q the stamps are quantised to, s.
     """
 
     harmonics_nm: np.ndarray
@@ -252,6 +257,7 @@ class EncoderTorqueSpectrum:
     counts_per_rev: int
     inertia_kgm2: float
     viscous_nm_s: float
+    timer_resolution_s: float = 0.0
 
     @classmethod
     def of(cls, count: np.ndarray, time_s: np.ndarray, counts_per_rev: int, max_harmonic: int,
@@ -264,25 +270,14 @@ class EncoderTorqueSpectrum:
         A known encoder error ``line_errors_counts`` (e_c per count of a revolution) is taken out of the
         stamps first (`at_nominal_angles`).
         """
-        if line_errors_counts is not None:
-            time_s = at_nominal_angles(count, time_s, counts_per_rev, line_errors_counts)
-        interval_count, mid_time_s, speed_rad_s = count_speeds(count, time_s, counts_per_rev)
+        _check_samples(np.asarray(count), np.asarray(time_s, float), counts_per_rev)
         _check_mechanics(counts_per_rev, max_harmonic, inertia_kgm2, timer_resolution_s, viscous_nm_s)
-        mask = whole_revolutions(interval_count, counts_per_rev)
-        revolutions = int(np.count_nonzero(mask)) // counts_per_rev
-        if revolutions < 2:
-            raise ValueError(f"the encoder torque needs at least 2 whole revolutions, the trial has {revolutions}")
-        interval_count, mid_time_s = interval_count[mask], mid_time_s[mask]
-        dwell_s_per_rad = 1.0 / speed_rad_s[mask]
-        mean_speed_hz = revolutions / float(np.sum(dwell_s_per_rad) * (2.0 * np.pi / counts_per_rev))
-        trend, _ = slow_trend(interval_count, mid_time_s, dwell_s_per_rad, counts_per_rev, 1)
-        table = revolution_table(interval_count, dwell_s_per_rad - trend, counts_per_rev)
-
-        h_all = np.arange(counts_per_rev // 2 + 1)
-        to_counts = np.exp(-1j * np.pi * h_all / counts_per_rev) / np.sinc(h_all / counts_per_rev)
+        table, _, mean_speed_hz = _dwell_table(count, time_s, counts_per_rev, line_errors_counts)
+        revolutions = table.shape[0]
+        to_counts = _to_counts(counts_per_rev)
         speed = 1.0 / filtered(table.mean(axis=0), to_counts)
         speed_harmonics = harmonic_amplitudes(speed, max_harmonic)
-        h = h_all[: max_harmonic + 1]
+        h = np.arange(max_harmonic + 1)
         harmonics = 0.5j * h * inertia_kgm2 * harmonic_amplitudes(speed**2, max_harmonic) \
             + viscous_nm_s * speed_harmonics
 
@@ -293,7 +288,8 @@ class EncoderTorqueSpectrum:
         quantisation = quantisation_variance_nm2(h, counts_per_rev, timer_resolution_s, inertia_kgm2,
                                                  mean_speed_hz, revolutions, viscous_nm_s)
         return cls(harmonics, speed_variance * gain2, quantisation, speed_harmonics, speed_variance,
-                   mean_speed_hz, revolutions, counts_per_rev, float(inertia_kgm2), float(viscous_nm_s))
+                   mean_speed_hz, revolutions, counts_per_rev, float(inertia_kgm2), float(viscous_nm_s),
+                   float(timer_resolution_s))
 
     @property
     def max_harmonic(self) -> int:
@@ -309,6 +305,78 @@ class EncoderTorqueSpectrum:
         """m_h of eq. (4) at this trial's speed and mechanics, shape (H + 1,), N m per count."""
         return encoder_error_gain(np.arange(self.max_harmonic + 1), self.counts_per_rev, self.inertia_kgm2,
                                   2.0 * np.pi * self.mean_speed_hz, self.viscous_nm_s)
+
+
+def with_viscous(spectrum: EncoderTorqueSpectrum, viscous_nm_s: float) -> EncoderTorqueSpectrum:
+    """``spectrum`` for the viscous coefficient b = ``viscous_nm_s`` (N m s/rad) instead of its own.
+
+    Exact: eq. (1) is linear in b, and the variances scale with |g_h|^2 (eqs. 2, 3).
+    """
+    s = spectrum
+    _check_mechanics(s.counts_per_rev, s.max_harmonic, s.inertia_kgm2, s.timer_resolution_s, viscous_nm_s)
+    h = np.arange(s.max_harmonic + 1)
+    gain2 = np.abs(speed_to_torque_gain(h, s.inertia_kgm2, 2.0 * np.pi * s.mean_speed_hz, viscous_nm_s)) ** 2
+    return replace(s, harmonics_nm=s.harmonics_nm + (viscous_nm_s - s.viscous_nm_s) * s.speed_harmonics_rad_s,
+                   variance_nm2=s.speed_variance_rad2_s2 * gain2,
+                   quantisation_variance_nm2=quantisation_variance_nm2(
+                       h, s.counts_per_rev, s.timer_resolution_s, s.inertia_kgm2, s.mean_speed_hz, s.revolutions,
+                       viscous_nm_s),
+                   viscous_nm_s=float(viscous_nm_s))
+
+
+def revolution_torques_nm(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int, max_harmonic: int,
+                          inertia_kgm2: float,
+                          line_errors_counts: np.ndarray | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+    """The torque of each whole revolution by eq. (1), band-limited to harmonics 1..``max_harmonic``.
+
+    As `EncoderTorqueSpectrum.of`, one revolution at a time (their mean is its spectrum up to the second
+    order of the revolution-to-revolution scatter): for what needs the torque revolution by revolution.
+    tau = ``inertial_nm`` + b ``speed_rad_s`` for any viscous coefficient b.
+
+    Returns
+    -------
+    first_revolution : int
+        count // counts_per_rev of the first row.
+    inertial_nm : ndarray, shape (R, counts_per_rev)
+        j h (J / 2) (omega^2)_h at each count of each whole revolution, N m.
+    speed_rad_s : ndarray, shape (R, counts_per_rev)
+        omega there, rad/s, less its mean.
+    """
+    _check_samples(np.asarray(count), np.asarray(time_s, float), counts_per_rev)
+    _check_mechanics(counts_per_rev, max_harmonic, inertia_kgm2, 0.0, 0.0)
+    table, first, _ = _dwell_table(count, time_s, counts_per_rev, line_errors_counts)
+    speed = 1.0 / filtered(table, _to_counts(counts_per_rev), axis=1)
+    h = np.arange(max_harmonic + 1)[:, None]
+    inertial = 0.5j * h * inertia_kgm2 * harmonic_amplitudes(speed.T**2, max_harmonic)
+    ripple = harmonic_amplitudes(speed.T, max_harmonic)
+    ripple[0] = 0.0
+    return first, table_from_amplitudes(inertial, counts_per_rev).T, table_from_amplitudes(ripple, counts_per_rev).T
+
+
+def _to_counts(counts_per_rev: int) -> np.ndarray:
+    """Step 1's correction per harmonic 0..N/2: the boxcar over a count interval, centred half a count late."""
+    h = np.arange(counts_per_rev // 2 + 1)
+    return np.exp(-1j * np.pi * h / counts_per_rev) / np.sinc(h / counts_per_rev)
+
+
+def _dwell_table(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int,
+                 line_errors_counts: np.ndarray | None) -> tuple[np.ndarray, int, float]:
+    """Steps 1-2: the dwell per radian of every count interval of the whole revolutions, its slow trend taken
+    out, one row per revolution (R, N); the first row's revolution; the mean speed, Hz."""
+    count, time_s = np.asarray(count), np.asarray(time_s, float)
+    if line_errors_counts is not None:
+        time_s = at_nominal_angles(count, time_s, counts_per_rev, line_errors_counts)
+    interval_count, mid_time_s, speed_rad_s = count_speeds(count, time_s, counts_per_rev)
+    mask = whole_revolutions(interval_count, counts_per_rev)
+    revolutions = int(np.count_nonzero(mask)) // counts_per_rev
+    if revolutions < 2:
+        raise ValueError(f"the encoder torque needs at least 2 whole revolutions, the trial has {revolutions}")
+    interval_count, mid_time_s = interval_count[mask], mid_time_s[mask]
+    dwell_s_per_rad = 1.0 / speed_rad_s[mask]
+    mean_speed_hz = revolutions / float(np.sum(dwell_s_per_rad) * (2.0 * np.pi / counts_per_rev))
+    trend, _ = slow_trend(interval_count, mid_time_s, dwell_s_per_rad, counts_per_rev, 1)
+    table = revolution_table(interval_count, dwell_s_per_rad - trend, counts_per_rev)
+    return table, int(interval_count[0] // counts_per_rev), mean_speed_hz
 
 
 @dataclass(frozen=True)
@@ -369,6 +437,29 @@ def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum]) -> EncoderS
     full_covariance = np.zeros((size, 2, 2), complex)
     full_covariance[1:] = covariance
     return EncoderSeparation(full_x[:, 0], full_x[:, 1], full_covariance)
+
+
+def encoder_error_summary(error_counts: np.ndarray,
+                          variance_counts2: np.ndarray | None = None) -> tuple[float, float, float, float]:
+    """The once-per-revolution part and the line-to-line rest of encoder error harmonics.
+
+    ``error_counts``: e_h, h = 0..H below the Nyquist harmonic N/2 (as `harmonic_amplitudes`; entry 0
+    ignored), counts;
+    ``variance_counts2``: E|d e_h|^2 of an estimate (None: exact).
+
+    Returns
+    -------
+    amplitude_counts, amplitude_std_counts, phase_rad : float
+        e_c's once-per-revolution part A sin(2 pi c / N + phase) (`ilcpmac.model.encoder`): A = |e_1|,
+        its standard error sqrt(E|d e_1|^2 / 2), phase = arg(e_1) + pi / 2 within (-pi, pi].
+    line_rms_counts : float
+        RMS over the lines of the rest (h >= 2), its expected noise power taken out (0 at least), counts.
+    """
+    e = np.asarray(error_counts, complex)
+    variance = np.zeros(e.size) if variance_counts2 is None else np.asarray(variance_counts2, float)
+    phase = float(np.angle(e[1] * 1j))
+    power = float(np.sum(np.abs(e[2:]) ** 2 - variance[2:]) / 2.0)
+    return float(abs(e[1])), float(np.sqrt(variance[1] / 2.0)), phase, float(np.sqrt(max(power, 0.0)))
 
 
 def encoder_error_table(encoder_error_counts: np.ndarray, counts_per_rev: int) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
@@ -12,6 +13,8 @@ from ilcpmac.bench.format import Bench, MotorInfo, write_bench
 from ilcpmac.config import CampaignConfig
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
 from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.signals.encoder_torque import encoder_error_summary
+from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.simulator import Simulator, trial_seed
 
@@ -63,7 +66,17 @@ def truth_dict(simulator: Simulator, request: TrialRequest) -> dict:
                                                 / (t.epsilon * t.alpha)).tolist(),
         "calibration": SensorCalibration(simulator.scale_true, simulator.offset_true,
                                          simulator.torque_gain_true).to_json(),
+        "encoder_error": encoder_error_json(simulator.model.encoder.line_errors_counts()),
     }
+
+
+def encoder_error_json(line_errors_counts: np.ndarray) -> dict:
+    """The result JSON's "encoder_error" object (`IdentificationResult.to_json`) of known line errors e_c,
+    counts: without standard errors."""
+    harmonics = harmonic_amplitudes(line_errors_counts)[: line_errors_counts.size // 2]  # as an estimate's
+    amplitude, _, phase, line_rms = encoder_error_summary(harmonics)
+    return {"count": list(range(line_errors_counts.size)), "error_counts": line_errors_counts.tolist(),
+            "eccentricity_counts": amplitude, "eccentricity_phase_rad": phase, "line_rms_counts": line_rms}
 
 
 def simulated_description(simulator: Simulator, limits: BenchLimits) -> BenchDescription:
@@ -79,7 +92,7 @@ def simulated_description(simulator: Simulator, limits: BenchLimits) -> BenchDes
 
 def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None = None,
                    revolutions: int | None = None,
-                   on_done: Callable[[int, TrialData], None] | None = None) -> Bench:
+                   on_done: Callable[[int, TrialData], None] | None = None, torque_sensor: bool = True) -> Bench:
     """Run the set-point grid and write a bench folder plus ``truth.json``.
 
     Parameters
@@ -88,6 +101,8 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
     out_dir : the bench folder to write (created if needed).
     seed, revolutions : override the config's ``[trials]`` values.
     on_done : called with (index, trial) as each trial finishes.
+    torque_sensor : False: a bench without a torque sensor (no torque column, [motor] torque_sensor =
+        false, with the encoder's timer_resolution_s); the simulator's torque sensor still runs, unrecorded.
 
     Raises `ConfigError` before any trial runs when a grid request breaks the config's [limits].
     """
@@ -101,8 +116,11 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
     check_plan(grid_plan(config, requests), description,
                SafetyLimits.of_campaign(lim, bench_limits, config.grid.warmup_revolutions))
     trials = simulator.run_trials(requests, on_done=on_done)
+    if not torque_sensor:
+        trials = [replace(trial, torque_nm=None) for trial in trials]
     bench = Bench(
-        motor=description.motor,
+        motor=description.motor if torque_sensor else replace(
+            description.motor, torque_sensor=False, timer_resolution_s=simulator.model.encoder.timer_resolution_s),
         backemf_nm_per_a=simulator.backemf_counts,
         sensors=requests[0].calibration,
         trials=tuple(trials),

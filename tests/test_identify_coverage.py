@@ -1,0 +1,146 @@
+"""Honest standard errors on benches the model does not fit exactly (docs/identification.md,
+"Uncertainty on mismatched data"): every estimate within 3 reported standard errors of the truth with
+friction, saturation and a current loop other than the seed's; no inflation where the fit matches; a
+warning naming the harmonics where the residual holds structure the model lacks."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from functools import lru_cache
+from pathlib import Path
+from tempfile import TemporaryDirectory
+
+import numpy as np
+import pytest
+from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
+
+from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.config import load_config
+from ilcpmac.identify import identify_bench
+from ilcpmac.identify.decoupling import _standard_error
+from ilcpmac.identify.system_gain import structure_variance
+from ilcpmac.sim.grid import grid_requests, truth_dict
+from ilcpmac.sim.simulator import Simulator
+
+#: 3 torques x 2 speeds of 4 revolutions on the 1024-count seed bench
+SMALL_GRID = {"torque_setpoints_nm": [1.0, 3.0, 5.0], "speed_setpoints_hz": [0.5, 1.0], "revolutions": 4}
+#: what each bench changes in the seed config (tables of the config)
+BENCHES = {
+    "matched": {},
+    "friction and saturation": {"simulator.mechanics": {"coulomb_friction_nm": 0.2},
+                                "simulator.unexplained": {"saturation_per_a2": 3.0e-4}},
+    "slow loop and friction": {"simulator.controller": {"bandwidth_hz": 80.0},
+                               "simulator.mechanics": {"coulomb_friction_nm": 0.05}},
+}
+#: (result field, truth key) of the scalar estimates
+SCALARS = (("delta_epsilon", "total_system_gain"), ("delta", "torque_sensor_gain"), ("epsilon", "epsilon"),
+           ("inertia_estimate", "inertia_estimate"))
+
+
+@lru_cache(maxsize=None)
+def small_bench(name: str, seed: int = 101) -> tuple[Bench, dict]:
+    """The seed bench at 1024 counts on SMALL_GRID with the changes of BENCHES[name], simulated in memory."""
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    data["bench"]["counts_per_rev"] = COUNTS_PER_REV
+    data["trials"].update(SMALL_GRID, seed=seed)
+    for dotted, values in BENCHES[name].items():
+        table = data
+        for part in dotted.split("."):
+            table = table[part]
+        table.update(values)
+    with TemporaryDirectory() as folder:
+        path = Path(folder) / "campaign.toml"
+        path.write_text(toml_text(data))
+        config = load_config(path)
+    simulator = Simulator(config.model, config.grid.warmup_revolutions)
+    requests = grid_requests(config, config.model.controller.calibration(), seed, config.grid.revolutions)
+    m = config.model
+    bench = Bench(MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
+                  simulator.backemf_counts, requests[0].calibration, tuple(simulator.run_trials(requests)),
+                  tuple(f"trial_{i + 1:02d}.csv" for i in range(len(requests))))
+    return bench, truth_dict(simulator, requests[0])
+
+
+@lru_cache(maxsize=None)
+def identified(name: str):
+    bench, truth = small_bench(name)
+    return identify_bench(bench), truth
+
+
+def error_over_std(method, truth: dict) -> dict[str, float]:
+    """|estimate - truth| / reported standard error, the largest over phases, per estimate the method gives."""
+    out = {}
+    for name, key in SCALARS + (("alpha", "alpha"), ("beta", "beta")):
+        value, std = getattr(method, name), getattr(method, name + "_std")
+        if value is not None:
+            out[name] = float(np.max(np.abs(np.asarray(value) - truth[key]) / std))
+    return out
+
+
+@pytest.mark.parametrize("name", list(BENCHES))
+def test_the_joint_methods_errors_cover_the_truth(name):
+    result, truth = identified(name)
+    ratios = error_over_std(result.methods["joint"], truth)
+    assert set(ratios) == {"delta_epsilon", "delta", "epsilon", "inertia_estimate", "alpha", "beta"}
+    assert max(ratios.values()) <= 3.0, ratios
+
+
+@pytest.mark.parametrize("name", list(BENCHES))
+def test_the_report_methods_gain_and_decoupling_errors_cover_the_truth(name):
+    result, truth = identified(name)
+    ratios = error_over_std(result.methods["report"], truth)
+    # delta (and J*) of ch. 3 come from sensor_gain.py, whose standard error is not yet made honest
+    assert max(ratios[k] for k in ("delta_epsilon", "alpha", "beta")) <= 3.0, ratios
+
+
+def test_a_matched_fit_keeps_its_standard_errors():
+    result, _ = identified("matched")
+    joint = result.details.joint
+    linear = slice(0, 6)  # theta and beta*
+    inflation = np.sqrt(np.diag(joint.covariance)[linear] / np.diag(joint.bound_covariance)[linear])
+    assert np.all(inflation >= 1.0 - 1e-9)
+    assert inflation.max() <= 1.2
+    assert joint.warnings == ()
+    assert {g.label for g in joint.misfit} == {"electrical 1x-2x", "cogging", "other electrical", "excitation"}
+
+
+def test_structure_at_a_harmonic_the_model_claims_is_named_and_inflates_the_errors():
+    """A ripple at 2x electrical whose phase changes from trial to trial: neither the model's columns nor the
+    shared position table can take it, so the 1x-2x family's residual grows and so do the errors of beta."""
+    bench, _ = small_bench("matched")
+    rng = np.random.default_rng(5)
+    pole_pairs = bench.motor.pole_pairs
+    trials = []
+    for trial in bench.trials:
+        angle = 2.0 * np.pi * trial.count / bench.motor.counts_per_rev
+        ripple = 0.003 * np.sin(2 * pole_pairs * angle + rng.uniform(0.0, 2.0 * np.pi))
+        trials.append(dataclasses.replace(trial, torque_nm=trial.torque_nm + ripple))
+    joint = identify_bench(dataclasses.replace(bench, trials=tuple(trials))).details.joint
+    family = {g.label: g for g in joint.misfit}["electrical 1x-2x"]
+    assert family.chi2_reduced > 5.0
+    assert family.is_off
+    assert joint.warnings == (family.warning,)
+    assert "electrical 1x-2x harmonics 8-16" in family.warning
+    inflation = np.sqrt(np.diag(joint.covariance) / np.diag(joint.bound_covariance))
+    assert inflation.max() == pytest.approx(family.inflation, rel=0.2)
+    assert inflation.max() > 1.5
+
+
+def test_structure_variance_is_zero_for_scatter_and_the_structures_size_for_a_step():
+    rng = np.random.default_rng(3)
+    expected = np.full(16, 0.01)
+    scatter = rng.normal(0.0, 0.1, 16)
+    assert structure_variance(scatter, expected)[0] == 0.0
+    step = np.where(np.arange(16) < 8, 1.0, -1.0)
+    variance, q = structure_variance(step + scatter, expected)
+    assert q > 50.0
+    assert variance == pytest.approx(1.0, rel=0.2)
+
+
+def test_the_decouplings_shared_misfit_adds_to_the_scatter_and_nothing_without_misfit():
+    rng = np.random.default_rng(4)
+    per_set_point = rng.normal(0.0, 1.0, (6, 3))
+    scatter = per_set_point.std(axis=0, ddof=1) / np.sqrt(6)
+    np.testing.assert_allclose(_standard_error(per_set_point, np.zeros((6, 3))), scatter)
+    np.testing.assert_allclose(_standard_error(per_set_point, np.full((6, 3), 4.0)), np.sqrt(scatter**2 + 4.0))
