@@ -56,6 +56,8 @@ from ilcpmac.model.tables import backemf_table
 MAX_TOML_BYTES = 2**20
 #: Most learned or validated torques, and speeds, of [campaign].
 MAX_OPERATING_POINTS = 32
+#: [campaign] torque_source: what the campaign measures the torque ripple with (docs/sensorless.md).
+TORQUE_SOURCES = ("sensor", "encoder", "both")
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
 
@@ -119,6 +121,10 @@ class CampaignSettings:
     validate_revolutions: int = setting(
         in_range(1, 2**24), "recorded revolutions per validation trial at the slowest learned speed (more at a "
         "faster speed)", 32)
+    torque_source: str | None = setting(
+        lambda x: x in TORQUE_SOURCES, '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s '
+        'time stamps, docs/sensorless.md) or "both" (the two fused); left out: "sensor" where the bench has a torque '
+        'sensor, else "encoder"', None)
 
 
 @dataclass(frozen=True)

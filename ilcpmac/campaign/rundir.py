@@ -158,10 +158,12 @@ class RunFiles:
             raise RunDirError(f"{self.summary}: unreadable (no list of trials)")
         return summary
 
-    def read_trial(self, index: int, torque_setpoint_nm: float, speed_setpoint_hz: float) -> TrialData:
-        """Trial ``index`` read back from its file."""
+    def read_trial(self, index: int, torque_setpoint_nm: float, speed_setpoint_hz: float,
+                   torque_sensor: bool = True) -> TrialData:
+        """Trial ``index`` read back from its file (with a torque column if the bench has a ``torque_sensor``)."""
         try:
-            return read_trial(self.existing_trial(index), torque_setpoint_nm, speed_setpoint_hz)
+            return read_trial(self.existing_trial(index), torque_setpoint_nm, speed_setpoint_hz,
+                              torque_sensor=torque_sensor)
         except BenchFormatError as e:
             raise RunDirError(str(e)) from None
 
@@ -494,4 +496,5 @@ class RunDir:
     def read_trials(self, indices: list[int]) -> list[TrialData]:
         """Read complete trials back from their files."""
         self.flush()
-        return [self.files.read_trial(i, *self._entries[i - 1][1:]) for i in indices]
+        torque_sensor = self.description.motor.torque_sensor
+        return [self.files.read_trial(i, *self._entries[i - 1][1:], torque_sensor) for i in indices]

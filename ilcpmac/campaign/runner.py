@@ -17,6 +17,10 @@ Phases (report ch. 1-4, then beyond):
    and one with the compensation, no learning; then compensation.json is
    written again with its fade-out (`ilcpmac.campaign.validation`).
 
+The torque ripple is measured by [campaign] torque_source (`TorqueMeasurement`, docs/sensorless.md): the
+torque sensor, the encoder's time stamps, or both fused; the identification uses the encoder with
+"encoder", the sensor otherwise, and with "both" the encoder too for its graduation error.
+
 The next trial is always a function of the trials done so far and the states
 saved with them, so ``--resume`` continues exactly where a run stopped and
 ends with the same result as an uninterrupted run with the same seed.
@@ -40,16 +44,17 @@ from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
-from ilcpmac.errors import IdentificationError, IlcpmacError
-from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
+from ilcpmac.errors import ConfigError, IdentificationError, IlcpmacError
+from ilcpmac.identify.encoder import timer_resolution_s
+from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import LimitGuard, identified_truth
-from ilcpmac.records import BenchDescription, IdentificationResult, TrialData, TrialRequest
+from ilcpmac.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import RippleFigures
-from ilcpmac.stages.base import PIPELINE_NEEDS, Identified, StageSetup
+from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs
 
-__all__ = ["SUMMARY_UNITS", "CampaignEvents", "CampaignPlan", "CampaignRunner"]
+__all__ = ["SUMMARY_UNITS", "CampaignEvents", "CampaignPlan", "CampaignRunner", "torque_source"]
 
 #: summary.json's "units": the unit of each number of its trials and of "final"
 SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
@@ -61,6 +66,22 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                     for kind in ("measured", "true")},
                  "fade_full_hz": "Hz (the feed-forward applies fully up to this speed; null: always)",
                  "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
+
+
+def torque_source(config: CampaignConfig, description: BenchDescription) -> str:
+    """[campaign] torque_source, or its default: "sensor" unless the bench's description says it has no torque
+    sensor (``motor.torque_sensor`` False), then "encoder".
+
+    Raises `ConfigError` for a source that reads a torque sensor the bench does not have.
+    """
+    has_sensor = description.motor.torque_sensor
+    chosen = config.campaign.torque_source
+    if chosen is None:
+        return "sensor" if has_sensor else "encoder"
+    if chosen != "encoder" and not has_sensor:
+        raise ConfigError(f"{config.path}: [campaign] torque_source = {chosen!r}: the bench has no torque sensor "
+                          '(use "encoder")')
+    return chosen
 
 
 class CampaignEvents(Protocol):
@@ -102,20 +123,21 @@ class CampaignRunner:
         self.identify = identify
         self.events = events
         self.description: BenchDescription = run_dir.description
+        self.torque_source = torque_source(config, self.description)
         self.plan = plan or CampaignPlan.build(config, self.description, seed)
         #: every request of every phase passes the limits here (the identified sensors join them later)
         self.backend = LimitGuard(backend, self.description, self.plan.limits)
         report_progress_to(self.backend, events.progress)
         self.records: list[TrialRecord] = []
         self.identified: Identified | None = None
+        #: what measures the torque ripple, from the identification on
+        self.measurement: TorqueMeasurement | None = None
         self.identification_json: dict | None = None
         self.pipeline: Pipeline | None = None
         #: what the drive applies, built from the pipeline when learning ends
         self.compensation: Compensation | None = None
         self.gains: dict[str, float] = {}
         self._grid_data: dict[int, TrialData] = {}
-        #: the measured torque's analysis of the grid trials run by this process, for their measured ripple
-        self._grid_spectra: dict[int, TorqueSpectrum] = {}
 
     @property
     def grid(self) -> list[TrialRequest]:
@@ -170,7 +192,7 @@ class CampaignRunner:
         request = step.request
         key = request.setpoint_key
         analysis = TrialAnalysis.of(trial, self.description.motor.counts_per_rev,
-                                    self.config.campaign.ripple_harmonics)
+                                    self.config.campaign.ripple_harmonics, self.measurement)
         record = TrialRecord(len(self.records) + 1, step.phase, step.role, request.torque_setpoint_nm,
                              request.speed_setpoint_hz, true=self._true_figures(analysis))
         if record.learns:
@@ -189,7 +211,6 @@ class CampaignRunner:
         self.run_dir.add_trial(trial, state, self.summary())
         if step.role == "grid":
             self._grid_data[record.index] = trial
-            self._grid_spectra[record.index] = analysis.measured
             if len(self.records) == len(self.grid):
                 self._identify(self._grid_trials())
         self.events.trial(record, self.records)
@@ -221,11 +242,10 @@ class CampaignRunner:
         return analysis.true.figures(analysis.true_mean_nm, m.pole_pairs, m.cogging_order)
 
     def _measured_figures(self, request: TrialRequest, spectrum: TorqueSpectrum) -> RippleFigures:
-        """Measured ripple, as a fraction of the mean torque the sensor would show (delta epsilon set point)."""
+        """Measured ripple, as a fraction of the mean torque the measurement would show: its gain (delta for
+        the sensor, 1 in N m) times epsilon alpha-mean times the set point."""
         m = self.description.motor
-        cal = request.calibration
-        ident = self.identified
-        mean = request.torque_setpoint_nm * ident.delta_at(cal) * float(np.mean(ident.epsilon_alpha_at(cal)))
+        mean = self.measurement.gain(request.calibration) * self.measurement.mean_torque_nm(request)
         return spectrum.figures(mean, m.pole_pairs, m.cogging_order)
 
     def _identify(self, grid_trials: list[TrialData]) -> None:
@@ -233,28 +253,37 @@ class CampaignRunner:
         self.run_dir.flush()  # the grid records change below; nothing may be serialising them
         self.events.message("identify: estimating delta*epsilon, delta, alpha, beta and cogging")
         n = len(grid_trials)
-        bench = Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
-                      tuple(grid_trials), self.run_dir.trial_names(n))
-        result = self.identify(bench)
+        bench = self._grid_bench(grid_trials)
+        result = (self.identify(bench) if self.torque_source != "encoder"
+                  else self.identify(bench, torque_source="encoder"))
+        if self.torque_source == "both":  # the sensor's estimates, and the encoder's graduation error
+            encoder = self.identify(bench, torque_source="encoder")
+            result = replace(result, **{name: getattr(encoder, name) for _, name in ENCODER_ERROR_KEYS})
         self.identification_json = result.to_json()
         self._set_identified(result)
         cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
-        for i, trial in enumerate(grid_trials, start=1):  # read back after a resume: analysed here
-            if i not in self._grid_spectra:
-                self._grid_spectra[i] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, cpr, H)
-        self.records[:n] = [replace(r, measured=self._measured_figures(request, self._grid_spectra[r.index]))
-                            for r, request in zip(self.records, self.grid)]
+        spectra = [TrialAnalysis.of(replace(trial, request=request), cpr, H, self.measurement).measured
+                   for trial, request in zip(grid_trials, self.grid)]
+        self.records[:n] = [replace(r, measured=self._measured_figures(request, spectrum))
+                            for r, request, spectrum in zip(self.records, self.grid, spectra)]
         self.run_dir.write_identification({"result": self.identification_json,
                                            "grid_records": [r.to_json() for r in self.records[:n]]})
         self.run_dir.write_summary(self.summary())
 
-    def _set_identified(self, result: IdentificationResult) -> None:
-        """Take the identification: the stages start from it, the limits bound the flowing current with it.
+    def _grid_bench(self, grid_trials: list[TrialData]) -> Bench:
+        """The grid as a bench folder in memory."""
+        return Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
+                     tuple(grid_trials), self.run_dir.trial_names(len(grid_trials)))
 
-        Raises `IdentificationError` when it lacks an estimate the pipeline (`PIPELINE_NEEDS`) or a
-        configured stage (its factory's ``needs``) needs.
+    def _set_identified(self, result: IdentificationResult) -> None:
+        """Take the identification: the stages start from it, the limits bound the flowing current with it, the
+        torque measurement relates to the true torque with it (`TorqueMeasurement`).
+
+        Raises `IdentificationError` when it lacks an estimate the pipeline (`PIPELINE_NEEDS`, or
+        `SENSORLESS_PIPELINE_NEEDS` on the encoder) or a configured stage (its factory's ``needs``) needs.
         """
-        needs = {"the pipeline": PIPELINE_NEEDS, **{f"stage {name!r}": needed for name, needed in stage_needs(
+        pipeline = SENSORLESS_PIPELINE_NEEDS if self.torque_source == "encoder" else PIPELINE_NEEDS
+        needs = {"the pipeline": pipeline, **{f"stage {name!r}": needed for name, needed in stage_needs(
             list(self.config.pipeline.stages), self.extra_stages).items()}}
         missing = {who: result.missing(needed) for who, needed in needs.items()}
         missing = {who: names for who, names in missing.items() if names}
@@ -264,6 +293,12 @@ class CampaignRunner:
             raise IdentificationError(f"{wanted}, which the identification could not estimate ({why})")
         self.identified = Identified.from_result(result, self.description.calibration)
         self.backend.truth = identified_truth(self.identified)
+        if self.torque_source == "sensor":
+            self.measurement = TorqueMeasurement(self.identified)
+            return
+        self.measurement = TorqueMeasurement(
+            self.identified, self.torque_source, self.description.motor.inertia_kgm2,
+            timer_resolution_s(self._grid_bench(self._grid_trials())), result.encoder_error_counts)
 
     def _start_pipeline(self) -> None:
         names = list(self.config.pipeline.stages)
@@ -271,7 +306,7 @@ class CampaignRunner:
                                    self.config.stage_options.get(name, {})) for name in names}
         stages = build_stages(names, setups, self.extra_stages)
         self.pipeline = Pipeline(stages, self.description, self.identified, self.plan.limits,
-                                 self.config.campaign.ripple_harmonics, self.events.message)
+                                 self.config.campaign.ripple_harmonics, self.events.message, self.measurement)
 
     def _guard(self, point: Point, key: str) -> dict | None:
         """Revert this point's correction to its best and halve its learning gain when the ripple grew twice in

@@ -50,13 +50,15 @@ class CampaignView:
     title : the table's title.
     records : the trials done so far; None when not yet known (a resume loads them).
     clock : seconds, monotonic.
+    source : what the measured figures come from ([campaign] torque_source, resolved).
     """
 
     def __init__(self, console: Console, plan: CampaignPlan, title: str, records: list[TrialRecord] | None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, source: str = "sensor") -> None:
         self.console = console
         self.plan = plan
         self.title = title
+        self.source = source
         self.records = records
         self.clock = clock
         self.started_s = self.last_s = clock()
@@ -142,7 +144,7 @@ class CampaignView:
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
         from ilcpmac.report.table import trials_table
 
-        yield trials_table(self.records or [], options.max_width, self.title)
+        yield trials_table(self.records or [], options.max_width, self.title, self.source)
         yield Text(self.status(options.max_width))
 
 
@@ -190,7 +192,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     from ilcpmac.campaign.plan import CampaignPlan
     from ilcpmac.campaign.record import records_of
     from ilcpmac.campaign.rundir import RunDir, RunFiles
-    from ilcpmac.campaign.runner import CampaignRunner
+    from ilcpmac.campaign.runner import CampaignRunner, torque_source
     from ilcpmac.config import check_config, load_config, packaged_config
     from ilcpmac.errors import ConfigError
     from ilcpmac.identify import identify_bench
@@ -230,7 +232,8 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
                 run_dir = RunDir.create(out_dir, description, config_path.read_text(),
                                         {"seed": seed, "trials": trials, "config": str(config_path)}, lock)
             view = CampaignView(console, plan, f"ilcpmac run  {run_dir.path}",
-                                None if resume_dir is not None else [])
+                                None if resume_dir is not None else [],
+                                source=torque_source(cfg, description))
             with LiveTable(view, console=console, refresh_per_second=REFRESH_HZ, vertical_overflow="visible"):
                 try:
                     summary = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, view, plan=plan).run()

@@ -58,6 +58,7 @@ from ilcpmac.signals.encoder_torque import (
     EncoderSeparation,
     EncoderTorqueSpectrum,
     at_nominal_angles,
+    brake_viscous_nm_s,
     encoder_error_table,
     revolution_torques_nm,
     separate_encoder_error,
@@ -154,8 +155,8 @@ def _spectrum(trial: TrialData, motor, timer_s: float, backemf: np.ndarray, mode
     except ValueError as e:
         raise IdentificationError(f"encoder-derived torque: {e}") from None
     _, i_ref_table, _ = revolution_averages(trial.count, trial.time_s, trial.i_ref_a, cpr)
-    viscous = model.mean_torque_nm(backemf, i_ref_table) / spectrum.speed_harmonics_rad_s[0].real
-    return with_viscous(spectrum, viscous)
+    return with_viscous(spectrum, brake_viscous_nm_s(model.mean_torque_nm(backemf, i_ref_table),
+                                                     spectrum.speed_harmonics_rad_s[0].real))
 
 
 def encoder_trial_tables(trial: TrialData, motor, backemf: np.ndarray, timer_s: float, band: int,

@@ -1,10 +1,17 @@
-"""One analysis per trial: the detrended revolution harmonics of its torque, computed once.
+"""One analysis per trial: the revolution harmonics of its torque, measured and true, computed once.
 
 The pipeline's joint fit (`ilcpmac.pipeline.pipeline.Pipeline.frame`), the
 campaign's ripple figures (docs/campaign.md) and the report's plots all derive
 from it. The piezo torque sensor measures neither DC nor drift, so each torque
 loses its least-squares straight line against time over the trial's whole
 revolutions before the revolution harmonics (`revolution_harmonics`) are taken.
+
+What measures the ripple is a `TorqueMeasurement` ([campaign] torque_source,
+docs/sensorless.md): the torque sensor, in its units (delta times the true
+torque through its high-pass); the encoder's time stamps
+(`ilcpmac.signals.encoder_torque`), in N m; or both fused per harmonic by
+inverse variance, in N m. `TorqueMeasurement.response` is the one place that
+says how a measured harmonic relates to the true torque's.
 """
 
 from __future__ import annotations
@@ -13,7 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.records import TrialData
+from ilcpmac.config import TORQUE_SOURCES
+from ilcpmac.errors import IlcpmacError
+from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.signals.encoder_torque import EncoderTorqueSpectrum, brake_viscous_nm_s, with_viscous
 from ilcpmac.signals.harmonics import (
     RippleFigures,
     linear_trend,
@@ -22,8 +32,9 @@ from ilcpmac.signals.harmonics import (
     table_harmonics,
     whole_revolutions,
 )
+from ilcpmac.stages.base import Identified
 
-__all__ = ["TorqueSpectrum", "TrialAnalysis"]
+__all__ = ["TorqueMeasurement", "TorqueSpectrum", "TrialAnalysis", "fused"]
 
 
 def _ripple_table(harmonics: np.ndarray, counts_per_rev: int) -> np.ndarray:
@@ -81,6 +92,11 @@ class TorqueSpectrum:
         """H, the highest harmonic held."""
         return self.harmonics_nm.size - 1
 
+    def divided_by(self, response: np.ndarray) -> TorqueSpectrum:
+        """This spectrum divided by a response per harmonic 0..H (``rest_rms_nm`` by the mean's)."""
+        return TorqueSpectrum(self.harmonics_nm / response, self.variance_nm2 / np.abs(response) ** 2,
+                              self.rest_rms_nm / abs(response[0]), self.counts_per_rev)
+
     def ripple_table(self) -> np.ndarray:
         """The ripple over one revolution, per count: harmonics 1..H (no mean), N m."""
         return _ripple_table(self.harmonics_nm, self.counts_per_rev)
@@ -111,29 +127,144 @@ class TorqueSpectrum:
         )
 
 
+def fused(sensor: TorqueSpectrum, encoder: TorqueSpectrum) -> TorqueSpectrum:
+    """Two spectra of one torque in N m, combined per harmonic by inverse variance; the mean (h = 0), which a
+    piezo does not see, is the encoder's.
+
+    Each harmonic's variance is 1 / (1 / v_s + 1 / v_e), below either; ``rest_rms_nm`` is the smaller of the two.
+    """
+    ws, we = 1.0 / sensor.variance_nm2, 1.0 / encoder.variance_nm2
+    harmonics = (ws * sensor.harmonics_nm + we * encoder.harmonics_nm) / (ws + we)
+    variance = 1.0 / (ws + we)
+    harmonics[0], variance[0] = encoder.harmonics_nm[0], encoder.variance_nm2[0]
+    return TorqueSpectrum(harmonics, variance, min(sensor.rest_rms_nm, encoder.rest_rms_nm), encoder.counts_per_rev)
+
+
+@dataclass(frozen=True)
+class TorqueMeasurement:
+    """What measures a trial's torque ripple ([campaign] torque_source), and how it relates to the true torque.
+
+    A measured harmonic is ``response`` times the true torque's: the sensor's delta at the trial's calibration
+    times its high-pass and delay (`Identified.sensor_response`); 1 for the encoder and for both fused (N m).
+
+    Attributes
+    ----------
+    identified : Identified
+        The identification (delta, epsilon alpha for the brake, the sensor's high-pass).
+    source : str
+        "sensor", "encoder" or "both".
+    inertia_kgm2 : float
+        J of eq. 3.1, kg m^2 (the bench's): "encoder" and "both" only.
+    timer_resolution_s : float
+        The time stamps' quantum q, s (eq. 3; 0: the revolution scatter alone weights).
+    line_errors_counts : ndarray, shape (counts_per_rev,), or None
+        The identified encoder graduation error e_c, counts, taken out of every trial's stamps.
+    friction_nm : float
+        Coulomb friction the brake does not absorb, N m.
+    """
+
+    identified: Identified
+    source: str = "sensor"
+    inertia_kgm2: float = 0.0
+    timer_resolution_s: float = 0.0
+    line_errors_counts: np.ndarray | None = None
+    friction_nm: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.source not in TORQUE_SOURCES:
+            raise ValueError(f"torque source must be one of {', '.join(TORQUE_SOURCES)}, got {self.source!r}")
+        if self.source != "sensor" and not (np.isfinite(self.inertia_kgm2) and self.inertia_kgm2 > 0):
+            raise ValueError(f"the encoder-derived torque needs the inertia, got {self.inertia_kgm2!r} kg m^2")
+
+    @property
+    def uses_sensor(self) -> bool:
+        """Whether the trials' torque column is read."""
+        return self.source != "encoder"
+
+    def gain(self, calibration: SensorCalibration) -> float:
+        """The response's scalar part while the controller uses ``calibration``: delta, or 1 in N m."""
+        return self.identified.delta_at(calibration) if self.source == "sensor" else 1.0
+
+    def response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration) -> np.ndarray:
+        """Measured over true torque at each harmonic of a trial at ``speed_hz`` with ``calibration``."""
+        if self.source == "sensor":
+            return self.sensor_response(harmonics, speed_hz, calibration)
+        return np.ones(np.shape(harmonics))
+
+    def sensor_response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration
+                        ) -> np.ndarray:
+        """The torque sensor's column over true torque: delta at ``calibration`` times the identified high-pass and
+        delay (`Identified.sensor_response`; delta alone at h = 0)."""
+        return self.identified.delta_at(calibration) * self.identified.sensor_response(harmonics, speed_hz)
+
+    def mean_torque_nm(self, request: TrialRequest) -> float:
+        """The true mean torque the identification predicts for ``request``: epsilon alpha-mean x set point."""
+        return request.torque_setpoint_nm * float(np.mean(self.identified.epsilon_alpha_at(request.calibration)))
+
+    def encoder_spectrum(self, trial: TrialData, counts_per_rev: int, max_harmonic: int) -> TorqueSpectrum:
+        """The encoder-derived torque of ``trial`` (whose ``request`` is set) as a `TorqueSpectrum` in N m.
+
+        Its variance is the fit's weight (`EncoderTorqueSpectrum.weight_variance_nm2`: the larger of the
+        revolution scatter and the quantisation floor, eq. 3); ``rest_rms_nm`` the revolution-to-revolution
+        scatter's RMS within the band 1..H.
+        """
+        spectrum = EncoderTorqueSpectrum.of(trial.count, trial.time_s, counts_per_rev, max_harmonic,
+                                            self.inertia_kgm2, self.timer_resolution_s, 0.0, self.line_errors_counts)
+        spectrum = with_viscous(spectrum, brake_viscous_nm_s(self.mean_torque_nm(trial.request),
+                                                             spectrum.speed_harmonics_rad_s[0].real, self.friction_nm))
+        rest = float(np.sqrt(spectrum.revolutions * np.sum(spectrum.variance_nm2[1:]) / 2.0))
+        return TorqueSpectrum(spectrum.harmonics_nm, spectrum.weight_variance_nm2, rest, counts_per_rev)
+
+    def in_true_units(self, spectrum: TorqueSpectrum, speed_hz: float, calibration: SensorCalibration
+                      ) -> TorqueSpectrum:
+        """``spectrum`` of this measurement divided by its `response`."""
+        return spectrum.divided_by(self.response(np.arange(spectrum.max_harmonic + 1), speed_hz, calibration))
+
+
 @dataclass(frozen=True)
 class TrialAnalysis:
     """The analysis of one finished trial.
 
     Attributes
     ----------
-    measured : TorqueSpectrum
-        Of the measured torque (``torque_nm``, in the sensor's units): the joint fit and the measured ripple.
+    measured : TorqueSpectrum or None
+        Of the measured torque (`TorqueMeasurement`: the sensor's ``torque_nm`` in its units, or N m from the
+        encoder or both): the joint fit and the measured ripple. None before the identification when the trial
+        has no torque column.
     true : TorqueSpectrum or None
         Of the simulator's true torque, when the trial has one: the true ripple.
     true_mean_nm : float or None
         The true torque's mean over the trial, N m (the true ripple's reference).
     """
 
-    measured: TorqueSpectrum
+    measured: TorqueSpectrum | None
     true: TorqueSpectrum | None = None
     true_mean_nm: float | None = None
 
     @classmethod
-    def of(cls, trial: TrialData, counts_per_rev: int, max_harmonic: int) -> TrialAnalysis:
-        """Analyse ``trial`` up to harmonic ``max_harmonic`` (H)."""
-        torques = [trial.torque_nm] if trial.torque_true_nm is None else [trial.torque_nm, trial.torque_true_nm]
-        spectra = TorqueSpectrum.of_each(trial.count, trial.time_s, torques, counts_per_rev, max_harmonic)
+    def of(cls, trial: TrialData, counts_per_rev: int, max_harmonic: int,
+           measurement: TorqueMeasurement | None = None) -> TrialAnalysis:
+        """Analyse ``trial`` up to harmonic ``max_harmonic`` (H), measured by ``measurement`` (None: the sensor's
+        torque column as it is, where the trial has one).
+
+        Raises `IlcpmacError` when the measurement reads a torque column the trial does not have.
+        """
+        sensor = measurement is None or measurement.uses_sensor
+        if sensor and trial.torque_nm is None and measurement is not None:
+            raise IlcpmacError(f"[campaign] torque_source = {measurement.source!r}: the trial at "
+                               f"{trial.torque_setpoint_nm:g} N m, {trial.speed_setpoint_hz:g} Hz has no torque "
+                               "column (no torque sensor): use \"encoder\"")
+        torques = [t for t in (trial.torque_nm if sensor else None, trial.torque_true_nm) if t is not None]
+        spectra = TorqueSpectrum.of_each(trial.count, trial.time_s, torques, counts_per_rev, max_harmonic) \
+            if torques else []
+        measured = spectra.pop(0) if sensor and trial.torque_nm is not None else None
+        if measurement is not None and measurement.source != "sensor":
+            encoder = measurement.encoder_spectrum(trial, counts_per_rev, max_harmonic)
+            if measurement.source == "both":
+                response = measurement.sensor_response(np.arange(max_harmonic + 1),
+                                                       trial.mean_speed_hz(counts_per_rev), trial.request.calibration)
+                encoder = fused(measured.divided_by(response), encoder)
+            measured = encoder
         if trial.torque_true_nm is None:
-            return cls(spectra[0])
-        return cls(*spectra, float(trial.torque_true_nm.mean()))
+            return cls(measured)
+        return cls(measured, spectra[0], float(trial.torque_true_nm.mean()))

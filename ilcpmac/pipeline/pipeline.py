@@ -7,6 +7,11 @@ joint fit's model, eq. 1.13, with the feed-forward moved to the known side), as 
 d = e - G^ u. A stage that feeds forward -c^ / G^ from its block's estimate c^ then iterates
 c^_{k+1} = c + (G / G^ - 1) G^ u_k, which converges to a delivered torque G u = -c while
 |1 - G / G^| < 1; were u's torque left in y, the stage would read its own feed-forward as the plant's.
+
+The measured harmonics relate to the true torque through the measurement's response
+(`TorqueMeasurement.response`: the sensor's delta, high-pass and delay, or 1 for the encoder-derived
+torque in N m): the fit divides out its shape per harmonic and keeps its scalar gain (delta, or 1),
+which the stages see as `Frame.delta`. The stages never know which source measured the torque.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.pipeline.analysis import TorqueSpectrum
+from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.regression import Regression
 from ilcpmac.pipeline.safety import (
     FlowingCurrent,
@@ -45,10 +50,13 @@ class Pipeline:
     limits : the safety limits every request obeys.
     max_harmonic : H, the ripple band.
     notify : told when the limits change what a stage asked for (a calibration clipped).
+    measurement : what measures the torque (None: the torque sensor, `TorqueMeasurement`).
     """
 
     def __init__(self, stages: list[Stage], description: BenchDescription, identified: Identified,
-                 limits: SafetyLimits, max_harmonic: int, notify: Callable[[str], None] | None = None) -> None:
+                 limits: SafetyLimits, max_harmonic: int, notify: Callable[[str], None] | None = None,
+                 measurement: TorqueMeasurement | None = None) -> None:
+        self.measurement = measurement or TorqueMeasurement(identified)
         self.stages = stages
         self.description = description
         self.identified = identified
@@ -102,24 +110,25 @@ class Pipeline:
     def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
         """The joint fit and the measured ripple spectrum of a finished trial.
 
-        The fit is of the measured harmonics less the feed-forward's torque through the identified
-        response, delta G^ u (module docstring). ``spectrum``: the trial's measured `TorqueSpectrum` up
-        to H (`TrialAnalysis.measured`), computed here when not given.
+        The fit is of the measured harmonics, their response's shape divided out, less the feed-forward's
+        torque through the identified response, gain G^ u (module docstring). ``spectrum``: the trial's
+        measured `TorqueSpectrum` up to H (`TrialAnalysis.measured`), computed here when not given.
         """
         cpr = self.description.motor.counts_per_rev
         if spectrum is None:
-            spectrum = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, cpr, self.max_harmonic)
-        mean, variance = spectrum.harmonics_nm, spectrum.variance_nm2
-        h = self.claimed_harmonics()
+            spectrum = TrialAnalysis.of(trial, cpr, self.max_harmonic, self.measurement).measured
         request = trial.request
-        delta = self.identified.delta_at(request.calibration)
         speed_hz = trial.mean_speed_hz(cpr)
+        gain = self.measurement.gain(request.calibration)
+        true = self.measurement.in_true_units(spectrum, speed_hz, request.calibration)
+        mean, variance = true.harmonics_nm * gain, true.variance_nm2 * gain**2
+        h = self.claimed_harmonics()
         u = harmonic_amplitudes(request.feedforward_nm)[h]
-        known = delta * self._response(h, speed_hz, request.calibration) * u
+        known = gain * self._response(h, speed_hz, request.calibration) * u
         blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.stages
                   if (table := s.columns(trial)) is not None}
         regression = Regression(mean[h] - known, variance[h], blocks)
-        return Frame({name: regression.block(name) for name in blocks}, mean / delta, variance / delta**2, delta,
+        return Frame({name: regression.block(name) for name in blocks}, true.harmonics_nm, true.variance_nm2, gain,
                      speed_hz, learning_gain)
 
     def learn(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:

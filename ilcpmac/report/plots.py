@@ -134,8 +134,10 @@ def ripple_per_trial(records: list[TrialRecord]) -> Figure:
 
 
 def _spectra(trial, counts_per_rev: int, max_harmonic: int) -> dict[str, TorqueSpectrum]:
-    """The measured and (when the trial has it) true torque's spectra."""
-    out = {"measured": TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)}
+    """The torque sensor's and (on the simulator) the true torque's spectra, of those the trial has."""
+    out = {}
+    if trial.torque_nm is not None:
+        out["measured"] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)
     if trial.torque_true_nm is not None:
         out["true"] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_true_nm, counts_per_rev, max_harmonic)
     return out
@@ -165,7 +167,8 @@ def before_after(report: RunReport) -> dict[str, Figure]:
         fig, axes = plotting.figure(3, 2.8, sharex=False)
         amplitudes = {}
         for axis, record, when in zip(axes, (base[0], final), ("uncompensated", "final")):
-            trial = report.files.read_trial(record.index, record.torque_setpoint_nm, record.speed_setpoint_hz)
+            trial = report.files.read_trial(record.index, record.torque_setpoint_nm, record.speed_setpoint_hz,
+                                             report.description.motor.torque_sensor)
             for kind, spectrum in _spectra(trial, cpr, H).items():
                 axis.plot(degrees, 1000 * spectrum.ripple_table(), lw=0.8, label=kind)
                 amplitudes[f"{when}, {kind}"] = np.abs(spectrum.harmonics_nm[1:])

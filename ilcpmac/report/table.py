@@ -16,7 +16,8 @@ from rich.table import Table
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.validation import point_results
 
-__all__ = ["FINAL_TITLE", "SUMMARY_TITLE", "final_lines", "significant", "summary_table", "trials_table"]
+__all__ = ["FINAL_TITLE", "SOURCE_CAPTIONS", "SUMMARY_TITLE", "final_lines", "significant", "summary_table",
+           "trials_table"]
 
 #: width of a column's padding (one space each side) and its left border
 _COLUMN_FRAME = 3
@@ -118,13 +119,23 @@ def _table(columns: list[tuple[str, str, list[str]]], **options) -> Table:
     return table
 
 
-def trials_table(records: list[TrialRecord], width: int, title: str | None = None) -> Table:
+#: what the "meas" columns estimate the ripple from, per [campaign] torque_source, when not the torque sensor
+SOURCE_CAPTIONS = {"encoder": "meas: estimated from the encoder's time stamps",
+                   "both": "meas: the torque sensor and the encoder's time stamps fused"}
+
+
+def trials_table(records: list[TrialRecord], width: int, title: str | None = None, source: str = "sensor") -> Table:
     """The live table, for a console ``width`` characters wide: per trial its phase, set point, measured and true
     ripple, harmonic amplitudes and reduction factors, as many columns as fit. The identification grid is one row
-    (its trials' range, set points and largest figures)."""
+    (its trials' range, set points and largest figures). The measured figures are estimated from ``source``
+    ([campaign] torque_source; the caption names it unless it is the torque sensor); the true ones are the
+    simulator's."""
     rows = _rows(records)
     columns = _fit([(c, [c.cell(row) for row in rows]) for c in _COLUMNS], width)
-    caption = "grid row: the largest figure over its trials" if any(r.role == "grid" for r in records) else None
+    notes = [SOURCE_CAPTIONS[source]] if source in SOURCE_CAPTIONS else []
+    if any(r.role == "grid" for r in records):
+        notes.append("grid row: the largest figure over its trials")
+    caption = "\n".join(notes) or None
     return _table([(c.header, c.justify, cells) for c, cells in columns], title=title, title_justify="left",
                   caption=caption, caption_justify="left")
 

@@ -125,6 +125,7 @@ from ilcpmac.signals.harmonics import (
 __all__ = [
     "EncoderSeparation",
     "EncoderTorqueSpectrum",
+    "brake_viscous_nm_s",
     "at_nominal_angles",
     "count_speeds",
     "encoder_error_gain",
@@ -305,6 +306,17 @@ class EncoderTorqueSpectrum:
         """m_h of eq. (4) at this trial's speed and mechanics, shape (H + 1,), N m per count."""
         return encoder_error_gain(np.arange(self.max_harmonic + 1), self.counts_per_rev, self.inertia_kgm2,
                                   2.0 * np.pi * self.mean_speed_hz, self.viscous_nm_s)
+
+
+def brake_viscous_nm_s(mean_torque_nm: float, mean_speed_rad_s: float, friction_nm: float = 0.0) -> float:
+    """b of a brake that absorbs the mean torque: (tau_0 - C) / omega_0, N m s/rad.
+
+    The mean of eq. 3.1 over a revolution in the position domain, mean(tau - b omega - C) =
+    J mean(omega domega/dtheta) = 0, with tau_0 and omega_0 the means over the angle (the speed's:
+    ``speed_harmonics_rad_s[0]``; its mean over time differs at second order in the speed ripple). On the
+    seed bench b is of the order of h J Omega at the cogging order, so it is never left out.
+    """
+    return (mean_torque_nm - friction_nm) / mean_speed_rad_s
 
 
 def with_viscous(spectrum: EncoderTorqueSpectrum, viscous_nm_s: float) -> EncoderTorqueSpectrum:

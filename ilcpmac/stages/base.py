@@ -27,6 +27,8 @@ from ilcpmac.records import BenchDescription, IdentificationResult, SensorCalibr
 #: the identification's estimates the pipeline itself needs (the trial's delta, the identified sensors
 #: bounding the flowing current); a stage declares what more it needs in its ``needs``
 PIPELINE_NEEDS = ("delta", "epsilon", "alpha", "beta")
+#: what it needs when the torque comes from the encoder alone ([campaign] torque_source = "encoder"): no delta
+SENSORLESS_PIPELINE_NEEDS = ("epsilon", "alpha", "beta")
 
 
 @dataclass(frozen=True)
@@ -34,7 +36,11 @@ class Identified:
     """What the identification phase found, at the calibration its data were recorded with.
 
     Attributes follow `ilcpmac.records.IdentificationResult` (eqs. 1.4-1.7); ``cogging_nm`` is None
-    and ``current_loop`` the ideal loop where the identification gave none.
+    and ``current_loop`` the ideal loop where the identification gave none; ``delta`` is 1 where it had no
+    torque sensor (the encoder-derived torque is true torque, and the torque gain stays the bench's).
+    ``sensor_highpass_hz`` and
+    ``sensor_delay_s`` are the torque sensor's high-pass corner (Hz) and delay (s) from the joint fit's
+    diagnostics (0: none identified).
     """
 
     delta: float
@@ -48,22 +54,30 @@ class Identified:
     alpha_std: np.ndarray = field(default_factory=lambda: np.zeros(3))
     beta_std_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
     current_loop: CurrentLoop = field(default_factory=CurrentLoop)
+    sensor_highpass_hz: float = 0.0
+    sensor_delay_s: float = 0.0
 
     @classmethod
     def from_result(cls, result: IdentificationResult | dict, calibration: SensorCalibration) -> Identified:
-        """From the identification (or its JSON, e.g. a simulator's truth), which must hold `PIPELINE_NEEDS`."""
+        """From the identification (or its JSON, e.g. a simulator's truth), which must hold `PIPELINE_NEEDS`, or
+        `SENSORLESS_PIPELINE_NEEDS` on the encoder-derived torque."""
         if isinstance(result, dict):
             result = IdentificationResult.from_json(result)
 
         def std(value, default):
             return np.asarray(default if value is None else value, float)
 
+        joint = result.diagnostics.get("joint") or {}
+
         return cls(
-            delta=float(result.delta), epsilon=float(result.epsilon), alpha=np.asarray(result.alpha, float),
+            delta=1.0 if result.delta is None else float(result.delta), epsilon=float(result.epsilon),
+            alpha=np.asarray(result.alpha, float),
             beta_a=np.asarray(result.beta, float), cogging_nm=result.cogging_nm, calibration=calibration,
             delta_std=float(std(result.delta_std, 0.0)), epsilon_std=float(std(result.epsilon_std, 0.0)),
             alpha_std=std(result.alpha_std, np.zeros(3)), beta_std_a=std(result.beta_std, np.zeros(3)),
-            current_loop=result.current_loop or CurrentLoop())
+            current_loop=result.current_loop or CurrentLoop(),
+            sensor_highpass_hz=float(joint.get("torque_sensor_highpass_hz") or 0.0),
+            sensor_delay_s=float(joint.get("torque_sensor_delay_s") or 0.0))
 
     def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
         """The current loop while the controller uses ``calibration``.
@@ -86,6 +100,15 @@ class Identified:
     def delta_at(self, calibration: SensorCalibration) -> float:
         """delta = g_t / g*_t while the controller uses ``calibration``."""
         return self.torque_gain_v_per_nm / calibration.torque_gain
+
+    def sensor_response(self, harmonics: np.ndarray, speed_hz: float) -> np.ndarray:
+        """The torque sensor's shape per harmonic at a speed, its gain delta aside: the identified first-order
+        high-pass j w / (j w + w_c) and delay e^{-j w D}, w = 2 pi h f; 1 at h = 0 (the mean is not measured)."""
+        w = 2.0 * np.pi * np.asarray(harmonics, float) * speed_hz
+        corner = 2.0 * np.pi * self.sensor_highpass_hz
+        with np.errstate(divide="ignore", invalid="ignore"):
+            highpass = np.where(w > 0, 1.0 / (1.0 - 1j * corner / w), 1.0)
+        return highpass * np.exp(-1j * w * self.sensor_delay_s)
 
     def epsilon_alpha_at(self, calibration: SensorCalibration) -> np.ndarray:
         """epsilon alpha_p = G*_s^-1 G_s per phase while the controller uses ``calibration``."""
