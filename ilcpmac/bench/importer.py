@@ -6,6 +6,10 @@ names the log's columns, units and scales, the motor as a campaign config's
 [bench] describes it, and optionally each log's operating point. Each log is
 resampled onto the encoder counts it crosses, by linear interpolation between
 rows, with an estimate of the interpolation error (`InterpolationError`).
+Logs without a torque column make a bench without a torque sensor ([motor]
+torque_sensor = false), identified on the torque of the encoder's time stamps:
+the interpolated crossing times, whose resolution bench.toml states
+(`stamp_resolution_s`). Reverse laps are refused (`REVERSE_LAPS` says why).
 A mapping with ``[log] kind = "scan"`` marks its logs as a standstill
 position scan (`ilcpmac.bench.standstill`): their rows are kept as they are,
 in standard units, with the direction of motion, and written as a scan folder.
@@ -29,6 +33,7 @@ from ilcpmac.bench.format import (
     MAX_COUNT,
     MAX_HEADER_BYTES,
     MAX_REVOLUTIONS,
+    MAX_TIMER_RESOLUTION_S,
     MAX_TRIAL_ROWS,
     Bench,
     MotorInfo,
@@ -45,15 +50,22 @@ from ilcpmac.model.motor import backemf_problem, in_range, shown
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.records import SensorCalibration, TrialData
 
-__all__ = ["MAX_LOG_ROWS", "ImportMapping", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint",
-           "import_log", "import_logs", "import_scan", "read_log", "read_mapping", "resample_to_counts",
-           "write_scan_folder"]
+__all__ = ["MAX_LOG_ROWS", "REVERSE_LAPS", "ImportMapping", "ImportedLog", "InterpolationError", "LogLayout",
+           "LogPoint", "bench_motor", "import_log", "import_logs", "import_scan", "read_log", "read_mapping",
+           "resample_to_counts", "stamp_resolution_s", "write_scan_folder"]
 
 #: most data rows of one log (20 kHz for 200 s) ...
 MAX_LOG_ROWS = 2**22
 #: ... and bytes per row on average: a larger file is refused before it is parsed
 MAX_LOG_ROW_BYTES = 128
-_NO_TORQUE = "a bench folder needs one until identification without a torque sensor lands"
+#: why a reverse lap is refused, and what to do (docs/bench-format.md, "Reverse laps")
+REVERSE_LAPS = ("reverse laps are refused (the identification models forward motion: run backwards, the current "
+                "loop's lag, the back-EMF's sign and the brake act the other way, and a mirrored position moves the "
+                "back-EMF and the cogging); cut the log into forward laps, or record forward laps")
+#: finest resolution of the time stamps written (the trial files' 0.1 us)
+MIN_STAMP_RESOLUTION_S = 1e-7
+#: a change of the row interval or of the position step below this fraction of it is rounding, not a quantum
+_ROUNDING = 1e-6
 _PHASE_SHIFTS_RAD = 2.0 * np.pi * np.arange(3) / 3.0
 
 
@@ -83,6 +95,9 @@ class LogLayout:
     header_lines: int = setting(in_range(1, 1000), "lines before the first row, 1..1000; the last names the columns",
                                1)
     time_s_per_unit: float = setting(in_range(0.0, 1e6, low_open=True), "seconds per unit of the time column", 1.0)
+    timer_resolution_s: float | None = setting(
+        in_range(0.0, MAX_TIMER_RESOLUTION_S, low_open=True), "the time stamps' quantum, s, within (0, 1e-3] "
+        "(for a log without torque; without it, read off the rows)", None)
     position_counts_per_rev: int | None = setting(
         in_range(1, 2**40), 'counts per revolution of the position, when position_unit = "counts"', None)
     phase_currents: tuple[str, ...] | None = setting(
@@ -96,7 +111,8 @@ class LogLayout:
                           'the currents logged: "commanded" (references) or "measured" (by the controller)',
                           "commanded")
     current_a_per_unit: float = setting(_nonzero, "amperes per unit of the current columns, non-zero", 1.0)
-    torque: str | None = setting(None, "column of the torque-sensor output", None)
+    torque: str | None = setting(None, "column of the torque-sensor output; without it, a bench without a torque "
+                                "sensor", None)
     torque_nm_per_unit: float = setting(_nonzero, "N m per unit of the torque column, non-zero", 1.0)
     highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
                                    "(two rows per period or more)", 150)
@@ -126,7 +142,8 @@ class ImportMapping:
     ----------
     path : the mapping file.
     motor : MotorInfo
-        From [bench] (as a campaign config's; inertia_kgm2 required).
+        From [bench] (as a campaign config's; inertia_kgm2 required); a run without [log] torque has no
+        torque sensor.
     backemf_nm_per_a : ndarray, shape (counts_per_rev, 3)
         From [bench] backemf_file or [bench.backemf].
     sensors : SensorCalibration or None
@@ -155,22 +172,56 @@ class InterpolationError:
     |second difference| of the two rows bounding it (a bound for a function
     smooth, or linear between kinks, over three rows); a value's error adds
     its slope times the crossing time's error. The largest over the trial.
+
+    For a smooth motion p(t) (counts) logged at f_s rows per second the
+    interpolated position errs by p'' (t - t_n)(t_n+1 - t) / 2, at most
+    |p''| / (8 f_s^2), so a crossing time errs by at most
+    |domega/dt| / (8 f_s^2 omega) = |tau - b omega| / (8 J omega f_s^2) (the
+    speed ripple, eq. 3.1); `time_s` states 4x that (p'' / f_s^2 is the second
+    difference). The error is systematic: linear interpolation passes a
+    motion at frequency f with the gain sinc^2(f / f_s) (`torque_loss`).
+
+    Attributes
+    ----------
+    time_s : float
+        Crossing times, s.
+    current_a : float
+        Current references, A.
+    torque_nm : float or None
+        Torque, N m; None for a log without torque.
     """
 
     time_s: float
     current_a: float
-    torque_nm: float
+    torque_nm: float | None
 
 
 @dataclass(frozen=True)
 class ImportedLog:
-    """One log resampled: its trial, the error estimate and the highest harmonic its rows resolve (two rows
-    per period, and within the counts' Nyquist limit counts_per_rev / 2)."""
+    """One log resampled.
+
+    Attributes
+    ----------
+    log : Path
+    trial : TrialData
+    error : InterpolationError
+    resolved_harmonic : int
+        The highest harmonic the rows resolve (two rows per period, and within the counts' Nyquist limit
+        counts_per_rev / 2).
+    stamp_resolution_s : float
+        The crossing times' resolution (`stamp_resolution_s`), s.
+    torque_loss : float
+        1 - sinc^2(H f / f_s): how much the crossing times' linear interpolation lowers the encoder-derived
+        torque at harmonic H = [log] highest_harmonic of a revolution, at the log's mean speed f (Hz) and
+        row rate f_s; (pi H f / f_s)^2 / 3 for H f << f_s.
+    """
 
     log: Path
     trial: TrialData
     error: InterpolationError
     resolved_harmonic: int
+    stamp_resolution_s: float
+    torque_loss: float
 
 
 def read_mapping(path: str | Path) -> ImportMapping:
@@ -187,8 +238,9 @@ def read_mapping(path: str | Path) -> ImportMapping:
     bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
     if bench.inertia_kgm2 is None:
         raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
-    motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2)
     layout = parse_section(data["log"], LogLayout, str(path), "log")
+    motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2,
+                      torque_sensor=layout.kind == "scan" or layout.torque is not None)
     _check_layout(layout, motor, path)
     points = data.get("points", [])
     if not isinstance(points, list):
@@ -371,23 +423,21 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     Raises
     ------
     BenchFormatError
-        Naming the log: no torque column, time not increasing, a position
-        that runs backwards, rows too coarse for [log] highest_harmonic (with
-        the highest harmonic they resolve), a trial at odds with [bench].
+        Naming the log: time not increasing, a position that runs backwards
+        (`REVERSE_LAPS`), rows too coarse for [log] highest_harmonic (with
+        the highest harmonic they resolve), crossing times too coarse for a
+        log without torque, a trial at odds with [bench].
     """
     layout, motor = mapping.layout, mapping.motor
     cpr = motor.counts_per_rev
-    if layout.torque is None:
-        raise BenchFormatError(f"{log}: has no torque column ([log] torque of {mapping.path}); {_NO_TORQUE}")
     columns, time_s, position = _time_and_position(log, mapping)
     step = np.diff(position)
     if np.all(step <= 0):
-        raise BenchFormatError(f"{log}: the position never increases: reverse laps are not imported yet (log "
-                               "forward laps)")
+        raise BenchFormatError(f"{log}: {layout.position} never increases: {REVERSE_LAPS}")
     back = np.flatnonzero(step < 0)
     if back.size:
         raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.position} runs backwards: "
-                               "reverse laps are not imported yet (cut the log into forward laps)")
+                               f"{REVERSE_LAPS}")
     largest = float(step.max())
     resolved = min(math.floor(cpr / (2.0 * largest)), cpr // 2)
     if resolved < layout.highest_harmonic:
@@ -395,9 +445,16 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
             f"{log}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
             f"at the fastest, fewer than two per period of harmonic {layout.highest_harmonic} ([log] "
             f"highest_harmonic); the data resolve harmonics up to {resolved}")
+    resolution_s = stamp_resolution_s(time_s, position, layout.timer_resolution_s)
+    if layout.torque is None and resolution_s > MAX_TIMER_RESOLUTION_S:
+        raise BenchFormatError(f"{log}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
+                               f"{MAX_TIMER_RESOLUTION_S:g} s: too coarse for the torque of the encoder's time stamps "
+                               f"(a log without torque; a finer position or time column is needed)")
     current_names = _current_columns(layout)
-    values = np.column_stack([columns[n] for n in current_names] + [columns[layout.torque]])
-    values *= np.array([layout.current_a_per_unit] * len(current_names) + [layout.torque_nm_per_unit])
+    torque_names = [] if layout.torque is None else [layout.torque]
+    values = np.column_stack([columns[n] for n in current_names + torque_names])
+    values *= np.array([layout.current_a_per_unit] * len(current_names) + [layout.torque_nm_per_unit] * len(
+        torque_names))
     count, at, values_at, time_error, value_error = resample_to_counts(time_s, position, values)
     max_rows = min(MAX_REVOLUTIONS * cpr, MAX_TRIAL_ROWS)
     if count.size > max_rows or count.size < 2:
@@ -410,11 +467,43 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
         current_error = value_error[:, :3].max(axis=1)
     point = mapping.points.get(log.name)
     torque, speed = point if point is not None else _operating_point(log, count, at, currents, mapping)
-    trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents), values_at[:, -1].copy(),
+    trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents),
+                      values_at[:, -1].copy() if torque_names else None,
                       i_meas_a=currents.copy() if layout.current == "measured" else None)
     check_trial(trial, motor, str(log))
-    error = InterpolationError(float(time_error.max()), float(current_error.max()), float(value_error[:, -1].max()))
-    return ImportedLog(log, trial, error, resolved)
+    error = InterpolationError(float(time_error.max()), float(current_error.max()),
+                               float(value_error[:, -1].max()) if torque_names else None)
+    highest_hz = layout.highest_harmonic * trial.mean_speed_hz(cpr)
+    row_rate_hz = (time_s.size - 1) / (time_s[-1] - time_s[0])
+    return ImportedLog(log, trial, error, resolved, resolution_s, float(1.0 - np.sinc(highest_hz / row_rate_hz) ** 2))
+
+
+def stamp_resolution_s(time_s: np.ndarray, position_counts: np.ndarray, time_quantum_s: float | None = None) -> float:
+    """The resolution of the crossing times interpolated between a log's rows, s.
+
+    A crossing time t_n-1 + (c - p_n-1) / (p_n - p_n-1) (t_n - t_n-1) carries
+    the error of the rows' time stamps (quantum q_t) and of their positions
+    (quantum q_p, counts) over the speed v (counts/s): uniform errors of
+    widths up to q_t and q_p / v, which add as stamps quantised to
+    sqrt(q_t^2 + (q_p / v)^2), v the log's mean speed; at least the bench
+    files' 0.1 us. q_t is ``time_quantum_s`` when given, else read off the
+    rows as q_p is: a quantised clock or position makes every change of the
+    row interval, or of the position step, a multiple of its quantum, and the
+    smallest change above rounding (1e-6 of the interval or step) is taken
+    for it; none (rows at exact intervals, a position of real numbers that
+    changes smoothly) gives 0, or nearly.
+    """
+    speed = (position_counts[-1] - position_counts[0]) / (time_s[-1] - time_s[0])
+    q_t = _finest_change(np.diff(time_s)) if time_quantum_s is None else time_quantum_s
+    q_p = _finest_change(np.diff(position_counts))
+    return float(max(math.hypot(q_t, q_p / speed), MIN_STAMP_RESOLUTION_S))
+
+
+def _finest_change(steps: np.ndarray) -> float:
+    """The smallest |change| between successive ``steps`` above `_ROUNDING` of the largest step, or 0."""
+    changes = np.abs(np.diff(steps))
+    changes = changes[changes > _ROUNDING * np.abs(steps).max()]
+    return float(changes.min()) if changes.size else 0.0
 
 
 def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
@@ -510,6 +599,15 @@ def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str
         raise BenchFormatError(f'{mapping.path}: [log] kind = "scan": a scan makes a scan folder (write_scan_folder)')
     imported = [import_log(log, mapping) for log in logs]
     names = tuple(f"trial_{i:02d}{suffix}" for i in range(1, len(imported) + 1))
-    write_bench(out, Bench(mapping.motor, mapping.backemf_nm_per_a, mapping.sensors,
+    write_bench(out, Bench(bench_motor(mapping, imported), mapping.backemf_nm_per_a, mapping.sensors,
                            tuple(r.trial for r in imported), names))
     return imported
+
+
+def bench_motor(mapping: ImportMapping, imported: list[ImportedLog]) -> MotorInfo:
+    """[motor] of the bench the logs make: without torque, torque_sensor = false and timer_resolution_s the
+    finest of the logs' `stamp_resolution_s` (one value per bench: the floor of the encoder-derived torque's
+    weights, which an understated value leaves to the measured scatter and an overstated one would raise)."""
+    if mapping.motor.torque_sensor:
+        return mapping.motor
+    return dataclasses.replace(mapping.motor, timer_resolution_s=min(r.stamp_resolution_s for r in imported))
