@@ -16,7 +16,8 @@ from ilcpmac.errors import SimulationError
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import backemf_table, cogging_table, disturbance_table
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
-from ilcpmac.sim.grid import grid_requests
+from ilcpmac.sim.grid import grid_requests, truth_dict
+from ilcpmac.sim.kernel import GAUSS_BITS, simulate_trial
 from ilcpmac.sim.simulator import MAX_COUNTS_PER_REV, MAX_SAMPLES, SensorTruth, Simulator
 
 #: phase shifts 2 pi p / 3 of phases a, b, c
@@ -254,6 +255,63 @@ def test_run_trials_does_not_depend_on_workers(small_simulator, small_model, mak
         assert_trials_identical(a, b)
 
 
+# ------------------------------------------------ the first-order-lag current loop
+
+
+def test_lag_loop_is_the_first_order_recursion_on_the_inverted_sensor():
+    """A sine reference through the lag: each count's sample is the exp(-2 pi f_c dt) recursion's, offsets inverted.
+
+    No torque (the rotor turns at a constant speed, exactly 8 steps a count, each line half a step past a
+    step's position), so the current at count c + 1 is A s_c + (1 - A) T_c with A = a^8 and the target
+    T = (G*_s^-1 I* - o*_s + o_s) / G_s^-1: at harmonic h the gain (1 - A) z^-1 / (1 - A z^-1), z = e^(j 2 pi h / N).
+    """
+    n, steps, h, amplitude_a, dt = 64, 8, 3, 2.0, 1.0 / 20000.0
+    phase = 2 * np.pi * np.arange(3) / 3
+    i_ref = amplitude_a * np.sin(2 * np.pi * h * np.arange(n)[:, None] / n - phase)
+    scale_true, offset_true = np.array([1000.0, 1100.0, 900.0]), np.array([5.0, -3.0, 2.0])
+    scale_cal, offset_cal = np.full(3, 1000.0), np.array([1.0, 0.0, -1.0])
+    decay = np.exp(-2 * np.pi * 140.0 * dt)
+    warmup, record = 4 * n, 2 * n
+    out = (np.zeros(record, np.int64), np.zeros(record), np.zeros((record, 3)), np.zeros((record, 3)),
+           np.zeros(record), np.zeros(record), np.zeros((record, 3)), np.zeros(record))
+    ones = np.ones(3)
+    got = simulate_trial(
+        np.zeros((16 * n + 1, 4)), np.ascontiguousarray(i_ref), np.arange(-1.0, n + 2) + 0.5 / steps,
+        np.random.default_rng(0).standard_normal(2**GAUSS_BITS),
+        ones, ones, ones, ones, 48.0, dt, True, decay,
+        scale_true, offset_true, scale_cal, offset_cal, 0.0, 0.0,
+        1.0, 0.0, 0.0, 2 * np.pi / (n * steps * dt),
+        1.0, 1.0, 0.0, 0.0, 0.0,
+        warmup, record, 1e-9, 10 * steps * (warmup + record), 1, *out)
+    assert got == record
+    count, i_true, i_meas = out[0], out[6], out[3]
+    np.testing.assert_array_equal(count, np.arange(record))
+    spectrum = np.fft.rfft(i_true[:n], axis=0) / n
+    reference = np.fft.rfft(i_ref, axis=0) / n
+    lag = decay**steps
+    z = np.exp(-2j * np.pi * h / n)
+    np.testing.assert_allclose(spectrum[h] / (scale_cal / scale_true * reference[h]), (1 - lag) * z / (1 - lag * z),
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(spectrum[0].real, (offset_true - offset_cal) / scale_true, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.delete(np.abs(spectrum), [0, h], axis=0), 0.0, atol=1e-12)
+    np.testing.assert_allclose(i_meas.mean(axis=0), 0.0, atol=1e-12)  # the controller reads its reference's mean
+
+
+def test_lag_bench_ignores_the_winding_and_states_its_bandwidth(small_model, seed_request):
+    lag = _with(small_model, "controller", loop="lag")
+    trial = Simulator(lag).run_trial(seed_request)
+    other_winding = _with(lag, "winding", phase_resistance_ohm=10.0, phase_inductance_h=0.1)
+    assert_trials_identical(trial, Simulator(other_winding).run_trial(seed_request))
+    pi = Simulator(small_model).run_trial(seed_request)
+    assert not np.array_equal(trial.i_true_a, pi.i_true_a)
+    assert_trials_identical(pi, Simulator(_with(small_model, "controller", loop="pi")).run_trial(seed_request))
+    calibration = small_model.controller.calibration()
+    truth = truth_dict(Simulator(lag), seed_request)
+    np.testing.assert_array_equal(truth["current_loop_bandwidth_per_phase_hz"], [140.0] * 3)
+    pi_truth = Simulator(small_model).truth(calibration)
+    np.testing.assert_allclose(pi_truth.loop_bandwidth_hz, 140.0 / (pi_truth.epsilon * pi_truth.alpha), rtol=1e-12)
+
+
 # ------------------------------------------------ requests the simulator refuses
 
 
@@ -302,6 +360,7 @@ def _with(model: MotorModel, table: str, **changes) -> MotorModel:
 @pytest.mark.parametrize("table, changes, message", [
     ("controller", {"control_rate_hz": 0.001}, r"model \[controller\] control_rate_hz: invalid value 0.001"),
     ("controller", {"bandwidth_hz": 5000.0}, r"model \[controller\] bandwidth_hz: 5000 Hz is above"),
+    ("controller", {"loop": "pid"}, r"model \[controller\] loop: invalid value 'pid' \(\"pi\""),
     ("mechanics", {"inertia_kgm2": np.nan}, r"model \[mechanics\] inertia_kgm2: invalid value nan"),
     ("winding", {"pole_pairs": 10**6}, r"model \[winding\] pole_pairs"),
     ("encoder", {"counts_per_rev": 2 * MAX_COUNTS_PER_REV},

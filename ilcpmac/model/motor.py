@@ -172,9 +172,18 @@ class Mechanics:
         return self.inertia_kgm2 * self.inertia_scale
 
 
+#: [simulator.controller] loop: how the true phase currents follow their references
+CURRENT_LOOPS = ("pi", "lag")
+
+
 @dataclass(frozen=True)
 class Controller:
-    """Discrete PI current control per phase and the controller's calibration."""
+    """Current control per phase and the controller's calibration.
+
+    ``loop`` "pi": a discrete PI loop closed on the measured current, tuned to ``bandwidth_hz`` by
+    pole-zero cancellation on the winding; "lag": the true current a first-order lag of corner
+    ``bandwidth_hz`` on the current at which the measured current equals the reference.
+    """
 
     control_rate_hz: float = _param(in_range(1e3, 1e6), "control (and simulation) rate, Hz, within [1e3, 1e6] "
                                     "(digital current loops run at kHz to hundreds of kHz)")
@@ -185,6 +194,8 @@ class Controller:
                                                                "within (0, 1e9]", low_open=True)
     current_offset_counts: tuple[float, ...] = _per_phase(-1e9, 1e9, "o*_s per phase, counts, within [-1e9, 1e9]")
     torque_gain_v_per_nm: float = _param(in_range(0.0, 1e3, low_open=True), "g*_t, V / N m, within (0, 1e3]")
+    loop: str = _param(lambda x: x in CURRENT_LOOPS, '"pi" (a PI loop on the measured current and the winding) '
+                       'or "lag" (a first-order lag on the reference)', default="pi")
 
     def calibration(self) -> SensorCalibration:
         """The calibration the controller starts with."""

@@ -61,9 +61,7 @@ def truth_dict(simulator: Simulator, request: TrialRequest) -> dict:
         "beta": t.beta_a.tolist(),
         "inertia_estimate": t.delta * simulator.model.mechanics.true_inertia_kgm2,
         "cogging": {"count": list(range(cpr)), "torque": simulator.cogging_counts().tolist()},
-        # the PI loop closes on the measured current, 1 / (epsilon alpha_p) times the true one
-        "current_loop_bandwidth_per_phase_hz": (simulator.model.controller.bandwidth_hz
-                                                / (t.epsilon * t.alpha)).tolist(),
+        "current_loop_bandwidth_per_phase_hz": t.loop_bandwidth_hz.tolist(),
         "calibration": SensorCalibration(simulator.scale_true, simulator.offset_true,
                                          simulator.torque_gain_true).to_json(),
         "encoder_error": encoder_error_json(simulator.model.encoder.line_errors_counts()),

@@ -43,12 +43,16 @@ def trial_seed(seed: int, index: int) -> int:
 
 @dataclass(frozen=True)
 class SensorTruth:
-    """The report's parameters of a trial, eqs. (1.4)-(1.7), for a given calibration."""
+    """The report's parameters of a trial, eqs. (1.4)-(1.7), for a given calibration.
+
+    ``loop_bandwidth_hz``, shape (3,): each phase's closed current loop's corner, Hz.
+    """
 
     delta: float
     epsilon: float
     alpha: np.ndarray
     beta_a: np.ndarray
+    loop_bandwidth_hz: np.ndarray
 
 
 class Simulator:
@@ -96,13 +100,17 @@ class Simulator:
         self.torque_gain_true = model.torque_sensor.true_gain_v_per_nm(start)
 
     def truth(self, calibration: SensorCalibration) -> SensorTruth:
-        """delta, epsilon, alpha and beta that hold while the controller uses ``calibration``."""
+        """delta, epsilon, alpha, beta and the current loop's corners that hold while the controller uses
+        ``calibration``."""
         eps_alpha = calibration.current_scale / self.scale_true
+        ctrl = self.model.controller
         return SensorTruth(
             delta=self.torque_gain_true / calibration.torque_gain,
             epsilon=float(eps_alpha.mean()),
             alpha=eps_alpha / eps_alpha.mean(),
             beta_a=(self.offset_true - calibration.current_offset) / self.scale_true,
+            # a PI loop closes on the measured current, 1 / (epsilon alpha_p) times the true one
+            loop_bandwidth_hz=np.full(3, ctrl.bandwidth_hz) / (eps_alpha if ctrl.loop == "pi" else 1.0),
         )
 
     def cogging_counts(self) -> np.ndarray:
@@ -193,6 +201,7 @@ class Simulator:
         n = simulate_trial(
             self.fine, i_ref, self.lines_counts, self.gauss_table,
             r, ell, w_bw * ell, w_bw * r, m.controller.voltage_limit_v, dt,
+            m.controller.loop == "lag", math.exp(-w_bw * dt),
             self.scale_true, self.offset_true, np.ascontiguousarray(request.calibration.current_scale),
             np.ascontiguousarray(request.calibration.current_offset), m.current_sensors.noise_counts,
             m.unexplained.saturation_per_a2,
