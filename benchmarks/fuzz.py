@@ -1,9 +1,11 @@
-"""Hostile-input campaign: mutated bench folders, configs and arguments, protocol attacks both ways.
+"""Hostile-input campaign: mutated bench folders, configs, arguments, drive logs, standstill scans and sweep
+specs, protocol attacks both ways.
 
 Run ``python benchmarks/fuzz.py [--quick] [--seed N]`` with the project's
-virtualenv (8 to 15 minutes on two shared cores; ``--quick`` about a
-quarter; ``--only`` and ``--match`` pick cases). Everything is
-generated deterministically from the seed in a temporary folder:
+virtualenv (on two shared cores 8 to 15 minutes for groups 1 to 3 below and
+about 14 more for groups 4 to 6; ``--quick`` about a quarter; ``--only`` and
+``--match`` pick cases). Everything is generated deterministically from the
+seed in a temporary folder:
 
 1. bench folders: a small simulated bench (2 x 2 set points, 2 revolutions:
    one ``ilcpmac identify`` takes about 2 s) copied and mutated, each copy run
@@ -12,7 +14,21 @@ generated deterministically from the seed in a temporary folder:
    mutated, run as ``ilcpmac simulate`` (drive, grid and excitation keys) or
    ``ilcpmac run --trials 1`` (campaign, limits, pipeline and stage keys);
 3. hostile clients against ``ilcpmac emulate`` and hostile targets answering
-   ``RemoteBackend`` (benchmarks/fuzz_targets.py).
+   ``RemoteBackend`` (benchmarks/fuzz_targets.py);
+4. drive logs: two trials of the bench of 1. logged at 2 kHz as a drive logs
+   them (phase currents, position in rad; and a q-axis log: ms, a wrapping
+   16-bit position, ';', three header lines) with their mapping files, mutated
+   and run as ``ilcpmac import LOG... --map MAPPING.toml --out DIR``;
+5. standstill scans: the small config's drive scanned by
+   ``ilcpmac.sim.standstill`` (holding currents and holding torque, one
+   revolution each way, 4 rows per count), imported as scan folders, mutated
+   and run as ``ilcpmac identify SCAN_DIR --output OUT.json``; and the scan
+   logs imported under mutated ``[log] kind = "scan"`` mappings;
+6. sweep specs: a two-task spec over the small config, mutated, and hostile
+   arguments and sweep folders, run as ``ilcpmac sweep CONFIG --spec SPEC
+   --out DIR --workers 1``. A spec must be refused before any cluster starts:
+   a spec case is stopped (accepted) once the sweep prints that its tasks are
+   ready, since a cluster and its tasks take longer than the fuzz waits.
 
 Every subprocess gets TIMEOUT_S and an address-space cap (RLIMIT_AS of
 MEMORY_CAP_BYTES); its peak RSS comes from wait4's rusage (the emulator's
@@ -25,9 +41,9 @@ whether its input must be rejected, and ends as one of
 - HANG: no exit within TIMEOUT_S, twice (a hanging case is run again alone;
   for the emulator: a well-formed client no longer gets its DESCRIBE);
 - NON-FINITE: NaN or Infinity in a JSON or CSV file written;
-- ACCEPTED-GARBAGE: exit 0 (or an ACCEPT, DESCRIBE or open connection) on an
-  input that must be rejected, or the contents of a file outside the bench
-  folder echoed.
+- ACCEPTED-GARBAGE: exit 0 (or an ACCEPT, DESCRIBE or open connection, or a
+  sweep whose tasks are ready) on an input that must be rejected, or the
+  contents of a file outside the bench folder echoed.
 
 The targets are 0, 0, 0, 0 and every process's peak RSS under PEAK_RSS_BOUND_MIB.
 """
@@ -64,7 +80,8 @@ JOBS = 2
 #: written into files outside the bench folder; seeing it in any output means their contents leaked
 SECRET = "SECRET-7f3a9c-do-not-echo"
 OUTCOMES = ("OK", "TRACEBACK", "HANG", "NON-FINITE", "ACCEPTED-GARBAGE")
-_ENV = {**os.environ, "NO_COLOR": "1", "TERM": "dumb", "COLUMNS": "200"}
+#: every case's environment; unbuffered, so that a case stopped at a line of its output (stop_at) sees it at once
+_ENV = {**os.environ, "NO_COLOR": "1", "TERM": "dumb", "COLUMNS": "200", "PYTHONUNBUFFERED": "1"}
 
 
 def _ilcpmac() -> str:
@@ -115,36 +132,42 @@ class Verdict:
     seconds: float
 
 
-def run_process(argv: list[str], folder: Path, written: Path | None = None, cwd: Path = ROOT) -> Run:
-    """Run ``argv`` with the time and memory caps; stdout and stderr go to files in ``folder``."""
+def run_process(argv: list[str], folder: Path, written: Path | None = None, cwd: Path = ROOT,
+                stop_at: bytes | None = None) -> Run:
+    """Run ``argv`` with the time and memory caps; stdout and stderr go to files in ``folder``.
+
+    With ``stop_at``, the process is killed as soon as its output holds that text: the input was accepted
+    (code None), and what would follow is not waited for.
+    """
     start = time.monotonic()
     with open(folder / "stdout", "wb") as fo, open(folder / "stderr", "wb") as fe:
         proc = subprocess.Popen(argv, cwd=cwd, stdout=fo, stderr=fe, stdin=subprocess.DEVNULL, env=_ENV,
                                 preexec_fn=ft.limit_memory(MEMORY_CAP_BYTES), start_new_session=True)
-    timed_out = False
+    timed_out = stopped = False
     while True:
         pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
         if pid:
             break
-        if time.monotonic() - start > TIMEOUT_S:
-            timed_out = True
+        stopped = stop_at is not None and any(stop_at in (folder / name).read_bytes() for name in ("stdout", "stderr"))
+        timed_out = time.monotonic() - start > TIMEOUT_S
+        if stopped or timed_out:
             os.killpg(proc.pid, signal.SIGKILL)
             pid, status, usage = os.wait4(proc.pid, 0)
             break
         time.sleep(0.02)
-    proc.returncode = os.waitstatus_to_exitcode(status)
+    proc.returncode = None if stopped else os.waitstatus_to_exitcode(status)
     try:
         os.killpg(proc.pid, signal.SIGKILL)  # nothing the case started outlives it
     except OSError:
         pass
     text = ((folder / "stdout").read_bytes()[-200_000:] + b"\n"
             + (folder / "stderr").read_bytes()[-200_000:]).decode("utf-8", "replace")
-    return Run(proc.returncode, timed_out, text, usage.ru_maxrss, proc.returncode == 0, written,
+    return Run(proc.returncode, timed_out, text, usage.ru_maxrss, stopped or proc.returncode == 0, written,
                time.monotonic() - start)
 
 
-def ilcpmac(*args, folder: Path, written: Path | None = None) -> Run:
-    return run_process([ILCPMAC, *map(str, args)], folder, written)
+def ilcpmac(*args, folder: Path, written: Path | None = None, stop_at: bytes | None = None) -> Run:
+    return run_process([ILCPMAC, *map(str, args)], folder, written, stop_at=stop_at)
 
 
 _NON_FINITE = re.compile(rb"(?i)(?<![\w.])(nan|-?inf|-?infinity)(?![\w.])")
@@ -168,8 +191,8 @@ def _error_lines(text: str) -> list[str]:
 def _traceback_line(text: str) -> str:
     """The exception line of the last traceback in ``text``."""
     tail = text[text.rfind("Traceback"):].splitlines()
-    for line in reversed(tail):
-        if re.match(r"^\s*[\w.]+(Error|Exception|Interrupt|Exit|Warning)\b|^\s*\w+Error", line):
+    for line in tail[1:]:  # the first unindented "module.Name: message" after the frames
+        if re.match(r"[A-Za-z_][\w.]*(: |$)", line):
             return line.strip()
     return next((line.strip() for line in reversed(tail) if line.strip()), "Traceback")
 
@@ -292,11 +315,11 @@ def rows_edit(fn: Callable[[list[str], list[list[str]]], tuple], file: str = T1)
     return mutate
 
 
-def cell(row: int, name: str, text: str) -> Callable:
+def cell(row: int, name: str, text: str, file: str = T1) -> Callable:
     def fn(header, rows):
         rows[row][header.index(name)] = text
         return header, rows
-    return rows_edit(fn)
+    return rows_edit(fn, file)
 
 
 def raw(file: str, fn: Callable[[bytes], bytes]) -> Callable:
@@ -331,9 +354,11 @@ def _swap_headers(a: str, b: str) -> Callable:
     return rows_edit(fn)
 
 
-def _fifo(d: Path, rng) -> None:
-    (d / T1).unlink()
-    os.mkfifo(d / T1)
+def _fifo_file(name: str) -> Callable:
+    def mutate(d: Path, rng) -> None:
+        (d / name).unlink()
+        os.mkfifo(d / name)
+    return mutate
 
 
 def _symlink(target: str | Callable[[Path], Path], file: str = T1) -> Callable:
@@ -344,9 +369,12 @@ def _symlink(target: str | Callable[[Path], Path], file: str = T1) -> Callable:
     return mutate
 
 
-def _sparse(d: Path, rng) -> None:
-    with open(d / T1, "r+b") as f:
-        f.truncate(2 << 30)
+def _sparse(name: str, size_bytes: int) -> Callable:
+    """File ``name`` grown to ``size_bytes`` without writing them (a sparse file)."""
+    def mutate(d: Path, rng) -> None:
+        with open(d / name, "r+b") as f:
+            f.truncate(size_bytes)
+    return mutate
 
 
 def _directory(name: str) -> Callable:
@@ -470,9 +498,9 @@ BENCH_MUTATIONS: list[tuple[str, bool, Callable]] = [
     ("10 MB single line", True, raw(T1, lambda b: b.split(b"\n", 1)[0] + b"\n" + b"1" * 10_000_000 + b"\n")),
     ("trial concatenated twice", True, raw(T1, lambda b: b + b.split(b"\n", 1)[1])),
     # files that are not regular files, and paths
-    ("trial is a FIFO", True, _fifo),
+    ("trial is a FIFO", True, _fifo_file(T1)),
     ("trial symlink to /dev/zero", True, _symlink("/dev/zero")),
-    ("trial 2 GiB sparse file", True, _sparse),
+    ("trial 2 GiB sparse file", True, _sparse(T1, 2 << 30)),
     ("trial is a directory", True, _directory(T1)),
     ("trial missing", True, _remove(T1)),
     ("trial absolute path outside the folder", True,
@@ -903,6 +931,855 @@ def emulator_verdicts(config: Path, scratch: Path, quick: bool, match: str) -> l
     return verdicts
 
 
+# ---------------------------------------------------------------- 4. ilcpmac import: mappings and logs
+
+#: the drive logs' rate, Hz: 1.6 to 2 counts a row on the base bench (harmonics up to 1024 resolved)
+LOG_RATE_HZ = 2000.0
+#: base bench trials logged as drive logs (1 N m at 0.8 Hz, 3 N m at 1 Hz), and the logs' names
+LOGGED = {"log_a.csv": "trial_01.csv", "log_b.csv": "trial_04.csv"}
+LOG_A, LOG_B = LOGGED
+#: the q-axis log (of trial_01): time in ms, a wrapping 16-bit position, i_q in 10 mA, ';', three header lines
+LOG_Q, LOG_Q_COUNTS_PER_REV = "log_q.csv", 2**16
+#: log_a's trial at 50 Hz: about 66 counts between rows, harmonics up to 31 resolved (fewer than 150)
+LOG_COARSE, COARSE_RATE_HZ = "log_50hz.csv", 50.0
+MAP, MAP_Q = "map.toml", "map_q.toml"
+PHASE_LAYOUT = """[log]
+time = "t"
+position = "theta"
+position_unit = "rad"
+phase_currents = ["ia", "ib", "ic"]
+torque = "tq"
+"""
+Q_LAYOUT = f"""[log]
+delimiter = ";"
+header_lines = 3
+time = "t_ms"
+time_s_per_unit = 1e-3
+position = "pos"
+position_unit = "counts"
+position_counts_per_rev = {LOG_Q_COUNTS_PER_REV}
+i_q = "iq"
+current_a_per_unit = 0.01
+torque = "tq"
+"""
+
+
+def mapping_bench(bench: Path) -> str:
+    """The [bench] table of a mapping for the motor of bench folder ``bench`` (its backemf.csv beside the
+    mapping)."""
+    import tomllib
+
+    motor = tomllib.loads((bench / "bench.toml").read_text())["motor"]
+    return (f"[bench]\npole_pairs = {motor['pole_pairs']}\nslots = {motor['slots']}\n"
+            f"counts_per_rev = {motor['counts_per_rev']}\ninertia_kgm2 = {motor['inertia']}\n"
+            'backemf_file = "backemf.csv"\n\n')
+
+
+def logged(trial: Path, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A bench trial as a drive logs it: rows at ``rate_hz`` from two rows before its first count to two past
+    its last (an importer leaves out the first and last row interval).
+
+    Returns time s, shape (n,); position in counts, shape (n,) (on at the end counts' speed beyond them);
+    i_ref a, b, c and torque linearly interpolated, shape (n, 4).
+    """
+    count, time_s, *values = np.loadtxt(trial, delimiter=",", skiprows=1, usecols=range(6), unpack=True)
+    t = time_s[0] + np.arange(-2, int(np.ceil((time_s[-1] - time_s[0]) * rate_hz)) + 3) / rate_hz
+    position = np.interp(t, time_s, count)
+    before, after = t < time_s[0], t > time_s[-1]
+    position[before] = count[0] + (t[before] - time_s[0]) / (time_s[1] - time_s[0])
+    position[after] = count[-1] + (t[after] - time_s[-1]) / (time_s[-1] - time_s[-2])
+    return t, position, np.column_stack([np.interp(t, time_s, v) for v in values])
+
+
+def write_phase_log(path: Path, trial: Path, cpr: int, rate_hz: float = LOG_RATE_HZ) -> None:
+    """``trial`` logged at ``rate_hz`` with the position in rad and the phase currents (PHASE_LAYOUT)."""
+    t, position, values = logged(trial, rate_hz)
+    np.savetxt(path, np.column_stack([t, position * 2 * np.pi / cpr, values]), delimiter=",",
+               header="t,theta,ia,ib,ic,tq", comments="", fmt="%.12g")
+
+
+def write_q_log(path: Path, trial: Path, cpr: int, pole_pairs: int) -> None:
+    """``trial`` logged as Q_LAYOUT reads it: i_q by the amplitude-invariant Park transform at theta_e =
+    pole_pairs theta."""
+    t, position, values = logged(trial, LOG_RATE_HZ)
+    theta_e = pole_pairs * 2 * np.pi * position / cpr
+    i_q = 2 / 3 * sum(values[:, p] * np.sin(theta_e - 2 * np.pi * p / 3) for p in range(3))
+    wrapped = np.mod(position * LOG_Q_COUNTS_PER_REV / cpr, LOG_Q_COUNTS_PER_REV)
+    np.savetxt(path, np.column_stack([1e3 * t, wrapped, 100 * i_q, values[:, 3]]), delimiter=";",
+               header="drive log\nrate 2 kHz\nt_ms;pos;iq;tq", comments="", fmt="%.12g")
+
+
+def make_import_base(bench: Path, folder: Path) -> None:
+    """Drive logs of the base bench's trials and their mappings (phase currents; q axis) in ``folder``."""
+    import tomllib
+
+    motor = tomllib.loads((bench / "bench.toml").read_text())["motor"]
+    folder.mkdir()
+    shutil.copy(bench / "backemf.csv", folder / "backemf.csv")
+    for log, trial in LOGGED.items():
+        write_phase_log(folder / log, bench / trial, motor["counts_per_rev"])
+    write_q_log(folder / LOG_Q, bench / LOGGED[LOG_A], motor["counts_per_rev"], motor["pole_pairs"])
+    write_phase_log(folder / LOG_COARSE, bench / LOGGED[LOG_A], motor["counts_per_rev"], COARSE_RATE_HZ)
+    (folder / MAP).write_text(mapping_bench(bench) + PHASE_LAYOUT)
+    (folder / MAP_Q).write_text(mapping_bench(bench) + Q_LAYOUT)
+
+
+def mapping(table: str, name: str, value: str | None, file: str = MAP) -> Callable:
+    """A mutation setting ``name = value`` in [table] of a mapping (None deletes it)."""
+    return lambda d, rng: edit(d / file, lambda t: toml_set(t, table, name, value))
+
+
+def mapping_text(fn: Callable[[str], str | bytes], file: str = MAP) -> Callable:
+    def mutate(d: Path, rng) -> None:
+        text = fn((d / file).read_text())
+        (d / file).write_bytes(text if isinstance(text, bytes) else text.encode())
+    return mutate
+
+
+def _point(file: str, torque: str = "1.0", speed: str = "0.8", extra: str = "") -> Callable[[str], str]:
+    """A [[points]] table for log ``file`` appended to a mapping."""
+    return lambda t: (t + f'\n[[points]]\nfile = "{file}"\ntorque_setpoint_nm = {torque}\n'
+                      f"speed_setpoint_hz = {speed}\n{extra}")
+
+
+def _log_lines(fn: Callable[[list[bytes]], list[bytes]], file: str = LOG_A) -> Callable:
+    def mutate(d: Path, rng) -> None:
+        (d / file).write_bytes(b"\n".join(fn((d / file).read_bytes().split(b"\n"))))
+    return mutate
+
+
+def _many_rows(d: Path, rng) -> None:
+    """2^22 + 1 rows of zeros after the header (54 MB): one row more than a log may hold."""
+    (d / LOG_A).write_bytes(b"t,theta,ia,ib,ic,tq\n" + b"0,0,0,0,0,0\n" * (2**22 + 1))
+
+
+#: the logs and mapping of a case: a function of the case's logs folder
+Args = Callable[[Path], list]
+PHASE_ARGS: Args = lambda d: [d / LOG_A, d / LOG_B, "--map", d / MAP]  # noqa: E731
+Q_ARGS: Args = lambda d: [d / LOG_Q, "--map", d / MAP_Q]  # noqa: E731
+
+#: (name, must be rejected, mutation(folder, rng), logs and mapping) of the structured import mutations
+IMPORT_MUTATIONS: list[tuple[str, bool, Callable, Args]] = [
+    ("two phase-current logs as logged", False, lambda d, rng: None, PHASE_ARGS),
+    ("q-axis log: ms, wrapping 16-bit counts, ';', 3 header lines", False, lambda d, rng: None, Q_ARGS),
+    ("--format parquet", False, lambda d, rng: None, lambda d: [*PHASE_ARGS(d), "--format", "parquet"]),
+    ("[[points]] for both logs", False, mapping_text(lambda t: _point(LOG_B, "3.0", "1.0")(_point(LOG_A)(t))),
+     PHASE_ARGS),
+    ("[bench.calibration] given", False, mapping_text(lambda t: t + "\n[bench.calibration]\n"
+                                                     "current_scale_counts_per_a = [14.0, 14.0, 14.0]\n"
+                                                     "current_offset_counts = [0.0, 0.0, 0.0]\n"
+                                                     "torque_gain_v_per_nm = 0.908\n"), PHASE_ARGS),
+    ('current = "measured"', False, mapping("log", "current", '"measured"'), PHASE_ARGS),
+    # the mapping: tables and keys
+    ("mapping unknown table [logs]", True, mapping_text(lambda t: t + "\n[logs]\nx = 1\n"), PHASE_ARGS),
+    ("mapping unknown key in [log]", True, mapping("log", "speed_units", "2"), PHASE_ARGS),
+    ("mapping unknown key in [bench]", True, mapping("bench", "inertia", "0.01"), PHASE_ARGS),
+    ("mapping missing [log]", True, mapping_text(lambda t: t.replace("[log]", "[logg]")), PHASE_ARGS),
+    ("mapping missing [bench]", True, mapping_text(lambda t: t.replace("[bench]", "[bnch]")), PHASE_ARGS),
+    ("mapping missing inertia_kgm2", True, mapping("bench", "inertia_kgm2", None), PHASE_ARGS),
+    ("mapping [log] as an array of tables", True, mapping_text(lambda t: t.replace("[log]", "[[log]]")), PHASE_ARGS),
+    ("mapping [points] a table", True, mapping_text(lambda t: t + '\n[points]\nfile = "log_a.csv"\n'), PHASE_ARGS),
+    ("mapping [scan] on a run", True, mapping_text(lambda t: t + "\n[scan]\nepsilon = 0.7\n"), PHASE_ARGS),
+    ("mapping backemf file missing", True, mapping("bench", "backemf_file", '"nope.csv"'), PHASE_ARGS),
+    ("mapping backemf file and [bench.backemf]", True, mapping_text(
+        lambda t: t + "\n[bench.backemf]\nharmonics = [1]\namplitudes_nm_per_a = [0.2]\nphases_rad = [0.0]\n"),
+     PHASE_ARGS),
+    ("mapping backemf file is a directory", True, _both(mapping("bench", "backemf_file", '"sub"'),
+                                                        lambda d, rng: (d / "sub").mkdir()), PHASE_ARGS),
+    ("mapping counts_per_rev 2^40", True, mapping("bench", "counts_per_rev", str(2**40)), PHASE_ARGS),
+    ("mapping counts_per_rev 1024 (backemf of 4096)", True, mapping("bench", "counts_per_rev", "1024"), PHASE_ARGS),
+    ("mapping binary", True, mapping_text(lambda t: b"\xff\xfe\x00" + bytes(range(256)) * 8), PHASE_ARGS),
+    ("mapping UTF-16", True, mapping_text(lambda t: t.encode("utf-16")), PHASE_ARGS),
+    ("mapping empty", True, mapping_text(lambda t: ""), PHASE_ARGS),
+    ("mapping nested 100000 deep", True, mapping_text(lambda t: t + "x = " + "[" * 100_000 + "]" * 100_000 + "\n"),
+     PHASE_ARGS),
+    ("mapping 2 MB comment", True, mapping_text(lambda t: "#" + "x" * 2_000_000 + "\n" + t), PHASE_ARGS),
+    ("mapping is a directory", True, lambda d, rng: (d / "dir.toml").mkdir(),
+     lambda d: [d / LOG_A, "--map", d / "dir.toml"]),
+    ("mapping missing", True, lambda d, rng: None, lambda d: [d / LOG_A, "--map", d / "none.toml"]),
+    ("mapping is a FIFO", True, lambda d, rng: os.mkfifo(d / "fifo.toml"),
+     lambda d: [d / LOG_A, "--map", d / "fifo.toml"]),
+    ("mapping symlink to /dev/zero", True, lambda d, rng: (d / "zero.toml").symlink_to("/dev/zero"),
+     lambda d: [d / LOG_A, "--map", d / "zero.toml"]),
+    # [log] types, units and scales
+    ("time = 3 (not a name)", True, mapping("log", "time", "3"), PHASE_ARGS),
+    ("phase_currents two names", True, mapping("log", "phase_currents", '["ia", "ib"]'), PHASE_ARGS),
+    ("phase_currents and i_q", True, mapping("log", "i_q", '"ia"'), PHASE_ARGS),
+    ("neither phase_currents nor i_q", True, mapping("log", "phase_currents", None), PHASE_ARGS),
+    ('position_unit "deg"', True, mapping("log", "position_unit", '"deg"'), PHASE_ARGS),
+    ("time_s_per_unit 0", True, mapping("log", "time_s_per_unit", "0.0"), PHASE_ARGS),
+    ("time_s_per_unit -1", True, mapping("log", "time_s_per_unit", "-1.0"), PHASE_ARGS),
+    ("time_s_per_unit nan", True, mapping("log", "time_s_per_unit", "nan"), PHASE_ARGS),
+    ("time_s_per_unit 1e300", True, mapping("log", "time_s_per_unit", "1e300"), PHASE_ARGS),
+    ("time_s_per_unit 1e-9 (s read as ns)", True, mapping("log", "time_s_per_unit", "1e-9"), PHASE_ARGS),
+    ("time_s_per_unit 1e3 (s read as ks)", False, mapping("log", "time_s_per_unit", "1e3"), PHASE_ARGS),
+    ("current_a_per_unit 0", True, mapping("log", "current_a_per_unit", "0.0"), PHASE_ARGS),
+    ("current_a_per_unit nan", True, mapping("log", "current_a_per_unit", "nan"), PHASE_ARGS),
+    ("current_a_per_unit inf", True, mapping("log", "current_a_per_unit", "inf"), PHASE_ARGS),
+    ("current_a_per_unit 1e9", True, mapping("log", "current_a_per_unit", "1e9"), PHASE_ARGS),
+    ("current_a_per_unit 1e-300", True, mapping("log", "current_a_per_unit", "1e-300"), PHASE_ARGS),
+    ("current_a_per_unit -1 (sign flipped)", True, mapping("log", "current_a_per_unit", "-1.0"), PHASE_ARGS),
+    ("torque_nm_per_unit 0", True, mapping("log", "torque_nm_per_unit", "0.0"), PHASE_ARGS),
+    ("torque_nm_per_unit 1e9", True, mapping("log", "torque_nm_per_unit", "1e9"), PHASE_ARGS),
+    ("torque_nm_per_unit -1 (sign flipped)", False, mapping("log", "torque_nm_per_unit", "-1.0"), PHASE_ARGS),
+    ('current = "both"', True, mapping("log", "current", '"both"'), PHASE_ARGS),
+    ("angle_offset_rad 7", True, mapping("log", "angle_offset_rad", "7.0", MAP_Q), Q_ARGS),
+    ("angle_offset_rad nan", True, mapping("log", "angle_offset_rad", "nan", MAP_Q), Q_ARGS),
+    ("highest_harmonic 0", True, mapping("log", "highest_harmonic", "0"), PHASE_ARGS),
+    ("highest_harmonic 2048 on 2 kHz rows", True, mapping("log", "highest_harmonic", "2048"), PHASE_ARGS),
+    ("highest_harmonic 2049 (beyond Nyquist)", True, mapping("log", "highest_harmonic", "2049"), PHASE_ARGS),
+    ('kind = "scan" on run logs', True, mapping("log", "kind", '"scan"'), PHASE_ARGS),
+    ("direction on a run", True, mapping("log", "direction", '"tq"'), PHASE_ARGS),
+    ("no torque column (a bench without a torque sensor)", False, mapping("log", "torque", None), PHASE_ARGS),
+    # columns
+    ("column missing from the log", True, mapping("log", "torque", '"torque"'), PHASE_ARGS),
+    ("the same column for three phases", True, mapping("log", "phase_currents", '["ia", "ia", "ia"]'), PHASE_ARGS),
+    ("time and position the same column", True, mapping("log", "position", '"t"'), PHASE_ARGS),
+    ("torque is a current column", True, mapping("log", "torque", '"ia"'), PHASE_ARGS),
+    ("log header names a column twice", True, _log_lines(lambda ls: [b"t,theta,ia,ib,ia,tq"] + ls[1:]),
+     PHASE_ARGS),
+    ("column names quoted", False, _log_lines(lambda ls: [b'"t","theta","ia","ib","ic","tq"'] + ls[1:]),
+     PHASE_ARGS),
+    ("header with a BOM", False, raw(LOG_A, lambda b: b"\xef\xbb\xbf" + b), PHASE_ARGS),
+    # delimiters and header lines
+    ("delimiter ';' on a ',' log", True, mapping("log", "delimiter", '";"'), PHASE_ARGS),
+    ("delimiter ' ' on a ',' log", True, mapping("log", "delimiter", '" "'), PHASE_ARGS),
+    ("delimiter ''", True, mapping("log", "delimiter", '""'), PHASE_ARGS),
+    ("delimiter ',,'", True, mapping("log", "delimiter", '",,"'), PHASE_ARGS),
+    ("delimiter '.'", True, mapping("log", "delimiter", '"."'), PHASE_ARGS),
+    ("delimiter newline", True, mapping("log", "delimiter", '"\\n"'), PHASE_ARGS),
+    ("delimiter ',' on a ';' log", True, mapping("log", "delimiter", '","', MAP_Q), Q_ARGS),
+    ("header_lines 0", True, mapping("log", "header_lines", "0"), PHASE_ARGS),
+    ("header_lines 1001", True, mapping("log", "header_lines", "1001"), PHASE_ARGS),
+    ("header_lines 2 (a data row named)", True, mapping("log", "header_lines", "2"), PHASE_ARGS),
+    ("header_lines beyond the file", True, _both(mapping("log", "header_lines", "500"),
+                                                 _log_lines(lambda ls: ls[:100] + [b""])), PHASE_ARGS),
+    ("header_lines 1 on a 3-line header", True, mapping("log", "header_lines", "1", MAP_Q), Q_ARGS),
+    # position
+    ("position_counts_per_rev absent with counts", True, mapping("log", "position_counts_per_rev", None, MAP_Q),
+     Q_ARGS),
+    ("position_counts_per_rev with rad", True, mapping("log", "position_counts_per_rev", "4096"), PHASE_ARGS),
+    ("position_counts_per_rev 0", True, mapping("log", "position_counts_per_rev", "0", MAP_Q), Q_ARGS),
+    ("position_counts_per_rev 1", True, mapping("log", "position_counts_per_rev", "1", MAP_Q), Q_ARGS),
+    ("position_counts_per_rev 2^40", True, mapping("log", "position_counts_per_rev", str(2**40), MAP_Q), Q_ARGS),
+    ("position_counts_per_rev 2^41", True, mapping("log", "position_counts_per_rev", str(2**41), MAP_Q), Q_ARGS),
+    ("position_counts_per_rev 1.5", True, mapping("log", "position_counts_per_rev", "1.5", MAP_Q), Q_ARGS),
+    ("position_counts_per_rev 4096 on a 16-bit position", True,
+     mapping("log", "position_counts_per_rev", "4096", MAP_Q), Q_ARGS),
+    ('position_unit "counts" on rad (a 12-count trial)', False, _both(
+        mapping("log", "position_unit", '"counts"'), mapping("log", "position_counts_per_rev", "4096")), PHASE_ARGS),
+    ('position_unit "rad" on counts', True, _both(mapping("log", "position_unit", '"rad"', MAP_Q),
+                                                   mapping("log", "position_counts_per_rev", None, MAP_Q)), Q_ARGS),
+    ("position frozen", True, column("theta", lambda p: np.full_like(p, p[0]), (LOG_A,)), PHASE_ARGS),
+    ("position reversed", True, column("theta", lambda p: p[::-1], (LOG_A,)), PHASE_ARGS),
+    ("position negated (a reverse lap)", True, column("theta", lambda p: -p, (LOG_A,)), PHASE_ARGS),
+    ("position one step back", True, cell(300, "theta", "0.0", LOG_A), PHASE_ARGS),
+    ("position in degrees", True, column("theta", lambda p: p * 180 / np.pi, (LOG_A,)), PHASE_ARGS),
+    ("position 1e300", True, column("theta", lambda p: p * 1e300, (LOG_A,)), PHASE_ARGS),
+    ("position stalls for 500 rows", False, column("theta", lambda p: np.concatenate(
+        [p[:1000], np.full(500, p[1000]), p[1000:-500]]), (LOG_A,)), PHASE_ARGS),
+    ("position wraps every revolution", False, column("theta", lambda p: np.mod(p, 2 * np.pi), (LOG_A,)),
+     PHASE_ARGS),
+    ("too coarse: 50 Hz log", True, lambda d, rng: None, lambda d: [d / LOG_COARSE, "--map", d / MAP]),
+    # time
+    ("time going back one row", True, cell(200, "t", "0.0", LOG_A), PHASE_ARGS),
+    ("time reversed", True, column("t", lambda t: t[::-1], (LOG_A,)), PHASE_ARGS),
+    ("time constant", True, column("t", lambda t: np.full_like(t, 1.0), (LOG_A,)), PHASE_ARGS),
+    ("time in ms (unit not given)", False, column("t", lambda t: t * 1e3, (LOG_A,)), PHASE_ARGS),
+    ("time in ms, [[points]] at the logged speed", True, _both(column("t", lambda t: t * 1e3, (LOG_A,)),
+                                                               mapping_text(_point(LOG_A))), PHASE_ARGS),
+    ("time 1e300", True, column("t", lambda t: t * 1e300, (LOG_A,)), PHASE_ARGS),
+    ("time 1e-300 steps", True, column("t", lambda t: t * 1e-300, (LOG_A,)), PHASE_ARGS),
+    # values
+    ("NaN torque", True, cell(400, "tq", "nan", LOG_A), PHASE_ARGS),
+    ("inf current", True, cell(401, "ib", "inf", LOG_A), PHASE_ARGS),
+    ("-inf time", True, cell(402, "t", "-inf", LOG_A), PHASE_ARGS),
+    ("NaN position", True, cell(403, "theta", "NaN", LOG_A), PHASE_ARGS),
+    ("text cell", True, cell(404, "tq", "abc", LOG_A), PHASE_ARGS),
+    ("empty cell", True, cell(405, "ia", "", LOG_A), PHASE_ARGS),
+    ("hex cell", True, cell(406, "ia", "0x10", LOG_A), PHASE_ARGS),
+    ("torque constant", True, column("tq", lambda v: np.full_like(v, 1.0), (LOG_A,)), PHASE_ARGS),
+    ("currents all zero", True, _both(*(column(c, np.zeros_like, (LOG_A,)) for c in ("ia", "ib", "ic"))),
+     PHASE_ARGS),
+    ("currents 1e300", True, column("ia", lambda v: v * 1e300, (LOG_A,)), PHASE_ARGS),
+    ("NaN in a column not mapped", False, _both(
+        rows_edit(lambda h, r: (h + ["note"], [x + ["0"] for x in r]), LOG_A), cell(10, "note", "nan", LOG_A)),
+     PHASE_ARGS),
+    # rows and bytes
+    ("row cut short", True, _log_lines(lambda ls: ls[:500] + [ls[500].rsplit(b",", 1)[0]] + ls[501:]), PHASE_ARGS),
+    ("row with an extra field", True, _log_lines(lambda ls: ls[:500] + [ls[500] + b",1"] + ls[501:]), PHASE_ARGS),
+    ("last row cut mid-field", False, raw(LOG_A, lambda b: b[:-5]), PHASE_ARGS),
+    ("header only", True, _log_lines(lambda ls: ls[:1] + [b""]), PHASE_ARGS),
+    ("two rows", True, _log_lines(lambda ls: ls[:3] + [b""]), PHASE_ARGS),
+    ("empty log", True, raw(LOG_A, lambda b: b""), PHASE_ARGS),
+    ("binary log", True, raw(LOG_A, lambda b: bytes(range(256)) * 64), PHASE_ARGS),
+    ("log in UTF-16", True, raw(LOG_A, lambda b: b.decode().encode("utf-16")), PHASE_ARGS),
+    ("10 MB header line", True, raw(LOG_A, lambda b: b"t," * 5_000_000 + b"\n" + b.split(b"\n", 1)[1]),
+     PHASE_ARGS),
+    ("10 MB single row", True, raw(LOG_A, lambda b: b.split(b"\n", 1)[0] + b"\n" + b"1" * 10_000_000 + b"\n"),
+     PHASE_ARGS),
+    ("CRLF line endings", False, raw(LOG_A, lambda b: b.replace(b"\n", b"\r\n")), PHASE_ARGS),
+    ("blank lines between rows", False, _log_lines(lambda ls: [x + b"\n" for x in ls]), PHASE_ARGS),
+    ("log concatenated twice", True, raw(LOG_A, lambda b: b + b.split(b"\n", 1)[1]), PHASE_ARGS),
+    ("2^22 + 1 rows", True, _many_rows, PHASE_ARGS),
+    ("1 GiB sparse log", True, _sparse(LOG_A, 1 << 30), PHASE_ARGS),
+    # files
+    ("log is a FIFO", True, _fifo_file(LOG_A), PHASE_ARGS),
+    ("log symlink to /dev/zero", True, _symlink("/dev/zero", LOG_A), PHASE_ARGS),
+    ("log symlink to /dev/urandom", True, _symlink("/dev/urandom", LOG_A), PHASE_ARGS),
+    ("log is a directory", True, _directory(LOG_A), PHASE_ARGS),
+    ("log missing", True, _remove(LOG_A), PHASE_ARGS),
+    ("the same log twice", True, lambda d, rng: None, lambda d: [d / LOG_A, d / LOG_A, "--map", d / MAP]),
+    ("[[points]] naming a missing file", True, mapping_text(_point("nope.csv")), PHASE_ARGS),
+    ("[[points]] a file twice", True, mapping_text(lambda t: _point(LOG_A)(_point(LOG_A)(t))), PHASE_ARGS),
+    ("[[points]] torque 0", True, mapping_text(_point(LOG_A, "0.0")), PHASE_ARGS),
+    ("[[points]] torque nan", True, mapping_text(_point(LOG_A, "nan")), PHASE_ARGS),
+    ("[[points]] speed 1e4", True, mapping_text(_point(LOG_A, speed="1e4")), PHASE_ARGS),
+    ("[[points]] speed 10x the log's", True, mapping_text(_point(LOG_A, speed="8.0")), PHASE_ARGS),
+    ("[[points]] unknown key", True, mapping_text(_point(LOG_A, extra="note = 1\n")), PHASE_ARGS),
+    ("[[points]] without file", True, mapping_text(lambda t: t + "\n[[points]]\ntorque_setpoint_nm = 1.0\n"
+                                                   "speed_setpoint_hz = 0.8\n"), PHASE_ARGS),
+    # the command line
+    ("--out holds a bench.toml", True, lambda d, rng: (d / "bench.toml").write_text("[motor]\n"),
+     lambda d: [*PHASE_ARGS(d), "--out", d]),
+    ("--out is a file", True, lambda d, rng: None, lambda d: [*PHASE_ARGS(d), "--out", d / LOG_B]),
+    ("--out under /dev/null", True, lambda d, rng: None, lambda d: [*PHASE_ARGS(d), "--out", "/dev/null/x"]),
+    ("--format xlsx", True, lambda d, rng: None, lambda d: [*PHASE_ARGS(d), "--format", "xlsx"]),
+    ("no logs", True, lambda d, rng: None, lambda d: ["--map", d / MAP]),
+    ("no --map", True, lambda d, rng: None, lambda d: [d / LOG_A]),
+]
+
+
+# ---------------------------------------------------------------- 5. standstill scans
+
+#: the simulated scan logs (`ilcpmac.sim.standstill`): holding currents (with i_q) and holding torque
+SCAN_LOG, SCAN_TORQUE_LOG = "scan_log.csv", "scan_torque_log.csv"
+MAP_SCAN, MAP_SCAN_Q, MAP_SCAN_TORQUE = "map_scan.toml", "map_scan_q.toml", "map_scan_torque.toml"
+SCAN_CSV, SCAN_TOML = "scan.csv", "scan.toml"
+SCAN_LAYOUTS = {
+    MAP_SCAN: 'phase_currents = ["i_a", "i_b", "i_c"]\ndirection = "direction"\n',
+    MAP_SCAN_Q: 'i_q = "i_q"\n',
+    MAP_SCAN_TORQUE: 'torque = "torque"\ndirection = "direction"\n',
+}
+
+
+def make_scan_logs(config: Path, bench: Path, folder: Path, seed: int) -> None:
+    """Scan logs of the simulated drive of ``config`` (one revolution each way, 4 rows per count) and their
+    mappings, with the sensors' true errors in [scan], in ``folder``."""
+    from ilcpmac.config import load_config
+    from ilcpmac.sim.simulator import Simulator
+    from ilcpmac.sim.standstill import ScanPlan, write_scan_log
+
+    model = load_config(config).model
+    simulator = Simulator(model)
+    folder.mkdir()
+    shutil.copy(bench / "backemf.csv", folder / "backemf.csv")
+    write_scan_log(folder / SCAN_LOG, simulator, ScanPlan(seed=seed))
+    write_scan_log(folder / SCAN_TORQUE_LOG, simulator, ScanPlan(holding="torque", seed=seed + 1))
+    t = simulator.truth(model.controller.calibration())
+    head = (mapping_bench(bench) + '[log]\nkind = "scan"\ntime = "time"\nposition = "position"\n'
+            f'position_unit = "counts"\nposition_counts_per_rev = {model.encoder.counts_per_rev}\n')
+    errors = f"\n[scan]\nepsilon = {t.epsilon}\nalpha = {t.alpha.tolist()}\nbeta_a = {t.beta_a.tolist()}\n"
+    for name, layout in SCAN_LAYOUTS.items():
+        (folder / name).write_text(head + layout + (f"\n[scan]\ntorque_sensor_gain = {t.delta}\n"
+                                                    if name == MAP_SCAN_TORQUE else errors))
+
+
+def scan_csv(fn: Callable[[list[str], list[list[str]]], tuple]) -> Callable:
+    return rows_edit(fn, SCAN_CSV)
+
+
+def scan_toml(name: str, value: str | None) -> Callable:
+    return lambda d, rng: edit(d / SCAN_TOML, lambda t: toml_set(t, "scan", name, value))
+
+
+def _keep_rows(keep: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> Callable:
+    """scan.csv with the rows ``keep(position, direction)`` selects."""
+    def fn(header, rows):
+        position = np.array([float(r[header.index("position")]) for r in rows])
+        direction = np.array([float(r[header.index("direction")]) for r in rows])
+        return header, [r for r, k in zip(rows, keep(position, direction)) if k]
+    return scan_csv(fn)
+
+
+def _add_column(name: str, value: str) -> Callable:
+    return scan_csv(lambda h, r: (h + [name], [x + [value] for x in r]))
+
+
+def _drop_column(name: str) -> Callable:
+    def fn(header, rows):
+        j = header.index(name)
+        return header[:j] + header[j + 1:], [r[:j] + r[j + 1:] for r in rows]
+    return scan_csv(fn)
+
+
+def _scan_outside(d: Path, rng) -> None:
+    shutil.copy(d / SCAN_CSV, d.parent / "outside.csv")
+    scan_toml("file", '"../outside.csv"')(d, rng)
+
+
+#: (name, must be rejected, mutation(folder, rng), the torque scan's folder) of the scan folder mutations
+SCAN_MUTATIONS: list[tuple[str, bool, Callable, bool]] = [
+    ("holding-currents scan as imported", False, lambda d, rng: None, False),
+    ("holding-torque scan as imported", False, lambda d, rng: None, True),
+    # directions
+    ("direction 0 in a row", True, cell(100, "direction", "0", SCAN_CSV), False),
+    ("direction 2 in a row", True, cell(101, "direction", "2", SCAN_CSV), False),
+    ("direction 0.5 in a row", True, cell(102, "direction", "0.5", SCAN_CSV), False),
+    ("direction NaN in a row", True, cell(103, "direction", "nan", SCAN_CSV), False),
+    ("direction text", True, cell(104, "direction", "fwd", SCAN_CSV), False),
+    ("direction all forward", True, column("direction", np.abs, (SCAN_CSV,)), False),
+    ("direction all reverse", True, column("direction", lambda s: -np.abs(s), (SCAN_CSV,)), True),
+    ("directions swapped", False, column("direction", np.negative, (SCAN_CSV,)), False),
+    ("forward rows only", True, _keep_rows(lambda p, s: s > 0), False),
+    ("reverse rows only", True, _keep_rows(lambda p, s: s < 0), True),
+    ("direction column missing", True, _drop_column("direction"), False),
+    # counts and samples
+    ("count 100 without samples", True, _keep_rows(lambda p, s: np.round(p) % 4096 != 100), False),
+    ("count 7 without reverse samples", True, _keep_rows(lambda p, s: (s > 0) | (np.round(p) % 4096 != 7)), True),
+    ("one sample per count and direction", True, _keep_rows(lambda p, s: np.arange(p.size) % 4 == 0), False),
+    ("half a revolution", True, _keep_rows(lambda p, s: p < 2048), False),
+    ("position shifted by one revolution", False, column("position", lambda p: p + 4096, (SCAN_CSV,)), False),
+    ("position shifted by 2^41 counts", True, column("position", lambda p: p + 2.0**41, (SCAN_CSV,)), False),
+    ("position 1e300 in a row", True, cell(105, "position", "1e300", SCAN_CSV), False),
+    ("position negated", False, column("position", np.negative, (SCAN_CSV,)), False),
+    ("position frozen", True, column("position", lambda p: np.full_like(p, 5.0), (SCAN_CSV,)), False),
+    ("position missing", True, _drop_column("position"), False),
+    ("time going back", False, cell(106, "time", "0", SCAN_CSV), False),
+    ("time constant", False, column("time", np.zeros_like, (SCAN_CSV,)), False),
+    # values
+    ("NaN current", True, cell(107, "i_b", "nan", SCAN_CSV), False),
+    ("inf torque", True, cell(108, "torque", "inf", SCAN_CSV), True),
+    ("NaN time", True, cell(109, "time", "nan", SCAN_CSV), False),
+    ("NaN position", True, cell(110, "position", "NaN", SCAN_CSV), False),
+    ("empty cell", True, cell(111, "i_a", "", SCAN_CSV), False),
+    ("current 1e6 A", True, cell(112, "i_c", "1e6", SCAN_CSV), False),
+    ("torque 1e300", True, cell(113, "torque", "1e300", SCAN_CSV), True),
+    ("currents all zero", False, _both(*(column(c, np.zeros_like, (SCAN_CSV,)) for c in ("i_a", "i_b", "i_c"))),
+     False),
+    ("torque constant", False, column("torque", np.ones_like, (SCAN_CSV,)), True),
+    ("both currents and torque", True, _add_column("torque", "0.5"), False),
+    ("neither currents nor torque", True, _drop_column("torque"), True),
+    ("one current missing", True, _drop_column("i_c"), False),
+    ("extra unknown column", False, _add_column("note", "1"), False),
+    ("columns reordered", False, scan_csv(lambda h, r: (h[::-1], [x[::-1] for x in r])), False),
+    ("row cut short", True, scan_csv(lambda h, r: (h, r[:50] + [r[50][:-1]] + r[51:])), False),
+    # files
+    ("scan.csv empty", True, raw(SCAN_CSV, lambda b: b""), False),
+    ("scan.csv header only", True, raw(SCAN_CSV, lambda b: b.split(b"\n", 1)[0] + b"\n"), False),
+    ("scan.csv binary", True, raw(SCAN_CSV, lambda b: bytes(range(256)) * 64), False),
+    ("scan.csv UTF-16", True, raw(SCAN_CSV, lambda b: b.decode().encode("utf-16")), False),
+    ("scan.csv CRLF", False, raw(SCAN_CSV, lambda b: b.replace(b"\n", b"\r\n")), False),
+    ("scan.csv is a FIFO", True, _fifo_file(SCAN_CSV), False),
+    ("scan.csv symlink to /dev/zero", True, _symlink("/dev/zero", SCAN_CSV), False),
+    ("scan.csv is a directory", True, _directory(SCAN_CSV), False),
+    ("scan.csv missing", True, _remove(SCAN_CSV), False),
+    ("scan.csv 2 GiB sparse", True, _sparse(SCAN_CSV, 2 << 30), False),
+    ("scan.csv symlink outside the folder", True, _symlink(lambda d: shutil.copy(d / SCAN_CSV, d.parent / "o.csv"),
+                                                           SCAN_CSV), False),
+    # scan.toml
+    ("scan.toml unknown key", True, scan_toml("epsilonn", "0.7"), False),
+    ("scan.toml unknown table", True, lambda d, rng: edit(d / SCAN_TOML, lambda t: t + "\n[scan2]\nx = 1\n"), False),
+    ("scan.toml file '../outside.csv'", True, _scan_outside, False),
+    ("scan.toml file absolute path to a secret", True, lambda d, rng: scan_toml("file", f'"{_secret(d)}"')(d, rng),
+     False),
+    ("scan.toml file 42", True, scan_toml("file", "42"), False),
+    ("scan.toml file ''", True, scan_toml("file", '""'), False),
+    ("scan.toml file '.'", True, scan_toml("file", '"."'), False),
+    ("scan.toml file renamed", False, _both(lambda d, rng: (d / SCAN_CSV).rename(d / "other.csv"),
+                                            scan_toml("file", '"other.csv"')), False),
+    ("scan.toml epsilon 0", True, scan_toml("epsilon", "0.0"), False),
+    ("scan.toml epsilon nan", True, scan_toml("epsilon", "nan"), False),
+    ("scan.toml epsilon 1e300", True, scan_toml("epsilon", "1e300"), False),
+    ("scan.toml alpha two values", True, scan_toml("alpha", "[1.0, 1.0]"), False),
+    ("scan.toml beta_a 1e300", True, scan_toml("beta_a", "[1e300, 0.0, 0.0]"), False),
+    ("scan.toml epsilon_std -1", True, scan_toml("epsilon_std", "-1.0"), False),
+    ("scan.toml torque_sensor_gain 0", True, scan_toml("torque_sensor_gain", "0.0"), True),
+    ("scan.toml [scan] empty", False, raw(SCAN_TOML, lambda b: b"[scan]\n"), False),
+    ("scan.toml empty", True, raw(SCAN_TOML, lambda b: b""), False),
+    ("scan.toml binary", True, raw(SCAN_TOML, lambda b: b"\xff\xfe\x00" + bytes(range(256)) * 8), False),
+    ("scan.toml nested 100000 deep", True, raw(SCAN_TOML, lambda b: b + b"x = " + b"[" * 100_000 + b"]" * 100_000),
+     False),
+    ("scan.toml is a directory", True, _directory(SCAN_TOML), False),
+    ("scan.toml symlink to /dev/zero", True, _symlink("/dev/zero", SCAN_TOML), False),
+    ("scan.toml missing", True, _remove(SCAN_TOML), False),
+    # bench.toml and backemf.csv of a scan folder
+    ("[[trials]] in a scan folder", True, lambda d, rng: edit(d / "bench.toml", lambda t: t + (
+        '\n[[trials]]\nfile = "scan.csv"\ntorque_setpoint = 1.0\nspeed_setpoint = 0.8\n')), False),
+    ("counts_per_rev 1024 on 4096-count data (4 revolutions each way)", False, _cpr(1024), False),
+    ("counts_per_rev 8192 on 4096-count data", False, _cpr(8192), False),
+    ("backemf.csv missing", True, _remove("backemf.csv"), False),
+    ("backemf NaN", True, rows_edit(lambda h, r: (h, r[:3] + [[r[3][0], "nan", *r[3][2:]]] + r[4:]), "backemf.csv"),
+     False),
+    ("bench.toml missing", True, _remove("bench.toml"), False),
+    ("pole_pairs 0", True, key("motor", "pole_pairs", "0"), False),
+    ("slots 10^18", True, key("motor", "slots", str(10**18)), False),
+]
+
+
+def _split_scan(d: Path, rng) -> None:
+    """The scan log as two logs: the forward revolution (4096 counts x 4 rows), then the way back."""
+    header, *rows = (d / SCAN_LOG).read_bytes().split(b"\n")
+    (d / "fwd.csv").write_bytes(b"\n".join([header, *rows[:16384], b""]))
+    (d / "back.csv").write_bytes(b"\n".join([header, *rows[16384:]]))
+
+
+#: (name, must be rejected, mutation(folder, rng), logs and mapping) of ``ilcpmac import`` on scan logs
+SCAN_ARGS: Args = lambda d: [d / SCAN_LOG, "--map", d / MAP_SCAN]  # noqa: E731
+SCAN_IMPORTS: list[tuple[str, bool, Callable, Args]] = [
+    ("scan log of holding currents, direction column", False, lambda d, rng: None, SCAN_ARGS),
+    ("scan log of i_q, direction from the motion", False, lambda d, rng: None,
+     lambda d: [d / SCAN_LOG, "--map", d / MAP_SCAN_Q]),
+    ("scan log of holding torque", False, lambda d, rng: None,
+     lambda d: [d / SCAN_TORQUE_LOG, "--map", d / MAP_SCAN_TORQUE]),
+    ("scan in two logs, forward and back", False, _split_scan, lambda d: [d / "fwd.csv", d / "back.csv", "--map",
+                                                                            d / MAP_SCAN]),
+    ("scan log forward only", False, _log_lines(lambda ls: ls[:16385], SCAN_LOG), SCAN_ARGS),
+    ("scan mapping with currents and torque", True, mapping("log", "torque", '"i_q"', MAP_SCAN), SCAN_ARGS),
+    ("scan mapping with neither", True, mapping("log", "phase_currents", None, MAP_SCAN), SCAN_ARGS),
+    ("scan mapping with i_q and phase currents", True, mapping("log", "i_q", '"i_q"', MAP_SCAN), SCAN_ARGS),
+    ("scan direction column missing from the log", True, mapping("log", "direction", '"dir"', MAP_SCAN), SCAN_ARGS),
+    ("scan direction 0 in a row", True, cell(500, "direction", "0", SCAN_LOG), SCAN_ARGS),
+    ("scan direction NaN in a row", True, cell(501, "direction", "nan", SCAN_LOG), SCAN_ARGS),
+    ("scan direction 5 and -5", False, column("direction", lambda s: 5 * s, (SCAN_LOG,)), SCAN_ARGS),
+    ("scan position frozen, no direction column", True, column("position", np.zeros_like, (SCAN_LOG,)),
+     lambda d: [d / SCAN_LOG, "--map", d / MAP_SCAN_Q]),
+    ("scan NaN current", True, cell(502, "i_a", "nan", SCAN_LOG), SCAN_ARGS),
+    ("scan current_a_per_unit 1e6", True, mapping("log", "current_a_per_unit", "1e6", MAP_SCAN), SCAN_ARGS),
+    ("scan torque_nm_per_unit 1e9", True, mapping("log", "torque_nm_per_unit", "1e9", MAP_SCAN_TORQUE),
+     lambda d: [d / SCAN_TORQUE_LOG, "--map", d / MAP_SCAN_TORQUE]),
+    ("scan position_counts_per_rev 1", False, mapping("log", "position_counts_per_rev", "1", MAP_SCAN), SCAN_ARGS),
+    ("scan [scan] unknown key", True, mapping("scan", "gain", "1.0", MAP_SCAN), SCAN_ARGS),
+    ("scan [scan] epsilon 0", True, mapping("scan", "epsilon", "0.0", MAP_SCAN), SCAN_ARGS),
+    ("scan [scan] alpha nan", True, mapping("scan", "alpha", "[nan, 1.0, 1.0]", MAP_SCAN), SCAN_ARGS),
+    ("scan [scan] beta_a a string", True, mapping("scan", "beta_a", '"0"', MAP_SCAN), SCAN_ARGS),
+    ("scan [scan] as an array of tables", True, mapping_text(lambda t: t.replace("[scan]", "[[scan]]"), MAP_SCAN),
+     SCAN_ARGS),
+    ('scan kind "stand"', True, mapping("log", "kind", '"stand"', MAP_SCAN), SCAN_ARGS),
+    ("scan log binary", True, raw(SCAN_LOG, lambda b: bytes(range(256)) * 64), SCAN_ARGS),
+    ("scan log header only", True, _log_lines(lambda ls: ls[:1] + [b""], SCAN_LOG), SCAN_ARGS),
+    ("scan torque log under the currents mapping", True, lambda d, rng: None,
+     lambda d: [d / SCAN_TORQUE_LOG, "--map", d / MAP_SCAN]),
+]
+
+
+# ---------------------------------------------------------------- 6. sweep specs
+
+#: a valid spec over the small config: two identifications with the current sensors' gain drawn
+SWEEP_SPEC = """[sweep]
+kind = "identify"
+tasks = 2
+seed = 14
+
+[draw."simulator.current_sensors.epsilon"]
+distribution = "normal"
+relative_std = 0.02
+"""
+#: what ``ilcpmac sweep`` prints once the spec and every task's draws are checked, before any cluster starts: a
+#: case is stopped there (accepted), since a cluster and its tasks take longer than the fuzz waits
+SWEEP_ACCEPTED = b"tasks; their configs are in"
+EPSILON = 'draw."simulator.current_sensors.epsilon"'
+
+
+def _draw(key: str, body: str) -> Callable[[str], str]:
+    """The spec with the table [draw."KEY"] of ``body`` (lines) added."""
+    return lambda t: t + f'\n[draw."{key}"]\n{body}\n'
+
+
+def _spec_set(table: str, name: str, value: str | None) -> Callable[[str], str]:
+    return lambda t: toml_set(t, table, name, value)
+
+
+def _grid(n: int) -> Callable[[str], str]:
+    """Three grid draws of ``n`` values each: n^3 tasks."""
+    values = "[" + ", ".join(f"{100.0 + i * 1e-3:.4f}" for i in range(n)) + "]"
+    return lambda t: t + "".join(f'\n[draw."{k}"]\ndistribution = "grid"\nvalues = {values}\n' for k in (
+        "simulator.controller.bandwidth_hz", "simulator.controller.voltage_limit_v",
+        "simulator.winding.phase_resistance_ohm"))
+
+
+#: (name, must be rejected, spec text from the valid one) of the spec mutations
+SPEC_MUTATIONS: list[tuple[str, bool, Callable[[str], str | bytes]]] = [
+    ("valid spec (stopped once accepted)", False, lambda t: t),
+    ("spec empty (one task, nothing drawn)", False, lambda t: ""),
+    ("spec not TOML", True, lambda t: "this is [not toml\n"),
+    ("spec binary", True, lambda t: b"\xff\xfe\x00" + bytes(range(256)) * 8),
+    ("spec UTF-16", True, lambda t: t.encode("utf-16")),
+    ("spec nested 100000 deep", True, lambda t: t + "x = " + "[" * 100_000 + "]" * 100_000 + "\n"),
+    ("spec 2 MB comment", True, lambda t: "#" + "x" * 2_000_000 + "\n" + t),
+    ("spec cut mid-table", True, lambda t: t[:t.index("distribution") + 6]),
+    ("unknown table [sweeps]", True, lambda t: t + "\n[sweeps]\ntasks = 2\n"),
+    ("[sweep] unknown key", True, _spec_set("sweep", "workers", "2")),
+    ("[sweep] a list", True, lambda t: t.replace("[sweep]", "[[sweep]]")),
+    ('kind "bogus"', True, _spec_set("sweep", "kind", '"bogus"')),
+    ("kind 3", True, _spec_set("sweep", "kind", "3")),
+    ("tasks 0", True, _spec_set("sweep", "tasks", "0")),
+    ("tasks -1", True, _spec_set("sweep", "tasks", "-1")),
+    ("tasks 1.5", True, _spec_set("sweep", "tasks", "1.5")),
+    ("tasks true", True, _spec_set("sweep", "tasks", "true")),
+    ("tasks nan", True, _spec_set("sweep", "tasks", "nan")),
+    ("tasks 10^12", True, _spec_set("sweep", "tasks", str(10**12))),
+    ("tasks 2^64", True, _spec_set("sweep", "tasks", str(2**64))),
+    ("tasks 100001", True, _spec_set("sweep", "tasks", "100001")),
+    ("seed -1", True, _spec_set("sweep", "seed", "-1")),
+    ("seed 2^64", True, _spec_set("sweep", "seed", str(2**64))),
+    ("seed a string", True, _spec_set("sweep", "seed", '"14"')),
+    # distributions
+    ('distribution "poisson"', True, _spec_set(EPSILON, "distribution", '"poisson"')),
+    ("distribution missing", True, _spec_set(EPSILON, "distribution", None)),
+    ("distribution 3", True, _spec_set(EPSILON, "distribution", "3")),
+    ("normal std and relative_std", True, _spec_set(EPSILON, "std", "0.01")),
+    ("normal neither std", True, _spec_set(EPSILON, "relative_std", None)),
+    ("normal std -1", True, lambda t: _spec_set(EPSILON, "std", "-1.0")(_spec_set(EPSILON, "relative_std", None)(t))),
+    ("normal relative_std -0.5", True, _spec_set(EPSILON, "relative_std", "-0.5")),
+    ("normal std nan", True, lambda t: _spec_set(EPSILON, "std", "nan")(_spec_set(EPSILON, "relative_std", None)(t))),
+    ("normal std inf", True, lambda t: _spec_set(EPSILON, "std", "inf")(_spec_set(EPSILON, "relative_std", None)(t))),
+    ("normal std 1e300", True,
+     lambda t: _spec_set(EPSILON, "std", "1e300")(_spec_set(EPSILON, "relative_std", None)(t))),
+    ("normal mean -1 (draws out of range)", True, _spec_set(EPSILON, "mean", "-1.0")),
+    ("normal mean a string", True, _spec_set(EPSILON, "mean", '"0.7"')),
+    ("normal mean 1e308", True, _spec_set(EPSILON, "mean", "1e308")),
+    ("normal unknown key", True, _spec_set(EPSILON, "sigma", "0.1")),
+    ("normal with values", True, _spec_set(EPSILON, "values", "[1.0]")),
+    ("uniform low > high", True, _draw("simulator.controller.bandwidth_hz",
+                                       'distribution = "uniform"\nlow = 200.0\nhigh = 100.0')),
+    ("uniform missing high", True, _draw("simulator.controller.bandwidth_hz", 'distribution = "uniform"\nlow = 1.0')),
+    ("uniform relative and low", True, _draw("simulator.controller.bandwidth_hz",
+                                             'distribution = "uniform"\nrelative = 0.1\nlow = 1.0')),
+    ("uniform relative 3 (reaching below zero; each task's draw is checked)", False,
+     _draw("simulator.controller.bandwidth_hz", 'distribution = "uniform"\nrelative = 3.0')),
+    ("uniform low -inf", True, _draw("simulator.controller.bandwidth_hz",
+                                     'distribution = "uniform"\nlow = -inf\nhigh = 100.0')),
+    ("uniform -1e308 to 1e308", True, _draw("simulator.controller.bandwidth_hz",
+                                            'distribution = "uniform"\nlow = -1e308\nhigh = 1e308')),
+    ("uniform on a list, 2 lows for 3", True, _draw("simulator.current_sensors.alpha",
+                                                    'distribution = "uniform"\nlow = [0.9, 0.9]\nhigh = 1.1')),
+    ("uniform on a string key", True, _draw("stages.ilc.estimation", 'distribution = "uniform"\nrelative = 0.1')),
+    ("choice values []", True, _draw("simulator.controller.bandwidth_hz", 'distribution = "choice"\nvalues = []')),
+    ("choice values a string", True, _draw("simulator.controller.bandwidth_hz",
+                                           'distribution = "choice"\nvalues = "100"')),
+    ("choice of texts on a number", True, _draw("simulator.controller.bandwidth_hz",
+                                                'distribution = "choice"\nvalues = ["a", "b"]')),
+    ("choice of lists on a number", True, _draw("simulator.controller.bandwidth_hz",
+                                                'distribution = "choice"\nvalues = [[1.0, 2.0]]')),
+    ("choice values of tables", True, _draw("simulator.controller.bandwidth_hz",
+                                            'distribution = "choice"\nvalues = [{ a = 1 }]')),
+    ("choice pole_pairs [0]", True, _draw("bench.pole_pairs", 'distribution = "choice"\nvalues = [0]')),
+    ("choice stages [['nope']]", True, _draw("pipeline.stages", 'distribution = "choice"\nvalues = [["nope"]]')),
+    ("choice backemf_file of a missing file", True, _draw("bench.backemf_file",
+                                                          'distribution = "choice"\nvalues = ["/nonexistent.csv"]')),
+    ("choice trials.seed [-1]", True, _draw("trials.seed", 'distribution = "choice"\nvalues = [-1]')),
+    ("grid counts_per_rev [0, 4096]", True, _draw("bench.counts_per_rev", 'distribution = "grid"\nvalues = [0, 4096]')),
+    ("grid of 10^9 tasks (3 x 1000 values)", True, _grid(1000)),
+    ("grid values nan", True, _draw("simulator.controller.bandwidth_hz", 'distribution = "grid"\nvalues = [nan]')),
+    # keys
+    ("key the config lacks: simulator.mechanics.nope", True, _draw("simulator.mechanics.nope",
+                                                                    'distribution = "normal"\nstd = 0.1')),
+    ("key of no table: nope.key", True, _draw("nope.key", 'distribution = "normal"\nstd = 0.1')),
+    ("key without a table", True, _draw("epsilon", 'distribution = "normal"\nstd = 0.1')),
+    ("key empty", True, _draw("", 'distribution = "normal"\nstd = 0.1')),
+    ("key a table: simulator.current_sensors", True, _draw("simulator.current_sensors",
+                                                           'distribution = "normal"\nstd = 0.1')),
+    ("key alpha[3] of 3", True, _draw("simulator.current_sensors.alpha[3]", 'distribution = "normal"\nstd = 0.1')),
+    ("key alpha[-1]", True, _draw("simulator.current_sensors.alpha[-1]", 'distribution = "normal"\nstd = 0.1')),
+    ("key alpha[99999999999999999999]", True, _draw("simulator.current_sensors.alpha[99999999999999999999]",
+                                                    'distribution = "normal"\nstd = 0.1')),
+    ("key epsilon[0] of a number", True, _draw("simulator.current_sensors.epsilon[0]",
+                                               'distribution = "normal"\nstd = 0.1')),
+    ("key the controller knows: simulator.mechanics.inertia_kgm2", True,
+     _draw("simulator.mechanics.inertia_kgm2", 'distribution = "normal"\nrelative_std = 0.1')),
+    ("key the same twice", True, lambda t: t + f"\n[{EPSILON}]\ndistribution = \"normal\"\nstd = 0.1\n"),
+    ("draw a number, not a table", True, lambda t: t + '\n[draw]\n"simulator.controller.bandwidth_hz" = 3\n'),
+    ("[draw] a list", True, lambda t: t.replace(f"[{EPSILON}]", "[[draw]]")),
+    # [magnets]
+    ("magnets rise [80, 0]", True, lambda t: t + "\n[magnets]\ntemperature_rise_k = [80.0, 0.0]\n"
+                                                 "coefficient_per_k = -0.001\n"),
+    ("magnets make the back-EMF vanish", True, lambda t: t + "\n[magnets]\ntemperature_rise_k = [0.0, 80.0]\n"
+                                                             "coefficient_per_k = -0.1\n"),
+    ("magnets coefficient missing", True, lambda t: t + "\n[magnets]\ntemperature_rise_k = [0.0, 80.0]\n"),
+    ("magnets rise nan", True, lambda t: t + "\n[magnets]\ntemperature_rise_k = [nan, 80.0]\n"
+                                             "coefficient_per_k = -0.001\n"),
+    ("magnets unknown key", True, lambda t: t + "\n[magnets]\ntemperature_rise_k = [0.0, 80.0]\n"
+                                                "coefficient_per_k = -0.001\nmaterial = \"NdFeB\"\n"),
+    ("magnets over a backemf_scale draw out of range", True, lambda t: t + (
+        '\n[draw."simulator.winding.backemf_scale"]\ndistribution = "choice"\nvalues = [20.0]\n'
+        "\n[magnets]\ntemperature_rise_k = [0.0, 80.0]\ncoefficient_per_k = -0.001\n")),
+    # the most tasks allowed: each task's config is written and checked before anything runs
+    ("tasks 100000 (the most allowed)", False, _spec_set("sweep", "tasks", "100000")),
+]
+
+
+def _random_log_mutations(rng: np.random.Generator, n: int) -> list[tuple[str, bool, Callable, Args]]:
+    """Seeded random damage to a drive log: byte flips, truncations, NaN/inf cells, dropped rows."""
+    out: list[tuple[str, bool, Callable, Args]] = []
+    names = ["t", "theta", "ia", "ib", "ic", "tq"]
+    for k in range(n):
+        s = int(rng.integers(2**31))
+        if k % 4 == 0:
+            flips = int(rng.integers(1, 20))
+            out.append((f"{flips} random byte flips in a log (s{s})", False, raw(LOG_A, _flipper(s, flips)),
+                        PHASE_ARGS))
+        elif k % 4 == 1:
+            out.append((f"log truncated at a random byte (s{s})", False,
+                        raw(LOG_A, lambda b, s=s: b[:np.random.default_rng(s).integers(1, len(b))]), PHASE_ARGS))
+        elif k % 4 == 2:
+            value, name = ["nan", "inf", "-inf", "NaN", "Infinity"][s % 5], names[s % 6]
+            out.append((f"{value} in {name} at a random row (s{s})", True, cell(1 + s % 4900, name, value, LOG_A),
+                        PHASE_ARGS))
+        else:
+            out.append((f"random log rows deleted (s{s})", False, rows_edit(
+                lambda h, r, s=s: (h, [x for x, keep in zip(r, np.random.default_rng(s).random(len(r)) > 0.01)
+                                       if keep]), LOG_A), PHASE_ARGS))
+    return out
+
+
+def import_case(category: str, base: Path, name: str, must_reject: bool, mutate: Callable, args: Args) -> Case:
+    """``ilcpmac import`` of ``args(folder)`` (logs, mapping), in a copy of ``base`` mutated; --out a new folder
+    unless ``args`` gives one."""
+    def run(folder: Path) -> Run:
+        d = folder / "logs"
+        shutil.copytree(base, d, symlinks=True)
+        mutate(d, None)
+        argv = [str(a) for a in args(d)]
+        out = folder / "out"
+        if "--out" not in argv:
+            argv += ["--out", str(out)]
+        return ilcpmac("import", *argv, folder=folder, written=out)
+    return Case(category, name, must_reject, run)
+
+
+def import_cases(base: Path, seed: int) -> list[Case]:
+    rng = np.random.default_rng(seed + 3)
+    return [import_case("import: mappings & logs", base, *m)
+            for m in IMPORT_MUTATIONS + _random_log_mutations(rng, 16)]
+
+
+def _random_scan_mutations(rng: np.random.Generator, n: int) -> list[tuple[str, bool, Callable, bool]]:
+    """Seeded random damage to scan.csv: byte flips, NaN/inf cells, dropped rows."""
+    out: list[tuple[str, bool, Callable, bool]] = []
+    names = ["time", "position", "direction", "i_a", "i_b", "i_c"]
+    for k in range(n):
+        s = int(rng.integers(2**31))
+        if k % 3 == 0:
+            flips = int(rng.integers(1, 20))
+            out.append((f"{flips} random byte flips in scan.csv (s{s})", False, raw(SCAN_CSV, _flipper(s, flips)),
+                        False))
+        elif k % 3 == 1:
+            value, name = ["nan", "inf", "-inf", "NaN", "Infinity"][s % 5], names[s % 6]
+            out.append((f"{value} in {name} of scan.csv at a random row (s{s})", True,
+                        cell(1 + s % 32000, name, value, SCAN_CSV), False))
+        else:
+            out.append((f"random scan rows deleted (s{s})", False, rows_edit(
+                lambda h, r, s=s: (h, [x for x, keep in zip(r, np.random.default_rng(s).random(len(r)) > 0.01)
+                                       if keep]), SCAN_CSV), False))
+    return out
+
+
+def scan_cases(currents: Path, torque: Path, logs: Path, seed: int) -> list[Case]:
+    """Scan folders (``currents`` and ``torque``, as imported) mutated and identified; scan logs (``logs``)
+    imported under mutated mappings."""
+    rng = np.random.default_rng(seed + 4)
+
+    def make(name: str, must_reject: bool, mutate: Callable, on_torque: bool) -> Case:
+        def run(folder: Path) -> Run:
+            d = folder / "scan"
+            shutil.copytree(torque if on_torque else currents, d, symlinks=True)
+            mutate(d, None)
+            out = folder / "scan.json"
+            return ilcpmac("identify", d, "--output", out, folder=folder, written=out)
+        return Case("standstill scans", name, must_reject, run)
+
+    return [make(*m) for m in SCAN_MUTATIONS + _random_scan_mutations(rng, 9)] + [
+        import_case("standstill scans", logs, *m) for m in SCAN_IMPORTS]
+
+
+def _resume_folder(result: Callable[[Path], None], spec: str, config: Path) -> Callable[[Path], Path]:
+    """A sweep folder of the one-task ``spec`` over ``config`` whose results/task_0000.parquet is made by
+    ``result(path)``; returns the folder."""
+    def make(folder: Path) -> Path:
+        out = folder / "sweep"
+        (out / "results").mkdir(parents=True)
+        (out / "sweep.toml").write_text(spec)
+        (out / "config.toml").write_text(config.read_text())
+        result(out / "results" / "task_0000.parquet")
+        return out
+    return make
+
+
+def _parquet_of_another_table(path: Path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    pq.write_table(pa.table({"x": [1.0]}), path)
+
+
+def sweep_cases(config: Path) -> list[Case]:
+    """Hostile specs and arguments of ``ilcpmac sweep CONFIG --spec SPEC --out DIR --workers 1``.
+
+    Each spec case is stopped once the sweep prints that its tasks are ready (`SWEEP_ACCEPTED`); the
+    resume and scheduler cases, which may end before any cluster starts, run to their end.
+    """
+    one_task = toml_set(SWEEP_SPEC, "sweep", "tasks", "1")
+
+    def spec_case(name: str, must_reject: bool, fn: Callable[[str], str | bytes]) -> Case:
+        def run(folder: Path) -> Run:
+            spec = folder / "spec.toml"
+            text = fn(SWEEP_SPEC)
+            spec.write_bytes(text if isinstance(text, bytes) else text.encode())
+            out = folder / "sweep"
+            return ilcpmac("sweep", config, "--spec", spec, "--out", out, "--workers", 1, folder=folder, written=out,
+                           stop_at=SWEEP_ACCEPTED)
+        return Case("sweep specs", name, must_reject, run)
+
+    def arg_case(name: str, args: Callable[[Path], list], stop: bool = True) -> Case:
+        def run(folder: Path) -> Run:
+            (folder / "spec.toml").write_text(one_task)
+            return ilcpmac("sweep", *args(folder), folder=folder, written=folder,
+                           stop_at=SWEEP_ACCEPTED if stop else None)
+        return Case("sweep specs", name, True, run)
+
+    def resume(name: str, result: Callable[[Path], None]) -> Case:
+        folder_of = _resume_folder(result, one_task, config)
+        return arg_case(name, lambda f: [config, "--spec", f / "spec.toml", "--out", folder_of(f), "--resume"],
+                        stop=False)
+
+    spec = lambda f: ["--spec", f / "spec.toml"]  # noqa: E731
+    return [spec_case(*m) for m in SPEC_MUTATIONS] + [
+        arg_case("--spec is a directory", lambda f: [config, "--spec", f, "--out", f / "o", "--workers", 1]),
+        arg_case("--spec missing", lambda f: [config, "--spec", f / "none.toml", "--out", f / "o", "--workers", 1]),
+        arg_case("--spec is a FIFO", lambda f: (os.mkfifo(f / "fifo.toml"), [
+            config, "--spec", f / "fifo.toml", "--out", f / "o", "--workers", 1])[1]),
+        arg_case("--spec symlink to /dev/zero", lambda f: ((f / "z.toml").symlink_to("/dev/zero"), [
+            config, "--spec", f / "z.toml", "--out", f / "o", "--workers", 1])[1]),
+        arg_case("CONFIG missing", lambda f: [f / "none.toml", *spec(f), "--out", f / "o", "--workers", 1]),
+        arg_case("CONFIG is the spec", lambda f: [f / "spec.toml", *spec(f), "--out", f / "o", "--workers", 1]),
+        arg_case("CONFIG without [simulator] (a real bench)", lambda f: [REAL_CONFIG, *spec(f), "--out", f / "o",
+                                                                         "--workers", 1]),
+        arg_case("--out is a file", lambda f: [config, *spec(f), "--out", f / "spec.toml", "--workers", 1]),
+        arg_case("--out under /dev/null", lambda f: [config, *spec(f), "--out", "/dev/null/x", "--workers", 1]),
+        arg_case("--workers 0", lambda f: [config, *spec(f), "--out", f / "o", "--workers", 0]),
+        arg_case("--workers 10^6", lambda f: [config, *spec(f), "--out", f / "o", "--workers", 10**6]),
+        arg_case("--scheduler with --workers", lambda f: [config, *spec(f), "--out", f / "o", "--workers", 1,
+                                                           "--scheduler", "tcp://127.0.0.1:9"]),
+        arg_case("--scheduler a:b:c", lambda f: [config, *spec(f), "--out", f / "o", "--scheduler", "a:b:c"],
+                 stop=False),
+        arg_case("--scheduler with nobody listening", lambda f: [config, *spec(f), "--out", f / "o",
+                                                                 "--scheduler", "tcp://127.0.0.1:9"], stop=False),
+        arg_case("--resume a missing folder", lambda f: [config, *spec(f), "--out", f / "none", "--resume"]),
+        arg_case("--resume a folder that is not a sweep", lambda f: [config, *spec(f), "--out", f, "--resume"]),
+        arg_case("--resume a sweep of another spec", lambda f: [
+            config, "--spec", f / "spec.toml", "--out",
+            _resume_folder(lambda p: None, SWEEP_SPEC, config)(f), "--resume"]),
+        arg_case("--out holds results, no --resume", lambda f: [
+            config, *spec(f), "--out", _resume_folder(lambda p: p.write_bytes(b"x"), one_task, config)(f)]),
+        resume("--resume with a corrupt Parquet result", lambda p: p.write_bytes(b"PAR1" + bytes(range(256)) * 4)),
+        resume("--resume with an empty result file", lambda p: p.write_bytes(b"")),
+        resume("--resume with a Parquet result of another table", _parquet_of_another_table),
+        resume("--resume with a result that is a directory", lambda p: p.mkdir()),
+        resume("--resume with a result symlink to /dev/zero", lambda p: p.symlink_to("/dev/zero")),
+    ]
+
+
 # ---------------------------------------------------------------- the campaign
 
 
@@ -953,15 +1830,36 @@ def report(verdicts: list[Verdict], wall: dict[str, float]) -> None:
         print(f"  [{v.case.category}] {v.case.name}: {outcome}: {v.detail}")
 
 
+#: the groups of cases ``--only`` picks
+GROUPS = ["bench", "config", "emulator", "targets", "import", "scan", "sweep"]
+
+
+def make_inputs(only: set[str], scratch: Path, config: Path, base: Path, seed: int) -> str | None:
+    """The base inputs of the import and scan groups in ``scratch``, from the base bench ``base`` and the
+    small ``config``; a message if the scan folders cannot be imported."""
+    if "import" in only:
+        make_import_base(base, scratch / "import-base")
+    if "scan" not in only:
+        return None
+    logs = scratch / "scan-logs"
+    make_scan_logs(config, base, logs, seed)
+    for name, log, mapping_file in (("scan-currents", SCAN_LOG, MAP_SCAN), ("scan-torque", SCAN_TORQUE_LOG,
+                                                                            MAP_SCAN_TORQUE)):
+        made = run_process([ILCPMAC, "import", str(logs / log), "--map", str(logs / mapping_file), "--out",
+                            str(scratch / name)], scratch)
+        if made.code != 0:
+            return f"cannot import the base scan folder {name}:\n{made.text[-2000:]}"
+    return None
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="about a quarter of the cases")
     parser.add_argument("--seed", type=int, default=2009, help="seed of every random mutation")
-    parser.add_argument("--only", choices=["bench", "config", "emulator", "targets"], action="append",
-                        help="run only these categories (repeatable)")
+    parser.add_argument("--only", choices=GROUPS, action="append", help="run only these categories (repeatable)")
     parser.add_argument("--match", default="", help="run only cases whose name contains this text")
     args = parser.parse_args()
-    only = set(args.only or ["bench", "config", "emulator", "targets"])
+    only = set(args.only or GROUPS)
     pick = lambda cases: [c for c in (cases[::4] if args.quick else cases) if args.match in c.name]  # noqa: E731
 
     verdicts: list[Verdict] = []
@@ -981,6 +1879,10 @@ def main() -> int:
             print(f"cannot simulate the base bench folder:\n{made.text[-2000:]}")
             return 1
         (base / "truth.json").unlink()
+        made = make_inputs(only, scratch, config, base, args.seed)
+        if made is not None:
+            print(made)
+            return 1
         stages: list[tuple[str, str, Callable[[], list[Verdict]]]] = [
             ("bench", "bench folders", lambda: run_cases(pick(bench_cases(base, args.seed)), scratch)),
             ("config", "configs & args", lambda: run_cases(pick(config_cases(config_text, base, args.seed)), scratch)),
@@ -988,6 +1890,11 @@ def main() -> int:
              lambda: emulator_verdicts(config, scratch, args.quick, args.match)),
             ("targets", "remote client vs hostile targets",
              lambda: run_cases(pick([target_case(t, remote) for t in ft.TARGETS]), scratch)),
+            ("import", "import: mappings & logs",
+             lambda: run_cases(pick(import_cases(scratch / "import-base", args.seed)), scratch)),
+            ("scan", "standstill scans", lambda: run_cases(pick(scan_cases(
+                scratch / "scan-currents", scratch / "scan-torque", scratch / "scan-logs", args.seed)), scratch)),
+            ("sweep", "sweep specs", lambda: run_cases(pick(sweep_cases(config)), scratch)),
         ]
         for flag, category, stage in stages:
             if flag not in only:
