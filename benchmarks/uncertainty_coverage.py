@@ -3,8 +3,8 @@
     python benchmarks/uncertainty_coverage.py [--seeds N]
 
 The seed bench (configs/seed-bench.toml, simulated in memory) as it is, with
-Coulomb friction, with a slower and a faster current loop and with more
-saturation, over N simulator seeds (default 2). Per bench, method and
+Coulomb friction, with a slower and a faster current loop, with a first-order
+lag for a current loop and with more saturation, over N simulator seeds (default 2). Per bench, method and
 estimate the largest |estimate - truth| / std over seeds and phases (honest
 errors keep it within 3), the joint fit's reduced chi-square per harmonic
 family, and the misfit warnings of the first seed.
@@ -42,6 +42,7 @@ def benches(model: MotorModel) -> dict[str, MotorModel]:
             "friction 0.2 N m": changed("mechanics", coulomb_friction_nm=0.2),
             "loop 80 Hz": changed("controller", bandwidth_hz=80.0),
             "loop 400 Hz": changed("controller", bandwidth_hz=400.0),
+            "first-order lag": changed("controller", loop="lag"),
             "saturation x10": changed("unexplained", saturation_per_a2=3.0e-4)}
 
 
@@ -82,7 +83,8 @@ def main() -> None:
                                      for i, g in enumerate(results[0][0].details.joint.misfit))
             print(f"  {name:<18} {method:<7} " + " ".join(f"{w:>9.2f}" for w in worst) + f"   {families}")
         details = results[0][0].details
-        for warning in details.joint.warnings + details.system.warnings + details.decoupling.warnings:
+        for warning in (details.joint.warnings + details.system.warnings + details.sensor.warnings
+                        + details.decoupling.warnings):
             print(f"    warning: {warning}")
 
 

@@ -19,6 +19,7 @@ from ilcpmac.bench.format import Bench, MotorInfo
 from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.decoupling import _standard_error
+from ilcpmac.identify.sensor_gain import PositionResponse, fit_pooled, harmonic_structure
 from ilcpmac.identify.system_gain import structure_variance
 from ilcpmac.sim.grid import grid_requests, truth_dict
 from ilcpmac.sim.simulator import Simulator
@@ -32,6 +33,8 @@ BENCHES = {
                                 "simulator.unexplained": {"saturation_per_a2": 3.0e-4}},
     "slow loop and friction": {"simulator.controller": {"bandwidth_hz": 80.0},
                                "simulator.mechanics": {"coulomb_friction_nm": 0.05}},
+    "first-order lag and friction": {"simulator.controller": {"loop": "lag"},
+                                     "simulator.mechanics": {"coulomb_friction_nm": 0.2}},
 }
 #: (result field, truth key) of the scalar estimates
 SCALARS = (("delta_epsilon", "total_system_gain"), ("delta", "torque_sensor_gain"), ("epsilon", "epsilon"),
@@ -90,8 +93,8 @@ def test_the_joint_methods_errors_cover_the_truth(name):
 def test_the_report_methods_gain_and_decoupling_errors_cover_the_truth(name):
     result, truth = identified(name)
     ratios = error_over_std(result.methods["report"], truth)
-    # delta (and J*) of ch. 3 come from sensor_gain.py, whose standard error is not yet made honest
-    assert max(ratios[k] for k in ("delta_epsilon", "alpha", "beta")) <= 3.0, ratios
+    assert set(ratios) == {"delta_epsilon", "delta", "epsilon", "inertia_estimate", "alpha", "beta"}
+    assert max(ratios.values()) <= 3.0, ratios
 
 
 def test_a_matched_fit_keeps_its_standard_errors():
@@ -144,3 +147,61 @@ def test_the_decouplings_shared_misfit_adds_to_the_scatter_and_nothing_without_m
     scatter = per_set_point.std(axis=0, ddof=1) / np.sqrt(6)
     np.testing.assert_allclose(_standard_error(per_set_point, np.zeros((6, 3))), scatter)
     np.testing.assert_allclose(_standard_error(per_set_point, np.full((6, 3), 4.0)), np.sqrt(scatter**2 + 4.0))
+
+
+def test_the_encoder_paths_gain_and_scale_errors_cover_the_truth():
+    """eps and alpha on the encoder-derived torque; beta stays about 4 standard errors off on this bench (a bias
+    common to every block of harmonics and every set point, which no residual test sees: docs/identification.md)."""
+    bench, truth = small_bench("matched")
+    result = identify_bench(bench, torque_source="encoder")
+    ratios = error_over_std(result.methods["joint"], truth)
+    assert max(ratios["epsilon"], ratios["alpha"]) <= 3.0, ratios
+    structure = result.details.joint.gain_structure
+    assert structure.is_off and structure.warning in result.messages
+
+
+def _position_responses(rng, inertia: float, delay_s: float = 0.0, drift: float = 0.0) -> list[PositionResponse]:
+    """Six set points of eq. 3.1 in the position domain with known J*, b*_k and delay, and noise of known
+    variance; ``drift``: J* seen growing by that fraction from the lowest to the highest harmonic."""
+    h = np.arange(1, 101)
+    out = []
+    for k, speed_hz in enumerate((0.5, 0.7, 1.0, 0.5, 0.7, 1.0)):
+        w = 2.0 * np.pi * h * speed_hz
+        speed = (rng.normal(size=h.size) + 1j * rng.normal(size=h.size)) * 0.3 / h
+        inertial = 1j * w * speed * 2.0 * np.pi * speed_hz / w * h  # j h Omega omega_h
+        variance = np.full(h.size, 1e-8)
+        noise = rng.normal(0.0, np.sqrt(variance / 2.0)) + 1j * rng.normal(0.0, np.sqrt(variance / 2.0))
+        seen = inertia * (1.0 + drift * (h - 1) / (h.size - 1))
+        torque = (seen * inertial + (0.2 + 0.3 * k) * speed) * np.exp(-1j * w * delay_s) + noise
+        out.append(PositionResponse(torque, variance, inertial, speed, w))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_pooled_inertia_fit_recovers_j_and_the_delay_and_keeps_its_errors_on_matched_data(seed):
+    fit = fit_pooled(_position_responses(np.random.default_rng(seed), 0.0087, delay_s=2e-5))
+    assert abs(fit.inertia - 0.0087) <= 3.0 * fit.inertia_std
+    assert fit.delay_s == pytest.approx(2e-5, abs=2e-6)
+    np.testing.assert_allclose(fit.damping, 0.2 + 0.3 * np.arange(6), atol=0.01)
+    assert fit.inflation <= 1.2
+    assert np.all(fit.chi2_per_trial < 1.3)
+
+
+def test_a_j_that_drifts_over_the_harmonics_widens_the_pooled_error_to_cover_it():
+    fit = fit_pooled(_position_responses(np.random.default_rng(7), 0.0087, drift=0.04))
+    assert fit.structure_chi2[0] > 10.0
+    assert fit.inflation > 3.0
+    assert abs(fit.inertia - 0.0087) <= 3.0 * fit.inertia_std
+    assert abs(fit.inertia - 0.0087) > 3.0 * fit.noise_std
+
+
+def test_harmonic_structure_is_zero_for_scatter_and_the_structures_size_for_a_step():
+    rng = np.random.default_rng(11)
+    information = np.linspace(1.0, 3.0, 64)
+    value = rng.normal(0.0, 1.0 / np.sqrt(information))
+    pooled = np.sum(value * information) / information.sum()
+    assert harmonic_structure(value * information, information, pooled)[0] == 0.0
+    step = np.where(np.arange(64) < 32, -0.5, 0.5)
+    variance, q = harmonic_structure(step + rng.normal(0.0, 0.1, 64), np.ones(64), 0.0)
+    assert q > 10.0
+    assert variance == pytest.approx(0.25 - 1.0 / 32.0, rel=0.1)  # the halves' r_j^2 less their noise 1 / 32

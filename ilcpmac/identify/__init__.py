@@ -198,7 +198,8 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
                                                       lambda: decouple(tables, system.delta_epsilon))
     if system is None and joint is None and sensor is None:
         raise IdentificationError("nothing can be estimated: " + "; ".join(messages))
-    messages += [w for estimate in (joint, system, decoupling) if estimate is not None for w in estimate.warnings]
+    messages += [w for estimate in (joint, system, sensor, decoupling) if estimate is not None
+                 for w in estimate.warnings]
 
     if encoder is None:
         report = _report_method(system, sensor, decoupling)
@@ -340,5 +341,12 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
             "inertia_per_set_point": [
                 {"torque_setpoint": t.torque_setpoint_nm, "speed_setpoint": t.speed_setpoint_hz, "inertia": float(j),
                  "inertia_std": float(s)}
-                for t, j, s in zip(tables.trials, sensor.inertia_per_trial, sensor.inertia_std_per_trial)]}
+                for t, j, s in zip(tables.trials, sensor.inertia_per_trial, sensor.inertia_std_per_trial)],
+            "std_inflation": sensor.inflation,
+            "chi2_per_set_point": [float(m.chi2_reduced) for m in sensor.misfit_per_trial]}
+        if sensor.corrected is not None:
+            c = sensor.corrected
+            out["sensor_gain"]["corrected"] = {
+                "torque_to_speed_delay_s": c.delay_s, "chi2_per_set_point": c.chi2_per_trial.tolist(),
+                "structure_chi2": [float(x) for x in c.structure_chi2], "std_inflation": c.inflation}
     return out

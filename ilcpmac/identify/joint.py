@@ -37,7 +37,9 @@ constants and delay, f_hp, L/R and D enter nonlinearly and are found by
 variable projection (the linear parameters and T are solved for at every
 step); standard errors come from the covariance (J^T J)^-1 of all
 parameters, inflated by the reduced chi-square of each family of harmonics
-that determines them (`_covariance`, `MisfitGroup`).
+that determines them (`_covariance`, `MisfitGroup`), plus the structure of
+the gains and offsets over blocks of harmonics and over set points
+(`_gain_structure`, `GainStructure`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ from numba import njit
 
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
+from ilcpmac.identify.system_gain import structure_variance
 from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
@@ -120,6 +123,47 @@ class MisfitGroup:
 
 
 @dataclass(frozen=True)
+class GainStructure:
+    """The gains theta_p and offsets beta*_p fitted on parts of the data, against the joint fit's.
+
+    A model error that the fitted columns partly absorb (a delay, a roll-off) leaves a small residual
+    but estimates that drift from block to block of harmonics, or from set point to set point: a
+    structure no average over them removes (`_gain_structure`).
+
+    Attributes
+    ----------
+    harmonics : ndarray of int
+        The excitation harmonics the blocks split.
+    chi2_reduced : tuple of float
+        Chi-square per degree of freedom of delta*eps over the blocks of harmonics, and the largest of
+        delta*eps and beta*_p over the set points (about 1 for noise alone).
+    covariance : ndarray, shape (6, 6)
+        The structure's covariance of (theta, beta*), added to the fit's (zero below the tests' quantile).
+    inflation : float
+        The largest factor it put on the standard error of delta*eps or a beta*_p.
+    """
+
+    harmonics: np.ndarray
+    chi2_reduced: tuple
+    covariance: np.ndarray
+    inflation: float
+
+    @property
+    def is_off(self) -> bool:
+        """Whether the estimates drift beyond noise and widen a standard error by more than 1.2."""
+        return self.inflation > 1.2
+
+    @property
+    def warning(self) -> str:
+        """One line: where the estimates drift, by how much, and what it did to the standard errors."""
+        over_harmonics, over_set_points = self.chi2_reduced
+        return (f"joint fit: the gains and offsets differ over the excitation harmonics "
+                f"{self.harmonics.min()}-{self.harmonics.max()} (chi2/dof {over_harmonics:.3g} over blocks) or over "
+                f"set points (chi2/dof {over_set_points:.3g}) - the model misses structure there; standard errors "
+                f"inflated up to x{self.inflation:.2g}")
+
+
+@dataclass(frozen=True)
 class JointEstimate:
     """Result of the joint fit; torques in measured units (scaled by delta).
 
@@ -154,6 +198,9 @@ class JointEstimate:
         Weighted residual sum of squares per degree of freedom (1 when only noise is left).
     misfit : tuple of MisfitGroup
         The residual per harmonic family.
+    gain_structure : GainStructure
+        theta_p and beta*_p over blocks of harmonics and over set points (`_gain_structure`), included in
+        ``covariance``.
     harmonic_response : ndarray, shape (n_trials, n_fit), complex
         Per trial and fit harmonic, the modelled response of the measured torque to
         the theoretical torque sum_p K_p I*_p (for plots).
@@ -179,6 +226,7 @@ class JointEstimate:
     parameter_names: tuple
     chi2_reduced: float
     misfit: tuple
+    gain_structure: GainStructure
     sets: HarmonicSets
 
     @property
@@ -194,7 +242,8 @@ class JointEstimate:
     @property
     def warnings(self) -> tuple[str, ...]:
         """One line per harmonic family where the residual holds structure the model lacks."""
-        return tuple(group.warning for group in self.misfit if group.is_off)
+        families = tuple(group.warning for group in self.misfit if group.is_off)
+        return families + ((self.gain_structure.warning,) if self.gain_structure.is_off else ())
 
     def std_of(self, weights_by_name: dict[str, float], covariance: np.ndarray | None = None) -> float:
         """Standard error of a linear combination of named parameters (``covariance`` defaults to the fit's)."""
@@ -518,6 +567,9 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
     design = problem.design(phi, saturation)
     covariance, bound, names, chi2, misfit = _covariance(problem, phi, active, saturation, x, rest)
+    structure = _gain_structure(problem, phi, saturation, rest, covariance)
+    covariance = covariance.copy()
+    covariance[:6, :6] += structure.covariance
     std = dict(zip(names, np.sqrt(np.diag(covariance))))
     return JointEstimate(
         theta=x[:3], theta_std=np.array([std[f"theta_{p}"] for p in "abc"]),
@@ -529,7 +581,7 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
         torque_delay_s=float(phi[6]),
         position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
         covariance=covariance, bound_covariance=bound, parameter_names=names, chi2_reduced=chi2, misfit=misfit,
-        sets=sets)
+        gain_structure=structure, sets=sets)
 
 
 def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray) -> tuple:
@@ -620,6 +672,71 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
         groups.append(MisfitGroup(label, problem.sets.fit[members], chi2, float(dof), inflation))
     dof = jac.shape[0] - jac.shape[1] - 2 * int(problem.sets.table_free.sum())
     return bound @ information @ bound, bound, tuple(names), float(rest @ rest / dof), tuple(groups)
+
+
+def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndarray, rest: np.ndarray,
+                    covariance: np.ndarray) -> GainStructure:
+    """theta_p and beta*_p fitted on parts of the data, the other parameters held; their structure.
+
+    On a part j (a block of the excitation harmonics, all trials; or one trial, all harmonics) the
+    weighted, T-profiled columns D_j of the parameters and the residual r_j give the shift
+    d_j = (D_j^T D_j)^-1 D_j^T r_j and its noise covariance E_j = (D_j^T D_j)^-1: theta alone on the
+    blocks (beta* lives at a few electrical harmonics), theta and beta* per set point. Where
+    delta*eps = mean_p theta_p (or a beta*_p) drifts over the parts beyond E_j (`structure_variance`;
+    blocks: the halves or blocks of ceil(sqrt(n)), whichever finds more), the structure's covariance
+    sum_j w_j (d_j d_j^T - E_j) / sum_j w_j (w_j the part's information on delta*eps; its negative
+    part dropped) joins the fit's: it does not average out over the parts.
+    """
+    _, design = problem.weighted(phi, problem.design(phi, saturation))
+    n_trials, n_fit = problem.variance.shape[0], problem.sets.fit.size
+    columns = design[:, :6].reshape(2, n_trials, n_fit, 6)
+    residual = rest.reshape(2, n_trials, n_fit)
+    excitation = dict(misfit_groups(problem.sets.fit, problem.pole_pairs, problem.cogging_order)).get("excitation")
+    members = np.flatnonzero(excitation) if excitation is not None else np.zeros(0, int)
+    mean = np.full(3, 1.0 / 3.0)
+
+    def structure(parts: list, size: int) -> tuple[float, np.ndarray]:
+        """The largest chi2/dof over the tested quantities, and the structure's covariance (size x size)."""
+        shifts, noises = [], []
+        for d, r in parts:
+            noise = np.linalg.pinv(d.T @ d)
+            shifts.append(noise @ d.T @ r)
+            noises.append(noise)
+        shifts, noises = np.array(shifts), np.array(noises)
+        tests = [mean] + [np.eye(size)[3 + p] for p in range(size - 3)]
+        expected_gain = np.einsum("i,bij,j->b", mean, noises[:, :3, :3], mean)
+        if len(parts) < 2 or not np.all(expected_gain > 0.0):
+            return 0.0, np.zeros((size, size))
+        found, q_max = False, 0.0
+        for g in tests:
+            g = g[:size] if g.size >= size else np.concatenate([g, np.zeros(size - g.size)])
+            expected = np.einsum("i,bij,j->b", g, noises, g)
+            if not np.all(expected > 0.0):
+                continue
+            variance, q = structure_variance(shifts @ g, expected, 1.0 / expected)
+            found, q_max = found or variance > 0.0, max(q_max, q)
+        if not found:
+            return q_max, np.zeros((size, size))
+        excess = np.average(shifts[:, :, None] * shifts[:, None, :] - noises, axis=0, weights=1.0 / expected_gain)
+        values, vectors = np.linalg.eigh(excess)
+        return q_max, (vectors * np.maximum(values, 0.0)) @ vectors.T
+
+    q_harmonics, excess_harmonics = 0.0, np.zeros((3, 3))
+    for size in {members.size // 2, int(np.ceil(np.sqrt(members.size)))}:
+        if size < 1 or members.size // size < 2:
+            continue
+        blocks = members[: members.size // size * size].reshape(-1, size)
+        q, excess = structure([(columns[:, :, b, :3].reshape(-1, 3), residual[:, :, b].ravel()) for b in blocks], 3)
+        if mean @ excess @ mean >= mean @ excess_harmonics @ mean:
+            q_harmonics, excess_harmonics = max(q, q_harmonics), excess
+    q_set_points, excess = structure([(columns[:, k].reshape(-1, 6), residual[:, k].ravel())
+                                      for k in range(n_trials)], 6)
+    excess[:3, :3] += excess_harmonics
+    fitted = covariance[:6, :6]
+    gain = np.concatenate([mean, np.zeros(3)])
+    ratios = [(g @ (fitted + excess) @ g) / (g @ fitted @ g) for g in (gain, *np.eye(6)[3:]) if g @ fitted @ g > 0.0]
+    return GainStructure(problem.sets.fit[members], (q_harmonics, q_set_points), excess,
+                         float(np.sqrt(max(ratios, default=1.0))))
 
 
 def fitted_columns_nm(tables: BenchTables, estimate: JointEstimate) -> np.ndarray:

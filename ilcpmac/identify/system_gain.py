@@ -102,7 +102,8 @@ def theoretical_torque_tables(tables: BenchTables) -> np.ndarray:
     return np.stack([np.sum(tables.backemf_nm_per_a * t.i_ref_table_a, axis=1) for t in tables.trials])
 
 
-def structure_variance(means: np.ndarray, expected: np.ndarray) -> tuple[float, float]:
+def structure_variance(means: np.ndarray, expected: np.ndarray,
+                       weights: np.ndarray | None = None) -> tuple[float, float]:
     """The variance of a structure a constant model lacks, from the means of B groups of its misfit.
 
     For scatter alone each group mean r_j has variance e_j (``expected``), so
@@ -110,6 +111,9 @@ def structure_variance(means: np.ndarray, expected: np.ndarray) -> tuple[float, 
     Beyond its STRUCTURE_QUANTILE the groups differ by a structure (a roll-off
     over harmonics, a gain that changes with the set point) whose size,
     [mean_j (r_j^2 - e_j)]+, no average over the groups removes; 0 otherwise.
+    ``weights``: the groups' shares of an estimate weighted over them (the
+    mean above weighted alike), for a structure's size where the estimate
+    takes its information.
 
     Returns (that variance, Q / (B - 1)); (0, 0) when some e_j is not
     positive (noise-free data: nothing to compare with).
@@ -122,7 +126,7 @@ def structure_variance(means: np.ndarray, expected: np.ndarray) -> tuple[float, 
     q = float(np.sum(means**2 / expected) / dof)
     if q <= chi2.ppf(STRUCTURE_QUANTILE, dof) / dof:
         return 0.0, q
-    return max(float(np.mean(means**2 - expected)), 0.0), q
+    return max(float(np.average(means**2 - expected, weights=weights)), 0.0), q
 
 
 def excluded_harmonics(harmonics: np.ndarray, pole_pairs: int, cogging_order: int) -> np.ndarray:
