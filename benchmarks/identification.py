@@ -24,12 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo, convert_bench, read_bench
+from ilcpmac.bench.format import Bench, convert_bench, read_bench
 from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
-from ilcpmac.sim.grid import grid_requests, simulate_bench, truth_dict
+from ilcpmac.sim.grid import simulate_bench, simulated_bench
 from ilcpmac.sim.reduced import ReducedCampaign, ReducedMotor, ReducedSensors, reduced_bench
-from ilcpmac.sim.simulator import Simulator
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
 #: (label, result field, kind, target): kind "rel" is a relative error, "abs" the largest absolute error
@@ -43,14 +42,7 @@ LAG_TARGETS = {"delta_epsilon": 0.03, "delta": 0.03, "alpha": 0.01}
 
 def seed_bench(seed: int) -> tuple[Bench, dict]:
     """The seed bench simulated in memory with ``seed``."""
-    config = load_config(CONFIG)
-    simulator = Simulator(config.model, config.grid.warmup_revolutions)
-    requests = grid_requests(config, config.model.controller.calibration(), seed, config.grid.revolutions)
-    m = config.model
-    bench = Bench(MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
-                  simulator.backemf_counts, requests[0].calibration, tuple(simulator.run_trials(requests)),
-                  tuple(f"trial_{i + 1:02d}.csv" for i in range(len(requests))))
-    return bench, truth_dict(simulator, requests[0])
+    return simulated_bench(load_config(CONFIG), seed)
 
 
 def error(method, field: str, truth: dict, key: str, kind: str) -> float | None:

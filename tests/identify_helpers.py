@@ -10,7 +10,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.bench.format import Bench
 from ilcpmac.identify import IdentificationResult, identify_bench
 from ilcpmac.sim.reduced import ReducedCampaign, ReducedMotor, ReducedSensors, reduced_bench
 
@@ -23,19 +23,9 @@ def seed_bench() -> tuple[Bench, dict]:
     from pathlib import Path
 
     from ilcpmac.config import load_config
-    from ilcpmac.sim.grid import grid_requests, truth_dict
-    from ilcpmac.sim.simulator import Simulator
+    from ilcpmac.sim.grid import simulated_bench
 
-    config = load_config(Path(__file__).resolve().parents[1] / SEED_CONFIG)
-    simulator = Simulator(config.model, config.grid.warmup_revolutions)
-    requests = grid_requests(config, config.model.controller.calibration(), config.grid.seed,
-                             config.grid.revolutions)
-    trials = simulator.run_trials(requests)
-    m = config.model
-    bench = Bench(MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
-                  simulator.backemf_counts, requests[0].calibration, tuple(trials),
-                  tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))))
-    return bench, truth_dict(simulator, requests[0])
+    return simulated_bench(load_config(Path(__file__).resolve().parents[1] / SEED_CONFIG))
 
 
 #: a motor unlike the seed bench: 4 pole pairs, 36 slots (cogging order 72), 2048 counts

@@ -15,14 +15,13 @@ import numpy as np
 import pytest
 from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
 
-from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.bench.format import Bench
 from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.decoupling import _standard_error
 from ilcpmac.identify.sensor_gain import PositionResponse, fit_pooled, harmonic_structure
 from ilcpmac.identify.system_gain import structure_variance
-from ilcpmac.sim.grid import grid_requests, truth_dict
-from ilcpmac.sim.simulator import Simulator
+from ilcpmac.sim.grid import simulated_bench
 
 #: 3 torques x 2 speeds of 4 revolutions on the 1024-count seed bench
 SMALL_GRID = {"torque_setpoints_nm": [1.0, 3.0, 5.0], "speed_setpoints_hz": [0.5, 1.0], "revolutions": 4}
@@ -56,13 +55,7 @@ def small_bench(name: str, seed: int = 101) -> tuple[Bench, dict]:
         path = Path(folder) / "campaign.toml"
         path.write_text(toml_text(data))
         config = load_config(path)
-    simulator = Simulator(config.model, config.grid.warmup_revolutions)
-    requests = grid_requests(config, config.model.controller.calibration(), seed, config.grid.revolutions)
-    m = config.model
-    bench = Bench(MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
-                  simulator.backemf_counts, requests[0].calibration, tuple(simulator.run_trials(requests)),
-                  tuple(f"trial_{i + 1:02d}.csv" for i in range(len(requests))))
-    return bench, truth_dict(simulator, requests[0])
+    return simulated_bench(config)
 
 
 @lru_cache(maxsize=None)

@@ -88,15 +88,14 @@ def simulated_description(simulator: Simulator, limits: BenchLimits) -> BenchDes
     )
 
 
-def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None = None,
-                   revolutions: int | None = None,
-                   on_done: Callable[[int, TrialData], None] | None = None, torque_sensor: bool = True) -> Bench:
-    """Run the set-point grid and write a bench folder plus ``truth.json``.
+def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions: int | None = None,
+                    on_done: Callable[[int, TrialData], None] | None = None,
+                    torque_sensor: bool = True) -> tuple[Bench, dict]:
+    """Run the set-point grid in memory: the bench folder's contents and its truth (`truth_dict`).
 
     Parameters
     ----------
     config : the campaign.
-    out_dir : the bench folder to write (created if needed).
     seed, revolutions : override the config's ``[trials]`` values.
     on_done : called with (index, trial) as each trial finishes.
     torque_sensor : False: a bench without a torque sensor (no torque column, [motor] torque_sensor =
@@ -124,7 +123,15 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
         trials=tuple(trials),
         trial_files=tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))),
     )
+    return bench, truth_dict(simulator, requests[0])
+
+
+def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None = None,
+                   revolutions: int | None = None,
+                   on_done: Callable[[int, TrialData], None] | None = None, torque_sensor: bool = True) -> Bench:
+    """`simulated_bench`, written as a bench folder plus ``truth.json`` in ``out_dir`` (created if needed)."""
+    bench, truth = simulated_bench(config, seed, revolutions, on_done, torque_sensor)
     out_dir = Path(out_dir)
     write_bench(out_dir, bench)
-    (out_dir / "truth.json").write_text(json.dumps(truth_dict(simulator, requests[0]), indent=1))
+    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1))
     return bench
