@@ -358,6 +358,9 @@ static ilcp_status all_positive(const double *v, size_t n)
 /* 5.1: what a client refuses, the back-EMF table aside */
 static ilcp_status describe_check(const ilcp_describe *d)
 {
+    if ((d->flags & ~ILCP_DESCRIBE_NO_TORQUE_SENSOR) != 0u) {
+        return ILCP_E_FLAGS;
+    }
     if (d->pole_pairs < ILCP_POLE_PAIRS_MIN || d->pole_pairs > ILCP_POLE_PAIRS_MAX
         || d->slots < ILCP_SLOTS_MIN || d->slots > ILCP_SLOTS_MAX
         || d->counts_per_rev < ILCP_COUNTS_PER_REV_MIN || d->counts_per_rev > ILCP_COUNTS_PER_REV_MAX) {
@@ -389,7 +392,7 @@ ilcp_status ilcp_describe_encode(const ilcp_describe *describe, uint8_t *payload
     ilcp_put_u32(payload, d->pole_pairs);
     ilcp_put_u32(payload + 4, d->slots);
     ilcp_put_u32(payload + 8, d->counts_per_rev);
-    ilcp_put_u32(payload + 12, 0u);
+    ilcp_put_u32(payload + 12, d->flags);
     ilcp_put_f64(payload + 16, d->inertia_kgm2);
     put_f64s(payload + 24, d->current_scale, 3u);
     put_f64s(payload + 48, d->current_offset, 3u);
@@ -415,6 +418,7 @@ ilcp_status ilcp_describe_decode(const uint8_t *payload, size_t length, ilcp_des
     out->pole_pairs = ilcp_get_u32(payload);
     out->slots = ilcp_get_u32(payload + 4);
     out->counts_per_rev = ilcp_get_u32(payload + 8);
+    out->flags = ilcp_get_u32(payload + 12);
     out->inertia_kgm2 = ilcp_get_f64(payload + 16);
     get_f64s(payload + 24, out->current_scale, 3u);
     get_f64s(payload + 48, out->current_offset, 3u);

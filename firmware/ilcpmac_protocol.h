@@ -188,11 +188,15 @@ ilcp_status ilcp_frame_seal(uint8_t *buf, size_t cap, uint16_t type, uint32_t se
  * with the HELLO bound 0 is all its decoding, ilcp_frame_seal with length 0 its encoding.
  */
 
+/* DESCRIBE flags bit: the bench has no torque sensor (DATA's torque is then ignored: send 0) */
+#define ILCP_DESCRIBE_NO_TORQUE_SENSOR 1u
+
 /* DESCRIBE (5.1). backemf_nm_per_a: counts_per_rev rows of (a, b, c), row-major. */
 typedef struct {
     uint32_t pole_pairs;
     uint32_t slots;
     uint32_t counts_per_rev;
+    uint32_t flags;           /* ILCP_DESCRIBE_NO_TORQUE_SENSOR or 0 */
     double inertia_kgm2;
     double current_scale[3];  /* counts / A, > 0 */
     double current_offset[3]; /* counts */
@@ -203,7 +207,8 @@ typedef struct {
     const double *backemf_nm_per_a;
 } ilcp_describe;
 
-/* Both check what a client refuses (5.1): motor data out of range (E_RANGE), scales, gain and limits not
+/* Both check what a client refuses (5.1): flags beyond ILCP_DESCRIBE_NO_TORQUE_SENSOR (E_FLAGS), motor data
+ * out of range (E_RANGE), scales, gain and limits not
  * positive (E_RANGE) and finite, offsets or back-EMF not finite (E_NOT_FINITE). decode copies the back-EMF
  * table into backemf_nm_per_a (capacity backemf_cap doubles, at least 3 counts_per_rev) and points
  * out->backemf_nm_per_a at it. */

@@ -222,8 +222,8 @@ int main(void)
             ilcp_status s = ilcp_describe_decode(p, n, &d, backemf, values);
             status(s);
             if (s == ILCP_OK) {
-                printf(" %%lx %%lx %%lx", (unsigned long)d.pole_pairs, (unsigned long)d.slots,
-                       (unsigned long)d.counts_per_rev);
+                printf(" %%lx %%lx %%lx %%lx", (unsigned long)d.pole_pairs, (unsigned long)d.slots,
+                       (unsigned long)d.counts_per_rev, (unsigned long)d.flags);
                 f64(d.inertia_kgm2); f64s(d.current_scale, 3u); f64s(d.current_offset, 3u); f64(d.torque_gain);
                 f64(d.max_current_a); f64(d.max_torque_nm); f64(d.max_speed_hz);
                 f64s(d.backemf_nm_per_a, 3u * (size_t)d.counts_per_rev);
@@ -309,7 +309,8 @@ int main(void)
             ilcp_describe d;
             uint32_t seq = u32(), length = 0u;
             double *backemf;
-            d.pole_pairs = u32(); d.slots = u32(); d.counts_per_rev = u32(); d.inertia_kgm2 = f();
+            d.pole_pairs = u32(); d.slots = u32(); d.counts_per_rev = u32(); d.flags = u32();
+            d.inertia_kgm2 = f();
             d.current_scale[0] = f(); d.current_scale[1] = f(); d.current_scale[2] = f();
             d.current_offset[0] = f(); d.current_offset[1] = f(); d.current_offset[2] = f();
             d.torque_gain = f(); d.max_current_a = f(); d.max_torque_nm = f(); d.max_speed_hz = f();
@@ -572,7 +573,7 @@ def encode_commands(ex: Example) -> list[str]:
     m, cal, lim, r = ex.describe.motor, ex.describe.calibration, ex.describe.limits, ex.request
     return [
         f"enc_hello {seq[0]:x}",
-        f"enc_describe {seq[1]:x} {m.pole_pairs:x} {m.slots:x} {m.counts_per_rev:x} "
+        f"enc_describe {seq[1]:x} {m.pole_pairs:x} {m.slots:x} {m.counts_per_rev:x} {0 if m.torque_sensor else 1:x} "
         + f64(m.inertia_kgm2, *cal.current_scale, *cal.current_offset, cal.torque_gain, lim.max_current_a,
               lim.max_torque_nm, lim.max_speed_hz, *ex.describe.backemf_nm_per_a.ravel()),
         f"enc_request {seq[2]:x} {ex.trial_id:x} {r.revolutions:x} {r.seed:x} {r.feedforward_nm.size:x} "
@@ -605,8 +606,8 @@ def test_the_c_decoders_read_the_documented_bytes(driver):
                                 "%x" % (len(frame.data) - 20), "16"], frame.name
     d, m, r = ex.describe, ex.describe.motor, ex.request
     describe = out[8].split()
-    assert describe[:4] == ["OK", "8", "30", "4"] and [m.pole_pairs, m.slots, m.counts_per_rev] == [8, 48, 4]
-    assert describe[4:] == f64(m.inertia_kgm2, *d.calibration.current_scale, *d.calibration.current_offset,
+    assert describe[:5] == ["OK", "8", "30", "4", "0"] and [m.pole_pairs, m.slots, m.counts_per_rev] == [8, 48, 4]
+    assert describe[5:] == f64(m.inertia_kgm2, *d.calibration.current_scale, *d.calibration.current_offset,
                                d.calibration.torque_gain, d.limits.max_current_a, d.limits.max_torque_nm,
                                d.limits.max_speed_hz, *d.backemf_nm_per_a.ravel()).split()
     assert out[9].split() == ["OK", "%x" % ex.trial_id, "%x" % r.revolutions, "%x" % r.seed, "%x" % cpr,
@@ -825,6 +826,8 @@ HOSTILE_PAYLOADS = {
     "DESCRIBE with an infinite back-EMF": ("describe", describe_payload(backemf_nm_per_a=np.where(
         np.arange(3 * CPR).reshape(CPR, 3) == 7, np.inf, DESCRIPTION.backemf_nm_per_a)), "E_NOT_FINITE",
         "BackendError"),
+    "DESCRIBE with an unknown flag": ("describe", describe_payload()[:12] + (2).to_bytes(4, "little")
+                                      + describe_payload()[16:], "E_FLAGS", "BackendError"),
     "DESCRIBE one byte short": ("describe", describe_payload()[:-1], "E_SIZE", "ProtocolError"),
     "DESCRIBE shorter than its head": ("describe", describe_payload()[:103], "E_SIZE", "ProtocolError"),
     "ACCEPT of 15 bytes": ("accept", bytes(15), "E_SIZE", "ProtocolError"),

@@ -504,3 +504,17 @@ def test_a_bench_finer_than_a_describe_frame_carries_is_refused_before_serving()
 
     with pytest.raises(BackendError, match="serve the encoder at a divided resolution$"):
         BenchEmulator(Fine())
+
+
+def test_a_bench_without_a_torque_sensor_says_so_in_describe():
+    from ilcpmac.backends.protocol import NO_TORQUE_SENSOR
+
+    description = toy_description(64)
+    without = dataclasses.replace(description, motor=dataclasses.replace(description.motor, torque_sensor=False))
+    head, backemf = encode_describe(without)
+    assert int.from_bytes(head[12:16], "little") == NO_TORQUE_SENSOR
+    assert decode_describe(memoryview(head + backemf.tobytes())).motor.torque_sensor is False
+    head, backemf = encode_describe(description)
+    assert decode_describe(memoryview(head + backemf.tobytes())).motor.torque_sensor is True
+    with pytest.raises(BackendError, match=r"^DESCRIBE flags 0x3: unknown bits"):
+        decode_describe(memoryview(head[:12] + (3).to_bytes(4, "little") + head[16:] + backemf.tobytes()))

@@ -450,3 +450,24 @@ def test_the_emulator_refuses_a_request_of_trial_0(emulator, requests):
         assert (error.code, error.trial_id) == (ErrorCode.BAD_REQUEST, 0) and "trial_id 0" in str(error)
         channel.send(FrameType.REQUEST, encode_request(1, requests[0]))  # the connection goes on
         assert channel.recv().type is FrameType.ACCEPT
+
+
+def test_a_target_without_a_torque_sensor_gives_trials_without_torque(emulator, remote, simulator, requests):
+    described = simulator.describe()
+    described = dataclasses.replace(described, motor=dataclasses.replace(described.motor, torque_sensor=False))
+
+    class NoTorqueSensor:
+        max_parallel_trials = 1
+
+        def describe(self):
+            return described
+
+        def run_trial(self, request):  # the protocol's DATA has a torque column: such a target sends 0
+            trial = simulator.run_trial(request)
+            return dataclasses.replace(trial, torque_nm=np.zeros_like(trial.torque_nm))
+
+    backend = remote(emulator(NoTorqueSensor()).address)
+    assert backend.describe().motor.torque_sensor is False
+    trial = backend.run_trial(requests[0])
+    assert trial.torque_nm is None
+    np.testing.assert_array_equal(trial.time_s, simulator.run_trial(requests[0]).time_s)

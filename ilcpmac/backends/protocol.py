@@ -50,6 +50,8 @@ _HEARTBEAT = struct.Struct("<II")
 _ERROR_HEAD = struct.Struct("<II")
 _F64 = np.dtype("<f8")
 _I64 = np.dtype("<i8")
+#: DESCRIBE ``flags`` bit: the bench has no torque sensor (DATA's ``torque`` column is then ignored).
+NO_TORQUE_SENSOR = 1
 #: Most encoder counts per revolution a bench can serve: its DESCRIBE carries 24 bytes per count
 #: (docs/protocol.md, 5.1) within MAX_PAYLOAD. A finer encoder is served at a divided resolution.
 MAX_COUNTS_PER_REV = (MAX_PAYLOAD - _DESCRIBE_HEAD.size) // 24
@@ -408,7 +410,8 @@ def encode_describe(description: BenchDescription) -> list:
     backemf = _f64(description.backemf_nm_per_a)
     if backemf.shape != (m.counts_per_rev, 3):
         raise BackendError(f"back-EMF table has shape {backemf.shape}, expected ({m.counts_per_rev}, 3)")
-    head = _DESCRIBE_HEAD.pack(m.pole_pairs, m.slots, m.counts_per_rev, 0, m.inertia_kgm2,
+    flags = 0 if m.torque_sensor else NO_TORQUE_SENSOR
+    head = _DESCRIBE_HEAD.pack(m.pole_pairs, m.slots, m.counts_per_rev, flags, m.inertia_kgm2,
                                *cal.current_scale, *cal.current_offset, cal.torque_gain,
                                lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz)
     return [head, backemf]
@@ -428,8 +431,11 @@ def decode_describe(payload: memoryview) -> BenchDescription:
     if payload.nbytes < _DESCRIBE_HEAD.size:
         raise ProtocolError(f"DESCRIBE payload is {payload.nbytes} bytes, shorter than its "
                             f"{_DESCRIBE_HEAD.size}-byte head")
-    pole_pairs, slots, cpr, _, inertia, *v = _DESCRIBE_HEAD.unpack_from(payload)
+    pole_pairs, slots, cpr, flags, inertia, *v = _DESCRIBE_HEAD.unpack_from(payload)
     _expect_size(payload, _DESCRIBE_HEAD.size + 24 * cpr, f"DESCRIBE (counts_per_rev = {cpr})")
+    if flags & ~NO_TORQUE_SENSOR:
+        raise BackendError(f"DESCRIBE flags {flags:#x}: unknown bits (only {NO_TORQUE_SENSOR:#x}, no torque sensor, "
+                           "is defined)")
     motor = {"pole_pairs": pole_pairs, "slots": slots, "counts_per_rev": cpr, "inertia": inertia}
     for key, (low, high) in MOTOR_RANGES.items():
         if not low <= motor[key] <= high:
@@ -443,7 +449,7 @@ def decode_describe(payload: memoryview) -> BenchDescription:
     if not (np.isfinite(v[3:6]).all() and np.isfinite(backemf).all()):
         raise BackendError("DESCRIBE current_offset and back-EMF table must be finite")
     return BenchDescription(
-        motor=MotorInfo(pole_pairs, slots, cpr, inertia),
+        motor=MotorInfo(pole_pairs, slots, cpr, inertia, torque_sensor=not flags & NO_TORQUE_SENSOR),
         backemf_nm_per_a=backemf,
         calibration=SensorCalibration(v[0:3], v[3:6], v[6]),
         limits=BenchLimits(max_current_a=v[7], max_torque_nm=v[8], max_speed_hz=v[9]),

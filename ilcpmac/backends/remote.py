@@ -270,6 +270,8 @@ class RemoteBackend:
         if frame.type is not FrameType.END_OF_TRIAL:
             raise ProtocolError(f"unexpected {frame.type.name} frame during trial data")
         columns = assembler.finish(frame.payload)
+        if not self._description.motor.torque_sensor:
+            columns["torque_nm"] = None  # what a bench without a torque sensor sends there means nothing
         self._report(1.0)
         return TrialData(torque_setpoint_nm=request.torque_setpoint_nm,
                          speed_setpoint_hz=request.speed_setpoint_hz, request=request, **columns)
