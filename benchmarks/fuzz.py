@@ -1604,7 +1604,7 @@ SPEC_MUTATIONS: list[tuple[str, bool, Callable[[str], str | bytes]]] = [
     ("magnets over a backemf_scale draw out of range", True, lambda t: t + (
         '\n[draw."simulator.winding.backemf_scale"]\ndistribution = "choice"\nvalues = [20.0]\n'
         "\n[magnets]\ntemperature_rise_k = [0.0, 80.0]\ncoefficient_per_k = -0.001\n")),
-    # the most tasks allowed: each task's config is written and checked before anything runs
+    # the most tasks allowed: every task's draws are checked before anything runs (its config when submitted)
     ("tasks 100000 (the most allowed)", False, _spec_set("sweep", "tasks", "100000")),
 ]
 

@@ -307,16 +307,18 @@ class CampaignConfig:
         return self.model
 
 
-def _coerce(value, annotation, where: str):
+def coerce_value(value, annotation, where: str):
+    """``value`` from TOML as the type ``annotation`` names (ints as floats, lists as tuples); `ConfigError`
+    naming ``where`` for any other type."""
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
         (annotation,) = [a for a in typing.get_args(annotation) if a is not type(None)]
-        return _coerce(value, annotation, where)
+        return coerce_value(value, annotation, where)
     if origin is tuple:
         (item,) = {a for a in typing.get_args(annotation) if a is not Ellipsis}
         if not isinstance(value, list):
             raise ConfigError(f"{where}: expected a list, got {shown(value)}")
-        return tuple(_coerce(v, item, where) for v in value)
+        return tuple(coerce_value(v, item, where) for v in value)
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: expected an integer, got {shown(value)}")
@@ -366,7 +368,7 @@ def parse_section(table: dict, cls: type, source: str, section: str, given: dict
                 values[name] = f.default
                 continue
             raise ConfigError(f"{where}: missing ({f.metadata.get('doc', '')})")
-        values[name] = _coerce(table[name], hints[name], where)
+        values[name] = coerce_value(table[name], hints[name], where)
         problem = value_problem(f, values[name])
         if problem is not None:
             raise ConfigError(f"{source}: [{section}] {problem}")

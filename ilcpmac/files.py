@@ -15,7 +15,8 @@ def read_bounded(path: Path, max_bytes: int, error: type[IlcpmacError]) -> bytes
     """The bytes of the regular file ``path``, at most ``max_bytes``; anything else raises ``error`` naming it.
 
     A folder, FIFO or device is refused: the file is opened without blocking and checked to be a regular file
-    before a byte is read.
+    before a byte is read; a file whose size is beyond ``max_bytes`` is refused before a byte is read, and one
+    that grows meanwhile is read no further than ``max_bytes + 1``.
     """
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
@@ -24,8 +25,11 @@ def read_bounded(path: Path, max_bytes: int, error: type[IlcpmacError]) -> bytes
     except (OSError, ValueError) as e:
         raise error(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        status = os.fstat(fd)
+        if not stat.S_ISREG(status.st_mode):
             raise error(f"{path}: not a regular file (a folder, FIFO or device is refused)")
+        if status.st_size > max_bytes:
+            raise error(f"{path}: more than {max_bytes} bytes (refused)")
         with open(fd, "rb", closefd=False) as f:
             raw = f.read(max_bytes + 1)
     except OSError as e:

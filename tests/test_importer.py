@@ -18,7 +18,15 @@ from hypothesis import strategies as st
 import ilcpmac.cli.import_  # noqa: F401  (registers the command on main)
 from ilcpmac.bench import read_bench
 from ilcpmac.bench.format import Bench, write_backemf_csv
-from ilcpmac.bench.importer import REVERSE_LAPS, import_log, read_mapping, resample_to_counts, stamp_resolution_s
+from ilcpmac.bench.importer import (
+    MAX_TIME_S,
+    REVERSE_LAPS,
+    import_log,
+    import_logs,
+    read_mapping,
+    resample_to_counts,
+    stamp_resolution_s,
+)
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.errors import BenchFormatError, ConfigError
@@ -236,8 +244,118 @@ def test_position_beyond_range_refused(tmp_path, native):
     mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
     log = tmp_path / "log.csv"
     log.write_text("t,theta,ia,ib,ic,tq\n" + "".join(f"{i},{1e300 * i},1,2,3,4\n" for i in range(10)))
-    with pytest.raises(BenchFormatError, match=r"log.csv: t or theta beyond the range of a double or of "):
+    with pytest.raises(BenchFormatError, match=r"log.csv: line 3: theta beyond 9.007e\+15 counts once scaled"):
         import_log(log, mapping)
+
+
+def scaled_column(log: Path, column: int, factor: float) -> Path:
+    """The phase log ``log`` with column ``column`` (t, theta, ia, ib, ic, tq) times ``factor``."""
+    table = np.loadtxt(log, delimiter=",", skiprows=1)
+    table[:, column] *= factor
+    np.savetxt(log, table, delimiter=",", header="t,theta,ia,ib,ic,tq", comments="", fmt="%.12g")
+    return log
+
+
+def test_times_beyond_a_trial_file_refused_before_writing(tmp_path, native):
+    """Times x 1e300 (a speed of 1e-300 Hz, in the set points' range): refused naming the first row beyond the
+    2^53 x 0.1 us a trial file's stamps hold, and nothing written."""
+    trial, backemf = native
+    mapping = write_folder(tmp_path, backemf, PHASE_LOG)
+    log = scaled_column(write_phase_log(tmp_path / "log.csv", trial, 2_000.0), 0, 1e300)
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(main, ["import", str(log), "--map", str(mapping), "--out", str(out)])
+    assert result.exit_code == 2
+    assert re.fullmatch(r"error: \S*log.csv: line \d+: t beyond 9.007e\+08 s once scaled, more than a trial file "
+                        r"holds \(wrong scale or unit in \S*map.toml\?\)\n", result.output), result.output
+    assert not out.exists()
+    assert MAX_TIME_S * 1e7 == 2.0**53  # every stamp of 0.1 us up to it is a double exactly
+
+
+@pytest.mark.parametrize(("column_factor", "layout_change", "speed"), [
+    (1.0, ('time = "t"', 'time = "t"\ntime_s_per_unit = 1e-9'), "4.85e+08"),  # seconds read as ns
+    (1e-300, ("", ""), "4.85e+299"),  # time steps of 1e-303
+])
+def test_a_speed_beyond_a_bench_refused(tmp_path, native, column_factor, layout_change, speed):
+    """The data's mean speed (0.485 Hz logged) must lie within (0, 1e3] Hz, as [[points]] and bench.toml's."""
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG.replace(*layout_change)))
+    log = scaled_column(write_phase_log(tmp_path / "log.csv", trial, 2_000.0), 0, column_factor)
+    with pytest.raises(BenchFormatError, match=rf"log.csv: t and theta give a mean speed of {re.escape(speed)} "
+                                               r"Hz, beyond a bench's 1000 Hz \(wrong time_s_per_unit"):
+        import_log(log, mapping)
+
+
+@pytest.mark.parametrize("scale", ["1e-300", "-1e-13", "1e13", "0.0"])
+def test_a_scale_out_of_range_refused(tmp_path, native, scale):
+    for key in ("current_a_per_unit", "torque_nm_per_unit"):
+        mapping = write_folder(tmp_path, native[1], PHASE_LOG + f"{key} = {scale}\n")
+        with pytest.raises(ConfigError, match=rf"\[log\] {key}: invalid value .*of magnitude within \[1e-12, "
+                                              r"1e12\]"):
+            read_mapping(mapping)
+
+
+def test_currents_a_trial_file_rounds_to_zero_refused(tmp_path, native):
+    """current_a_per_unit 1e-9 (in range): currents of nA, zero to the files' 1e-6 A: refused, not a bench
+    that reads back with no current."""
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG + "current_a_per_unit = 1e-9\n"
+                                        '\n[[points]]\nfile = "log.csv"\ntorque_setpoint_nm = 2.0\n'
+                                        "speed_setpoint_hz = 0.5\n"))
+    log = write_phase_log(tmp_path / "log.csv", trial, 2_000.0)
+    with pytest.raises(BenchFormatError, match=r"log.csv \(as a trial file holds it\): i_ref_a is zero on every "
+                                               "line"):
+        import_log(log, mapping)
+
+
+@settings(max_examples=40, deadline=None)
+@given(names=st.lists(st.sampled_from(["t", "theta", "ia", "ib", "ic", "tq"]), min_size=6, max_size=6))
+def test_a_column_named_for_two_quantities_refused(tmp_path_factory, native, names):
+    """Any mapping that names one column for two of time, position, the three phases and the torque is refused
+    naming the second key; one with six different columns is read."""
+    folder = tmp_path_factory.mktemp("map")
+    layout = (f'[log]\ntime = "{names[0]}"\nposition = "{names[1]}"\nposition_unit = "rad"\n'
+              f'phase_currents = {json.dumps(names[2:5])}\ntorque = "{names[5]}"\n')
+    path = write_folder(folder, native[1], layout)
+    keys = ["time", "position", "phase_currents[0]", "phase_currents[1]", "phase_currents[2]", "torque"]
+    repeated = [k for i, k in enumerate(keys) if names[i] in names[:i]]
+    if not repeated:
+        assert read_mapping(path).layout.phase_currents == tuple(names[2:5])
+        return
+    first = names[keys.index(repeated[0])]
+    with pytest.raises(ConfigError, match=rf"\[log\] {re.escape(repeated[0])}: column '{first}' is \[log\] "
+                                          rf"{re.escape(keys[names.index(first)])} already") as e:
+        read_mapping(path)
+    assert "\n" not in str(e.value)
+
+
+def test_the_same_log_twice_refused(tmp_path, native):
+    """The same file given twice, by the same path, another spelling or a link, would make two identical
+    trials: refused naming it."""
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
+    log = write_phase_log(tmp_path / "log.csv", trial, 2_000.0)
+    (tmp_path / "link.csv").symlink_to(log)
+    (tmp_path / "hard.csv").hardlink_to(log)
+    for again in (log, tmp_path / "." / "log.csv", tmp_path / "link.csv", tmp_path / "hard.csv"):
+        with pytest.raises(BenchFormatError, match=rf"{re.escape(str(again))}: given twice \(as \S*log.csv before\)"):
+            import_logs([log, again], mapping, tmp_path / "bench")
+    assert not (tmp_path / "bench").exists()
+
+
+@pytest.mark.parametrize(("logs", "expected"), [
+    (["log.csv"], r"\[\[points\]\] file 'nope.csv': not among the logs given \(\['log.csv'\]\)"),
+    (["a/nope.csv", "b/nope.csv"], r"\[\[points\]\] file 'nope.csv': names 2 of the logs given"),
+])
+def test_points_of_a_file_not_among_the_logs_refused(tmp_path, native, logs, expected):
+    trial, backemf = native
+    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG + '\n[[points]]\nfile = "nope.csv"\n'
+                                        "torque_setpoint_nm = 2.0\nspeed_setpoint_hz = 0.5\n"))
+    paths = []
+    for name in logs:
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        paths.append(write_phase_log(tmp_path / name, trial, 2_000.0))
+    with pytest.raises(ConfigError, match=expected):
+        import_logs(paths, mapping, tmp_path / "bench")
 
 
 def test_bad_row_named_by_line(tmp_path, native):

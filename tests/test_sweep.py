@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from campaign_helpers import SMALL_CAMPAIGN
 from click.testing import CliRunner
@@ -14,7 +17,7 @@ from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.sim.grid import simulated_description
 from ilcpmac.sim.simulator import Simulator, trial_seed
-from ilcpmac.sweep.results import read_results, result_file
+from ilcpmac.sweep.results import SweepResultsError, read_results, result_file
 from ilcpmac.sweep.runner import SweepRunError, SweepRunner, local_client
 from ilcpmac.sweep.spec import SweepSpecError, load_spec
 
@@ -93,6 +96,22 @@ def test_draws_are_seeded_per_task_and_land_in_each_config(spec_file, small_conf
     ('[draw."simulator.winding.backemf_scale"]\ndistribution = "uniform"\nlow = 1.0', "high: missing"),
     ('[draw."excitation.phases"]\ndistribution = "normal"\nstd = 0.1', "is not a number: draw it with choice"),
     ('[magnets]\ntemperature_rise_k = [0, 80]\ncoefficient_per_k = -0.02', "makes the back-EMF vanish"),
+    ('[draw."simulator.controller.bandwidth_hz"]\ndistribution = "uniform"\nlow = -1e308\nhigh = 1e308',
+     '[draw."simulator.controller.bandwidth_hz"]: its spread is beyond the range of a double'),
+    ('[draw."simulator.controller.bandwidth_hz"]\ndistribution = "normal"\nmean = 1.0\nrelative_std = 1e307',
+     "its spread is beyond the range of a double"),
+    ('[draw."simulator.controller.bandwidth_hz"]\ndistribution = "choice"\nvalues = [100.0, "b"]',
+     '[draw."simulator.controller.bandwidth_hz"] values[1]: expected a finite number, got \'b\''),
+    ('[draw."simulator.controller.bandwidth_hz"]\ndistribution = "choice"\nvalues = [{ a = 1 }]',
+     "values[0]: expected a finite number, got {'a': 1}"),
+    ('[draw."simulator.controller.bandwidth_hz"]\ndistribution = "grid"\nvalues = [[1.0, 2.0]]',
+     "values[0]: expected a finite number, got [1.0, 2.0]"),
+    ('[draw."simulator.current_sensors.alpha"]\ndistribution = "choice"\nvalues = [1.0]',
+     "values[0]: expected a list, got 1.0"),
+    ('[draw."simulator.current_sensors.alpha[1]"]\ndistribution = "grid"\nvalues = [true]',
+     "values[0]: expected a finite number, got True"),
+    ('[draw."bench.pole_pairs"]\ndistribution = "choice"\nvalues = [8.5]', "values[0]: expected an integer, got 8.5"),
+    ('[draw."pipeline.stages"]\ndistribution = "choice"\nvalues = ["ilc"]', "values[0]: expected a list, got 'ilc'"),
 ])
 def test_spec_errors_are_one_line_naming_the_key(tmp_path, small_config, table, expected):
     path = tmp_path / "spec.toml"
@@ -100,6 +119,15 @@ def test_spec_errors_are_one_line_naming_the_key(tmp_path, small_config, table, 
     with pytest.raises(SweepSpecError) as error:
         load_spec(path, small_config)
     assert expected in str(error.value) and "\n" not in str(error.value)
+
+
+def test_choice_values_of_the_key_type_are_taken_as_the_config_takes_them(tmp_path, small_config):
+    path = tmp_path / "spec.toml"
+    path.write_text('[draw."simulator.controller.bandwidth_hz"]\ndistribution = "choice"\nvalues = [100, 150.5]\n'
+                    '[draw."simulator.current_sensors.alpha"]\ndistribution = "grid"\nvalues = [[1, 1.01, 0.99]]\n')
+    spec = load_spec(path, small_config)
+    assert spec.draws[0].values == (100.0, 150.5) and isinstance(spec.draws[0].values[0], float)
+    assert spec.draws[1].values == ((1.0, 1.01, 0.99),)
 
 
 def test_a_draw_out_of_range_names_the_key_and_the_task(tmp_path, small_config):
@@ -133,8 +161,9 @@ def test_sweep_on_a_local_cluster_records_failures_and_resumes(spec_file, small_
     spec = load_spec(spec_file, small_config)
     runner = SweepRunner(spec, out)
     tasks = runner.prepare(resume=False)
-    assert sorted(p.name for p in (out / "tasks").iterdir()) == [f"task_{i:04d}.toml" for i in range(4)]
-    assert load_config(out / "tasks" / "task_0001.toml").grid.seed == tasks[1].seed
+    # the first task's config is checked whole before anything runs; each other's is written as it is submitted
+    assert sorted(p.name for p in (out / "tasks").iterdir()) == ["task_0000.toml"]
+    assert load_config(out / "tasks" / "task_0000.toml").grid.seed == tasks[0].seed
 
     class Recorder:
         """The sweep's events, kept."""
@@ -162,6 +191,8 @@ def test_sweep_on_a_local_cluster_records_failures_and_resumes(spec_file, small_
         client.close()
         client.cluster.close()
     assert events.starts[1] == (4, 2) and sorted(events.indices) == [0, 1, 2, 3]
+    assert sorted(p.name for p in (out / "tasks").iterdir()) == [f"task_{i:04d}.toml" for i in range(4)]
+    assert load_config(out / "tasks" / "task_0003.toml").grid.seed == tasks[3].seed
     assert {i: result_file(out, i).stat().st_mtime_ns for i in (0, 2)} == first  # not run again
     table = read_results(out)
     rows = table.to_pylist()
@@ -189,8 +220,8 @@ def test_cli_resume_of_a_finished_sweep_writes_its_table_summary_and_plots(spec_
     from ilcpmac.sweep.results import write_result
     from ilcpmac.sweep.task import run_task
 
-    for task in tasks:
-        write_result(out, run_task(task))  # the same results a cluster would give, run here
+    for draw in tasks:
+        write_result(out, run_task(runner.task(draw)))  # the same results a cluster would give, run here
     result = CliRunner().invoke(main, ["sweep", str(small_config), "--spec", str(spec_file), "--out", str(out),
                                        "--resume", "--workers", "1", "--table-format", "csv"])
     assert result.exit_code == 0, result.output
@@ -222,3 +253,72 @@ def test_summary_names_failures_percentiles_and_the_worst_tasks_in_order():
     json = summary.to_json()
     assert json["failed"] == [{"task": 1, "seed": 11, "reason": "diverged", "rerun": "rerun 1"}]
     assert json["worst"][0] == {"task": 2, "seed": 12, "value": 0.003, "rerun": "rerun 2"}
+
+
+def test_preparing_checks_every_draw_but_loads_the_first_config_only(tmp_path, small_config):
+    """2000 tasks: every task's draws are checked (task 1999's out of range is refused before anything runs),
+    one config is written and loaded; a task whose draws make its whole config invalid (3 N m of torque limit
+    under the grid's 4 N m set point) fails as it is made, naming the spec and the task."""
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text('[sweep]\ntasks = 1000\n[draw."limits.max_torque_nm"]\ndistribution = "grid"\n'
+                         "values = [8.0, 3.0]\n")
+    runner = SweepRunner(load_spec(spec_path, small_config), tmp_path / "out")
+    draws = runner.prepare(resume=False)
+    assert len(draws) == 2000 and [p.name for p in (tmp_path / "out" / "tasks").iterdir()] == ["task_0000.toml"]
+    with pytest.raises(SweepSpecError, match=r"spec.toml: task 1000 \(seed \d+\): its draws make an invalid config: "
+                                             r".*max_torque_nm"):
+        runner.task(draws[1000])
+    assert "ilcpmac simulate" in runner.rerun_command(1000) and "task_1000.toml" in runner.rerun_command(1000)
+    spec_path.write_text('[sweep]\ntasks = 2000\nseed = 1\n[draw."simulator.current_sensors.epsilon"]\n'
+                         'distribution = "uniform"\nlow = 0.5\nhigh = 10.02\n')
+    spec = load_spec(spec_path, small_config)
+    beyond = [i for i in range(2000) if dict(spec.draw(i).parameters)["simulator.current_sensors.epsilon"] > 10]
+    assert beyond and beyond[0] > 100  # found only by checking (nearly) every task
+    with pytest.raises(SweepSpecError, match=rf"task {beyond[0]} \(seed \d+\): the draw 10.0\d+ is out of range"):
+        SweepRunner(spec, tmp_path / "out2").prepare(resume=False)
+    assert not (tmp_path / "out2" / "tasks").exists()
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (["--scheduler", "a:b:c"], r"error: --scheduler a:b:c: not a scheduler's address, tcp://HOST:PORT \(.+\)"),
+    (["--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "0.2"],
+     r"error: --scheduler tcp://127.0.0.1:9: no scheduler answered within 0.2 s \(.+\)"),
+    (["--workers", "1000000"], r"error: --workers 1000000: a local cluster takes 1 to \d+ worker processes \(4 per "
+                               r"core\)"),
+])
+def test_a_scheduler_or_workers_the_sweep_cannot_use_is_one_line(spec_file, small_config, tmp_path, monkeypatch,
+                                                                   args, expected):
+    def no_cluster(workers):
+        raise AssertionError("a local cluster was started")
+
+    monkeypatch.setattr("ilcpmac.sweep.runner.local_client", no_cluster)
+    result = CliRunner().invoke(main, ["sweep", str(small_config), "--spec", str(spec_file), "--out",
+                                       str(tmp_path / "out"), *args])
+    assert result.exit_code == 2, result.output
+    assert re.fullmatch(expected, result.output.splitlines()[-1]), result.output
+    assert "Traceback" not in result.output
+
+
+@pytest.mark.parametrize(("make", "expected"), [
+    (lambda p: pq.write_table(pa.table({"x": [1.0]}), p), r"not a task's result \(no column 'task' of the right"),
+    (lambda p: pq.write_table(pa.table({"task": ["0"], "seed": [1], "kind": ["identify"], "status": ["ok"],
+                                        "reason": [""], "seconds": [1.0], "config": ["c"]}), p),
+     r"not a task's result \(no column 'task' of the right type"),
+    (lambda p: pq.write_table(pa.table({"task": [5], "seed": [1], "kind": ["identify"], "status": ["ok"],
+                                        "reason": [""], "seconds": [1.0], "config": ["c"]}), p),
+     r"not task 0's result \(1 rows, task \[5\]\)"),
+    (lambda p: p.mkdir(), "not a regular file"),
+    (lambda p: p.symlink_to("/dev/zero"), "not a regular file"),
+    (lambda p: p.write_bytes(b"PAR1" + bytes(range(256))), "unreadable result"),
+])
+def test_a_result_file_that_is_not_a_task_result_is_refused_naming_it(spec_file, small_config, tmp_path, make,
+                                                                      expected):
+    out = tmp_path / "out"
+    SweepRunner(load_spec(spec_file, small_config), out).prepare(resume=False)
+    path = result_file(out, 0)
+    path.parent.mkdir()
+    make(path)
+    with pytest.raises(SweepResultsError, match=rf"^{re.escape(str(path))}: {expected}"):
+        read_results(out)
+    with pytest.raises(SweepResultsError, match=re.escape(str(path))):
+        SweepRunner(load_spec(spec_file, small_config), out).prepare(resume=True)

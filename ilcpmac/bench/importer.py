@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,10 +34,12 @@ from ilcpmac.bench.format import (
     MAX_COUNT,
     MAX_HEADER_BYTES,
     MAX_REVOLUTIONS,
+    MAX_SPEED_HZ,
     MAX_TIMER_RESOLUTION_S,
     MAX_TRIAL_ROWS,
     Bench,
     MotorInfo,
+    as_written,
     check_backemf,
     check_trial,
     read_backemf_csv,
@@ -50,9 +53,9 @@ from ilcpmac.model.motor import backemf_problem, in_range, shown
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.records import SensorCalibration, TrialData
 
-__all__ = ["MAX_LOG_ROWS", "REVERSE_LAPS", "ImportMapping", "ImportedLog", "InterpolationError", "LogLayout",
-           "LogPoint", "bench_motor", "import_log", "import_logs", "import_scan", "read_log", "read_mapping",
-           "resample_to_counts", "stamp_resolution_s", "write_scan_folder"]
+__all__ = ["ImportMapping", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint", "MAX_LOG_ROWS", "MAX_SCALE",
+           "MAX_TIME_S", "MIN_SCALE", "REVERSE_LAPS", "bench_motor", "import_log", "import_logs", "import_scan",
+           "read_log", "read_mapping", "resample_to_counts", "stamp_resolution_s", "write_scan_folder"]
 
 #: most data rows of one log (20 kHz for 200 s) ...
 MAX_LOG_ROWS = 2**22
@@ -64,6 +67,11 @@ REVERSE_LAPS = ("reverse laps are refused (the identification models forward mot
                 "back-EMF and the cogging); cut the log into forward laps, or record forward laps")
 #: finest resolution of the time stamps written (the trial files' 0.1 us)
 MIN_STAMP_RESOLUTION_S = 1e-7
+#: largest |time| of a log once scaled, s: the trial files' 0.1 us stamps are exact in a double up to 2^53 of
+#: them (about 28.5 years)
+MAX_TIME_S = 2.0**53 * MIN_STAMP_RESOLUTION_S
+#: range of |current_a_per_unit| and |torque_nm_per_unit|: a scale beyond it is a wrong unit, never a sensor's
+MIN_SCALE, MAX_SCALE = 1e-12, 1e12
 #: a change of the row interval or of the position step below this fraction of it is rounding, not a quantum
 _ROUNDING = 1e-6
 _PHASE_SHIFTS_RAD = 2.0 * np.pi * np.arange(3) / 3.0
@@ -73,8 +81,8 @@ def _one_of(*choices: str):
     return lambda x: x in choices
 
 
-def _nonzero(x: float) -> bool:
-    return x != 0 and abs(x) <= 1e9
+def _scale(x: float) -> bool:
+    return MIN_SCALE <= abs(x) <= MAX_SCALE
 
 
 @dataclass(frozen=True)
@@ -110,10 +118,12 @@ class LogLayout:
     current: str = setting(_one_of("commanded", "measured"),
                           'the currents logged: "commanded" (references) or "measured" (by the controller)',
                           "commanded")
-    current_a_per_unit: float = setting(_nonzero, "amperes per unit of the current columns, non-zero", 1.0)
+    current_a_per_unit: float = setting(_scale, "amperes per unit of the current columns, of magnitude within "
+                                       "[1e-12, 1e12]", 1.0)
     torque: str | None = setting(None, "column of the torque-sensor output; without it, a bench without a torque "
                                 "sensor", None)
-    torque_nm_per_unit: float = setting(_nonzero, "N m per unit of the torque column, non-zero", 1.0)
+    torque_nm_per_unit: float = setting(_scale, "N m per unit of the torque column, of magnitude within "
+                                       "[1e-12, 1e12]", 1.0)
     highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
                                    "(two rows per period or more)", 150)
     kind: str = setting(_one_of("run", "scan"), '"run" (turning laps, resampled onto counts) or "scan" (a standstill '
@@ -249,6 +259,8 @@ def read_mapping(path: str | Path) -> ImportMapping:
     by_file = {p.file: (p.torque_setpoint_nm, p.speed_setpoint_hz) for p in parsed}
     if len(by_file) < len(parsed):
         raise ConfigError(f"{path}: [[points]] lists a file twice")
+    if parsed and layout.kind == "scan":
+        raise ConfigError(f'{path}: [[points]]: only for run logs (a standstill scan has no operating point)')
     if "scan" in data and layout.kind != "scan":
         raise ConfigError(f'{path}: [scan]: only for a standstill scan ([log] kind = "scan")')
     errors = SensorErrors.parse(data.get("scan", {}), str(path), "scan")
@@ -274,6 +286,12 @@ def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
     if (layout.position_unit == "counts") != (layout.position_counts_per_rev is not None):
         raise ConfigError(f"{path}: [log] position_counts_per_rev: give it when, and only when, "
                           'position_unit = "counts"')
+    keys: dict[str, str] = {}
+    for key, column in _named_columns(layout):
+        if column in keys:
+            raise ConfigError(f"{path}: [log] {key}: column {shown(column)} is [log] {keys[column]} already (each "
+                              "quantity needs a column of its own)")
+        keys[column] = key
 
 
 def _backemf(bench: BenchSettings, motor: MotorInfo, path: Path) -> np.ndarray:
@@ -329,10 +347,17 @@ def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
     return columns
 
 
+def _named_columns(layout: LogLayout) -> list[tuple[str, str]]:
+    """(key, column) of each log column ``layout`` names: time, position, currents, torque, direction."""
+    currents = [(f"phase_currents[{p}]", c) for p, c in enumerate(layout.phase_currents or ())] + (
+        [] if layout.i_q is None else [("i_q", layout.i_q)])
+    return [("time", layout.time), ("position", layout.position), *currents] + [
+        (key, c) for key, c in (("torque", layout.torque), ("direction", layout.direction)) if c is not None]
+
+
 def _columns(layout: LogLayout) -> list[str]:
     """The log columns ``layout`` names: time, position, currents, torque, direction."""
-    return [layout.time, layout.position, *_current_columns(layout)] + [
-        c for c in (layout.torque, layout.direction) if c is not None]
+    return [c for _, c in _named_columns(layout)]
 
 
 def _current_columns(layout: LogLayout) -> list[str]:
@@ -423,10 +448,12 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     Raises
     ------
     BenchFormatError
-        Naming the log: time not increasing, a position that runs backwards
-        (`REVERSE_LAPS`), rows too coarse for [log] highest_harmonic (with
-        the highest harmonic they resolve), crossing times too coarse for a
-        log without torque, a trial at odds with [bench].
+        Naming the log: time not increasing, time or position beyond what a
+        trial file holds (`MAX_TIME_S`, 2^53 counts), a position that runs
+        backwards (`REVERSE_LAPS`), a mean speed beyond a bench's 1000 Hz,
+        rows too coarse for [log] highest_harmonic (with the highest harmonic
+        they resolve), crossing times too coarse for a log without torque, a
+        trial at odds with [bench] as its file will hold it (`as_written`).
     """
     layout, motor = mapping.layout, mapping.motor
     cpr = motor.counts_per_rev
@@ -438,6 +465,11 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     if back.size:
         raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.position} runs backwards: "
                                f"{REVERSE_LAPS}")
+    speed_hz = (position[-1] - position[0]) / cpr / (time_s[-1] - time_s[0])
+    if speed_hz > MAX_SPEED_HZ:
+        raise BenchFormatError(f"{log}: {layout.time} and {layout.position} give a mean speed of {speed_hz:.3g} Hz, "
+                               f"beyond a bench's {MAX_SPEED_HZ:g} Hz (wrong time_s_per_unit or position unit in "
+                               f"{mapping.path}?)")
     largest = float(step.max())
     resolved = min(math.floor(cpr / (2.0 * largest)), cpr // 2)
     if resolved < layout.highest_harmonic:
@@ -470,12 +502,24 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents),
                       values_at[:, -1].copy() if torque_names else None,
                       i_meas_a=currents.copy() if layout.current == "measured" else None)
-    check_trial(trial, motor, str(log))
+    _check_as_written(trial, motor, log)
     error = InterpolationError(float(time_error.max()), float(current_error.max()),
                                float(value_error[:, -1].max()) if torque_names else None)
     highest_hz = layout.highest_harmonic * trial.mean_speed_hz(cpr)
     row_rate_hz = (time_s.size - 1) / (time_s[-1] - time_s[0])
     return ImportedLog(log, trial, error, resolved, resolution_s, float(1.0 - np.sinc(highest_hz / row_rate_hz) ** 2))
+
+
+def _check_as_written(trial: TrialData, motor: MotorInfo, log: Path) -> None:
+    """``trial`` as its file will hold it (`as_written`: stamps to 0.1 us, currents and torque to 1e-6) must pass
+    `check_trial` and keep its stamps increasing, as `read_bench` requires."""
+    written = as_written(trial)
+    check_trial(written, motor, f"{log} (as a trial file holds it)")
+    same = np.flatnonzero(np.diff(written.time_s) <= 0)
+    if same.size:
+        raise BenchFormatError(f"{log}: counts {trial.count[same[0]]} and {trial.count[same[0] + 1]} are crossed "
+                               f"within the trial files' {MIN_STAMP_RESOLUTION_S:g} s stamps (too fast for "
+                               "[bench] counts_per_rev)")
 
 
 def stamp_resolution_s(time_s: np.ndarray, position_counts: np.ndarray, time_quantum_s: float | None = None) -> float:
@@ -517,9 +561,13 @@ def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.
         raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.time} does not increase")
     per_rev = 2.0 * np.pi if layout.position_unit == "rad" else layout.position_counts_per_rev
     position = columns[layout.position] * (cpr / per_rev)
-    if not (np.isfinite(time_s[-1] - time_s[0]) and np.all(np.abs(position) <= MAX_COUNT)):
-        raise BenchFormatError(f"{log}: {layout.time} or {layout.position} beyond the range of a double or of "
-                               f"{MAX_COUNT} counts once scaled (wrong scale or unit in {mapping.path}?)")
+    for name, values, bound, unit in ((layout.time, time_s, MAX_TIME_S, "s"),
+                                      (layout.position, position, MAX_COUNT, "counts")):
+        beyond = np.flatnonzero(~(np.abs(values) <= bound))
+        if beyond.size:
+            raise BenchFormatError(f"{log}: line {layout.header_lines + 1 + beyond[0]}: {name} beyond {bound:.4g} "
+                                   f"{unit} once scaled, more than a trial file holds (wrong scale or unit in "
+                                   f"{mapping.path}?)")
     return columns, time_s, np.unwrap(position, period=cpr)
 
 
@@ -564,8 +612,7 @@ def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> Sc
 
     Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
     """
-    if (out / BENCH_FILE).exists():
-        raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+    _check_logs(logs, mapping, out)
     scans = [import_scan(log, mapping) for log in logs]
     names = [f.name for f in dataclasses.fields(ScanData)]
     joined = ScanData(*(None if getattr(scans[0], name) is None else np.concatenate([getattr(s, name) for s in scans])
@@ -573,6 +620,34 @@ def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> Sc
     check_scan(joined, str(out))
     write_scan(out, mapping.motor, mapping.backemf_nm_per_a, mapping.sensors, mapping.scan_errors, joined)
     return joined
+
+
+def _check_logs(logs: list[Path], mapping: ImportMapping, out: Path) -> None:
+    """A new folder ``out``, each log given once (a bench folder holds each trial once), and every [[points]]
+    file among the logs."""
+    if (out / BENCH_FILE).exists():
+        raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+    seen: dict[object, Path] = {}
+    for log in logs:
+        identity = _file_identity(log)
+        if identity in seen:
+            raise BenchFormatError(f"{log}: given twice (as {seen[identity]} before): each log makes one trial")
+        seen[identity] = log
+    names = [log.name for log in logs]
+    for name in mapping.points:
+        if names.count(name) != 1:
+            raise ConfigError(f"{mapping.path}: [[points]] file {shown(name)}: " + (
+                f"not among the logs given ({shown(names)})" if name not in names else
+                f"names {names.count(name)} of the logs given (rename them apart)"))
+
+
+def _file_identity(path: Path) -> object:
+    """What tells two paths of one file from two files: its device and inode, else its absolute path."""
+    try:
+        status = os.stat(path)
+    except (OSError, ValueError):
+        return os.path.abspath(path)
+    return status.st_dev, status.st_ino
 
 
 def _operating_point(log: Path, count: np.ndarray, time_s: np.ndarray, currents: np.ndarray,
@@ -593,8 +668,7 @@ def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str
 
     Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
     """
-    if (out / BENCH_FILE).exists():
-        raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+    _check_logs(logs, mapping, out)
     if mapping.layout.kind == "scan":
         raise BenchFormatError(f'{mapping.path}: [log] kind = "scan": a scan makes a scan folder (write_scan_folder)')
     imported = [import_log(log, mapping) for log in logs]

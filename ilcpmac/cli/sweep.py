@@ -41,8 +41,10 @@ def _percent(column: str, value: float) -> str:
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Sweep folder: tasks/, results/, results.parquet, summary.json, plots/.")
 @click.option("--scheduler", default=None, help="A Dask scheduler, tcp://HOST:PORT (default: a local cluster).")
+@click.option("--connect-timeout", "connect_timeout_s", type=click.FloatRange(min=0, max=3600, min_open=True),
+              default=10.0, show_default=True, help="Seconds to wait for the --scheduler to answer.")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
-              help="Worker processes of the local cluster (default: one per core).")
+              help="Worker processes of the local cluster, at most 4 per core (default: one per core).")
 @click.option("--resume", is_flag=True, help="Continue the sweep in --out: its finished tasks are skipped.")
 @click.option("--table-format", type=click.Choice(TABLE_FORMATS), default="parquet", show_default=True,
               help="Format of the combined results table.")
@@ -50,35 +52,33 @@ def _percent(column: str, value: float) -> str:
               help="Format of the plots.")
 @click.option("--worst", type=click.IntRange(min=0), default=5, show_default=True,
               help="How many of the worst tasks to name, with the command that reruns each.")
-def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, workers: int | None, resume: bool,
-          table_format: str, plot_format: str, worst: int) -> None:
+def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, connect_timeout_s: float,
+          workers: int | None, resume: bool, table_format: str, plot_format: str, worst: int) -> None:
     """Run CONFIG many times with drawn parameters, on Dask.
 
-    Each task's config is written to OUT/tasks/task_NNNN.toml; its results stream to OUT/results/ as it
-    finishes. At the end: the combined table, the percentiles (summary.json), the failures and the worst
-    tasks with the command that reruns each alone, and plots (docs/sweep.md).
+    Every task's draws are checked first; each task's config is written to OUT/tasks/task_NNNN.toml as it is
+    submitted; its results stream to OUT/results/ as it finishes. At the end: the combined table, the
+    percentiles (summary.json), the failures and the worst tasks with the command that reruns each alone, and
+    plots (docs/sweep.md).
     """
     from rich.table import Table
 
     from ilcpmac.errors import ConfigError
     from ilcpmac.sweep.plots import write_plots
     from ilcpmac.sweep.results import SUMMARY_FILE, combine, read_results, summarize
-    from ilcpmac.sweep.runner import SweepRunner, local_client
+    from ilcpmac.sweep.runner import SweepRunner, check_local_workers, local_client, remote_client
     from ilcpmac.sweep.spec import load_spec
 
     if scheduler is not None and workers is not None:
         raise ConfigError("--workers sizes the local cluster: with --scheduler, the cluster's own workers run")
+    if workers is not None:
+        check_local_workers(workers)
     spec = load_spec(spec_path, config)
     runner = SweepRunner(spec, out_dir)
     tasks = runner.prepare(resume)
-    console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'}")
+    console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'} as each is submitted")
     if runner.pending(tasks):  # a resumed sweep with nothing left starts no cluster
-        if scheduler is None:
-            client = local_client(workers)
-        else:
-            from distributed import Client
-
-            client = Client(scheduler)
+        client = local_client(workers) if scheduler is None else remote_client(scheduler, connect_timeout_s)
         try:
             with progress_bar() as progress:
                 runner.run(client, tasks, _Progress(progress))
@@ -88,8 +88,7 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, w
                 client.cluster.close()
     table_path = combine(out_dir, table_format)
     table = read_results(out_dir)
-    by_index = {t.index: t for t in tasks}
-    summary = summarize(table, spec.kind, len(tasks), lambda i: by_index[i].rerun_command(), worst)
+    summary = summarize(table, spec.kind, len(tasks), runner.rerun_command, worst)
     view = Table(title=f"sweep: {summary.finished - len(summary.failed)} of {len(tasks)} tasks ok",
                  title_justify="left", header_style="bold")
     for name in ("figure", "tasks", "median", "95th", "99th", "worst"):

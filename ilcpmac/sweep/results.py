@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,9 +21,9 @@ import pyarrow.parquet as pq
 from ilcpmac.errors import IlcpmacError
 from ilcpmac.sweep.task import TaskResult
 
-__all__ = ["RESULTS_DIR", "SUMMARY_FILE", "TABLE_FORMATS", "Percentiles", "SweepResultsError", "SweepSummary",
-           "TaskOutcome", "column_values", "combine", "finished_tasks", "main_figure", "percentiles", "read_results",
-           "result_file", "summarize", "worst_tasks", "write_result"]
+__all__ = ["RESULTS_DIR", "RESULT_COLUMNS", "SUMMARY_FILE", "TABLE_FORMATS", "Percentiles", "SweepResultsError",
+           "SweepSummary", "TaskOutcome", "column_values", "combine", "finished_tasks", "main_figure", "percentiles",
+           "read_result", "read_results", "result_file", "summarize", "worst_tasks", "write_result"]
 
 #: DIR/results: one file per finished task
 RESULTS_DIR = "results"
@@ -32,6 +33,11 @@ SUMMARY_FILE = "summary.json"
 TABLE_FORMATS = ("parquet", "csv")
 #: the percentiles of the summary, %
 LEVELS = (50.0, 95.0, 99.0)
+#: the columns every task's row has (`TaskResult.row`), and their kind
+RESULT_COLUMNS: dict[str, Callable[[pa.DataType], bool]] = {
+    "task": pa.types.is_integer, "seed": pa.types.is_integer, "kind": pa.types.is_string,
+    "status": pa.types.is_string, "reason": pa.types.is_string, "seconds": pa.types.is_floating,
+    "config": pa.types.is_string}
 
 
 class SweepResultsError(IlcpmacError):
@@ -62,16 +68,36 @@ def finished_tasks(out_dir: Path) -> set[int]:
             if p.stem.removeprefix("task_").isdigit()}
 
 
+def read_result(out_dir: Path, index: int) -> pa.Table:
+    """Task ``index``'s row: DIR/results/task_NNNN.parquet must be a regular file of one row holding every
+    column of `RESULT_COLUMNS`, its task ``index``; anything else raises `SweepResultsError` naming the file."""
+    path = result_file(out_dir, index)
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise SweepResultsError(f"{path}: not a regular file: not a task's result")
+        table = pq.read_table(path)
+    except (OSError, pa.ArrowException) as e:
+        reason = " ".join(str(e).split())
+        raise SweepResultsError(f"{path}: unreadable result ({reason[:200]})") from None
+    for name, kind in RESULT_COLUMNS.items():
+        if name not in table.column_names or not kind(table.schema.field(name).type):
+            raise SweepResultsError(f"{path}: not a task's result (no column {name!r} of the right type; a result "
+                                    f"has {', '.join(RESULT_COLUMNS)})")
+    if table.num_rows != 1 or table.column("task")[0].as_py() != index:
+        raise SweepResultsError(f"{path}: not task {index}'s result ({table.num_rows} rows, task "
+                                f"{table.column('task').to_pylist()[:3]})")
+    return table
+
+
 def read_results(out_dir: Path) -> pa.Table:
-    """Every finished task's row, by task number; columns a task lacks are null in its row."""
-    files = sorted(result_file(out_dir, i) for i in finished_tasks(out_dir))
-    if not files:
+    """Every finished task's row (`read_result`), by task number; columns a task lacks are null in its row."""
+    tables = [read_result(out_dir, i) for i in sorted(finished_tasks(out_dir))]
+    if not tables:
         return pa.table({})
     try:
-        tables = [pq.read_table(p) for p in files]
-    except (OSError, pa.ArrowException) as e:
-        raise SweepResultsError(f"{out_dir / RESULTS_DIR}: unreadable result ({e})") from None
-    return pa.concat_tables(tables, promote_options="permissive").sort_by("task")
+        return pa.concat_tables(tables, promote_options="permissive").sort_by("task")
+    except pa.ArrowException as e:
+        raise SweepResultsError(f"{out_dir / RESULTS_DIR}: results of different tables ({e})") from None
 
 
 def combine(out_dir: Path, fmt: str = "parquet") -> Path:

@@ -1,8 +1,10 @@
-"""The sweep on Dask: write every task's config, run the tasks on the cluster's workers, stream the results.
+"""The sweep on Dask: check every task's draws, run the tasks on the cluster's workers, stream the results.
 
 A local cluster by default (one single-threaded worker process per core), or any scheduler at
 ``tcp://HOST:PORT``: the same code. Each worker warms the numba kernels once before its first task
 (`NumbaWarmup`), under a file lock on the numba cache, so that processes never write the cache at once.
+Tasks are submitted a few per worker at a time; each task's config is written and loaded as it is submitted
+(tens of milliseconds: 100000 tasks would take the better part of an hour before the first ran).
 Results are written as tasks finish (`ilcpmac.sweep.results`); a failing task is a result too.
 """
 
@@ -18,17 +20,23 @@ from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 from filelock import FileLock
 
 from ilcpmac.errors import IlcpmacError
-from ilcpmac.sweep.results import finished_tasks, write_result
-from ilcpmac.sweep.spec import SweepSpec, toml_text
+from ilcpmac.sweep.results import finished_tasks, read_results, write_result
+from ilcpmac.sweep.spec import SweepSpec, SweepSpecError, TaskDraw, toml_text
 from ilcpmac.sweep.task import SweepTask, TaskResult, run_task
 
-__all__ = ["SPEC_COPY", "NumbaWarmup", "SweepEvents", "SweepRunner", "SweepRunError", "local_client",
-           "numba_lock", "warm_kernels"]
+__all__ = ["CONNECT_TIMEOUT_S", "MAX_WORKERS_PER_CORE", "SPEC_COPY", "NumbaWarmup", "SweepEvents", "SweepRunError",
+           "SweepRunner", "check_local_workers", "local_client", "numba_lock", "remote_client", "warm_kernels"]
 
 #: the spec and base config a sweep folder was made with (a resume must give the same)
 SPEC_COPY, CONFIG_COPY = "sweep.toml", "config.toml"
 #: DIR/tasks: each task's config
 TASKS_DIR = "tasks"
+#: most worker processes of a local cluster per core (more only share the cores, each with its memory)
+MAX_WORKERS_PER_CORE = 4
+#: how long a client waits for a scheduler to answer, s (--connect-timeout)
+CONNECT_TIMEOUT_S = 10.0
+#: tasks submitted per worker thread ahead of the results: enough to keep every worker busy
+TASKS_IN_FLIGHT_PER_THREAD = 2
 #: the config of the warm-up task: the seed bench, small (seconds, and every kernel a task uses compiled)
 WARMUP_CHANGES = {
     "bench": {"counts_per_rev": 512},
@@ -86,11 +94,34 @@ class NumbaWarmup(WorkerPlugin):
         warm_kernels(self.kind)
 
 
+def check_local_workers(workers: int) -> None:
+    """A local cluster's worker count: 1 to `MAX_WORKERS_PER_CORE` per core, else `SweepRunError`."""
+    most = MAX_WORKERS_PER_CORE * (os.cpu_count() or 1)
+    if not 1 <= workers <= most:
+        raise SweepRunError(f"--workers {workers}: a local cluster takes 1 to {most} worker processes "
+                            f"({MAX_WORKERS_PER_CORE} per core)")
+
+
 def local_client(workers: int | None = None) -> Client:
-    """A client of a local cluster of ``workers`` single-threaded worker processes (default: one per core)."""
-    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           dashboard_address=None)
+    """A client of a local cluster of ``workers`` single-threaded worker processes (default: one per core;
+    `check_local_workers`)."""
+    workers = workers or os.cpu_count() or 1
+    check_local_workers(workers)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
     return Client(cluster)
+
+
+def remote_client(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Client:
+    """A client of the Dask scheduler at ``address`` (tcp://HOST:PORT); an address it cannot parse, or no
+    answer within ``timeout_s``, raises `SweepRunError` naming the address."""
+    try:
+        return Client(address, timeout=timeout_s)
+    except ValueError as e:
+        raise SweepRunError(f"--scheduler {address}: not a scheduler's address, tcp://HOST:PORT ({e})") from None
+    except (OSError, TimeoutError) as e:
+        reason = " ".join(str(e).split()) or type(e).__name__
+        raise SweepRunError(f"--scheduler {address}: no scheduler answered within {timeout_s:g} s ({reason})") \
+            from None
 
 
 class SweepEvents(Protocol):
@@ -116,10 +147,12 @@ class SweepRunner:
         self.spec = spec
         self.out_dir = Path(out_dir)
 
-    def prepare(self, resume: bool) -> list[SweepTask]:
-        """Check the folder, write every task's config (checked: `SweepSpec.check_task`) and return the tasks.
+    def prepare(self, resume: bool) -> list[TaskDraw]:
+        """Check the folder, every task's draws (`SweepSpec.check_draws`) and the first task's whole config
+        (`task`: a problem no draw's value causes shows there); return the tasks' draws.
 
-        A new sweep needs a folder without results; ``resume`` needs one made by the same spec and config.
+        A new sweep needs a folder without results; ``resume`` needs one made by the same spec and config, its
+        results readable (`read_results`).
         """
         spec, out = self.spec, self.out_dir
         copies = {SPEC_COPY: spec.path.read_text(), CONFIG_COPY: spec.config.path.read_text()}
@@ -130,38 +163,76 @@ class SweepRunner:
                 if (out / name).read_text() != text:
                     raise SweepRunError(f"{out}: its {name} differs from the one given: resume with the same "
                                         "spec and config")
+            read_results(out)
         elif finished_tasks(out):
             raise SweepRunError(f"{out}: holds a sweep's results: give --resume, or another --out")
+        draws = [spec.draw(index) for index in range(spec.task_count)]
+        for draw in draws:
+            spec.check_draws(draw)
         (out / TASKS_DIR).mkdir(parents=True, exist_ok=True)
         for name, text in copies.items():
             (out / name).write_text(text)
-        tasks = []
-        for index in range(spec.task_count):
-            draw = spec.draw(index)
-            path = out / TASKS_DIR / f"task_{index:04d}.toml"
-            text = spec.task_config(draw)
-            path.write_text(text)
-            spec.check_task(draw, path)
-            tasks.append(SweepTask(index, draw.seed, spec.kind, text, str(path), draw.parameters))
-        return tasks
+        self.task(draws[0])
+        return draws
 
-    def pending(self, tasks: list[SweepTask]) -> list[SweepTask]:
+    def config_path(self, index: int) -> Path:
+        """DIR/tasks/task_NNNN.toml: task ``index``'s config."""
+        return self.out_dir / TASKS_DIR / f"task_{index:04d}.toml"
+
+    def task(self, draw: TaskDraw) -> SweepTask:
+        """The task of ``draw``, its config written to `config_path` and loaded (`SweepSpec.check_task`: a config
+        the draws make invalid raises `SweepSpecError`)."""
+        path = self.config_path(draw.index)
+        text = self.spec.task_config(draw)
+        path.write_text(text)
+        self.spec.check_task(draw, path)
+        return SweepTask(draw.index, draw.seed, self.spec.kind, text, str(path), draw.parameters)
+
+    def rerun_command(self, index: int) -> str:
+        """The command that reruns task ``index`` alone (`SweepTask.rerun_command`)."""
+        return SweepTask(index, self.spec.draw(index).seed, self.spec.kind, "", str(self.config_path(index)),
+                         ()).rerun_command()
+
+    def pending(self, draws: list[TaskDraw]) -> list[TaskDraw]:
         """The tasks the folder has no result of."""
         done = finished_tasks(self.out_dir)
-        return [t for t in tasks if t.index not in done]
+        return [d for d in draws if d.index not in done]
 
-    def run(self, client: Client, tasks: list[SweepTask], events: SweepEvents) -> list[TaskResult]:
+    def run(self, client: Client, draws: list[TaskDraw], events: SweepEvents) -> list[TaskResult]:
         """Run the tasks the folder has no result of (`pending`) on ``client``'s workers, each warmed first
-        (then ``events.started``); write each result as it arrives; return them in the order they finished."""
-        todo = self.pending(tasks)
+        (then ``events.started``); keep `TASKS_IN_FLIGHT_PER_THREAD` tasks per worker thread submitted, each
+        `task` made as it is submitted (one whose config is invalid is a failed result at once); write each
+        result as it arrives; return them in the order they finished."""
+        todo = self.pending(draws)
         if todo:
             client.register_plugin(NumbaWarmup(self.spec.kind))
-        events.started(len(tasks), len(tasks) - len(todo))
-        futures = [client.submit(run_task, t, pure=False) for t in todo]
-        results = []
-        for future in as_completed(futures):
-            result = future.result()
+        events.started(len(draws), len(draws) - len(todo))
+        queue, running, results = iter(todo), as_completed(), []
+
+        def finish(result: TaskResult) -> None:
             write_result(self.out_dir, result)
             results.append(result)
             events.finished(result)
+
+        def submit_next() -> bool:
+            for draw in queue:
+                try:
+                    task = self.task(draw)
+                except SweepSpecError as e:
+                    finish(TaskResult(SweepTask(draw.index, draw.seed, self.spec.kind, "",
+                                                str(self.config_path(draw.index)), draw.parameters), 0.0, str(e)))
+                    continue
+                running.add(client.submit(run_task, task, pure=False))
+                return True
+            return False
+
+        def fill() -> None:
+            wanted = TASKS_IN_FLIGHT_PER_THREAD * max(sum(client.nthreads().values()), 1)
+            while running.count() < wanted and submit_next():
+                pass
+
+        fill()
+        for future in running:
+            finish(future.result())
+            fill()
         return results

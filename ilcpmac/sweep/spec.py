@@ -11,6 +11,7 @@ Every error is one line naming the spec file and the key (`SweepSpecError`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 import typing
@@ -26,6 +27,7 @@ from ilcpmac.config import (
     BenchCalibration,
     BenchSettings,
     CampaignConfig,
+    coerce_value,
     load_config,
     model_key,
     read_toml,
@@ -93,9 +95,10 @@ class Draw:
             return self.values[grid_index]
         if self.distribution == "choice":
             return self.values[int(rng.integers(len(self.values)))]
-        a, b = np.array(self.first), np.array(self.second)
-        x = rng.normal(a, b) if self.distribution == "normal" else rng.uniform(a, b)
-        return tuple(float(v) for v in x) if self.is_list else float(x[0])
+        draw = rng.normal if self.distribution == "normal" else rng.uniform
+        if self.is_list:
+            return tuple(float(v) for v in draw(np.array(self.first), np.array(self.second)))
+        return float(draw(self.first[0], self.second[0]))
 
 
 @dataclass(frozen=True)
@@ -180,7 +183,8 @@ class SweepSpec:
         overrides = [(d.table, d.name if d.element is None else f"{d.name}[{d.element}]", values[d.key])
                      for d in self.draws]
         parameters = [(f"{d.key}[{i}]" if isinstance(values[d.key], tuple) else d.key, float(v))
-                      for d in self.draws for i, v in enumerate(np.atleast_1d(values[d.key]))
+                      for d in self.draws for i, v in enumerate(values[d.key] if isinstance(values[d.key], tuple)
+                                                                else (values[d.key],))
                       if finite_number(v)]
         if self.magnets is not None:
             rise = float(rng.uniform(*self.magnets.rise_k))
@@ -229,17 +233,25 @@ class SweepSpec:
             data["bench"]["backemf_file"] = str((self.config.path.parent / backemf_file).resolve())
         return toml_text(data)
 
-    def check_task(self, task: TaskDraw, config_path: Path) -> CampaignConfig:
-        """Load the task's config written at ``config_path``; a draw out of its key's range, or a config the
-        draws make invalid, raises `SweepSpecError` naming the spec, the key and the task."""
+    def check_draws(self, task: TaskDraw) -> None:
+        """Every draw of ``task`` within its key's range (microseconds a task), else `SweepSpecError` naming the
+        spec, the key and the task."""
         for table, key, value in task.overrides:
             name, element = _split_element(key)
             f = _field(_TABLES[table], name)
             whole = value if element is None else self._with_element(table, name, element, value)
             problem = value_problem(f, tuple(whole) if isinstance(whole, (list, tuple)) else whole)
+            numbers = value if isinstance(value, tuple) else (value,)
+            if problem is None and not all(finite_number(v) for v in numbers if isinstance(v, float)):
+                problem = "not a finite number"
             if problem is not None:
                 raise SweepSpecError(f"{self.path}: [draw.\"{table}.{key}\"] task {task.index} (seed {task.seed}): "
                                      f"the draw {shown(value)} is out of range: {problem.removeprefix(name + ': ')}")
+
+    def check_task(self, task: TaskDraw, config_path: Path) -> CampaignConfig:
+        """`check_draws`, then load the task's config written at ``config_path`` (tens of milliseconds); a config
+        the draws make invalid raises `SweepSpecError` naming the spec and the task."""
+        self.check_draws(task)
         try:
             return load_config(config_path)
         except ConfigError as e:
@@ -262,6 +274,13 @@ def _split_element(key: str) -> tuple[str, int | None]:
     return (key, None) if match is None else (match[1], int(match[2]))
 
 
+def _element_hint(hint) -> type:
+    """The type of one element of a list key's type ``hint`` (tuple[float, ...] or that or None)."""
+    (items,) = [a for a in typing.get_args(hint) if typing.get_origin(a) is tuple] or [hint]
+    return next(a for a in typing.get_args(items) if a is not Ellipsis)
+
+
+@functools.cache
 def _field(cls: type, name: str) -> dataclasses.Field:
     return next(f for f in dataclasses.fields(cls) if f.name == name)
 
@@ -414,19 +433,25 @@ def _draw(spec: SweepSpec, key: str, table) -> Draw:
         values = table["values"]
         if not isinstance(values, list) or not values:
             raise SweepSpecError(f"{path}: {where} values: expected a non-empty list, got {shown(values)}")
-        return Draw(**common, values=tuple(tuple(v) if isinstance(v, list) else v for v in values))
+        value_hint = hint if element is None else _element_hint(hint)
+        try:
+            values = [coerce_value(v, value_hint, f"{path}: {where} values[{i}]") for i, v in enumerate(values)]
+        except ConfigError as e:
+            raise SweepSpecError(str(e)) from None
+        return Draw(**common, values=tuple(values))
     numeric = float in typing.get_args(hint) or hint is float or "float" in str(hint)
     if not numeric or base is None or isinstance(base, str):
         raise SweepSpecError(f"{path}: {where}: [{config_table}] {field_name} is not a number: draw it with "
                              "choice or grid")
-    base_values = np.atleast_1d(np.asarray(base, float))
+    base_values = tuple(float(v) for v in np.atleast_1d(np.asarray(base, float)))
     n = len(base_values)
     if distribution == "normal":
-        mean = _numbers(table["mean"], n, path, f"{where} mean") if "mean" in table else tuple(base_values)
+        mean = _numbers(table["mean"], n, path, f"{where} mean") if "mean" in table else base_values
         if ("std" in table) == ("relative_std" in table):
             raise SweepSpecError(f"{path}: {where}: give std or relative_std (of the base value), one of them")
         std = (_numbers(table["std"], n, path, f"{where} std") if "std" in table else
-               tuple(abs(base_values) * _numbers(table["relative_std"], n, path, f"{where} relative_std")))
+               tuple(abs(b) * r for b, r in zip(base_values, _numbers(table["relative_std"], n, path,
+                                                                       f"{where} relative_std"))))
         if any(s < 0 for s in std):
             raise SweepSpecError(f"{path}: {where} std: must not be negative, got {shown(list(std))}")
         first, second = mean, std
@@ -434,9 +459,9 @@ def _draw(spec: SweepSpec, key: str, table) -> Draw:
         if "relative" in table:
             if "low" in table or "high" in table:
                 raise SweepSpecError(f"{path}: {where}: give low and high, or relative, not both")
-            r = np.array(_numbers(table["relative"], n, path, f"{where} relative"))
-            first, second = tuple(base_values * (1 - r)), tuple(base_values * (1 + r))
-            first, second = tuple(np.minimum(first, second)), tuple(np.maximum(first, second))
+            r = _numbers(table["relative"], n, path, f"{where} relative")
+            ends = [(b * (1 - x), b * (1 + x)) for b, x in zip(base_values, r)]
+            first, second = tuple(min(e) for e in ends), tuple(max(e) for e in ends)
         else:
             for k in ("low", "high"):
                 if k not in table:
@@ -445,5 +470,8 @@ def _draw(spec: SweepSpec, key: str, table) -> Draw:
             second = _numbers(table["high"], n, path, f"{where} high")
         if any(a > b for a, b in zip(first, second)):
             raise SweepSpecError(f"{path}: {where}: low must not exceed high")
+    spans = [b - a for a, b in zip(first, second)] if distribution == "uniform" else second
+    if not all(math.isfinite(v) for v in (*first, *spans)):
+        raise SweepSpecError(f"{path}: {where}: its spread is beyond the range of a double")
     return Draw(**common, first=tuple(float(v) for v in first), second=tuple(float(v) for v in second),
                 is_list=is_list and element is None)
