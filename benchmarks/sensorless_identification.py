@@ -8,6 +8,11 @@ once per revolution and 0.01 counts RMS per line, simulated once; its trials
 identified by `identify_bench` from the torque sensor's column and from the
 encoder's time stamps (J given). Targets (issue 12): cogging within 3 % RMS,
 eps within 2 %, the encoder error's once-per-revolution amplitude within 10 %.
+``--eccentricity 0 --line-std 0``: a perfect encoder, where the error applied
+must be 0. Last row: what the error applied leaves in a campaign's trial
+through eq. 4 of ilcpmac/signals/encoder_torque.py (the applied table less the
+truth, harmonics 1..[campaign] ripple_harmonics, at 1 N m and 0.5, 1 and
+1.5 Hz), peak to peak, % of 1 N m.
 """
 
 from __future__ import annotations
@@ -23,10 +28,13 @@ from ilcpmac.bench.format import Bench
 from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
 from ilcpmac.records import BenchLimits
+from ilcpmac.signals.encoder_torque import encoder_error_torque_nm
 from ilcpmac.sim.grid import encoder_error_json, grid_requests, simulated_description, truth_dict
 from ilcpmac.sim.simulator import Simulator
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
+#: the campaign points where the error left is shown: 1 N m at these speeds
+LEFT_AT_HZ = (0.5, 1.0, 1.5)
 
 
 def simulated(eccentricity_counts: float, line_std_counts: float) -> tuple[Bench, dict]:
@@ -53,8 +61,18 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
 
 
-def rows(result, truth: dict) -> dict[str, str]:
-    """Each figure of the table for one identification, as text."""
+def left_pp(result, truth: dict, inertia_kgm2: float, max_harmonic: int) -> str:
+    """Eq. 4's torque of the applied encoder error less the truth at 1 N m and each of LEFT_AT_HZ, % pp."""
+    if result.encoder_error_counts is None:
+        return "not identified"
+    left = result.encoder_error_counts - np.asarray(truth["encoder_error"]["error_counts"])
+    pp = [np.ptp(encoder_error_torque_nm(left, max_harmonic, inertia_kgm2, 2.0 * np.pi * f, 1.0 / (2.0 * np.pi * f)))
+          for f in LEFT_AT_HZ]
+    return " / ".join(f"{100 * x:.3g}" for x in pp)
+
+
+def rows(result, truth: dict, inertia_kgm2: float, max_harmonic: int) -> dict[str, str]:
+    """Each figure of the table for one identification, as text (J and H for eq. 4's row)."""
     def rel(value, true) -> str:
         if value is None:
             return "not identified"
@@ -74,10 +92,12 @@ def rows(result, truth: dict) -> dict[str, str]:
                              "not identified")
     else:
         out["encoder 1x (counts)"] = rel(result.encoder_eccentricity_counts, encoder["eccentricity_counts"])
-        out["encoder 1x phase (rad)"] = (f"{result.encoder_eccentricity_phase_rad:+.3f} (true "
-                                         f"{encoder['eccentricity_phase_rad']:+.3f})")
+        phase = result.encoder_eccentricity_phase_rad
+        out["encoder 1x phase (rad)"] = (("none (1x is 0)" if phase is None else f"{phase:+.3f}")
+                                         + f" (true {encoder['eccentricity_phase_rad']:+.3f})")
         out["encoder lines RMS (counts)"] = (f"{result.encoder_line_rms_counts:.4f} (true "
                                              f"{encoder['line_rms_counts']:.4f})")
+    out["eq. 4 left, % pp at 1 N m 0.5/1/1.5 Hz"] = left_pp(result, truth, inertia_kgm2, max_harmonic)
     return out
 
 
@@ -95,7 +115,7 @@ def main() -> None:
         start = time.perf_counter()
         result = identify_bench(folder, torque_source=source)
         seconds[label] = time.perf_counter() - start
-        table[label] = rows(result, truth)
+        table[label] = rows(result, truth, bench.motor.inertia_kgm2, load_config(CONFIG).campaign.ripple_harmonics)
     print(f"seed bench, encoder error {args.eccentricity} counts once per revolution, {args.line_std} counts per "
           "line (J given to the encoder path)")
     width = max(len(k) for k in next(iter(table.values())))

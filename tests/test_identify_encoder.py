@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from conftest import SEED_CONFIG, toml_text
 from rich.console import Console
 
-from ilcpmac.bench.format import convert_bench, read_bench
+from ilcpmac.bench.format import Bench, convert_bench, read_bench
 from ilcpmac.cli import main
 from ilcpmac.cli.identify import estimates_table
 from ilcpmac.config import load_config
@@ -29,29 +29,48 @@ from ilcpmac.errors import BenchFormatError, IdentificationError
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.records import IdentificationResult
-from ilcpmac.signals.encoder_torque import EncoderTorqueSpectrum, encoder_error_summary, with_viscous
+from ilcpmac.signals.encoder_torque import (
+    EncoderTorqueSpectrum,
+    encoder_error_summary,
+    encoder_error_table,
+    encoder_error_torque_nm,
+    separate_encoder_error,
+    significant_encoder_error,
+    with_viscous,
+)
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.grid import simulate_bench
 
 #: the encoder error of the test benches: 0.05 counts once per revolution, 0.01 counts RMS per line
 ECCENTRICITY_COUNTS = 0.05
 LINE_STD_COUNTS = 0.01
+#: the current offsets of the pure-sine bench: a common part of 0.2 A, differential [1, -0.5, -0.5] A
+PURE_SINE_BETA_A = [1.2, -0.3, -0.3]
+#: the campaign's ripple band (configs/seed-bench.toml [campaign] ripple_harmonics)
+RIPPLE_HARMONICS = 150
 
 
-def _config(folder: Path, speeds_hz: list[float]) -> Path:
+def _config(folder: Path, speeds_hz: list[float], perfect: bool = False, pure_sine: bool = False) -> Path:
+    """The test bench; ``perfect``: no encoder error; ``pure_sine``: a symmetric, purely sinusoidal back-EMF
+    (sum_p K_p = 0) and current offsets with a common part of 0.2 A."""
     data = tomllib.loads(SEED_CONFIG.read_text())
     data["bench"]["counts_per_rev"] = 1024
     data["trials"].update(torque_setpoints_nm=[3.0, 5.0], speed_setpoints_hz=speeds_hz, revolutions=6)
-    data["simulator"]["encoder"].update(eccentricity_counts=ECCENTRICITY_COUNTS, eccentricity_phase_rad=0.7,
-                                        line_std_counts=LINE_STD_COUNTS, line_seed=3)
+    data["simulator"]["encoder"].update(eccentricity_counts=0.0 if perfect else ECCENTRICITY_COUNTS,
+                                        eccentricity_phase_rad=0.7, line_std_counts=0.0 if perfect else LINE_STD_COUNTS,
+                                        line_seed=3)
+    if pure_sine:
+        data["bench"]["backemf"].update(harmonics=[1], amplitudes_nm_per_a=[0.2], phases_rad=[0.0],
+                                        asymmetry=[0.0, 0.0, 0.0])
+        data["simulator"]["current_sensors"]["beta_a"] = PURE_SINE_BETA_A
     path = folder / "campaign.toml"
     path.write_text(toml_text(data))
     return path
 
 
-def _bench(folder: Path, speeds_hz: list[float], torque_sensor: bool = False) -> tuple[Path, dict]:
+def _bench(folder: Path, speeds_hz: list[float], torque_sensor: bool = False, **kinds) -> tuple[Path, dict]:
     folder.mkdir(parents=True, exist_ok=True)
-    simulate_bench(load_config(_config(folder, speeds_hz)), folder / "bench", torque_sensor=torque_sensor)
+    simulate_bench(load_config(_config(folder, speeds_hz, **kinds)), folder / "bench", torque_sensor=torque_sensor)
     return folder / "bench", json.loads((folder / "bench" / "truth.json").read_text())
 
 
@@ -64,6 +83,19 @@ def two_speeds(tmp_path_factory) -> tuple[Path, dict]:
 def identified(two_speeds) -> tuple[IdentificationResult, dict]:
     folder, truth = two_speeds
     return identify_bench(read_bench(folder)), truth
+
+
+@pytest.fixture(scope="module")
+def perfect(tmp_path_factory) -> tuple[IdentificationResult, dict]:
+    folder, truth = _bench(tmp_path_factory.mktemp("perfect"), [1.0, 1.5], perfect=True)
+    return identify_bench(read_bench(folder)), truth
+
+
+@pytest.fixture(scope="module")
+def pure_sine(tmp_path_factory) -> tuple[Bench, dict]:
+    folder, truth = _bench(tmp_path_factory.mktemp("sine"), [1.0, 1.5], torque_sensor=True, perfect=True,
+                           pure_sine=True)
+    return read_bench(folder), truth
 
 
 @pytest.fixture(scope="module")
@@ -176,6 +208,60 @@ def test_the_encoder_error_is_recovered_from_two_speeds(identified):
         np.asarray(encoder["error_counts"]))[50:]) ** 2))
 
 
+def _left_pp_nm(line_errors_counts: np.ndarray, torque_nm: float, speed_hz: float) -> float:
+    """Eq. 4's apparent torque of an error left in the stamps at a campaign point, peak to peak, N m."""
+    speed = 2.0 * np.pi * speed_hz
+    return float(np.ptp(encoder_error_torque_nm(line_errors_counts, RIPPLE_HARMONICS, 0.01056, speed,
+                                                torque_nm / speed)))
+
+
+def test_a_perfect_encoder_gets_no_encoder_error(perfect):
+    """The estimate's noise and misfit stand out nowhere: 0 is applied (the bound: exactly 0), so a campaign's
+    trial at 1 N m and 1.5 Hz keeps none of it; applied as estimated it would leave several % pp there."""
+    result, _ = perfect
+    assert result.encoder_eccentricity_counts == 0.0 and result.encoder_eccentricity_phase_rad is None
+    assert result.encoder_line_rms_counts == 0.0 and not np.any(result.encoder_error_counts)
+    assert 0.0 < result.encoder_eccentricity_std_counts < 0.02
+    assert any(m.startswith("encoder error: 0 - no harmonic stands out") for m in result.messages)
+    assert _left_pp_nm(result.encoder_error_counts, 1.0, 1.5) < 5e-4
+    estimated = encoder_error_table(result.details.encoder.estimated_error_counts, 1024)
+    assert _left_pp_nm(estimated, 1.0, 1.5) > 0.01
+    assert abs(result.epsilon / perfect[1]["epsilon"] - 1.0) < 0.02
+
+
+def test_the_encoder_error_applied_keeps_a_real_error(identified):
+    """On the bench with 0.05 counts eccentricity and 0.01 counts per line, what is applied keeps the line
+    RMS within 10 % and takes out 90 % of the error's apparent torque at 1 N m and 1.5 Hz."""
+    result, truth = identified
+    assert abs(result.encoder_line_rms_counts / truth["encoder_error"]["line_rms_counts"] - 1.0) < 0.10
+    true_error = np.asarray(truth["encoder_error"]["error_counts"])
+    assert _left_pp_nm(result.encoder_error_counts - true_error, 1.0, 1.5) < 0.1 * _left_pp_nm(true_error, 1.0, 1.5)
+
+
+@pytest.mark.parametrize("source", ["encoder", "sensor"])
+def test_a_pure_sine_backemf_leaves_the_common_offset_not_identified(pure_sine, source):
+    """sum_p K_p = 0: an offset common to the phases makes no torque. Both paths say so and fit the
+    differential offsets (within 0.03 A), eps (2 %) and alpha (0.005); beta's mean is 0 by constraint."""
+    bench, truth = pure_sine
+    result = identify_bench(bench, torque_source=source)
+    assert any(m.startswith("current offsets: the common offset (mean of beta over the phases) not identified - "
+                            "the back-EMFs sum to zero") for m in result.messages)
+    assert not result.details.joint.common_offset_identified
+    true_beta = np.asarray(truth["beta"])
+    assert true_beta.mean() == pytest.approx(0.2)
+    assert abs(result.beta.mean()) < 1e-9
+    assert np.abs(result.beta - (true_beta - true_beta.mean())).max() < 0.03
+    assert np.all(result.methods["joint"].beta_std < 0.03)
+    assert abs(result.epsilon / truth["epsilon"] - 1.0) < 0.02
+    assert np.abs(result.alpha - truth["alpha"]).max() < 0.005
+
+
+def test_the_common_offset_is_identified_where_the_backemfs_do_not_sum_to_zero(identified):
+    result, _ = identified
+    assert result.details.joint.common_offset_identified
+    assert not any(m.startswith("current offsets:") for m in result.messages)
+
+
 def test_one_speed_leaves_the_encoder_error_not_identified(one_speed):
     result, _ = one_speed
     assert result.encoder_error_counts is None and result.encoder_eccentricity_counts is None
@@ -211,6 +297,56 @@ def test_with_viscous_is_the_spectrum_at_that_brake():
     moved = with_viscous(EncoderTorqueSpectrum.of(count, time_s, cpr, 20, 0.01, 1e-6, 0.0), 0.3)
     for name in ("harmonics_nm", "variance_nm2", "quantisation_variance_nm2"):
         np.testing.assert_allclose(getattr(moved, name), getattr(direct, name), rtol=1e-12, atol=1e-18)
+
+
+def test_the_significance_rule_keeps_a_real_error_and_drops_noise():
+    """Per octave: pure noise gives 0; a white error 10x its noise in power is kept within 10 %; one harmonic
+    far out of its noise in an octave of noise (a misfit the model missed) does not carry the octave."""
+    rng = np.random.default_rng(7)
+    size = 512
+    variance = np.full(size, 1e-8)
+    noise = np.sqrt(variance / 2.0) * (rng.standard_normal(size) + 1j * rng.standard_normal(size))
+    assert not np.any(significant_encoder_error(noise, variance))
+    error = np.sqrt(10 * variance / 2.0) * (rng.standard_normal(size) + 1j * rng.standard_normal(size))
+    kept = significant_encoder_error(error + noise, variance)
+    assert np.sqrt(np.sum(np.abs(kept[1:] - error[1:]) ** 2) / np.sum(np.abs(error[1:]) ** 2)) < 0.4
+    assert np.sum(np.abs(kept[1:]) ** 2) == pytest.approx(np.sum(np.abs(error[1:]) ** 2), rel=0.2)
+    outlier = noise.copy()
+    outlier[48] = 100.0 * np.sqrt(variance[48])
+    assert not np.any(significant_encoder_error(outlier, variance))
+    eccentric = noise.copy()
+    eccentric[1] = 10.0 * np.sqrt(variance[1])
+    assert abs(significant_encoder_error(eccentric, variance)[1]) == pytest.approx(abs(eccentric[1]), rel=0.02)
+
+
+def _spectrum(speed_hz: float, harmonics_nm: np.ndarray, variance_nm2: np.ndarray) -> EncoderTorqueSpectrum:
+    size = harmonics_nm.size
+    return EncoderTorqueSpectrum(harmonics_nm, variance_nm2, variance_nm2, np.zeros(size, complex), np.zeros(size),
+                                 speed_hz, 8, 256, 0.01, 1.0 / (2.0 * np.pi * speed_hz), 1e-6)
+
+
+def test_the_separation_inflates_its_errors_by_the_trials_misfit():
+    """Trials that differ by their noise alone: chi2 about 1, no inflation; a trial-dependent ripple three
+    times the noise in the octave 32-63: the octave's variances grow about 1 + 9 (chi2 of the residual)."""
+    rng = np.random.default_rng(3)
+    size, speeds = 100, np.array([0.5, 0.7, 0.9, 1.1, 1.3, 1.5])
+    variance = np.full(size, 1e-6)
+    shared = 1e-3 * np.exp(1j * rng.uniform(0, 2 * np.pi, size))
+
+    def spectra(misfit: float):
+        out = []
+        for speed in speeds:
+            noise = np.sqrt(variance / 2.0) * (rng.standard_normal(size) + 1j * rng.standard_normal(size))
+            extra = np.zeros(size, complex)
+            extra[32:64] = misfit * np.sqrt(variance[32:64]) * np.exp(1j * rng.uniform(0, 2 * np.pi, 32))
+            out.append(_spectrum(speed, shared + noise + extra, variance))
+        return out
+
+    clean = separate_encoder_error(spectra(0.0))
+    assert np.mean(clean.misfit_chi2[1:]) == pytest.approx(1.0, abs=0.15)
+    off = separate_encoder_error(spectra(3.0))
+    inflation = off.encoder_error_variance_counts2[1:] / clean.encoder_error_variance_counts2[1:]
+    assert np.median(inflation[31:63]) > 5.0 and np.median(inflation[69:]) == pytest.approx(1.0, abs=0.3)
 
 
 def test_the_summary_gives_the_once_per_revolution_sine_and_the_rest():

@@ -82,3 +82,19 @@ def test_cli_reports_an_invalid_folder_in_one_line(tmp_path):
     assert out.exit_code == 2
     errors = [line for line in out.output.splitlines() if line.startswith("error:")]
     assert errors == [f"error: {tmp_path / 'missing'}: not a folder"]
+
+
+def test_count_periods_of_two_rippling_revolutions_are_exact_and_positive():
+    """A straight line through two revolutions of a strong speed ripple tilts with the ripple's phase and made
+    the period at the wrap negative (a NaN in the joint fit later); the mean revolution gives it exactly."""
+    from ilcpmac.identify.reduction import revolution_averages
+
+    cpr, period_s, ripple_s = 64, 1.0, 0.1
+    count = np.arange(2 * cpr)
+    time_s = count * period_s / cpr + ripple_s * np.sin(2 * np.pi * count / cpr + 0.3) / (2 * np.pi)
+    speed_hz, _, count_period_s = revolution_averages(count, time_s, np.zeros((count.size, 3)), cpr)
+    assert speed_hz == pytest.approx(1.0 / period_s, rel=1e-12)
+    np.testing.assert_allclose(count_period_s, np.diff(time_s[:cpr + 1]), rtol=1e-9)
+    with pytest.raises(IdentificationError, match=r"^count \d+: mean time to the next count .* not positive"):
+        revolution_averages(count, count * period_s / cpr + 2 * np.sin(2 * np.pi * count / cpr), np.zeros((2 * cpr, 3)),
+                            cpr)

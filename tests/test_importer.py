@@ -152,9 +152,12 @@ def test_phase_log_reproduces_native_trial_within_stated_error(tmp_path, native,
     actual = {"time": np.abs(got.time_s - trial.time_s).max(), "current": np.abs(got.i_ref_a - trial.i_ref_a).max(),
               "torque": np.abs(got.torque_nm - trial.torque_nm).max()}
     stated = {"time": error.time_s, "current": error.current_a, "torque": error.torque_nm}
+    # within the stated error, and the statement no more than LOOSEST x the worst error seen: the references are
+    # a per-count staircase, whose error depends on where the rows fall in a count (the statement is the worst
+    # placement's: 16x the error of this log's rows, which fall well, at 10 kHz)
+    loosest = {"time": 4.0, "current": 20.0, "torque": 4.0}
     for key in actual:
-        # within the stated error, and the statement no more than 4x the worst error seen
-        assert actual[key] <= stated[key] <= 4 * actual[key], (key, actual[key], stated[key])
+        assert actual[key] <= stated[key] <= loosest[key] * actual[key], (key, actual[key], stated[key])
     # up to 0.56 counts per row at 1 kHz (0.5 Hz and its ripple): still two rows per count, Nyquist's 512
     assert imported.resolved_harmonic == COUNTS_PER_REV // 2
     assert got.torque_setpoint_nm == 2.0  # from K . i_ref, to 3 digits
@@ -467,14 +470,14 @@ def sensorless_grid(tmp_path_factory) -> tuple[Bench, dict, IdentificationResult
     return bench, json.loads((folder / "native" / "truth.json").read_text()), identify_bench(bench)
 
 
-@pytest.mark.parametrize(("rate_hz", "cogging_tol"), [(10_000.0, 0.012), (1_000.0, 0.02)])
+@pytest.mark.parametrize(("rate_hz", "cogging_tol"), [(10_000.0, 0.012), (1_000.0, 0.025)])
 def test_q_axis_logs_without_torque_identify_on_the_encoder(tmp_path, sensorless_grid, rate_hz, cogging_tol):
     """Issue 13's "done when": q-axis logs without a torque column at 10 kHz and 1 kHz, imported by the command
     (a bench without a torque sensor) and identified on the encoder's time stamps, against the truth. Measured
-    on this bench: native eps -0.62 %, alpha 0.0009, beta 0.0067 A, cogging 0.73 % RMS; 10 kHz -0.68 %, 0.0010,
-    0.0067 A, 0.75 %; 1 kHz -0.55 %, 0.0010, 0.0079 A, 1.33 %. The crossing times' linear interpolation lowers
-    harmonic h of a trial at f Hz by 1 - sinc^2(h f / f_s): at the cogging order 48 and 1 kHz, 0.7 % at 1 Hz and
-    1.6 % at 1.5 Hz; the identified cogging's, against the native bench's, 0.78 % (0.11 % at 10 kHz)."""
+    on this bench: cogging 0.38 % RMS native, 0.48 % at 10 kHz, 2.1 % at 1 kHz; eps -0.67 % and -0.37 %. The
+    crossing times' linear interpolation lowers harmonic h of a trial at f Hz by 1 - sinc^2(h f / f_s): at the
+    cogging order 48 and 1 kHz, 0.7 % at 1 Hz and 1.6 % at 1.5 Hz (measured 1.55 % against the native bench's,
+    0.13 % at 10 kHz), four times that at order 96: together about 1.8 % of the cogging's RMS at 1 kHz."""
     bench, truth, native = sensorless_grid
     mapping = write_folder(tmp_path, bench.backemf_nm_per_a, NO_TORQUE_Q_LOG)
     logs = [str(write_q_log(tmp_path / f"log{k}.csv", trial, rate_hz)) for k, trial in enumerate(bench.trials)]

@@ -497,11 +497,11 @@ def test_frame_holds_the_torque_harmonics_in_true_units(fast):
     assert frame.speed_hz == pytest.approx(SPEED_HZ, rel=0.03)
     cpr = fast.describe().motor.counts_per_rev
     true = harmonic_amplitudes(synchronous_average(trial.count, trial.torque_true_nm, cpr))
-    for h in (8, 16, 20, 48, 96):  # 1x, 2x electrical, the disturbance, cogging
-        assert abs(frame.torque_harmonics_nm[h] - true[h]) < 0.01 * abs(true[h]) + 1e-3
     # the variance is the revolution-to-revolution scatter: sensor noise of 0.02 N m per sample,
     # E|c_h|^2 = 4 sigma^2 / N per revolution of N samples, averaged over the revolutions
     noise = 0.02 / truth.delta * 2.0 / np.sqrt(cpr * REVOLUTIONS)
+    for h in (8, 16, 20, 48, 96):  # 1x, 2x electrical, the disturbance, cogging: within 3 noise std
+        assert abs(frame.torque_harmonics_nm[h] - true[h]) < 0.01 * abs(true[h]) + 3 * noise
     assert np.median(frame.torque_harmonics_var[1:]) == pytest.approx(noise**2, rel=0.5)
     # each stage's block is there, with its own columns
     assert frame.block("current-sensor").estimate.shape == (6,)

@@ -15,7 +15,8 @@ in its main fields, the better one of each.
 
 Without a torque sensor (or asked to), the torque is the encoder-derived one
 (`ilcpmac.identify.encoder`): the trials are reduced on it with the encoder's
-graduation error taken out, over three joint fits that model the brake
+graduation error taken out (the part of its estimate that stands out of the
+estimate's noise), over three joint fits that model the brake
 (step 1); ch. 3 is skipped, and what only a torque sensor shows (its gain
 delta, delta*eps, J* = delta J, its high-pass and delay) is None with the
 reason in ``messages``.
@@ -264,7 +265,8 @@ def _encoder_tables(bench: Bench) -> EncoderIdentification:
 
 
 def _encoder_error_fields(encoder: EncoderIdentification | None) -> dict:
-    """The `IdentificationResult` fields of the encoder error (none without one)."""
+    """The `IdentificationResult` fields of the encoder error (none without one): what is applied, its phase None
+    where its once-per-revolution part is 0 (no phase to tell)."""
     if encoder is None or encoder.line_errors_counts is None:
         return {}
     variance = encoder.encoder_error_variance_counts2
@@ -273,7 +275,7 @@ def _encoder_error_fields(encoder: EncoderIdentification | None) -> dict:
     return {"encoder_error_counts": encoder.line_errors_counts,
             "encoder_error_std_counts": np.full(encoder.line_errors_counts.size, std),
             "encoder_eccentricity_counts": amplitude, "encoder_eccentricity_std_counts": amplitude_std,
-            "encoder_eccentricity_phase_rad": phase, "encoder_line_rms_counts": line_rms}
+            "encoder_eccentricity_phase_rad": phase if amplitude > 0.0 else None, "encoder_line_rms_counts": line_rms}
 
 
 def _encoder_diagnostics(diagnostics: dict, bench: Bench, encoder: EncoderIdentification) -> dict:

@@ -32,8 +32,14 @@ there). After a joint fit, what the model's trial-dependent columns leave,
 r_k,h = tau_k,h - model_k,h (`fitted_columns_nm`; the stamps' whole band above
 the fit), is the shared position table T_h plus m_h,k e_h plus noise:
 `separate_encoder_error` over trials at two or more speeds gives e_h at every
-harmonic 1..N/2 - 1; the stamps are corrected (`at_nominal_angles`), the fit
-repeated and the correction refined once more (`ENCODER_PASSES`). Where
+harmonic 1..N/2 - 1. Of that estimate only the octaves of harmonics that
+stand out of their noise (the misfit of the separation included) are kept,
+shrunk by their Wiener factor (`significant_encoder_error`: a perfect encoder
+gets 0, not its estimate's noise, which applied to every trial's stamps would
+leave m_h times it in the torque); the stamps are corrected for that
+(`at_nominal_angles`), the fit repeated and the estimate refined once more
+(`ENCODER_PASSES`), each pass judging the sum of what was applied and its
+increment. Where
 inertia dominates (h J Omega >> b) m_h grows as Omega^2 while the torque's
 speed ripple falls, and the two separate well; where the brake dominates,
 m_h ~ -j h Delta tau_0 grows with the mean torque instead, like a torque
@@ -55,13 +61,16 @@ from ilcpmac.identify.reduction import BenchTables, TrialTables, reduce_bench, r
 from ilcpmac.model.encoder import line_errors_problem
 from ilcpmac.records import TrialData
 from ilcpmac.signals.encoder_torque import (
+    FALSE_ALARM,
     EncoderSeparation,
     EncoderTorqueSpectrum,
     at_nominal_angles,
     brake_viscous_nm_s,
+    encoder_error_blocks,
     encoder_error_table,
     revolution_torques_nm,
     separate_encoder_error,
+    significant_encoder_error,
     with_viscous,
 )
 from ilcpmac.signals.harmonics import table_from_amplitudes
@@ -127,9 +136,12 @@ class EncoderIdentification:
         b_k each trial of ``tables`` holds, N m s / rad.
     timer_resolution_s : float
     line_errors_counts : ndarray, shape (counts_per_rev,), or None
-        e_c taken out of the stamps (None: not identified).
+        e_c taken out of the stamps (None: not identified; zeros: identified, nothing stands out of the noise).
     encoder_error_counts, encoder_error_variance_counts2 : ndarray, shape (counts_per_rev // 2,), or None
-        Its harmonics e_h, h = 0..N/2 - 1, and their variances E|d e_h|^2 (the last pass's).
+        Its harmonics e_h, h = 0..N/2 - 1 (`significant_encoder_error` of the estimate), and the estimate's
+        variances E|d e_h|^2, misfit included (the last pass's).
+    estimated_error_counts : ndarray, shape (counts_per_rev // 2,), or None
+        The estimate before the significance rule: applied plus the last pass's increment.
     messages : tuple of str
     """
 
@@ -140,6 +152,7 @@ class EncoderIdentification:
     line_errors_counts: np.ndarray | None
     encoder_error_counts: np.ndarray | None
     encoder_error_variance_counts2: np.ndarray | None
+    estimated_error_counts: np.ndarray | None
     messages: tuple
 
 
@@ -218,7 +231,7 @@ def identify_on_encoder(bench: Bench, fit: Callable[[BenchTables], JointEstimate
         messages.append(f"encoder error: not identified - every trial runs at {set_points} Hz; trials at two or "
                         "more speeds tell it from the torque ripple (it stays in the encoder-derived torque and "
                         "biases every estimate by its apparent torque, which grows as (h speed)^2)")
-    model, line_errors, total, separation = MeanTorqueModel.nominal(), None, None, None
+    model, line_errors, applied, estimate, separation = MeanTorqueModel.nominal(), None, None, None, None
     tables = encoder_tables(bench, timer_s, cpr // 2 - 1, model, None)
     joint = fit(tables)
     for _ in range(ENCODER_PASSES if separable else 1):
@@ -228,21 +241,39 @@ def identify_on_encoder(bench: Bench, fit: Callable[[BenchTables], JointEstimate
         if separable:
             try:
                 separation = _separation(bench, tables, joint, timer_s, model, line_errors)
-                total = separation.encoder_error_counts if total is None else total + separation.encoder_error_counts
-                line_errors = encoder_error_table(total, cpr)
-                problem = line_errors_problem(line_errors, cpr)
+                estimate = separation.encoder_error_counts + (0.0 if applied is None else applied)
+                applied = significant_encoder_error(estimate, separation.encoder_error_variance_counts2)
+                table = encoder_error_table(applied, cpr)
+                problem = line_errors_problem(table, cpr)
                 if problem:
                     raise ValueError(f"the estimate is no encoder's: {problem}")
+                line_errors = table if np.any(applied) else None
             except ValueError as e:
                 messages.append(f"encoder error: not identified - {e}")
-                total = separation = line_errors = None
+                applied = estimate = separation = line_errors = None
                 separable = False
         tables = encoder_tables(bench, timer_s, int(joint.sets.fit.max()), model, line_errors)
         joint = fit(tables)
+    if applied is not None:
+        messages += _left_out(applied)
     viscous = np.array([t.viscous_nm_s for t in tables.trials])
-    return EncoderIdentification(tables, joint, viscous, timer_s, line_errors, total,
-                                 None if separation is None else separation.encoder_error_variance_counts2,
-                                 tuple(messages))
+    return EncoderIdentification(
+        tables, joint, viscous, timer_s, None if applied is None else encoder_error_table(applied, cpr), applied,
+        None if separation is None else separation.encoder_error_variance_counts2, estimate, tuple(messages))
+
+
+def _left_out(applied: np.ndarray) -> list[str]:
+    """The message naming the octaves of the encoder error that did not stand out of their noise."""
+    blocks = [b for b in encoder_error_blocks(applied.size) if not np.any(applied[b])]
+    if not blocks:
+        return []
+    test = f"median |e_h|^2 / var below its {100 * (1 - FALSE_ALARM):g} % quantile"
+    if not np.any(applied):
+        return [f"encoder error: 0 - no harmonic stands out of the estimate's noise and misfit ({test} in every "
+                "octave): a perfect encoder as far as these trials tell"]
+    names = ", ".join(f"{b[0]}" if b.size == 1 else f"{b[0]}-{b[-1]}" for b in blocks)
+    return [f"encoder error: harmonics {names} taken as 0 - they do not stand out of the estimate's noise and "
+            f"misfit ({test} per octave); applied, their noise would leave m_h times it in every trial's torque"]
 
 
 def _separation(bench: Bench, tables: BenchTables, joint: JointEstimate, timer_s: float, model: MeanTorqueModel,

@@ -14,7 +14,15 @@ for harmonic h of trial k at mean speed f_k, where
   time count by count), with theta_p = delta eps alpha_p: their mean is the
   total system gain delta*eps, so it no longer rests on the frequency
   response alone;
-- B_p = DFT(K_p): the back-EMF columns of eq. (1.10), beta*_p = delta beta_p;
+- B_p = DFT(K_p): the back-EMF columns of eq. (1.10), beta*_p = delta beta_p.
+  An offset common to the three phases makes the torque beta_0 sum_p K_p:
+  where the back-EMFs sum to zero (a symmetric, purely sinusoidal back-EMF:
+  sum_p B_p below SIGNIFICANT of the largest B_p at every fitted harmonic)
+  it makes none, the columns are rank-deficient by one, and the common
+  offset mean_p beta*_p is not identified: it is held at 0 (the
+  calibration's) and only the differential offsets beta*_p - mean beta* are
+  fitted (`JointEstimate.common_offset_identified`), rather than a
+  least-squares minimum norm passing for an estimate;
 - E_k = DFT(sum_p K_p W (1 - G_p) e_p): the loop's tracking error to the
   back-EMF e_p = K_p omega (omega measured per count), through the winding
   W = 1 / (1 + s L/R); c_e = -delta / R. The speed ripple makes it ripple at
@@ -63,6 +71,11 @@ MISFIT_CHI2 = 1.5
 NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding_tau_s", "torque_delay_s")
 NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
 LINEAR = ("theta_a", "theta_b", "theta_c", "beta_star_a", "beta_star_b", "beta_star_c", "emf", "saturation")
+#: why the common current offset is not identified where the back-EMFs sum to zero
+COMMON_OFFSET_NOT_IDENTIFIED = (
+    "current offsets: the common offset (mean of beta over the phases) not identified - the back-EMFs sum to zero "
+    f"(sum_p K_p below {100 * SIGNIFICANT:g} % of K_p at every fitted harmonic), so an offset common to the three "
+    "phases makes no torque; beta holds the differential offsets (mean 0) and the calibration keeps its common offset")
 
 
 @dataclass(frozen=True)
@@ -205,6 +218,9 @@ class JointEstimate:
         Per trial and fit harmonic, the modelled response of the measured torque to
         the theoretical torque sum_p K_p I*_p (for plots).
     sets : HarmonicSets
+    common_offset_identified : bool
+        False where sum_p K_p is 0 (module notes): beta*_p then holds the differential offsets (their mean 0
+        by constraint, not by estimate) and ``beta_star_std`` their standard errors.
     """
 
     theta: np.ndarray
@@ -228,6 +244,7 @@ class JointEstimate:
     misfit: tuple
     gain_structure: GainStructure
     sets: HarmonicSets
+    common_offset_identified: bool = True
 
     @property
     def delta_epsilon(self) -> float:
@@ -243,7 +260,8 @@ class JointEstimate:
     def warnings(self) -> tuple[str, ...]:
         """One line per harmonic family where the residual holds structure the model lacks."""
         families = tuple(group.warning for group in self.misfit if group.is_off)
-        return families + ((self.gain_structure.warning,) if self.gain_structure.is_off else ())
+        offset = () if self.common_offset_identified else (COMMON_OFFSET_NOT_IDENTIFIED,)
+        return offset + families + ((self.gain_structure.warning,) if self.gain_structure.is_off else ())
 
     def std_of(self, weights_by_name: dict[str, float], covariance: np.ndarray | None = None) -> float:
         """Standard error of a linear combination of named parameters (``covariance`` defaults to the fit's)."""
@@ -354,6 +372,8 @@ class _JointProblem:
             self.speed_ripple = trial_amplitudes(speed[:, :, None], self.max_fit)[:, sets.fit, 0] / mean
         backemf_cols = trial_amplitudes(self.backemf[None], self.max_fit)[0][sets.fit]
         self.backemf_design = np.broadcast_to(backemf_cols, (len(tables.trials),) + backemf_cols.shape)
+        self.common_offset = bool(np.linalg.norm(backemf_cols.sum(axis=1))
+                                  > SIGNIFICANT * np.linalg.norm(backemf_cols, axis=0).max())
         # back-EMF per count, e_p = K_p omega (omega over the intervals either side of the count)
         omega = 4.0 * np.pi / (self.cpr * (self.count_period + np.roll(self.count_period, 1, axis=1)))
         self.emf = self.backemf * omega[:, :, None]
@@ -475,12 +495,26 @@ class _JointProblem:
         design = (root[:, :, None] * design).reshape(-1, design.shape[2])
         return np.concatenate([y.real, y.imag]), np.concatenate([design.real, design.imag])
 
+    def constraint(self, size: int) -> np.ndarray:
+        """P, shape (size, size) or (size, size - 1): the parameters are P times the free ones.
+
+        The identity, or where the common offset is not identified (module notes) beta*_c = -beta*_a - beta*_b.
+        """
+        if self.common_offset:
+            return np.eye(size)
+        constraint = np.delete(np.eye(size), 5, axis=1)
+        constraint[5, 3:5] = -1.0
+        return constraint
+
     def solve(self, phi: np.ndarray, saturation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Linear parameters and the weighted residual vector at ``phi``."""
         y, design = self.weighted(phi, self.design(phi, saturation))
-        scale = np.sqrt(np.sum(design**2, axis=0))
+        constraint = self.constraint(design.shape[1])
+        free = design @ constraint
+        scale = np.sqrt(np.sum(free**2, axis=0))
         scale[scale == 0.0] = 1.0
-        x = np.linalg.lstsq((design.T @ design) / np.outer(scale, scale), (design.T @ y) / scale, rcond=None)[0] / scale
+        x = constraint @ (np.linalg.lstsq((free.T @ free) / np.outer(scale, scale), (free.T @ y) / scale,
+                                          rcond=None)[0] / scale)
         return x, y - design @ x
 
     def position_table(self, phi: np.ndarray, design: np.ndarray, x: np.ndarray) -> dict:
@@ -581,7 +615,7 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
         torque_delay_s=float(phi[6]),
         position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
         covariance=covariance, bound_covariance=bound, parameter_names=names, chi2_reduced=chi2, misfit=misfit,
-        gain_structure=structure, sets=sets)
+        gain_structure=structure, sets=sets, common_offset_identified=problem.common_offset)
 
 
 def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray) -> tuple:
@@ -652,7 +686,8 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
         y, design_shifted = problem.weighted(shifted, problem.design(shifted, saturation))
         columns.append((rest - (y - design_shifted @ x))[:, None] / step)
         names.append(NONLINEAR[i])
-    jac = np.hstack(columns)
+    constraint = problem.constraint(sum(c.shape[1] for c in columns))
+    jac = np.hstack(columns) @ constraint
     bound = np.linalg.pinv(jac.T @ jac)
     n_trials, n_fit = problem.variance.shape[0], problem.sets.fit.size
     per_harmonic = np.sum(rest.reshape(2, n_trials, n_fit) ** 2, axis=(0, 1))
@@ -671,7 +706,8 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
         inflation = float(np.sqrt(np.max(np.diag(alone)[seen] / np.diag(bound)[seen], initial=1.0)))
         groups.append(MisfitGroup(label, problem.sets.fit[members], chi2, float(dof), inflation))
     dof = jac.shape[0] - jac.shape[1] - 2 * int(problem.sets.table_free.sum())
-    return bound @ information @ bound, bound, tuple(names), float(rest @ rest / dof), tuple(groups)
+    covariance = constraint @ bound @ information @ bound @ constraint.T
+    return covariance, constraint @ bound @ constraint.T, tuple(names), float(rest @ rest / dof), tuple(groups)
 
 
 def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndarray, rest: np.ndarray,
@@ -698,10 +734,12 @@ def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndar
     def structure(parts: list, size: int) -> tuple[float, np.ndarray]:
         """The largest chi2/dof over the tested quantities, and the structure's covariance (size x size)."""
         shifts, noises = [], []
+        constraint = problem.constraint(size) if size == 6 else np.eye(size)
         for d, r in parts:
+            d = d @ constraint
             noise = np.linalg.pinv(d.T @ d)
-            shifts.append(noise @ d.T @ r)
-            noises.append(noise)
+            shifts.append(constraint @ noise @ d.T @ r)
+            noises.append(constraint @ noise @ constraint.T)
         shifts, noises = np.array(shifts), np.array(noises)
         tests = [mean] + [np.eye(size)[3 + p] for p in range(size - 3)]
         expected_gain = np.einsum("i,bij,j->b", mean, noises[:, :3, :3], mean)

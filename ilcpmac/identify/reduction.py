@@ -164,15 +164,28 @@ def revolution_averages(count: np.ndarray, time_s: np.ndarray, i_ref_a: np.ndarr
     """The mean speed (Hz), the synchronous average of the current references (counts_per_rev, 3), A, and the
     mean time from each count to the next (counts_per_rev,), s, of samples in whole revolutions.
 
-    The time of each count over one mean revolution is the linear trend plus the averaged wobble (speed
-    ripple), so that revolutions missing a count (skipped) do not bias the average.
+    The time of each count over one mean revolution is the mean revolution's slope plus the averaged wobble
+    (speed ripple), so that revolutions missing a count (skipped) do not bias the average. The slope is the
+    mean of t(c + counts_per_rev) - t(c) over the counts recorded a revolution apart: a straight line
+    fitted through a few revolutions with a strong speed ripple would tilt with the ripple's phase, and
+    make the period at the wrap wrong, even negative.
+
+    Raises `IdentificationError` when a mean count period is not positive (a trial of too few revolutions
+    for its speed ripple).
     """
-    seconds_per_count, start = np.polyfit(count - count[0], time_s - time_s[0], 1)
-    wobble = synchronous_table(count, time_s - time_s[0] - start - seconds_per_count * (count - count[0]),
-                               counts_per_rev)
+    later = np.searchsorted(count, count + counts_per_rev)
+    paired = later < count.size
+    paired[paired] = count[later[paired]] == count[paired] + counts_per_rev
+    seconds_per_count = float(np.mean(time_s[later[paired]] - time_s[paired])) / counts_per_rev
+    wobble = synchronous_table(count, time_s - time_s[0] - seconds_per_count * (count - count[0]), counts_per_rev)
     time_table = wobble + seconds_per_count * np.arange(counts_per_rev)
-    return (1.0 / (seconds_per_count * counts_per_rev), synchronous_table(count, i_ref_a, counts_per_rev),
-            np.diff(time_table, append=time_table[0] + seconds_per_count * counts_per_rev))
+    count_period_s = np.diff(time_table, append=time_table[0] + seconds_per_count * counts_per_rev)
+    if not np.all(count_period_s > 0):
+        worst = int(np.argmin(count_period_s))
+        raise IdentificationError(f"count {worst}: mean time to the next count {count_period_s[worst]:.3g} s, not "
+                                  f"positive (too few revolutions, {count.size / counts_per_rev:.3g}, for the speed "
+                                  "ripple)")
+    return 1.0 / (seconds_per_count * counts_per_rev), synchronous_table(count, i_ref_a, counts_per_rev), count_period_s
 
 
 def reduce_bench(bench: Bench, reduce: Callable[[TrialData, int], TrialTables] = reduce_trial,

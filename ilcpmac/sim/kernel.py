@@ -5,10 +5,11 @@ scale, offset and noise, a discrete PI current loop reading it and the winding
 L di/dt = v - R i - K_p(theta) omega (exact zero-order-hold step), or instead
 of both a first-order lag of the current on its reference; the torque
 sum_p K_p i_p (1 - c i_p^2) + tau_pos(theta), mechanics J domega/dt = tau -
-b omega - coulomb, a piezo torque sensor, and position-triggered sampling
-once per encoder line crossed, each line where it truly sits. Inputs are
-validated by ``ilcpmac.sim.simulator``; whatever it is given, the kernel
-reads and writes only within its arrays.
+b omega - coulomb (semi-implicit Euler), a piezo torque sensor, and
+position-triggered sampling once per encoder line crossed, each line where
+it truly sits, every signal at the instant the line is crossed within the
+step. Inputs are validated by ``ilcpmac.sim.simulator``; whatever it is
+given, the kernel reads and writes only within its arrays.
 """
 
 import numpy as np
@@ -136,9 +137,15 @@ def simulate_trial(
     positions of lines -1 .. N + 1, counts from angle 0 (line c at c + e_c;
     lines -1, N and N + 1 are lines N - 1, 0 and 1 of the neighbouring
     revolutions), each within half a count of its nominal position. A
-    sample is taken when the true angle crosses a line; the measured count
-    is that line's. Per-phase parameters are arrays of 3. Fewer than
-    ``record_counts`` samples means the trial hit ``max_steps`` (the rotor
+    sample is taken when the true angle crosses a line, at the fraction f
+    of the step where the angle (linear within the step) reaches it: the
+    measured count is that line's; the time, the true torque, the piezo's
+    output and the true currents are their values at the step's start and
+    end interpolated at f, the speed its values at the middle of this step
+    and of the one before (semi-implicit Euler) interpolated at f + 1/2;
+    the measured currents are the controller's readings at the step's
+    start, the latest it has. Per-phase parameters are arrays of 3. Fewer
+    than ``record_counts`` samples means the trial hit ``max_steps`` (the rotor
     stalled) or diverged (the angle left its revolution); arrays too small
     for the indices return 0 samples. ``lag_loop`` (bool) replaces each
     phase's PI loop and winding by a first-order lag of decay ``lag_decay``
@@ -171,9 +178,9 @@ def simulate_trial(
     xa = resistance_ohm[0] * ia + fine[0, 0] * omega
     xb = resistance_ohm[1] * ib + fine[0, 1] * omega
     xc = resistance_ohm[2] * ic + fine[0, 2] * omega
+    tau, ka, kb, kc = _torque(fine, 0.0, ia, ib, ic, c_sat)
     # the piezo starts settled: its output is the ripple about the steady mean torque b omega + friction
-    hp_in = delta * _torque(fine, 0.0, ia, ib, ic, c_sat)[0]
-    hp_out = hp_in - delta * (brake_nms * omega0_rad_s + coulomb_nm)
+    hp_out = delta * (tau - brake_nms * omega0_rad_s - coulomb_nm)
 
     theta_rev = 0.0  # angle within the revolution, rad
     revs = 0
@@ -184,8 +191,8 @@ def simulate_trial(
     n = 0
     end_count = warmup_counts + record_counts
     for _ in range(max_steps):
-        # torque at the step's start (eq. 1.1 plus the unexplained terms)
-        tau, ka, kb, kc = _torque(fine, theta_rev * fine_per_rad, ia, ib, ic, c_sat)
+        # the state at the step's start: tau, ka, kb, kc and hp_out are its torque, K_p and piezo output
+        ia_old, ib_old, ic_old, omega_old, tau_old, hp_old = ia, ib, ic, omega, tau, hp_out
         # current control per phase, and the windings over the step (ZOH)
         rng = _xorshift(rng)
         na = current_noise_counts * _gauss(rng, gauss_table)
@@ -210,14 +217,11 @@ def simulate_trial(
             ic, xc, mc = _current_step(ic, xc, i_ref_table[count_in_rev, 2], kc, omega, nc, scale_true[2],
                                        offset_true[2], apc[2], offset_cal[2], kp_v_per_a[2], ki_dt[2],
                                        voltage_limit_v, decay[2], gain[2])
-        # mechanics (eq. 3.1), forward Euler: independent of this step's current update
+        # mechanics (eq. 3.1), semi-implicit Euler: independent of this step's current update
         friction = coulomb_nm if omega > 0.0 else (-coulomb_nm if omega < 0.0 else 0.0)
         theta_old = theta_rev
-        theta_rev += omega * dt_s
         omega += dt_over_j * (tau - brake_nms * omega - friction)
-        # piezo: first-order high-pass of delta * tau
-        hp_out = highpass_coef * (hp_out + delta * tau - hp_in)
-        hp_in = delta * tau
+        theta_rev += omega * dt_s
         t += dt_s
         if theta_rev >= TWO_PI:
             theta_rev -= TWO_PI
@@ -229,6 +233,10 @@ def simulate_trial(
             revs -= 1
         if not 0.0 <= theta_rev <= TWO_PI:
             break  # NaN, or more than a revolution in one step: out of the validated ranges
+        # torque at the step's end, the next step's start (eq. 1.1 plus the unexplained terms)
+        tau, ka, kb, kc = _torque(fine, theta_rev * fine_per_rad, ia, ib, ic, c_sat)
+        # piezo: first-order high-pass of delta * tau
+        hp_out = highpass_coef * (hp_out + delta * (tau - tau_old))
         position_counts = theta_rev * counts_per_rad
         if line_from <= position_counts < line_to:
             continue  # no line crossed
@@ -253,17 +261,22 @@ def simulate_trial(
             continue
         if count >= end_count:
             break
-        # position-triggered sample at the crossing of this line (lines skipped are not recorded)
-        t_c = t - dt_s + dt_s * (line_from / counts_per_rad - theta_old) / (theta_rev - theta_old)
+        # position-triggered sample at the crossing of this line (lines skipped are not recorded), at the
+        # fraction f of the step: the continuous signals interpolated linearly, the measured currents the
+        # controller's readings of the step (held)
+        f = (line_from / counts_per_rad - theta_old) / (theta_rev - theta_old)
+        t_c = t - dt_s + dt_s * f
         out_count[n] = count - warmup_counts
         out_time[n] = np.round(t_c / timer_resolution_s) * timer_resolution_s
         out_i_ref[n] = i_ref_table[count_in_rev]
         out_i_meas[n, 0], out_i_meas[n, 1], out_i_meas[n, 2] = ma, mb, mc
-        out_i_true[n, 0], out_i_true[n, 1], out_i_true[n, 2] = ia, ib, ic
+        out_i_true[n, 0] = ia_old + f * (ia - ia_old)
+        out_i_true[n, 1] = ib_old + f * (ib - ib_old)
+        out_i_true[n, 2] = ic_old + f * (ic - ic_old)
         rng = _xorshift(rng)
-        out_torque[n] = (hp_out + torque_dc_nm + torque_drift_nm_per_s * t_c
+        out_torque[n] = (hp_old + f * (hp_out - hp_old) + torque_dc_nm + torque_drift_nm_per_s * t_c
                          + torque_noise_nm * _gauss(rng, gauss_table))
-        out_torque_true[n] = tau
-        out_speed[n] = omega
+        out_torque_true[n] = tau_old + f * (tau - tau_old)
+        out_speed[n] = omega_old + (f + 0.5) * (omega - omega_old)
         n += 1
     return n
