@@ -98,3 +98,21 @@ def test_count_periods_of_two_rippling_revolutions_are_exact_and_positive():
     with pytest.raises(IdentificationError, match=r"^count \d+: mean time to the next count .* not positive"):
         revolution_averages(count, count * period_s / cpr + 2 * np.sin(2 * np.pi * count / cpr), np.zeros((2 * cpr, 3)),
                             cpr)
+
+
+def test_trials_of_two_revolutions_keep_the_reports_sensor_gain(write_config):
+    """The corrected ch. 3 fit needs two whole revolutions of count intervals, which two revolutions of samples
+    are not; delta then comes from the report's fit (a sweep's warm-up campaign has such trials), and the
+    messages say why."""
+    from ilcpmac.config import load_config
+    from ilcpmac.identify import identify_bench
+    from ilcpmac.sim.grid import simulated_bench
+
+    config = load_config(write_config({"bench": {"counts_per_rev": 1024},
+                                       "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.8, 1.0],
+                                                  "revolutions": 2}}))
+    bench, truth = simulated_bench(config)
+    result = identify_bench(bench)
+    assert result.delta == pytest.approx(truth["torque_sensor_gain"], rel=0.1)
+    assert any("needs at least 2 whole revolutions" in m and "the report's ch. 3 fit is used" in m
+               for m in result.messages), result.messages

@@ -179,6 +179,8 @@ class SensorGainEstimate:
         The position-domain pooled fit with the sensor's response divided out (None when not given).
     corrected_inertia, corrected_inertia_std, corrected_delta, corrected_delta_std : float
         Its J* and delta (NaN when not given).
+    corrected_failure : str or None
+        Why the corrected fit is missing though asked (e.g. trials of one whole revolution), or None.
     """
 
     responses: tuple
@@ -196,11 +198,13 @@ class SensorGainEstimate:
     corrected_inertia_std: float
     corrected_delta: float
     corrected_delta_std: float
+    corrected_failure: str | None = None
 
     @property
     def warnings(self) -> tuple[str, ...]:
-        """One line per fit whose J* varies over harmonics or set points beyond its noise."""
-        out = []
+        """One line per fit whose J* varies over harmonics or set points beyond its noise, and why the corrected
+        fit is missing when it failed."""
+        out = [] if self.corrected_failure is None else [self.corrected_failure]
         worst = max(self.misfit_per_trial, key=lambda m: m.structure_chi2)
         if self.inflation > 1.2:
             out.append(f"torque-sensor gain (ch. 3): J* over blocks of harmonics is not constant (chi2/dof up to "
@@ -432,11 +436,14 @@ def estimate_sensor_gain(tables: BenchTables, max_harmonic: int,
     noise = float(np.mean(noise_std**2) / n)
     inertia_variance = max(scatter, float(variance.mean()) / n) + float(np.mean([m.structure_variance_kgm4
                                                                                  for m in misfits]))
-    corrected = None
+    corrected, failure = None, None
     if sensor_response is not None:
         h = np.arange(1, max_harmonic + 1)
-        corrected = fit_pooled([position_response(tables, k, max_harmonic, sensor_response(h, t.speed_hz))
-                                for k, t in enumerate(tables.trials)])
+        try:
+            corrected = fit_pooled([position_response(tables, k, max_harmonic, sensor_response(h, t.speed_hz))
+                                    for k, t in enumerate(tables.trials)])
+        except IdentificationError as e:  # the report's fit still stands
+            failure = f"{e} - the report's ch. 3 fit is used"
     j = tables.motor.inertia_kgm2
     inertia_std = float(np.sqrt(inertia_variance))
     corrected_inertia = np.nan if corrected is None else corrected.inertia
@@ -447,4 +454,4 @@ def estimate_sensor_gain(tables: BenchTables, max_harmonic: int,
         inflation=float(np.sqrt(inertia_variance / max(scatter, noise))), delta=inertia / j,
         delta_std=inertia_std / j, corrected=corrected, corrected_inertia=corrected_inertia,
         corrected_inertia_std=corrected_std, corrected_delta=corrected_inertia / j,
-        corrected_delta_std=corrected_std / j)
+        corrected_delta_std=corrected_std / j, corrected_failure=failure)
