@@ -25,6 +25,15 @@ SEED_CONFIG = Path(__file__).resolve().parents[1] / "ilcpmac" / "configs" / "see
 REAL_BENCH_CONFIG = SEED_CONFIG.with_name("real-bench.toml")
 #: encoder resolution of the fast test model (the seed bench has 4096)
 COUNTS_PER_REV = 1024
+#: the [bench] table of an import mapping (docs/bench-format.md) for the tests' motor
+MAPPING_BENCH = f"""\
+[bench]
+pole_pairs = 8
+slots = 48
+counts_per_rev = {COUNTS_PER_REV}
+inertia_kgm2 = 0.01056
+backemf_file = "backemf.csv"
+"""
 #: recorded revolutions of a test trial
 REVOLUTIONS = 2
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
+from conftest import COUNTS_PER_REV, MAPPING_BENCH, SEED_CONFIG, toml_text
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -38,15 +38,6 @@ from ilcpmac.sim.simulator import Simulator
 
 #: counts per revolution of the logs' 16-bit single-turn position (q-axis layout)
 LOG_COUNTS_PER_REV = 2**16
-
-BENCH = f"""\
-[bench]
-pole_pairs = 8
-slots = 48
-counts_per_rev = {COUNTS_PER_REV}
-inertia_kgm2 = 0.01056
-backemf_file = "backemf.csv"
-"""
 
 PHASE_LOG = """\
 [log]
@@ -117,7 +108,7 @@ def write_folder(folder: Path, backemf: np.ndarray, log_table: str, extra: str =
     folder.mkdir(exist_ok=True)
     write_backemf_csv(folder / "backemf.csv", backemf)
     path = folder / "map.toml"
-    path.write_text(BENCH + log_table + extra)
+    path.write_text(MAPPING_BENCH + log_table + extra)
     return path
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import COUNTS_PER_REV
+from conftest import COUNTS_PER_REV, MAPPING_BENCH
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -32,15 +32,6 @@ from ilcpmac.sim.simulator import Simulator
 from ilcpmac.sim.standstill import ScanPlan, write_scan_log
 from ilcpmac.stages.base import Identified, StageSetup
 from ilcpmac.stages.cogging import CoggingFeedForward
-
-BENCH = f"""\
-[bench]
-pole_pairs = 8
-slots = 48
-counts_per_rev = {COUNTS_PER_REV}
-inertia_kgm2 = 0.01056
-backemf_file = "backemf.csv"
-"""
 
 LOG = f"""\
 [log]
@@ -77,7 +68,7 @@ def scan_folder(tmp_path: Path, simulator: Simulator, layout: str, plan: ScanPla
     t = simulator.truth(simulator.model.controller.calibration())
     errors = (f"[scan]\ntorque_sensor_gain = {t.delta}\n" if layout == "torque" else
               f"[scan]\nepsilon = {t.epsilon}\nalpha = {t.alpha.tolist()}\nbeta_a = {t.beta_a.tolist()}\n")
-    (tmp_path / "map.toml").write_text(BENCH + "\n" + LOG + LAYOUTS[layout] + "\n" + errors)
+    (tmp_path / "map.toml").write_text(MAPPING_BENCH + "\n" + LOG + LAYOUTS[layout] + "\n" + errors)
     out = tmp_path / "scan"
     result = CliRunner().invoke(main, ["import", str(tmp_path / "scan_log.csv"), "--map", str(tmp_path / "map.toml"),
                                        "--out", str(out)])
@@ -197,7 +188,7 @@ def test_scan_mapping_keys_checked(tmp_path):
     for log, expected in [(LOG + 'i_q = "q"\ntorque = "t"\n', "a scan gives exactly one of them"),
                           (LOG.replace('kind = "scan"', 'kind = "run"') + 'i_q = "q"\ndirection = "d"\n',
                            "direction: only for a standstill scan")]:
-        (tmp_path / "map.toml").write_text(BENCH + log)
+        (tmp_path / "map.toml").write_text(MAPPING_BENCH + log)
         with pytest.raises(ConfigError, match=expected):
             from ilcpmac.bench.importer import read_mapping
 
