@@ -36,6 +36,12 @@ MAX_STEPS = 2**31
 MAX_WARMUP_REVOLUTIONS = 2**24
 
 
+def airgap_torque_nm(k_nm_per_a: np.ndarray, i_true_a: np.ndarray, saturation_per_a2: float) -> np.ndarray:
+    """sum_p K_p i_p (1 - c i_p^2) over the last axis (eq. 1.1 with the saturation term), N m: the kernel's
+    `_torque` without the position torque, for arrays."""
+    return np.sum(k_nm_per_a * i_true_a * (1.0 - saturation_per_a2 * i_true_a**2), axis=-1)
+
+
 def trial_seed(seed: int, index: int) -> int:
     """The 32-bit seed of trial ``index`` of a campaign seeded with ``seed``."""
     return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
@@ -161,9 +167,8 @@ class Simulator:
         """Torque per count with ideal current tracking, N m (eq. 1.3 plus the unexplained terms)."""
         truth = self.truth(request.calibration)
         i_true = truth.epsilon * truth.alpha * i_ref + truth.beta_a
-        c = self.model.unexplained.saturation_per_a2
         backemf = self.model.winding.backemf_scale * self.backemf_counts
-        tau = np.sum(backemf * i_true * (1.0 - c * i_true**2), axis=1)
+        tau = airgap_torque_nm(backemf, i_true, self.model.unexplained.saturation_per_a2)
         return tau + self.torque_pos_fine[::OVERSAMPLE]
 
     def run_trial(self, request: TrialRequest) -> TrialData:

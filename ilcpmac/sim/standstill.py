@@ -37,7 +37,7 @@ from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.errors import SimulationError
 from ilcpmac.model.motor import in_range, shown
 from ilcpmac.model.tables import current_references
-from ilcpmac.sim.simulator import OVERSAMPLE, Simulator
+from ilcpmac.sim.simulator import OVERSAMPLE, Simulator, airgap_torque_nm
 
 __all__ = ["ScanPlan", "scan_log", "write_scan_log"]
 
@@ -158,10 +158,9 @@ def _holding_currents(simulator: Simulator, position: np.ndarray, holding_nm: np
     reference = np.zeros(position.size)
     for _ in range(_STEPS):
         i_true = gain * (reference[:, None] * per_nm) + truth.beta_a
-        torque = np.sum(k_true * i_true * (1.0 - c * i_true**2), axis=1)
-        reference += (holding_nm - torque) / slope
+        reference += (holding_nm - airgap_torque_nm(k_true, i_true, c)) / slope
     i_true = gain * (reference[:, None] * per_nm) + truth.beta_a
-    miss = np.abs(np.sum(k_true * i_true * (1.0 - c * i_true**2), axis=1) - holding_nm).max()
+    miss = np.abs(airgap_torque_nm(k_true, i_true, c) - holding_nm).max()
     if miss > 1e-9 * max(1.0, np.abs(holding_nm).max()):
         raise SimulationError(f"the holding currents do not converge through saturation ({miss:.3g} N m off)")
     measured = reference[:, None] * per_nm + (m.current_sensors.noise_counts / calibration.current_scale
