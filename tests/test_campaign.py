@@ -82,7 +82,9 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
     assert summary["compensation"] == {"file": "compensation.json", "fade_full_hz": None, "fade_zero_hz": None}
 
 
-@pytest.mark.parametrize("fail_on_call", [3, 9])  # in the parallel grid, and in the ILC phase
+# in the parallel grid; within the compensation round; at the start of and within a learning round, whose
+# requests the resumed run must shape from the pipeline as it stood when the round began
+@pytest.mark.parametrize("fail_on_call", [3, 8, 9, 10])
 def test_resume_after_a_crash_ends_as_an_uninterruptedrun_campaign(campaign_config, tmp_path, fail_on_call):
     reference = run_campaign(campaign_config, tmp_path / "reference")
     crashed = tmp_path / "crashed"
@@ -298,14 +300,22 @@ def test_every_request_of_a_campaign_obeys_the_limits_whatever_a_stage_asks(writ
 
 def test_a_trials_saved_state_holds_the_calibration_it_ran_with(campaign_config, tmp_path):
     """The state recorded the unshaped request's calibration (the bench's) for every trial; it is the one
-    the current-sensor stage set, which the stage's state after the trial before announces."""
+    the current-sensor stage set, which the stage's state after the last trial before the trial's round (the
+    compensation trials, then one learning trial per point) announces."""
     summary = run_campaign(campaign_config, tmp_path / "run")
     states = [json.loads(p.read_text()) for p in sorted((tmp_path / "run" / "states").glob("trial_*.json"))]
-    first = next(i for i, r in enumerate(summary["trials"]) if r["role"] == "compensate")
-    for before, state in zip(states[first - 1:], states[first:first + 3]):
-        ran = state["request"]["calibration"]
-        assert ran == {key: before["pipeline"]["current-sensor"][key] for key in ran}
+    trials = summary["trials"]
+    first = next(i for i, r in enumerate(trials) if r["role"] == "compensate")
+    begun, seen = first - 1, set()
+    for i in range(first, first + 4):
+        point = (trials[i]["role"], trials[i]["torque_setpoint"])
+        if point in seen or trials[i]["role"] != trials[i - 1]["role"]:
+            begun, seen = i - 1, set()
+        seen.add(point)
+        ran = states[i]["request"]["calibration"]
+        assert ran == {key: states[begun]["pipeline"]["current-sensor"][key] for key in ran}
         assert ran["current_scale"] != states[0]["request"]["calibration"]["current_scale"]
+    assert begun == first + 1  # the first learning round began after the two compensation trials
 
 
 def test_the_exported_compensation_replayed_gives_the_campaigns_validation_figures(campaign_config, tmp_path):

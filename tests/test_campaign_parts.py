@@ -84,9 +84,9 @@ def test_the_plan_orders_grid_baselines_compensation_learning_then_validation_fr
     assert steps[:4] == [("identify", "grid", r.torque_setpoint_nm) for r in plan.grid]
     assert steps[4:8] == [("identify", "baseline", 2.0), ("identify", "baseline", 4.0),
                           ("compensate", "compensate", 2.0), ("compensate", "compensate", 4.0)]
-    # a flat repeatable ripple stops improving: patience trials of learning at each point, in turn
+    # a flat repeatable ripple stops improving: patience trials of learning at each point, in rounds
     patience = plan.config.campaign.patience
-    assert steps[8:-2] == [("ilc", "learn", 2.0)] * patience + [("ilc", "learn", 4.0)] * patience
+    assert steps[8:-2] == [("ilc", "learn", 2.0), ("ilc", "learn", 4.0)] * patience
     assert steps[-2:] == [("validate", "baseline", 3.0), ("validate", "validate", 3.0)]
     assert len(records_at(records, (2.0, 0.9), ("compensate", "learn"))) == patience + 1
 
@@ -95,9 +95,10 @@ def test_learning_goes_on_while_the_ripple_improves_up_to_learn_trials(plan):
     records = [done(i + 1, "grid", r.torque_setpoint_nm, speed=r.speed_setpoint_hz) for i, r in enumerate(plan.grid)]
     records += [done(5, "baseline", 2.0), done(6, "baseline", 4.0), done(7, "compensate", 2.0, 1.0),
                 done(8, "compensate", 4.0, 1.0)]
-    while (step := plan.next_step(records)) is not None and step.request.torque_setpoint_nm == 2.0:
-        records.append(done(len(records) + 1, "learn", 2.0, 0.5 ** len(records)))
-    assert len(records_at(records, (2.0, 0.9), ("learn",))) == plan.config.campaign.learn_trials
+    while (step := plan.next_step(records)) is not None and step.role == "learn":
+        records.append(done(len(records) + 1, "learn", step.request.torque_setpoint_nm, 0.5 ** len(records)))
+    for point in plan.learned:
+        assert len(records_at(records, point, ("learn",))) == plan.config.campaign.learn_trials
 
 
 def test_the_learning_phase_is_named_for_what_learns():
@@ -327,6 +328,37 @@ def test_the_custom_stage_example_prints_typed_records(capsys):
     figures = RippleFigures(*(0.001,) * len(dataclasses.fields(RippleFigures)))
     Printer().trial(TrialRecord(34, "ilc", "ilc", 3.0, 0.75, true=figures), [])
     assert capsys.readouterr().out == "trial 34 ilc        3 N m: true ripple   0.100 % pp\n"
+
+
+def test_learning_runs_in_rounds_of_the_points_still_learning_as_next_step_gives_them(plan):
+    """A round is the compensation trials, then one learning trial at every point still learning: the same
+    requests and seeds as `next_step` one by one, and ``begun`` the records before the round, wherever in
+    it the records stop (a resume). The point at 2 N m improves on and on; 4 N m stops after patience."""
+    c = plan.config.campaign
+
+    def key(step):
+        return step.role, step.request.seed, step.request.torque_setpoint_nm
+
+    records = [done(i + 1, "grid", r.torque_setpoint_nm, speed=r.speed_setpoint_hz) for i, r in enumerate(plan.grid)]
+    records += [done(5, "baseline", 2.0), done(6, "baseline", 4.0)]
+    rounds = []
+    while (step := plan.next_step(records)) is not None and step.role in ("compensate", "learn"):
+        begun, steps = plan.learning_round(records)
+        assert begun == len(records)
+        rounds.append([s.request.torque_setpoint_nm for s in steps])
+        for k, s in enumerate(steps):
+            again, rest = plan.learning_round(records)
+            assert again == begun
+            assert [key(t) for t in rest] == [key(t) for t in steps[k:]]
+            expected = plan.next_step(records)
+            assert (expected.role, expected.request.seed, expected.request.torque_setpoint_nm) == \
+                (s.role, s.request.seed, s.request.torque_setpoint_nm)
+            repeatable = 0.5 ** len(records) if s.request.torque_setpoint_nm == 2.0 else 0.01
+            records.append(done(len(records) + 1, s.role, s.request.torque_setpoint_nm, repeatable))
+    assert rounds[0] == [2.0, 4.0]  # the compensation trials
+    assert rounds[1:c.patience + 1] == [[2.0, 4.0]] * c.patience
+    assert rounds[c.patience + 1:] == [[2.0]] * (c.learn_trials - c.patience)
+    assert plan.learning_round(records) == (len(records), [])
 
 
 def test_trials_that_neither_learn_nor_wait_for_learning_come_together_as_the_plan_gives_them(plan):

@@ -142,11 +142,37 @@ class CampaignPlan:
                                     step.request.speed_setpoint_hz))
         return steps
 
+    def learning_round(self, records: list[TrialRecord]) -> tuple[int, list[Step]]:
+        """The steps left in the current round of the compensate or learning phase, and how many records came
+        before the round began (``len(records)`` when none of it has run); no steps in any other phase.
+
+        A round is one trial at every learned point still learning (`learn_finished`), in the plan's order;
+        the compensation trials are the first. Its requests are shaped from the pipeline as it stood when the
+        round began, so its trials may run at once; the pipeline learns from them in the plan's order. The
+        steps and seeds are those `next_step` gives one by one.
+        """
+        step = self.next_step(records)
+        if step is None or step.role not in ("compensate", "learn"):
+            return len(records), []
+        if step.role == "compensate":
+            left = [p for p in self.learned if not records_at(records, p, ("compensate",))]
+            begun = len(records) - sum(r.role == "compensate" for r in records)
+        else:
+            counts = {p: len(records_at(records, p, ("learn",))) for p in self.learned}
+            learning = [p for p in self.learned if not self.learn_finished(records, p)]
+            lap = min(counts[p] for p in learning)
+            left = [p for p in learning if counts[p] == lap]
+            begun = len(records) - sum(counts[p] == lap + 1 for p in self.learned)
+        return begun, [Step(step.phase, step.role, self.base_request(point, trial_seed(self.seed, len(records) + k)))
+                       for k, point in enumerate(left, start=1)]
+
     def next_step(self, records: list[TrialRecord]) -> Step | None:
         """The trial after ``records`` (every trial done so far); None when the campaign is over.
 
         Order: the grid; an uncompensated trial at every learned point; a compensation trial at each; learning
-        point by point; then, per validation point, an uncompensated and a compensated trial.
+        in rounds (`learning_round`): the next trial at the point still learning with the fewest learning
+        trials, the first such in the plan's order; then, per validation point, an uncompensated and a
+        compensated trial.
         """
         n = len(records)
         if n < len(self.grid):
@@ -156,9 +182,11 @@ class CampaignPlan:
             for point in self.learned:
                 if not records_at(records, point, (role,)):
                     return Step(phase, role, self.base_request(point, seed))
-        for point in self.learned:
-            if not self.learn_finished(records, point):
-                return Step(self.learning_phase, "learn", self.base_request(point, seed))
+        learning = {p: len(records_at(records, p, ("learn",))) for p in self.learned
+                    if not self.learn_finished(records, p)}
+        if learning:
+            point = min(learning, key=learning.get)  # the first of the fewest: dicts keep the plan's order
+            return Step(self.learning_phase, "learn", self.base_request(point, seed))
         for point in self.validated:
             for role in ("baseline", "validate"):
                 if not records_at(records, point, (role,)):

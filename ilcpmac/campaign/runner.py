@@ -8,9 +8,10 @@ Phases (report ch. 1-4, then beyond):
    of every reduction factor.
 2. ``compensate``: one trial per learned point with the pipeline's corrections
    (current-sensor calibration, cogging feed-forward) applied.
-3. learning (``ilc``, or ``learn`` when the pipeline has no ilc stage): per
-   learned point in turn, trials until the measured ripple stops improving or
-   [campaign] learn_trials. When it ends, the compensation the drive applies
+3. learning (``ilc``, or ``learn`` when the pipeline has no ilc stage): in
+   rounds of one trial at every learned point still learning
+   (`CampaignPlan.learning_round`), until the measured ripple at a point stops
+   improving or [campaign] learn_trials. When it ends, the compensation the drive applies
    (`ilcpmac.compensation.Compensation`: the pipeline's calibration and its
    feed-forward at every learned point) is written to compensation.json.
 4. ``validate``: per validation point (never learned), an uncompensated trial
@@ -170,18 +171,32 @@ class CampaignRunner:
             elif self.pipeline is None:
                 self._start_pipeline()
             if step.role in ("compensate", "learn"):
-                self._finish(step, self._run(self.pipeline.shape(step.request)))
+                self._run_round(*self.plan.learning_round(self.records))
             else:
-                self._run_at_once(self.plan.independent_steps(self.records))
+                steps = self.plan.independent_steps(self.records)
+                self._run_at_once(steps, [self._compensation().apply(s.request) if s.role == "validate"
+                                          else s.request for s in steps])
 
     def _run(self, request: TrialRequest) -> TrialData:
         trial = self.backend.run_trial(request)
         return as_written(replace(trial, request=request))
 
-    def _run_at_once(self, steps: list[Step]) -> None:
-        """Run trials that neither learn nor depend on learning (`CampaignPlan.independent_steps`) in parallel
-        where the backend allows; finish them in the plan's order, as if they had run one by one."""
-        requests = [self._compensation().apply(s.request) if s.role == "validate" else s.request for s in steps]
+    def _run_round(self, begun: int, steps: list[Step]) -> None:
+        """Run what is left of a round of learning (`CampaignPlan.learning_round`): every request shaped by the
+        pipeline as it stood when the round began (after trial ``begun``: restored from that trial's state when
+        part of the round ran before a resume), then all at once (`_run_at_once`)."""
+        if begun == len(self.records):
+            self._run_at_once(steps, [self.pipeline.shape(s.request) for s in steps])
+            return
+        self.pipeline.restore(self.run_dir.state(begun)["pipeline"])
+        requests = [self.pipeline.shape(s.request) for s in steps]
+        self.pipeline.restore(self.run_dir.state(len(self.records))["pipeline"])
+        self._run_at_once(steps, requests)
+
+    def _run_at_once(self, steps: list[Step], requests: list[TrialRequest]) -> None:
+        """Run the ``requests`` of ``steps``, trials whose requests do not depend on one another
+        (`CampaignPlan.independent_steps`, `CampaignPlan.learning_round`), in parallel where the backend
+        allows; finish them in the plan's order, as if they had run one by one."""
         workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1, len(steps))
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
             for step, trial in zip(steps, pool.map(self._run, requests)):
