@@ -264,11 +264,11 @@ def test_before_after_shows_measured_and_true_torque_over_one_revolution(report_
         assert axis.get_title().startswith(f"2 N m at 0.9 Hz, {when} (trial ")
         assert axis.get_ylabel() == "torque (mN m)"
         assert axis.get_xlabel() == plotting.ANGLE_LABEL and axis.get_xlim() == (0.0, 360.0)
-        assert _legend_texts(axis) == ["measured", "true"]
+        assert _legend_texts(axis) == ["torque sensor", "true"]
     assert spectrum.get_xlabel() == "harmonic (per mechanical revolution)"
     assert spectrum.get_ylabel() == "amplitude (mN m)" and spectrum.get_yscale() == "log"
-    assert _legend_texts(spectrum) == ["uncompensated, measured", "uncompensated, true", "final, measured",
-                                       "final, true"]
+    assert _legend_texts(spectrum) == ["uncompensated, torque sensor", "uncompensated, true",
+                                       "final, torque sensor", "final, true"]
 
 
 def test_learned_shows_each_stage_per_point_as_spectrum_and_over_a_cogging_period(run_report, report_figures):
@@ -285,19 +285,21 @@ def test_learned_shows_each_stage_per_point_as_spectrum_and_over_a_cogging_perio
 
 
 def test_each_stage_learned_part_adds_up_to_the_next_requests_feedforward(run_report):
-    """Rebuilt from the states of trial 9 (the first learning trial at 2 N m, 0.9 Hz), the stages' parts add up
-    to the feed-forward trial 10 (the next there) ran with."""
+    """Rebuilt from the states of trial 10 (the first learning trial at 4 N m, 0.9 Hz, which ends the first
+    learning round), the stages' parts add up to the feed-forward trial 12 (the next there, shaped as its
+    round began) ran with."""
     from dataclasses import replace
 
     from ilcpmac.report.plots import learned_feedforward
 
     records = run_report.records
-    assert [(r.index, r.phase, r.role, r.point) for r in records[8:10]] == [(9, "ilc", "learn", (2.0, 0.9)),
-                                                                            (10, "ilc", "learn", (2.0, 0.9))]
-    learned = learned_feedforward(replace(run_report, records=records[:9]))[0]
-    assert learned.record.index == 9 and list(learned.tables_nm) == ["current-sensor", "cogging", "ilc"]
+    assert [(r.index, r.phase, r.role, r.point) for r in records[8:12]] == [
+        (9, "ilc", "learn", (2.0, 0.9)), (10, "ilc", "learn", (4.0, 0.9)),
+        (11, "ilc", "learn", (2.0, 0.9)), (12, "ilc", "learn", (4.0, 0.9))]
+    learned = learned_feedforward(replace(run_report, records=records[:10]))[1]
+    assert learned.record.index == 10 and list(learned.tables_nm) == ["current-sensor", "cogging", "ilc"]
     assert not learned.tables_nm["current-sensor"].any()
-    applied = np.asarray(run_report.files.read_json(run_report.files.state(10))["request"]["feedforward_nm"])
+    applied = np.asarray(run_report.files.read_state(12)["request"]["feedforward_nm"])
     np.testing.assert_allclose(sum(learned.tables_nm.values()), applied, atol=1e-12)
 
 

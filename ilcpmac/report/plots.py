@@ -2,8 +2,8 @@
 
 - ``ripple_per_trial``: peak-to-peak ripple of every trial, coloured by torque set point, the campaign's
   phases as bands;
-- ``before_after_<T>Nm_<S>Hz``: per learned operating point, the measured and (simulator) true torque ripple
-  over one revolution before compensation and after the last trial, and their spectra;
+- ``before_after_<T>Nm_<S>Hz``: per learned operating point, the torque sensor's and (simulator) true torque
+  ripple over one revolution before compensation and after the last trial, and their spectra;
 - ``learned_<T>Nm_<S>Hz``: per learned point, the feed-forward each stage has learned by the last trial, as
   a spectrum and over one cogging period;
 - ``operating_range``: the final ripple over torque x speed at the learned and the validation points.
@@ -137,7 +137,8 @@ def _spectra(trial, counts_per_rev: int, max_harmonic: int) -> dict[str, TorqueS
     """The torque sensor's and (on the simulator) the true torque's spectra, of those the trial has."""
     out = {}
     if trial.torque_nm is not None:
-        out["measured"] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)
+        out["torque sensor"] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev,
+                                                 max_harmonic)
     if trial.torque_true_nm is not None:
         out["true"] = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_true_nm, counts_per_rev, max_harmonic)
     return out
@@ -154,8 +155,8 @@ def _spectrum_points(axis: Axes, amplitudes_nm: dict[str, np.ndarray], **style) 
 
 
 def before_after(report: RunReport) -> dict[str, Figure]:
-    """Per learned point: measured and true torque ripple over one revolution, uncompensated (baseline) and
-    after the last trial, and their spectra; by file name."""
+    """Per learned point: the torque sensor's and the true torque ripple over one revolution, uncompensated
+    (baseline) and after the last trial, and their spectra; by file name."""
     cpr, H = report.description.motor.counts_per_rev, report.max_harmonic
     degrees = plotting.mechanical_degrees(np.arange(cpr), cpr)
     figures = {}
