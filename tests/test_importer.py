@@ -20,7 +20,6 @@ from ilcpmac.bench import read_bench
 from ilcpmac.bench.format import Bench, write_backemf_csv
 from ilcpmac.bench.importer import (
     MAX_TIME_S,
-    REVERSE_LAPS,
     import_log,
     import_logs,
     read_mapping,
@@ -187,24 +186,6 @@ def test_too_coarse_log_refused_with_the_numbers(tmp_path, native):
     largest_step = np.diff(np.loadtxt(log, delimiter=",", skiprows=1)[:, 1]).max() * COUNTS_PER_REV / (2 * np.pi)
     assert 5 < largest_step < 7  # the speed varies about its 0.5 Hz mean
     assert message.endswith(f"the data resolve harmonics up to {int(COUNTS_PER_REV / (2 * largest_step))}")
-
-
-@pytest.mark.parametrize("turn_row", [0, 1000])
-def test_reverse_lap_refused(tmp_path, native, turn_row):
-    """A log running backwards from ``turn_row`` on (a mirrored lap): one line, naming the row where it turns,
-    saying why (a reverse lap is not a mirrored forward one) and what to do."""
-    trial, backemf = native
-    mapping = read_mapping(write_folder(tmp_path, backemf, PHASE_LOG))
-    log = write_phase_log(tmp_path / "log.csv", trial, 2_000.0)
-    table = np.loadtxt(log, delimiter=",", skiprows=1)
-    table[turn_row:, 1] = 2 * table[turn_row, 1] - table[turn_row:, 1]
-    np.savetxt(log, table, delimiter=",", header="t,theta,ia,ib,ic,tq", comments="", fmt="%.12g")
-    expected = "theta never increases" if turn_row == 0 else f"line {turn_row + 3}: theta runs backwards"
-    with pytest.raises(BenchFormatError, match=f"log.csv: {expected}: reverse laps are refused") as e:
-        import_log(log, mapping)
-    message = str(e.value)
-    assert "\n" not in message and message.endswith(REVERSE_LAPS)
-    assert "current loop's lag" in message and "cut the log into forward laps, or record forward laps" in message
 
 
 @pytest.mark.parametrize(("change", "expected"), [

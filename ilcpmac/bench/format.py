@@ -68,8 +68,9 @@ MAX_TORQUE_NM = 1e5
 MAX_SPEED_HZ = 1e3
 MAX_CALIBRATION = 1e9
 _MOTOR_KEYS = {"pole_pairs": int, "slots": int, "counts_per_rev": int, "inertia": float, "backemf_file": str}
-#: optional [motor] keys: whether the trials carry a torque column, and the time stamps' resolution, s
-_MOTOR_OPTIONAL_KEYS = {"torque_sensor": bool, "timer_resolution_s": float}
+#: optional [motor] keys: whether the trials carry a torque column, the time stamps' resolution, s, and whether
+#: the trials are reverse laps mirrored
+_MOTOR_OPTIONAL_KEYS = {"torque_sensor": bool, "timer_resolution_s": float, "mirrored": bool}
 _SENSOR_KEYS = {"current_scale": list, "current_offset": list, "torque_gain": float}
 _TRIAL_KEYS = {"file": str, "torque_setpoint": float, "speed_setpoint": float}
 
@@ -88,6 +89,10 @@ class MotorInfo:
     timer_resolution_s : float or None
         The time stamps' resolution, s (None: not stated; `ilcpmac.identify.encoder.timer_resolution_s`
         then reads it off the stamps).
+    mirrored : bool
+        The trials are reverse laps of the motor stored as forward laps of its mirror image (phi = -theta;
+        backemf.csv the mirror's table, `mirrored_table`); the identification reports in the motor's own
+        coordinates (docs/bench-format.md, "Reverse laps").
     """
 
     pole_pairs: int
@@ -96,11 +101,23 @@ class MotorInfo:
     inertia_kgm2: float
     torque_sensor: bool = True
     timer_resolution_s: float | None = None
+    mirrored: bool = False
 
     @property
     def cogging_order(self) -> int:
         """lcm(slots, 2 pole_pairs): cogging periods per mechanical revolution."""
         return math.lcm(self.slots, 2 * self.pole_pairs)
+
+
+def mirrored_table(table: np.ndarray) -> np.ndarray:
+    """The mirror image of a per-count table (axis 0, one row per count of a revolution): -t((N - c) mod N).
+
+    A reverse lap of a motor is a forward lap of its mirror in phi = -theta, with the back-EMF K'_p(phi) =
+    -K_p(-phi), the cogging -tau_c(-phi) and the encoder's line errors -e(-phi) (docs/bench-format.md,
+    "Reverse laps"); mirroring twice gives the table back.
+    """
+    table = np.asarray(table)
+    return -table[-np.arange(table.shape[0]) % table.shape[0]]
 
 
 @dataclass(frozen=True)
@@ -476,8 +493,9 @@ def _motor(table, where: str) -> tuple[MotorInfo, str]:
     torque_sensor = _table_value(table, "torque_sensor", bool, where) if "torque_sensor" in table else True
     timer = _positive(table, "timer_resolution_s", where, MAX_TIMER_RESOLUTION_S) \
         if "timer_resolution_s" in table else None
+    mirrored = _table_value(table, "mirrored", bool, where) if "mirrored" in table else False
     motor = MotorInfo(values["pole_pairs"], values["slots"], values["counts_per_rev"], values["inertia"],
-                      torque_sensor, timer)
+                      torque_sensor, timer, mirrored)
     return motor, _relative_name(table, "backemf_file", where)
 
 
@@ -606,6 +624,8 @@ def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
         lines.append("torque_sensor = false")
     if m.timer_resolution_s is not None:
         lines.append(f"timer_resolution_s = {_toml_value(m.timer_resolution_s)}")
+    if m.mirrored:
+        lines.append("mirrored = true  # reverse laps, stored as forward laps of the motor's mirror image")
     lines.append("")
     if sensors is not None:
         lines += ["[sensors]", *(f"{key} = {_toml_value(value)}" for key, value in sensors.to_json().items()), ""]

@@ -9,7 +9,10 @@ rows, with an estimate of the interpolation error (`InterpolationError`).
 Logs without a torque column make a bench without a torque sensor ([motor]
 torque_sensor = false), identified on the torque of the encoder's time stamps:
 the interpolated crossing times, whose resolution bench.toml states
-(`stamp_resolution_s`). Reverse laps are refused (`REVERSE_LAPS` says why).
+(`stamp_resolution_s`). A log is cut into laps where its position turns;
+reverse laps are mirrored (phi = -theta, torque negated, time kept) into a
+bench of the motor's mirror image beside the forward one (`reverse_folder`,
+[motor] mirrored = true; docs/bench-format.md, "Reverse laps").
 A mapping with ``[log] kind = "scan"`` marks its logs as a standstill
 position scan (`ilcpmac.bench.standstill`): their rows are kept as they are,
 in standard units, with the direction of motion, and written as a scan folder.
@@ -23,6 +26,7 @@ import dataclasses
 import io
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +46,7 @@ from ilcpmac.bench.format import (
     as_written,
     check_backemf,
     check_trial,
+    mirrored_table,
     read_backemf_csv,
     write_bench,
 )
@@ -53,18 +58,15 @@ from ilcpmac.model.motor import backemf_problem, in_range, shown
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.records import SensorCalibration, TrialData
 
-__all__ = ["ImportMapping", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint", "MAX_LOG_ROWS", "MAX_SCALE",
-           "MAX_TIME_S", "MIN_SCALE", "REVERSE_LAPS", "bench_motor", "import_log", "import_logs", "import_scan",
-           "read_log", "read_mapping", "resample_to_counts", "stamp_resolution_s", "write_scan_folder"]
+__all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint",
+           "MAX_LOG_ROWS", "MAX_SCALE", "MAX_TIME_S", "MIN_SCALE", "bench_motor", "import_laps", "import_log",
+           "import_logs", "import_scan", "read_log", "read_mapping", "resample_to_counts", "reverse_folder",
+           "stamp_resolution_s", "write_scan_folder"]
 
 #: most data rows of one log (20 kHz for 200 s) ...
 MAX_LOG_ROWS = 2**22
 #: ... and bytes per row on average: a larger file is refused before it is parsed
 MAX_LOG_ROW_BYTES = 128
-#: why a reverse lap is refused, and what to do (docs/bench-format.md, "Reverse laps")
-REVERSE_LAPS = ("reverse laps are refused (the identification models forward motion: run backwards, the current "
-                "loop's lag, the back-EMF's sign and the brake act the other way, and a mirrored position moves the "
-                "back-EMF and the cogging); cut the log into forward laps, or record forward laps")
 #: finest resolution of the time stamps written (the trial files' 0.1 us)
 MIN_STAMP_RESOLUTION_S = 1e-7
 #: largest |time| of a log once scaled, s: the trial files' 0.1 us stamps are exact in a double up to 2^53 of
@@ -224,6 +226,11 @@ class ImportedLog:
         1 - sinc^2(H f / f_s): how much the crossing times' linear interpolation lowers the encoder-derived
         torque at harmonic H = [log] highest_harmonic of a revolution, at the log's mean speed f (Hz) and
         row rate f_s; (pi H f / f_s)^2 / 3 for H f << f_s.
+    reverse : bool
+        A reverse lap: ``trial`` is its mirror image (counts -c, torque and set point negated, time kept),
+        a forward lap of the mirrored motor.
+    lines : (int, int) or None
+        The file lines of the lap's first and last rows, in a log that turns; None for a whole log.
     """
 
     log: Path
@@ -232,6 +239,26 @@ class ImportedLog:
     resolved_harmonic: int
     stamp_resolution_s: float
     torque_loss: float
+    reverse: bool
+    lines: tuple[int, int] | None
+
+
+@dataclass(frozen=True)
+class ImportedBench:
+    """A bench folder an import wrote.
+
+    Attributes
+    ----------
+    folder : Path
+    bench : Bench
+        Its motor says ``mirrored`` for the reverse laps' bench.
+    laps : tuple of ImportedLog
+        The lap behind each trial of ``bench``, in order.
+    """
+
+    folder: Path
+    bench: Bench
+    laps: tuple[ImportedLog, ...]
 
 
 def read_mapping(path: str | Path) -> ImportMapping:
@@ -442,82 +469,144 @@ def resample_to_counts(time_s: np.ndarray, position_counts: np.ndarray, values: 
     return count, at, values_at, time_error, value_error
 
 
+def _laps(log: Path, position_counts: np.ndarray, mapping: ImportMapping) -> list[tuple[int, int, bool]]:
+    """The laps of a log: (first row, last row, reverse) of each run of rows in one direction, a turning row
+    ending one lap and starting the next; rows holding still belong to the lap they follow (or, first in
+    the log, to the first).
+
+    Raises
+    ------
+    BenchFormatError
+        A position that never changes; in a log that turns, a lap shorter than a revolution (a position
+        that dithers, or a partial lap at a turn).
+    """
+    layout, cpr = mapping.layout, mapping.motor.counts_per_rev
+    step = np.diff(position_counts)
+    moving = np.flatnonzero(step)
+    if not moving.size:
+        raise BenchFormatError(f"{log}: {layout.position} never changes (the motor did not turn)")
+    direction = step[moving] < 0
+    turns = moving[1:][direction[1:] != direction[:-1]]
+    first = np.concatenate([[0], turns])
+    last = np.concatenate([turns, [position_counts.size - 1]])
+    reverse = np.concatenate([direction[:1], direction[1:][direction[1:] != direction[:-1]]])
+    laps = [(int(a), int(b), bool(r)) for a, b, r in zip(first, last, reverse)]
+    if len(laps) > 1:
+        for a, b, r in laps:
+            span = abs(position_counts[b] - position_counts[a])
+            if span < cpr:
+                raise BenchFormatError(
+                    f"{log}: lines {_line(layout, a)}-{_line(layout, b)}: a {'reverse' if r else 'forward'} lap of "
+                    f"{span / cpr:.3g} revolutions between turns of {layout.position}; in a log that turns each "
+                    "lap must cover a whole revolution (a position that dithers, or a partial lap: cut the log)")
+    return laps
+
+
+def _line(layout: LogLayout, row: int) -> int:
+    """The file line of data row ``row`` (0-based)."""
+    return layout.header_lines + 1 + row
+
+
+def import_laps(log: Path, mapping: ImportMapping) -> list[ImportedLog]:
+    """A drive log cut into laps where its position turns (`_laps`), each resampled onto encoder counts as a
+    bench trial (`import_log`'s checks, per lap); a reverse lap as its mirror image (`ImportedLog.reverse`)."""
+    columns, time_s, position = _time_and_position(log, mapping)
+    laps = _laps(log, position, mapping)
+    return [_import_lap(log, mapping, columns, time_s, position, lap, len(laps) > 1) for lap in laps]
+
+
 def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
-    """One drive log resampled onto encoder counts as a bench trial, checked as `read_bench` checks one.
+    """A drive log that does not turn, resampled onto encoder counts as a bench trial, checked as `read_bench`
+    checks one; a log running backwards gives its mirror image (`ImportedLog.reverse`).
 
     Raises
     ------
     BenchFormatError
         Naming the log: time not increasing, time or position beyond what a
-        trial file holds (`MAX_TIME_S`, 2^53 counts), a position that runs
-        backwards (`REVERSE_LAPS`), a mean speed beyond a bench's 1000 Hz,
-        rows too coarse for [log] highest_harmonic (with the highest harmonic
-        they resolve), crossing times too coarse for a log without torque, a
-        trial at odds with [bench] as its file will hold it (`as_written`).
+        trial file holds (`MAX_TIME_S`, 2^53 counts), a position that never
+        changes or that turns (`import_laps` cuts such a log into laps), a
+        mean speed beyond a bench's 1000 Hz, rows too coarse for [log]
+        highest_harmonic (with the highest harmonic they resolve), crossing
+        times too coarse for a log without torque, a trial at odds with
+        [bench] as its file will hold it (`as_written`).
     """
+    columns, time_s, position = _time_and_position(log, mapping)
+    laps = _laps(log, position, mapping)
+    if len(laps) > 1:
+        raise BenchFormatError(f"{log}: line {_line(mapping.layout, laps[1][0])}: {mapping.layout.position} turns "
+                               f"({len(laps)} laps; import_laps gives each)")
+    return _import_lap(log, mapping, columns, time_s, position, laps[0], False)
+
+
+def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray], time_s: np.ndarray,
+                position: np.ndarray, lap: tuple[int, int, bool], part: bool) -> ImportedLog:
+    """Rows ``lap`` = (first, last, reverse) of a log as a trial; ``part``: the log has other laps (messages
+    name the lap's lines). A reverse lap is mirrored: position -theta, torque negated, currents and time as
+    they are; phase references from i_q by the inverse Park transform at the motor's own angle."""
     layout, motor = mapping.layout, mapping.motor
     cpr = motor.counts_per_rev
-    columns, time_s, position = _time_and_position(log, mapping)
+    first, last, reverse = lap
+    lines = (_line(layout, first), _line(layout, last)) if part else None
+    where = f"{log}: lines {lines[0]}-{lines[1]}" if part else str(log)
+    rows = slice(first, last + 1)
+    sign = -1.0 if reverse else 1.0
+    time_s, position = time_s[rows], sign * position[rows]
     step = np.diff(position)
-    if np.all(step <= 0):
-        raise BenchFormatError(f"{log}: {layout.position} never increases: {REVERSE_LAPS}")
-    back = np.flatnonzero(step < 0)
-    if back.size:
-        raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.position} runs backwards: "
-                               f"{REVERSE_LAPS}")
     speed_hz = (position[-1] - position[0]) / cpr / (time_s[-1] - time_s[0])
     if speed_hz > MAX_SPEED_HZ:
-        raise BenchFormatError(f"{log}: {layout.time} and {layout.position} give a mean speed of {speed_hz:.3g} Hz, "
-                               f"beyond a bench's {MAX_SPEED_HZ:g} Hz (wrong time_s_per_unit or position unit in "
+        raise BenchFormatError(f"{where}: {layout.time} and {layout.position} give a mean speed of {speed_hz:.3g} "
+                               f"Hz, beyond a bench's {MAX_SPEED_HZ:g} Hz (wrong time_s_per_unit or position unit in "
                                f"{mapping.path}?)")
     largest = float(step.max())
     resolved = min(math.floor(cpr / (2.0 * largest)), cpr // 2)
     if resolved < layout.highest_harmonic:
         raise BenchFormatError(
-            f"{log}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
+            f"{where}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
             f"at the fastest, fewer than two per period of harmonic {layout.highest_harmonic} ([log] "
             f"highest_harmonic); the data resolve harmonics up to {resolved}")
     resolution_s = stamp_resolution_s(time_s, position, layout.timer_resolution_s)
     if layout.torque is None and resolution_s > MAX_TIMER_RESOLUTION_S:
-        raise BenchFormatError(f"{log}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
+        raise BenchFormatError(f"{where}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
                                f"{MAX_TIMER_RESOLUTION_S:g} s: too coarse for the torque of the encoder's time stamps "
                                f"(a log without torque; a finer position or time column is needed)")
     current_names = _current_columns(layout)
     torque_names = [] if layout.torque is None else [layout.torque]
-    values = np.column_stack([columns[n] for n in current_names + torque_names])
-    values *= np.array([layout.current_a_per_unit] * len(current_names) + [layout.torque_nm_per_unit] * len(
+    values = np.column_stack([columns[n][rows] for n in current_names + torque_names])
+    values *= np.array([layout.current_a_per_unit] * len(current_names) + [sign * layout.torque_nm_per_unit] * len(
         torque_names))
     count, at, values_at, time_error, value_error = resample_to_counts(time_s, position, values)
     max_rows = min(MAX_REVOLUTIONS * cpr, MAX_TRIAL_ROWS)
     if count.size > max_rows or count.size < 2:
-        raise BenchFormatError(f"{log}: crosses {count.size} encoder counts; a trial holds 2 to {max_rows}")
+        raise BenchFormatError(f"{where}: crosses {count.size} encoder counts; a trial holds 2 to {max_rows}")
     if layout.i_q is not None:
-        currents = _inverse_park(values_at[:, 0], count, motor, layout.angle_offset_rad)
+        currents = _inverse_park(values_at[:, 0], sign * count, motor, layout.angle_offset_rad)
         current_error = value_error[:, 0]
     else:
         currents = values_at[:, :3]
         current_error = value_error[:, :3].max(axis=1)
     point = mapping.points.get(log.name)
-    torque, speed = point if point is not None else _operating_point(log, count, at, currents, mapping)
+    backemf = mirrored_table(mapping.backemf_nm_per_a) if reverse else mapping.backemf_nm_per_a
+    torque, speed = point if point is not None else _operating_point(where, count, at, currents, backemf, mapping)
     trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents),
                       values_at[:, -1].copy() if torque_names else None,
                       i_meas_a=currents.copy() if layout.current == "measured" else None)
-    _check_as_written(trial, motor, log)
+    _check_as_written(trial, motor, where)
     error = InterpolationError(float(time_error.max()), float(current_error.max()),
                                float(value_error[:, -1].max()) if torque_names else None)
     highest_hz = layout.highest_harmonic * trial.mean_speed_hz(cpr)
     row_rate_hz = (time_s.size - 1) / (time_s[-1] - time_s[0])
-    return ImportedLog(log, trial, error, resolved, resolution_s, float(1.0 - np.sinc(highest_hz / row_rate_hz) ** 2))
+    return ImportedLog(log, trial, error, resolved, resolution_s, float(1.0 - np.sinc(highest_hz / row_rate_hz) ** 2),
+                       reverse, lines)
 
 
-def _check_as_written(trial: TrialData, motor: MotorInfo, log: Path) -> None:
+def _check_as_written(trial: TrialData, motor: MotorInfo, where: str) -> None:
     """``trial`` as its file will hold it (`as_written`: stamps to 0.1 us, currents and torque to 1e-6) must pass
     `check_trial` and keep its stamps increasing, as `read_bench` requires."""
     written = as_written(trial)
-    check_trial(written, motor, f"{log} (as a trial file holds it)")
+    check_trial(written, motor, f"{where} (as a trial file holds it)")
     same = np.flatnonzero(np.diff(written.time_s) <= 0)
     if same.size:
-        raise BenchFormatError(f"{log}: counts {trial.count[same[0]]} and {trial.count[same[0] + 1]} are crossed "
+        raise BenchFormatError(f"{where}: counts {trial.count[same[0]]} and {trial.count[same[0] + 1]} are crossed "
                                f"within the trial files' {MIN_STAMP_RESOLUTION_S:g} s stamps (too fast for "
                                "[bench] counts_per_rev)")
 
@@ -612,7 +701,8 @@ def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> Sc
 
     Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
     """
-    _check_logs(logs, mapping, out)
+    _check_new(out)
+    _check_logs(logs, mapping)
     scans = [import_scan(log, mapping) for log in logs]
     names = [f.name for f in dataclasses.fields(ScanData)]
     joined = ScanData(*(None if getattr(scans[0], name) is None else np.concatenate([getattr(s, name) for s in scans])
@@ -622,16 +712,19 @@ def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> Sc
     return joined
 
 
-def _check_logs(logs: list[Path], mapping: ImportMapping, out: Path) -> None:
-    """A new folder ``out``, each log given once (a bench folder holds each trial once), and every [[points]]
-    file among the logs."""
-    if (out / BENCH_FILE).exists():
-        raise BenchFormatError(f"{out}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+def _check_new(folder: Path) -> None:
+    """``folder`` must not hold a bench.toml yet."""
+    if (folder / BENCH_FILE).exists():
+        raise BenchFormatError(f"{folder}: holds a {BENCH_FILE} already (refused: choose a new folder)")
+
+
+def _check_logs(logs: list[Path], mapping: ImportMapping) -> None:
+    """Each log given once (a bench folder holds each trial once), and every [[points]] file among the logs."""
     seen: dict[object, Path] = {}
     for log in logs:
         identity = _file_identity(log)
         if identity in seen:
-            raise BenchFormatError(f"{log}: given twice (as {seen[identity]} before): each log makes one trial")
+            raise BenchFormatError(f"{log}: given twice (as {seen[identity]} before): each log is imported once")
         seen[identity] = log
     names = [log.name for log in logs]
     for name in mapping.points:
@@ -650,38 +743,60 @@ def _file_identity(path: Path) -> object:
     return status.st_dev, status.st_ino
 
 
-def _operating_point(log: Path, count: np.ndarray, time_s: np.ndarray, currents: np.ndarray,
-                     mapping: ImportMapping) -> tuple[float, float]:
-    """(torque N m, speed Hz) of a log [[points]] does not list, to 3 significant digits: the mean of
-    K(count) . i_ref (the current law's torque reference) and the mean speed."""
+def _operating_point(where: str, count: np.ndarray, time_s: np.ndarray, currents: np.ndarray,
+                     backemf_nm_per_a: np.ndarray, mapping: ImportMapping) -> tuple[float, float]:
+    """(torque N m, speed Hz) of a lap [[points]] does not list, to 3 significant digits: the mean of
+    K(count) . i_ref (the current law's torque reference; for a mirrored lap, the mirror's table and counts
+    give the motor's reference negated) and the mean speed."""
     cpr = mapping.motor.counts_per_rev
-    torque = float(np.mean(np.sum(mapping.backemf_nm_per_a[count % cpr] * currents, axis=1)))
+    torque = float(np.mean(np.sum(backemf_nm_per_a[count % cpr] * currents, axis=1)))
     speed = (count[-1] - count[0]) / cpr / (time_s[-1] - time_s[0])
     if torque <= 0:
-        raise BenchFormatError(f"{log}: the mean torque reference is {torque:.3g} N m: give the log's operating "
-                               f"point in [[points]] of {mapping.path}")
+        raise BenchFormatError(f"{where}: the mean torque reference is {torque:.3g} N m in the direction of motion: "
+                               f"give the log's operating point in [[points]] of {mapping.path}")
     return float(f"{torque:.3g}"), float(f"{speed:.3g}")
 
 
-def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str = ".csv") -> list[ImportedLog]:
-    """Import every log, then write the bench folder ``out`` (trial_01 ... in the format of ``suffix``).
+def reverse_folder(out: Path) -> Path:
+    """The folder of the reverse laps of an import into ``out``: its path with "-reverse" appended."""
+    path = os.path.normpath(out)
+    if os.path.basename(path) in (".", ".."):
+        path = os.path.abspath(path)
+    return Path(path + "-reverse")
+
+
+def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str = ".csv") -> list[ImportedBench]:
+    """Import every log's laps (`import_laps`), then write the forward laps as the bench folder ``out`` and the
+    reverse ones, mirrored, as ``reverse_folder(out)`` (trial_01 ... in the format of ``suffix``, in the order
+    of the logs and their laps), each only if it gets a lap.
 
     Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
     """
-    _check_logs(logs, mapping, out)
+    _check_logs(logs, mapping)
     if mapping.layout.kind == "scan":
         raise BenchFormatError(f'{mapping.path}: [log] kind = "scan": a scan makes a scan folder (write_scan_folder)')
-    imported = [import_log(log, mapping) for log in logs]
-    names = tuple(f"trial_{i:02d}{suffix}" for i in range(1, len(imported) + 1))
-    write_bench(out, Bench(bench_motor(mapping, imported), mapping.backemf_nm_per_a, mapping.sensors,
-                           tuple(r.trial for r in imported), names))
-    return imported
+    imported = [lap for log in logs for lap in import_laps(log, mapping)]
+    parts = [(folder, laps) for folder, reverse in ((out, False), (reverse_folder(out), True))
+             if (laps := tuple(lap for lap in imported if lap.reverse == reverse))]
+    for folder, _ in parts:
+        _check_new(folder)
+    written = []
+    for folder, laps in parts:
+        motor = bench_motor(mapping, laps)
+        backemf = mirrored_table(mapping.backemf_nm_per_a) if motor.mirrored else mapping.backemf_nm_per_a
+        bench = Bench(motor, backemf, mapping.sensors, tuple(lap.trial for lap in laps),
+                      tuple(f"trial_{i:02d}{suffix}" for i in range(1, len(laps) + 1)))
+        write_bench(folder, bench)
+        written.append(ImportedBench(folder, bench, laps))
+    return written
 
 
-def bench_motor(mapping: ImportMapping, imported: list[ImportedLog]) -> MotorInfo:
-    """[motor] of the bench the logs make: without torque, torque_sensor = false and timer_resolution_s the
-    finest of the logs' `stamp_resolution_s` (one value per bench: the floor of the encoder-derived torque's
-    weights, which an understated value leaves to the measured scatter and an overstated one would raise)."""
-    if mapping.motor.torque_sensor:
-        return mapping.motor
-    return dataclasses.replace(mapping.motor, timer_resolution_s=min(r.stamp_resolution_s for r in imported))
+def bench_motor(mapping: ImportMapping, imported: Sequence[ImportedLog]) -> MotorInfo:
+    """[motor] of the bench that laps of one direction make: mirrored for reverse laps; without torque,
+    torque_sensor = false and timer_resolution_s the finest of the laps' `stamp_resolution_s` (one value per
+    bench: the floor of the encoder-derived torque's weights, which an understated value leaves to the
+    measured scatter and an overstated one would raise)."""
+    motor = dataclasses.replace(mapping.motor, mirrored=imported[0].reverse)
+    if motor.torque_sensor:
+        return motor
+    return dataclasses.replace(motor, timer_resolution_s=min(r.stamp_resolution_s for r in imported))

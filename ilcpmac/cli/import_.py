@@ -20,14 +20,15 @@ from ilcpmac.cli import console, main
 def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_format: str) -> None:
     """Turn drive LOGS into a bench folder.
 
-    Each log (rows at a fixed rate) is resampled onto encoder counts, one trial per log; prints each trial
-    written with its set point and the estimated interpolation error (docs/bench-format.md). Logs without a
-    torque column make a bench without a torque sensor. Logs of a standstill scan ([log] kind = "scan")
-    become one scan folder (docs/standstill.md).
+    Each log (rows at a fixed rate) is cut into laps where its position turns and each lap resampled onto
+    encoder counts, one trial per lap; prints each trial written with its set point and the estimated
+    interpolation error (docs/bench-format.md). Reverse laps are mirrored into a second bench folder,
+    OUT_DIR-reverse ([motor] mirrored = true). Logs without a torque column make a bench without a torque
+    sensor. Logs of a standstill scan ([log] kind = "scan") become one scan folder (docs/standstill.md).
     """
     from rich.markup import escape
 
-    from ilcpmac.bench.importer import bench_motor, import_logs, read_mapping, write_scan_folder
+    from ilcpmac.bench.importer import import_logs, read_mapping, write_scan_folder
 
     mapping = read_mapping(mapping_file)
     if mapping.layout.kind == "scan":
@@ -37,18 +38,24 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
                       f"reverse samples, holding {'torque' if scan.torque_nm is not None else 'currents'}")
         console.print(f"wrote scan.csv, scan.toml, backemf.csv and bench.toml to {out_dir}")
         return
-    imported = import_logs(list(logs), mapping, out_dir, f".{trial_format}")
     harmonic = mapping.layout.highest_harmonic
-    for i, r in enumerate(imported, start=1):
-        t, e = r.trial, r.error
-        torque = (f", {e.torque_nm:.2g} N m" if e.torque_nm is not None else
-                  f"; no torque: encoder torque at harmonic {harmonic} {100 * r.torque_loss:.2g} % low")
-        console.print(f"{escape(str(r.log))} -> trial_{i:02d}.{trial_format}: {t.n_samples} counts, "
-                      f"{t.torque_setpoint_nm:g} N m at {t.speed_setpoint_hz:g} Hz, harmonics up to "
-                      f"{r.resolved_harmonic} resolved; interpolation error <= {e.time_s:.2g} s, "
-                      f"{e.current_a:.2g} A{torque}")
-    if not mapping.motor.torque_sensor:
-        resolution = bench_motor(mapping, imported).timer_resolution_s
-        console.print(f"no torque column: \\[motor] torque_sensor = false, timer_resolution_s = {resolution:.3g} "
-                      "(identified on the encoder's time stamps)")
-    console.print(f"wrote {len(imported)} trials, backemf.csv and bench.toml to {escape(str(out_dir))}")
+    for imported in import_logs(list(logs), mapping, out_dir, f".{trial_format}"):
+        mirrored = imported.bench.motor.mirrored
+        for name, r in zip(imported.bench.trial_files, imported.laps):
+            t, e = r.trial, r.error
+            lap = "" if r.lines is None else f" lines {r.lines[0]}-{r.lines[1]}"
+            target = f"{imported.folder.name}/{name}" if mirrored else name
+            torque = (f", {e.torque_nm:.2g} N m" if e.torque_nm is not None else
+                      f"; no torque: encoder torque at harmonic {harmonic} {100 * r.torque_loss:.2g} % low")
+            console.print(f"{escape(str(r.log))}{lap}{' (reverse, mirrored)' if mirrored else ''} -> "
+                          f"{escape(target)}: {t.n_samples} counts, {t.torque_setpoint_nm:g} N m at "
+                          f"{t.speed_setpoint_hz:g} Hz, harmonics up to {r.resolved_harmonic} resolved; interpolation "
+                          f"error <= {e.time_s:.2g} s, {e.current_a:.2g} A{torque}")
+        motor = imported.bench.motor
+        if not motor.torque_sensor:
+            console.print(f"no torque column: \\[motor] torque_sensor = false, timer_resolution_s = "
+                          f"{motor.timer_resolution_s:.3g} (identified on the encoder's time stamps)")
+        note = (" - reverse laps as forward laps of the motor's mirror image (\\[motor] mirrored = true, "
+                "backemf.csv mirrored)" if mirrored else "")
+        console.print(f"wrote {len(imported.laps)} trials, backemf.csv and bench.toml to "
+                      f"{escape(str(imported.folder))}{note}")

@@ -11,7 +11,8 @@
 5. the report's decoupling by the pseudo-inverse (`decoupling`, sec. 1.4, ch. 4);
 
 and returns an `IdentificationResult` holding both methods' estimates and,
-in its main fields, the better one of each.
+in its main fields, the better one of each; a bench of reverse laps
+([motor] mirrored = true) in the motor's own coordinates (`mirror`).
 
 Without a torque sensor (or asked to), the torque is the encoder-derived one
 (`ilcpmac.identify.encoder`): the trials are reduced on it with the encoder's
@@ -34,6 +35,7 @@ from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.encoder import EncoderIdentification, identify_on_encoder
 from ilcpmac.identify.joint import JointEstimate, fit_joint
+from ilcpmac.identify.mirror import in_motor_coordinates
 from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
@@ -228,11 +230,12 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
     diagnostics = _diagnostics(tables, system, joint, sensor)
     if encoder is not None:
         diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
-    return IdentificationResult(
+    result = IdentificationResult(
         **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
         messages=tuple(messages), diagnostics=diagnostics,
         details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
         torque_source=source, **_encoder_error_fields(encoder))
+    return in_motor_coordinates(result) if bench.motor.mirrored else result
 
 
 class _UnitSensor:

@@ -1,0 +1,48 @@
+"""A bench of reverse laps ([motor] mirrored = true) identified in its mirror's coordinates, reported in the motor's.
+
+A reverse lap of a motor M is a forward lap of its mirror image M' in
+phi = -theta (docs/bench-format.md, "Reverse laps"): K'_p(phi) = -K_p(-phi),
+tau'_c(phi) = -tau_c(-phi), e'(phi) = -e(-phi), the torque negated; the
+currents, the back-EMF voltage, the current loop, the brake and the torque
+sensor's dynamics are the same in time. Identifying M' therefore gives M's
+delta, epsilon, alpha, beta, J* and current loop as they are, and M's cogging
+and encoder error by mirroring M''s back (`mirrored_table`, its own inverse).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from ilcpmac.bench.format import mirrored_table
+from ilcpmac.records import IdentificationResult, MethodEstimates
+
+__all__ = ["MIRRORED_MESSAGE", "in_motor_coordinates"]
+
+#: the line a mirrored bench's result carries in its messages
+MIRRORED_MESSAGE = ("reverse laps (bench.toml: mirrored = true): identified as forward laps of the motor's mirror "
+                    "image (phi = -theta); the cogging and the encoder error are mirrored back into the motor's "
+                    "coordinates, everything else is as identified (the figures of --plots show the mirror)")
+
+
+def in_motor_coordinates(result: IdentificationResult) -> IdentificationResult:
+    """``result`` of a mirrored bench in the motor's own coordinates, with `MIRRORED_MESSAGE` in its messages.
+
+    The cogging tables (the result's and each method's) and the encoder's line errors become
+    t(c) = -t'((N - c) mod N); their standard errors keep their sign and take the same row order; the
+    eccentricity A sin(2 pi c / N + phase) keeps A and takes -phase, within (-pi, pi]. ``details`` stay
+    the mirror's.
+    """
+    def cogging(estimates: MethodEstimates) -> dict:
+        return {} if estimates.cogging_nm is None else {"cogging_nm": mirrored_table(estimates.cogging_nm)}
+
+    changes = {**cogging(result), "messages": (*result.messages, MIRRORED_MESSAGE),
+               "methods": {name: replace(m, **cogging(m)) for name, m in result.methods.items()}}
+    if result.encoder_error_counts is not None:
+        changes["encoder_error_counts"] = mirrored_table(result.encoder_error_counts)
+    if result.encoder_error_std_counts is not None:
+        changes["encoder_error_std_counts"] = -mirrored_table(result.encoder_error_std_counts)
+    phase = result.encoder_eccentricity_phase_rad
+    if phase is not None:
+        changes["encoder_eccentricity_phase_rad"] = math.pi if phase == math.pi else -phase
+    return replace(result, **changes)
