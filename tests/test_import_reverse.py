@@ -40,7 +40,7 @@ from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.errors import BenchFormatError
 from ilcpmac.identify import identify_bench
-from ilcpmac.identify.mirror import MIRRORED_MESSAGE, in_motor_coordinates
+from ilcpmac.identify.mirror import MIRRORED_MESSAGE, in_mirror_coordinates, in_motor_coordinates
 from ilcpmac.model.encoder import line_errors_counts
 from ilcpmac.model.tables import backemf_table, cogging_table
 from ilcpmac.records import IdentificationResult, MethodEstimates, TrialData
@@ -293,6 +293,9 @@ def test_in_motor_coordinates_mirrors_the_cogging_and_the_encoder_error():
     assert (motor.epsilon, motor.alpha.tolist(), motor.beta.tolist()) == (0.9, [0.9, 1.0, 1.1], [0.1, 0.0, -0.1])
     at_pi = in_motor_coordinates(dataclasses.replace(mirror, encoder_eccentricity_phase_rad=math.pi))
     assert at_pi.encoder_eccentricity_phase_rad == math.pi  # within (-pi, pi]
+    # the figures, drawn from the mirror's details, draw the result's tables in the mirror's coordinates
+    np.testing.assert_array_equal(in_mirror_coordinates(motor, motor.cogging_nm), mirror.cogging_nm)
+    np.testing.assert_array_equal(in_mirror_coordinates(mirror, mirror.cogging_nm), mirror.cogging_nm)
 
 
 def test_a_mirrored_bench_without_torque_sensor_gives_the_motors_encoder_error(tmp_path):

@@ -14,10 +14,12 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
+
 from ilcpmac.bench.format import mirrored_table
 from ilcpmac.records import IdentificationResult, MethodEstimates
 
-__all__ = ["MIRRORED_MESSAGE", "in_motor_coordinates"]
+__all__ = ["MIRRORED_MESSAGE", "in_motor_coordinates", "in_mirror_coordinates"]
 
 #: the line a mirrored bench's result carries in its messages
 MIRRORED_MESSAGE = ("reverse laps (bench.toml: mirrored = true): identified as forward laps of the motor's mirror "
@@ -46,3 +48,9 @@ def in_motor_coordinates(result: IdentificationResult) -> IdentificationResult:
     if phase is not None:
         changes["encoder_eccentricity_phase_rad"] = math.pi if phase == math.pi else -phase
     return replace(result, **changes)
+
+
+def in_mirror_coordinates(result: IdentificationResult, table: np.ndarray) -> np.ndarray:
+    """A per-count table of ``result`` (in the motor's coordinates) where its ``details`` are: mirrored for a
+    mirrored bench's result (`MIRRORED_MESSAGE` in its messages), else as it is."""
+    return mirrored_table(table) if MIRRORED_MESSAGE in result.messages else table

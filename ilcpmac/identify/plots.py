@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 
 from ilcpmac import plotting
 from ilcpmac.identify import sensor_gain
+from ilcpmac.identify.mirror import in_mirror_coordinates
 from ilcpmac.identify.system_gain import excluded_harmonics, theoretical_torque_tables
 from ilcpmac.records import IdentificationResult
 
@@ -225,8 +226,9 @@ def cogging_per_setpoint(result: IdentificationResult) -> Figure:
     cogging = _cogging_per_setpoint(result)
     fig, (axis,) = plotting.figure(1, 3.5)
     plotting.plot_groups(axis, degrees, list(cogging[:, counts]), _torques(result), _per_torque, lw=0.6, alpha=0.7)
-    if result.cogging_nm is not None:
-        axis.plot(degrees, result.cogging_nm[counts], "k", lw=1.2, label="result (joint fit)")
+    if result.cogging_nm is not None:  # in the coordinates of the set points' (a mirrored bench's: the mirror's)
+        axis.plot(degrees, in_mirror_coordinates(result, result.cogging_nm)[counts], "k", lw=1.2,
+                  label="result (joint fit)")
     axis.set_title("cogging torque per set point (report's decoupling), one electrical revolution")
     axis.set_ylabel("cogging torque (N m)")
     plotting.angle_axis(axis, span)
