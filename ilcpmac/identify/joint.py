@@ -59,8 +59,9 @@ from numba import njit
 
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
-from ilcpmac.identify.system_gain import structure_variance
+from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
 from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
+from ilcpmac.model.lag_kernel import _advance
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
@@ -123,9 +124,7 @@ class MisfitGroup:
     @property
     def is_off(self) -> bool:
         """Whether the residual holds structure the model lacks: chi2 beyond MISFIT_CHI2 and beyond noise."""
-        from scipy.stats import chi2
-
-        return self.chi2_reduced > max(MISFIT_CHI2, chi2.ppf(0.999, self.dof) / self.dof)
+        return self.chi2_reduced > max(MISFIT_CHI2, chi2_quantile(0.999, self.dof) / self.dof)
 
     @property
     def warning(self) -> str:
@@ -359,6 +358,7 @@ class _JointProblem:
         self.speeds = np.array([t.speed_hz for t in tables.trials])
         self.i_ref = np.stack([t.i_ref_table_a for t in tables.trials])
         self.count_period = np.ascontiguousarray(np.stack([t.count_period_s for t in tables.trials]))
+        self.instants = count_instants(self.count_period)
         self.torque = np.stack([t.torque_table_nm for t in tables.trials])
         self.max_harmonic = int(max(self.max_fit, sets.cogging.max(initial=0)))
         self._cache: dict[str, dict] = {}
@@ -377,6 +377,9 @@ class _JointProblem:
         # back-EMF per count, e_p = K_p omega (omega over the intervals either side of the count)
         omega = 4.0 * np.pi / (self.cpr * (self.count_period + np.roll(self.count_period, 1, axis=1)))
         self.emf = self.backemf * omega[:, :, None]
+        # per phase, contiguous: the count recursion's input (`lagged_phase` copies any other)
+        self.phase_i_ref, self.phase_emf = ([np.ascontiguousarray(a[:, :, p]) for p in range(3)]
+                                            for a in (self.i_ref, self.emf))
 
     @staticmethod
     def loop_of(phi: np.ndarray) -> CurrentLoop:
@@ -391,7 +394,7 @@ class _JointProblem:
         """
         shift = phi[6] if self.sensor else 0.0  # the encoder-derived torque is at the count instants
         return self._cached("data", (shift,), lambda: trial_amplitudes(
-            time_shifted(self.torque, self.count_period, shift)[:, :, None], self.max_harmonic)[:, :, 0])
+            shifted_at(self.torque, self.instants, shift)[:, :, None], self.max_harmonic)[:, :, 0])
 
     def highpass(self, phi: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
         """The piezo sensor's first-order high-pass j w / (j w + w_c), shape (n_trials, len(harmonics)); 1
@@ -425,7 +428,7 @@ class _JointProblem:
 
     def phase_current(self, phi: np.ndarray, p: int) -> np.ndarray:
         """G_p I*_p per count, shape (n_trials, cpr)."""
-        return self._cached(f"current{p}", (phi[p], phi[3]), lambda: self.lagged(self.i_ref[:, :, p], phi[p],
+        return self._cached(f"current{p}", (phi[p], phi[3]), lambda: self.lagged(self.phase_i_ref[p], phi[p],
                                                                                  phi[3]))
 
     def currents(self, phi: np.ndarray) -> np.ndarray:
@@ -444,20 +447,44 @@ class _JointProblem:
             return amplitudes[:, self.sets.fit]
         return amplitudes[:, self.sets.fit] - amplitudes[:, :1] * self.speed_ripple[:, :, None]
 
+    def rejected(self, phi: np.ndarray, p: int) -> np.ndarray:
+        """(1 - G_p) e_p per count, shape (n_trials, cpr): what the loop lets through of its back-EMF."""
+        def compute():
+            emf = self.phase_emf[p]
+            return emf - self.lagged(emf, phi[p], phi[3], continuous=True)
+
+        return self._cached(f"rejected{p}", (phi[p], phi[3]), compute)
+
     def phase_columns(self, phi: np.ndarray, p: int) -> np.ndarray:
         """Amplitudes of K_p G_p I*_p and of K_p W (1 - G_p) e_p, shape (n_trials, n_fit, 2)."""
         k = self.backemf[:, p]
         current = self._cached(f"current_amplitude{p}", (phi[p], phi[3]), lambda: self.amplitudes(
             (k * self.phase_current(phi, p))[:, :, None]))
-
-        def rejected():
-            emf = self.emf[:, :, p]
-            return emf - self.lagged(emf, phi[p], phi[3], continuous=True)
-
         emf = self._cached(f"emf_amplitude{p}", (phi[p], phi[3], phi[5]), lambda: self.amplitudes(
-            (k * self.lagged(self._cached(f"rejected{p}", (phi[p], phi[3]), rejected), phi[5], 0.0,
-                             continuous=True))[:, :, None]))
+            (k * self.lagged(self.rejected(phi, p), phi[5], 0.0, continuous=True))[:, :, None]))
         return np.concatenate([current, emf], axis=2)
+
+    def lag_derivatives(self, x: np.ndarray, tau: float, delay: float,
+                        continuous: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The derivatives of `lagged`'s output with respect to tau and the delay (`_lag_derivatives`)."""
+        decay = self._cached("decay", (tau,), lambda: count_decay(self.count_period, tau))
+        sample = decay if continuous else self._cached("sample_decay", (tau, delay), lambda: sample_decay(
+            self.count_period, tau, delay))
+        d_tau, d_delay = np.empty(x.shape), np.empty(x.shape)
+        _lag_derivatives(np.ascontiguousarray(x, float), self.count_period, float(tau), float(delay), decay, sample,
+                         continuous, d_tau, d_delay)
+        return d_tau, d_delay
+
+    def phase_derivatives(self, phi: np.ndarray, p: int) -> np.ndarray:
+        """Derivatives of `phase_columns`, shape (n_trials, n_fit, 5): of K_p G_p I*_p with respect to tau_p
+        and T_d, of K_p W (1 - G_p) e_p with respect to tau_p, T_d and L/R."""
+        k = self.backemf[:, p]
+        current = self.lag_derivatives(self.phase_i_ref[p], phi[p], phi[3])
+        emf = self.lag_derivatives(self.phase_emf[p], phi[p], phi[3], continuous=True)
+        winding, _ = self.lag_derivatives(self.rejected(phi, p), phi[5], 0.0, continuous=True)
+        tables = [*current, *(-self.lagged(d, phi[5], 0.0, continuous=True) for d in emf), winding]
+        # one transform per table: a stack of them transforms slower than its parts
+        return np.concatenate([self.amplitudes((k * table)[:, :, None]) for table in tables], axis=2)
 
     def design(self, phi: np.ndarray, saturation: np.ndarray | None) -> np.ndarray:
         """All linear columns (LINEAR, without saturation when None), shape (n_trials, n_fit, n_columns).
@@ -476,7 +503,7 @@ class _JointProblem:
     def saturation_column(self, phi: np.ndarray, x: np.ndarray) -> np.ndarray:
         """S_k = -DFT(sum_p K_p i_p^3), i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, n_fit)."""
         currents = x[:3] * self.currents(phi) + x[3:6]
-        return self.amplitudes(-np.sum(self.backemf * currents**3, axis=2)[:, :, None])[:, :, 0]
+        return self.amplitudes(-np.sum(self.backemf * (currents * currents * currents), axis=2)[:, :, None])[:, :, 0]
 
     def weights(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """High-pass per trial and fit harmonic, and the weights |H_hp|^2 / variance."""
@@ -495,6 +522,91 @@ class _JointProblem:
         design = (root[:, :, None] * design).reshape(-1, design.shape[2])
         return np.concatenate([y.real, y.imag]), np.concatenate([design.real, design.imag])
 
+    def weighted_derivative(self, phi: np.ndarray, design: np.ndarray, d_data: np.ndarray | None,
+                            d_design: np.ndarray, d_log_weight: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The derivative of `weighted`'s output with respect to one nonlinear parameter.
+
+        ``d_data``: that of the data over the high-pass (None: 0), ``d_design`` that of the columns, shaped as
+        ``design``, and ``d_log_weight`` that of the log of the weights (None: 0). With root = sqrt(w) and
+        M the weighted mean over trials, weighted(Q) = root (Q - free M(Q)) has the derivative
+        root [dQ - free M(dQ) + d(log w) / 2 (Q - free M(Q)) - free M(d(log w) (Q - M(Q)))].
+        """
+        hp, weights = self.weights(phi)
+        weights = weights[:, :, None]
+        free = self.sets.table_free[:, None]
+        y = (self.data(phi)[:, self.sets.fit] / hp)[:, :, None]
+        out = []
+        for value, change in ((y, np.zeros_like(y) if d_data is None else d_data[:, :, None]), (design, d_design)):
+            derivative = change - free * _weighted_mean(change, weights)
+            if d_log_weight is not None:
+                log_weight = d_log_weight[:, :, None]
+                mean = _weighted_mean(value, weights)
+                derivative = derivative + log_weight / 2.0 * (value - free * mean) - free * _weighted_mean(
+                    log_weight * (value - mean), weights)
+            derivative = (np.sqrt(weights) * derivative).reshape(-1, value.shape[2])
+            out.append(np.concatenate([derivative.real, derivative.imag]))
+        return out[0][:, 0], out[1]
+
+    def sensitivities(self, phi: np.ndarray, saturation: np.ndarray, x: np.ndarray, rest: np.ndarray,
+                      active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per ``active`` nonlinear parameter, the analytic derivatives the fit and its covariance need.
+
+        Returns the derivative of the weighted residual at fixed linear
+        parameters ``x`` (n_rows, n_active), and D'^T ``rest`` (n_columns,
+        n_active), D' that of the weighted columns: the current and back-EMF
+        columns through the count recursion's derivatives
+        (`phase_derivatives`), the data through the derivative of their time
+        shift, the high-pass through 1 / H_hp = 1 + w_c / (j w) and the
+        weights |H_hp|^2 / variance = w^2 / ((w^2 + w_c^2) variance).
+        """
+        design = self.design(phi, saturation)
+        loop = [self.phase_derivatives(phi, p) for p in range(3)] if active[[0, 1, 2, 3, 5]].any() else []
+        residuals, products = [], []
+        for i in np.flatnonzero(active):
+            d_design = np.zeros(design.shape, complex)
+            d_data = d_log_weight = None
+            if i < 3:
+                d_design[:, :, i] = loop[i][:, :, 0]
+                d_design[:, :, 6] = loop[i][:, :, 2]
+            elif i == 3:
+                for p in range(3):
+                    d_design[:, :, p] = loop[p][:, :, 1]
+                d_design[:, :, 6] = sum(d[:, :, 3] for d in loop)
+            elif i == 5:
+                d_design[:, :, 6] = sum(d[:, :, 4] for d in loop)
+            elif i == 4 and self.sensor:
+                omega = 2.0 * np.pi * self.speeds[:, None] * self.sets.fit[None, :]
+                corner = 2.0 * np.pi * phi[4]
+                d_data = self.data(phi)[:, self.sets.fit] * (2.0 * np.pi / (1j * omega))
+                d_log_weight = -4.0 * np.pi * corner / (omega**2 + corner**2)
+            elif i == 6 and self.sensor:
+                shift = self._cached("data_slope", (phi[6],), lambda: trial_amplitudes(
+                    shifted_at(self.torque, self.instants, phi[6], slope=True)[:, :, None],
+                    self.max_harmonic)[:, :, 0])
+                d_data = shift[:, self.sets.fit] / self.highpass(phi, self.sets.fit)
+            d_y, d_columns = self.weighted_derivative(phi, design, d_data, d_design, d_log_weight)
+            residuals.append(d_y - d_columns @ x)
+            products.append(d_columns.T @ rest)
+        return np.stack(residuals, axis=1), np.stack(products, axis=1)
+
+    def jacobian(self, phi: np.ndarray, saturation: np.ndarray, active: np.ndarray,
+                 solution: tuple | None = None) -> np.ndarray:
+        """The derivative of `solve`'s residual with respect to the ``active`` nonlinear parameters.
+
+        Variable projection (Golub and Pereyra): with F the weighted, constrained columns and r = y - F z the
+        residual at the least-squares z, dr = (I - F F^+) (dy - dD x) - (F^+)^T dF^T r. ``solution``: `solution`
+        at ``phi``, when the caller has it.
+        """
+        x, rest, design = self.solution(phi, saturation) if solution is None else solution
+        residual, products = self.sensitivities(phi, saturation, x, rest, active)
+        constraint = self.constraint(design.shape[1])
+        free = _tall_product(design, constraint)
+        scale = np.sqrt(np.sum(free**2, axis=0))
+        scale[scale == 0.0] = 1.0
+        free = free / scale
+        coefficients = np.linalg.pinv(free.T @ free) @ (free.T @ residual + (constraint.T @ products) / scale[:, None])
+        return residual - _tall_product(free, coefficients)
+
     def constraint(self, size: int) -> np.ndarray:
         """P, shape (size, size) or (size, size - 1): the parameters are P times the free ones.
 
@@ -508,14 +620,18 @@ class _JointProblem:
 
     def solve(self, phi: np.ndarray, saturation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Linear parameters and the weighted residual vector at ``phi``."""
+        return self.solution(phi, saturation)[:2]
+
+    def solution(self, phi: np.ndarray, saturation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`solve`'s linear parameters and residual, and the weighted columns they come from."""
         y, design = self.weighted(phi, self.design(phi, saturation))
         constraint = self.constraint(design.shape[1])
-        free = design @ constraint
+        free = _tall_product(design, constraint)
         scale = np.sqrt(np.sum(free**2, axis=0))
         scale[scale == 0.0] = 1.0
         x = constraint @ (np.linalg.lstsq((free.T @ free) / np.outer(scale, scale), (free.T @ y) / scale,
                                           rcond=None)[0] / scale)
-        return x, y - design @ x
+        return x, y - design @ x, design
 
     def position_table(self, phi: np.ndarray, design: np.ndarray, x: np.ndarray) -> dict:
         """T(h) where free: the weighted mean over trials of what the columns leave, N m."""
@@ -530,29 +646,49 @@ class _JointProblem:
         return table
 
 
-def time_shifted(tables: np.ndarray, count_period_s: np.ndarray, shift_s: float) -> np.ndarray:
+def time_shifted(tables: np.ndarray, count_period_s: np.ndarray, shift_s: float,
+                 slope: bool = False) -> np.ndarray:
     """Periodic per-count tables (n_trials, cpr) evaluated at t_c + shift_s instead of t_c.
 
     The count instants t_c follow from the count periods; values in between
-    come from four-point (cubic) Lagrange interpolation in time.
+    come from four-point (cubic) Lagrange interpolation in time. ``slope``:
+    the interpolant's derivative there (per second) instead, the derivative
+    of the tables with respect to ``shift_s`` (at a count instant, the one
+    towards later instants).
     """
+    return shifted_at(tables, count_instants(count_period_s), shift_s, slope)
+
+
+def count_instants(count_period_s: np.ndarray) -> np.ndarray:
+    """The count instants of `time_shifted` over three revolutions from -1 revolution, shape (n_trials, 3 cpr + 1)."""
+    count_period_s = np.ascontiguousarray(count_period_s, float)
+    out = np.empty((count_period_s.shape[0], 3 * count_period_s.shape[1] + 1))
+    _instants_kernel(count_period_s, out)
+    return out
+
+
+def shifted_at(tables: np.ndarray, instants: np.ndarray, shift_s: float, slope: bool = False) -> np.ndarray:
+    """`time_shifted` with the `count_instants` of its count periods given."""
     out = np.empty_like(tables, dtype=float)
-    _time_shift_kernel(np.ascontiguousarray(tables, float), np.ascontiguousarray(count_period_s, float),
-                       float(shift_s), out)
+    _time_shift_kernel(np.ascontiguousarray(tables, float), instants, float(shift_s), slope, out)
     return out
 
 
 @njit(cache=True)
-def _time_shift_kernel(tables, count_period_s, shift_s, out):
-    n_trials, cpr = tables.shape
+def _instants_kernel(count_period_s, out):
+    n_trials, cpr = count_period_s.shape
     for k in range(n_trials):
-        # count instants over three revolutions, the middle one holding the target instants
-        period = count_period_s[k].sum()
-        t = np.empty(3 * cpr + 1)
-        t[0] = -period
+        out[k, 0] = -count_period_s[k].sum()
         for r in range(3):
             for c in range(cpr):
-                t[r * cpr + c + 1] = t[r * cpr + c] + count_period_s[k, c]
+                out[k, r * cpr + c + 1] = out[k, r * cpr + c] + count_period_s[k, c]
+
+
+@njit(cache=True)
+def _time_shift_kernel(tables, instants, shift_s, slope, out):
+    n_trials, cpr = tables.shape
+    for k in range(n_trials):
+        t = instants[k]  # over three revolutions, the middle one holding the target instants
         base = cpr
         for c in range(cpr):
             target = t[cpr + c] + shift_s
@@ -562,15 +698,101 @@ def _time_shift_kernel(tables, count_period_s, shift_s, out):
                 base += 1
             t0, t1, t2, t3 = t[base - 1], t[base], t[base + 1], t[base + 2]
             d0, d1, d2, d3 = target - t0, target - t1, target - t2, target - t3
+            if slope:  # the weights' derivatives with respect to the target instant
+                numerators = (d2 * d3 + d1 * d3 + d1 * d2, d2 * d3 + d0 * d3 + d0 * d2,
+                              d1 * d3 + d0 * d3 + d0 * d1, d1 * d2 + d0 * d2 + d0 * d1)
+            else:
+                numerators = (d1 * d2 * d3, d0 * d2 * d3, d0 * d1 * d3, d0 * d1 * d2)
             first = (base - 1) % cpr
             value = 0.0
-            for i, weight in enumerate((d1 * d2 * d3 / ((t0 - t1) * (t0 - t2) * (t0 - t3)),
-                                        d0 * d2 * d3 / ((t1 - t0) * (t1 - t2) * (t1 - t3)),
-                                        d0 * d1 * d3 / ((t2 - t0) * (t2 - t1) * (t2 - t3)),
-                                        d0 * d1 * d2 / ((t3 - t0) * (t3 - t1) * (t3 - t2)))):
+            for i, weight in enumerate((numerators[0] / ((t0 - t1) * (t0 - t2) * (t0 - t3)),
+                                        numerators[1] / ((t1 - t0) * (t1 - t2) * (t1 - t3)),
+                                        numerators[2] / ((t2 - t0) * (t2 - t1) * (t2 - t3)),
+                                        numerators[3] / ((t3 - t0) * (t3 - t1) * (t3 - t2)))):
                 index = first + i
                 value += weight * tables[k, index - cpr if index >= cpr else index]
             out[k, c] = value
+
+
+@njit(cache=True)
+def _lag_derivatives(x, dt, tau, delay, decay, sample_decay, continuous, d_tau, d_delay):
+    """The derivatives of `lagged_phase`'s output (n_trials, cpr) with respect to tau and T_d; fills ``d_tau``
+    and ``d_delay``.
+
+    The count recursion of `ilcpmac.model.lag_kernel` (the same warm-up and
+    steps, through its `_advance`) carried with its derivative in tau
+    (forward mode, a = exp(-dt / tau), da / dtau = a dt / tau^2); the sampled
+    staircase and, with ``continuous``, the linear interpolation between
+    counts for T_d != 0 differentiated as `lagged_phase` applies them. At
+    T_d = 0 the delay's derivative is the one for T_d >= 0 (its bound).
+    """
+    n_trials, cpr = x.shape
+    lag = tau > 0.0
+    inverse_tau2 = 1.0 / (tau * tau) if lag else 0.0
+    delayed = delay >= 0.0
+    state = np.empty(cpr)
+    d_state = np.empty(cpr)
+    for k in range(n_trials):
+        start = cpr - 1
+        remaining = 1.0
+        while start > 0 and remaining > 1e-16:
+            remaining *= decay[k, start]
+            start -= 1
+        s = x[k, start]
+        ds = 0.0
+        s_prev = s
+        ds_prev = ds
+        for c in range(start, 2 * cpr):
+            now = c if c < cpr else c - cpr
+            following = now + 1 if now + 1 < cpr else 0
+            if c >= cpr:
+                if not continuous:
+                    if delayed:  # the state at t_c - T_d, between counts c - 1 and c
+                        x_prev = x[k, now - 1]
+                        b = sample_decay[k, now]
+                        span = dt[k, now - 1] - delay
+                        d_tau[k, now] = ds_prev * b
+                        d_delay[k, now] = 0.0
+                        if lag and span > 0.0:
+                            d_tau[k, now] += (s_prev - x_prev) * b * span * inverse_tau2
+                            d_delay[k, now] = (s_prev - x_prev) * b / tau
+                    else:  # the state at t_c + |T_d|, after count c
+                        b = sample_decay[k, now]
+                        d_tau[k, now] = ds * b
+                        d_delay[k, now] = 0.0
+                        if lag:
+                            d_tau[k, now] -= (s - x[k, now]) * b * delay * inverse_tau2
+                            d_delay[k, now] = (s - x[k, now]) * b / tau
+            a = decay[k, now]
+            da = a * dt[k, now] * inverse_tau2
+            x_now, x_next = x[k, now], x[k, following]
+            if continuous:
+                d_next = a * ds + da * (s - x_now) - (x_next - x_now) / dt[k, now] * ((1.0 - a) - tau * da)
+            else:
+                d_next = a * ds + (s - x_now) * da
+            s_prev = s
+            ds_prev = ds
+            s = _advance(s, a, x_now, x_next, tau, dt[k, now], continuous)
+            ds = d_next
+            if c >= cpr and continuous:
+                state[following] = s
+                d_state[following] = ds
+        if continuous:
+            for c in range(cpr):
+                before = c - 1 if c > 0 else cpr - 1
+                after = c + 1 if c + 1 < cpr else 0
+                if delay >= 0.0:  # lagged_phase's interpolation towards the previous count
+                    d_tau[k, c] = d_state[c] - delay / dt[k, before] * (d_state[c] - d_state[before])
+                    d_delay[k, c] = -(state[c] - state[before]) / dt[k, before]
+                else:  # towards the next one
+                    d_tau[k, c] = d_state[c] - delay / dt[k, c] * (d_state[after] - d_state[c])
+                    d_delay[k, c] = -(state[after] - state[c]) / dt[k, c]
+
+
+def _tall_product(tall: np.ndarray, narrow: np.ndarray) -> np.ndarray:
+    """tall @ narrow, one matrix-vector product per column of ``narrow``: a matrix product of a tall matrix by a
+    small one starts BLAS threads that cost far more than it saves (the same sums)."""
+    return np.stack([tall @ column for column in narrow.T], axis=1)
 
 
 def _weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -622,7 +844,8 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     """Variable projection over the ``active`` nonlinear parameters, started from ``loop``.
 
     The saturation column is built from the currents of the starting point,
-    and rebuilt once from the fitted ones.
+    and rebuilt once from the fitted ones. The Jacobian is analytic
+    (`_JointProblem.jacobian`).
 
     Returns (weighted residual sum of squares, phi, active, saturation column, linear parameters, residual).
     """
@@ -632,12 +855,22 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     lower = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])[active]
     saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])
 
-    def residual(free: np.ndarray) -> np.ndarray:
-        full = phi.copy()
-        full[active] = free
-        return problem.solve(full, saturation)[1]
+    def full(free: np.ndarray) -> np.ndarray:
+        out = phi.copy()
+        out[active] = free
+        return out
 
-    solution = least_squares(residual, np.maximum(phi[active], lower), bounds=(lower, np.inf),
+    last: dict = {}  # the residual's solution, for the Jacobian scipy asks for at the same point
+
+    def residual(free: np.ndarray) -> np.ndarray:
+        last.update(free=free.copy(), solution=problem.solution(full(free), saturation))
+        return last["solution"][1]
+
+    def jacobian(free: np.ndarray) -> np.ndarray:
+        known = last["solution"] if np.array_equal(free, last.get("free")) else None
+        return problem.jacobian(full(free), saturation, active, known)
+
+    solution = least_squares(residual, np.maximum(phi[active], lower), jac=jacobian, bounds=(lower, np.inf),
                              x_scale=NONLINEAR_SCALE[active], method="trf", ftol=1e-6, xtol=1e-6)
     phi[active] = solution.x
     saturation = problem.saturation_column(phi, problem.solve(phi, saturation)[0])
@@ -665,7 +898,7 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
 
     J holds the weighted, T-profiled linear columns and the derivatives of the
     weighted residual with respect to each active nonlinear parameter at fixed
-    linear parameters; B = (J^T J)^-1 is the Cramer-Rao bound (the weights hold
+    linear parameters (`_JointProblem.sensitivities`); B = (J^T J)^-1 is the Cramer-Rao bound (the weights hold
     the noise variance measured off the aperiodic part). Each harmonic family g
     (`misfit_groups`) has its reduced chi-square chi2_g; the covariance is
 
@@ -677,17 +910,10 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
     Returns (C, B, parameter names, overall reduced chi-square, the `MisfitGroup`s).
     """
     _, design = problem.weighted(phi, problem.design(phi, saturation))
-    columns = [design]
-    names = list(LINEAR)
-    for i in np.flatnonzero(active):
-        step = 1e-6 * max(abs(phi[i]), NONLINEAR_SCALE[i])
-        shifted = phi.copy()
-        shifted[i] += step
-        y, design_shifted = problem.weighted(shifted, problem.design(shifted, saturation))
-        columns.append((rest - (y - design_shifted @ x))[:, None] / step)
-        names.append(NONLINEAR[i])
+    columns = [design, -problem.sensitivities(phi, saturation, x, rest, active)[0]]
+    names = list(LINEAR) + [NONLINEAR[i] for i in np.flatnonzero(active)]
     constraint = problem.constraint(sum(c.shape[1] for c in columns))
-    jac = np.hstack(columns) @ constraint
+    jac = _tall_product(np.hstack(columns), constraint)
     bound = np.linalg.pinv(jac.T @ jac)
     n_trials, n_fit = problem.variance.shape[0], problem.sets.fit.size
     per_harmonic = np.sum(rest.reshape(2, n_trials, n_fit) ** 2, axis=(0, 1))

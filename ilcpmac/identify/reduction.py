@@ -127,7 +127,7 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
     """
     mask = whole_revolutions(trial.count, counts_per_rev)
     count, time_s = trial.count[mask], trial.time_s[mask]
-    revolutions = int(np.unique(count // counts_per_rev).size) if mask.any() else 0
+    revolutions = int(np.count_nonzero(np.diff(count // counts_per_rev))) + 1 if mask.any() else 0  # count increases
     if revolutions < 2:
         raise IdentificationError(
             f"{revolutions} whole revolution(s); at least 2 are needed to tell the torque sensor's drift "

@@ -5,12 +5,13 @@ frequency response from angular velocity to measured torque is
 J* s + b* with J* = delta J and b* = delta b (eqs. 3.2-3.4). The data are
 sampled per encoder count, so they are first re-sampled at constant time
 intervals through cubic splines (sec. 3.1), with a whole number of samples
-per mean revolution; the response is then estimated with scipy.signal for a
-periodic excitation (boxcar windows of one revolution, no overlap), with its
-coherence, and J* s + b* is fitted per set point by weighted least squares
-(the report used frsfit): an unweighted linear fit first, then weights
-1 / var(H) from the coherence and the fitted model, iterated. J* is averaged
-over the set points (fig. 3.3) and delta = J* / J with J from bench.toml.
+per mean revolution; the response is then estimated for a periodic
+excitation as scipy.signal's csd and welch would (boxcar windows of one
+revolution, no overlap), with its coherence, and J* s + b* is fitted per set
+point by weighted least squares (the report used frsfit): an unweighted
+linear fit first, then weights 1 / var(H) from the coherence and the fitted
+model, iterated. J* is averaged over the set points (fig. 3.3) and
+delta = J* / J with J from bench.toml.
 
 Beyond the report (`SensorGainEstimate.corrected_*`, `fit_pooled`): eq. 3.1
 in the position domain, harmonic by harmonic and exact for a periodic motion
@@ -221,23 +222,27 @@ class SensorGainEstimate:
 
 
 def trial_response(tables: BenchTables, index: int, max_harmonic: int) -> TrialResponse:
-    """tau*_m / omega of one trial at harmonics 1..max_harmonic of its mean revolution (sec. 3.2)."""
-    from scipy import signal  # 0.5 s to import (scipy 1.17 parses docstrings): only when estimating
+    """tau*_m / omega of one trial at harmonics 1..max_harmonic of its mean revolution (sec. 3.2).
 
+    The H1 estimate S_xy / S_xx and the coherence |S_xy|^2 / (S_xx S_yy) from the cross and auto spectra
+    averaged over windows of one revolution (boxcar, no overlap, no detrending): scipy.signal.csd and welch
+    with those options, whose common scaling cancels in both ratios.
+    """
     trial = tables.trials[index]
     samples_per_rev = int(2 ** np.ceil(np.log2(4 * max_harmonic + 4)))
     t, _, omega, torque = uniform_time_resample(trial.time_s, trial.count, trial.torque_nm,
                                                 tables.motor.counts_per_rev, samples_per_rev)
-    fs = 1.0 / (t[1] - t[0])
-    options = dict(fs=fs, window="boxcar", nperseg=samples_per_rev, noverlap=0, detrend=False)
-    frequency, p_xy = signal.csd(omega, torque, **options)
-    _, p_xx = signal.welch(omega, **options)
-    _, p_yy = signal.welch(torque, **options)
+    revolutions = t.size // samples_per_rev
     h = slice(1, max_harmonic + 1)
+    windows = np.fft.rfft(np.stack([omega, torque])[:, : revolutions * samples_per_rev].reshape(
+        2, revolutions, samples_per_rev), axis=2)[:, :, h]
+    x, y = windows
+    p_xy = np.mean(np.conj(x) * y, axis=0)
+    p_xx, p_yy = np.mean(np.abs(windows) ** 2, axis=1)
+    frequency = np.fft.rfftfreq(samples_per_rev, t[1] - t[0])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return TrialResponse(frequency_hz=frequency[h], response=p_xy[h] / p_xx[h],
-                             coherence=np.abs(p_xy[h]) ** 2 / (p_xx[h] * p_yy[h]),
-                             revolutions=t.size // samples_per_rev)
+        return TrialResponse(frequency_hz=frequency[h], response=p_xy / p_xx,
+                             coherence=np.abs(p_xy) ** 2 / (p_xx * p_yy), revolutions=revolutions)
 
 
 def _weights(response: TrialResponse, use: np.ndarray, model: np.ndarray) -> np.ndarray:

@@ -185,7 +185,7 @@ def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int
     increasing (as in `TrialData`).
     """
     values = np.asarray(values, float)
-    if count[0] % counts_per_rev == 0 and count.size % counts_per_rev == 0 and count[-1] - count[0] + 1 == count.size:
+    if _every_count(count, counts_per_rev):
         return values.reshape((-1, counts_per_rev) + values.shape[1:]).mean(axis=0)
     position = count % counts_per_rev
     hits = np.bincount(position, minlength=counts_per_rev)
@@ -199,6 +199,20 @@ def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int
         if not seen.all():
             table[~seen, j] = np.interp(grid[~seen], grid[seen], table[seen, j], period=counts_per_rev)
     return table.reshape((counts_per_rev,) + values.shape[1:])
+
+
+def _every_count(count: np.ndarray, counts_per_rev: int) -> bool:
+    """Whether strictly increasing ``count`` samples every count of whole revolutions, from a revolution's start."""
+    return bool(count[0] % counts_per_rev == 0 and count.size % counts_per_rev == 0
+                and count[-1] - count[0] + 1 == count.size)
+
+
+def _at_samples(table: np.ndarray, count: np.ndarray, counts_per_rev: int) -> np.ndarray:
+    """``table[count % counts_per_rev]`` for a per-count ``table`` (counts_per_rev, m): a copy per revolution
+    where `_every_count` (far faster than the gather)."""
+    if _every_count(count, counts_per_rev):
+        return np.tile(table, (count.size // counts_per_rev, 1))
+    return np.take(table, count % counts_per_rev, axis=0)
 
 
 def slow_trend(count: np.ndarray, time_s: np.ndarray, values: np.ndarray, counts_per_rev: int,
@@ -228,7 +242,7 @@ def slow_trend(count: np.ndarray, time_s: np.ndarray, values: np.ndarray, counts
     u = 2.0 * (time_s - time_s[0]) / (time_s[-1] - time_s[0]) - 1.0
     basis = np.polynomial.legendre.legvander(u, degree)[:, 1:]
     design = np.column_stack([basis, values])
-    aperiodic = design - synchronous_table(count, design, counts_per_rev)[position]
+    aperiodic = design - _at_samples(synchronous_table(count, design, counts_per_rev), count, counts_per_rev)
     gram = aperiodic.T @ aperiodic  # normal equations: the Legendre columns are well conditioned
     coef = np.linalg.solve(gram[:-1, :-1], gram[:-1, -1])
     rest = aperiodic[:, -1] - aperiodic[:, :-1] @ coef
@@ -240,9 +254,10 @@ def uniform_time_resample(time_s: np.ndarray, count: np.ndarray, values: np.ndar
     """Re-sample position-sampled data at constant time intervals (report sec. 3.1).
 
     The position (a function of time) and ``values`` are interpolated with
-    cubic splines through the samples' time stamps; the uniform grid has
-    ``samples_per_rev`` points per mean revolution period, so that a DFT over
-    whole revolutions puts each harmonic of the revolution in one bin.
+    cubic splines through the samples' time stamps (`not_a_knot_spline`);
+    the uniform grid has ``samples_per_rev`` points per mean revolution
+    period, so that a DFT over whole revolutions puts each harmonic of the
+    revolution in one bin.
 
     Returns
     -------
@@ -255,12 +270,47 @@ def uniform_time_resample(time_s: np.ndarray, count: np.ndarray, values: np.ndar
     values_uniform : ndarray
         ``values`` interpolated there.
     """
-    from scipy.interpolate import CubicSpline
-
     angle = 2.0 * np.pi * count / counts_per_rev
     revolutions = (count[-1] - count[0]) / counts_per_rev
     period_s = (time_s[-1] - time_s[0]) / revolutions
     n_revs = int(round(revolutions))
     t = time_s[0] + np.arange(n_revs * samples_per_rev) * (period_s / samples_per_rev)
-    position = CubicSpline(time_s, angle)
-    return t, position(t), position(t, 1), CubicSpline(time_s, values)(t)
+    at, slope = not_a_knot_spline(time_s, np.stack([angle, values], axis=1), t)
+    return t, at[:, 0], slope[:, 0], at[:, 1]
+
+
+def not_a_knot_spline(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cubic spline through (x, y) with not-a-knot ends, and its derivative, at ``at``, each (len(at), m).
+
+    scipy.interpolate.CubicSpline's (the same tridiagonal system for the
+    slopes at the knots, solved by solve_banded, and the same Hermite
+    coefficients; outside [x_0, x_-1] the end pieces go on) without the
+    checks and the piecewise-polynomial object that take most of its time on
+    long series. ``x`` (n >= 4) strictly increasing, ``y`` of shape (n, m).
+    """
+    from scipy.interpolate import CubicSpline
+    from scipy.linalg import solve_banded
+
+    if x.size < 4:
+        spline = CubicSpline(x, y)
+        return spline(at), spline(at, 1)
+    dx = np.diff(x)
+    column = dx[:, None]
+    slope = np.diff(y, axis=0) / column
+    bands = np.zeros((3, x.size))
+    bands[1, 1:-1] = 2.0 * (dx[:-1] + dx[1:])
+    bands[0, 2:] = dx[:-1]
+    bands[-1, :-2] = dx[1:]
+    rhs = np.empty(y.shape)
+    rhs[1:-1] = 3.0 * (column[1:] * slope[:-1] + column[:-1] * slope[1:])
+    first, last = x[2] - x[0], x[-1] - x[-3]
+    bands[1, 0], bands[0, 1] = dx[1], first
+    rhs[0] = ((column[0] + 2.0 * first) * column[1] * slope[0] + column[0] ** 2 * slope[1]) / first
+    bands[1, -1], bands[-1, -2] = dx[-2], last
+    rhs[-1] = (column[-1] ** 2 * slope[-2] + (2.0 * last + column[-1]) * column[-2] * slope[-1]) / last
+    knot_slope = solve_banded((1, 1), bands, rhs, overwrite_ab=True, overwrite_b=True, check_finite=False)
+    t = (knot_slope[:-1] + knot_slope[1:] - 2.0 * slope) / column
+    piece = np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2)
+    u = (at - x[piece])[:, None]
+    cubic, square, linear = (t / column)[piece], ((slope - knot_slope[:-1]) / column - t)[piece], knot_slope[piece]
+    return ((cubic * u + square) * u + linear) * u + y[piece], (3.0 * cubic * u + 2.0 * square) * u + linear
