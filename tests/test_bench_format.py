@@ -7,11 +7,13 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ilcpmac.bench import fastcsv
+from ilcpmac.bench import fastcsv, parquet
 from ilcpmac.bench.fastcsv import format_rows, parse_rows
 from ilcpmac.bench.format import Bench, MotorInfo, as_written, convert_bench, read_bench, write_bench
 from ilcpmac.errors import BenchFormatError
@@ -284,6 +286,42 @@ def test_csv_to_parquet_and_back_gives_the_same_files(tmp_path, small_simulator,
     convert_bench(tmp_path / "parquet", tmp_path / "back", ".csv")
     for name in ("bench.toml", "backemf.csv", "sub/t.csv"):
         assert (tmp_path / "back" / name).read_bytes() == (tmp_path / "csv" / name).read_bytes(), name
+
+
+def test_parquet_trials_are_int64_decimals_every_reader_takes_as_decimals(tmp_path):
+    """Required DECIMAL(18, d) in INT64 as docs/bench-format.md says, without an Arrow schema that would name the
+    decimal64 the writer hands over: Arrow reads decimal128, as it always has."""
+    folder = write_folder(tmp_path / "csv")
+    convert_bench(folder, tmp_path / "parquet", ".parquet")
+    path = tmp_path / "parquet" / "trial_01.parquet"
+    f = pq.ParquetFile(path)
+    columns = {f.schema.column(i).name: f.schema.column(i) for i in range(len(f.schema))}
+    assert columns["count"].physical_type == "INT64" and columns["count"].logical_type.type == "NONE"
+    for name, scale in (("time", 7), ("i_ref_a", 6), ("torque", 6)):
+        assert (columns[name].physical_type, columns[name].logical_type.type) == ("INT64", "DECIMAL")
+        assert (columns[name].precision, columns[name].scale) == (18, scale)
+        assert f.schema_arrow.field(name).type == pa.decimal128(18, scale)
+    assert all(column.max_definition_level == 0 for column in columns.values())  # required: never null
+    assert b"ARROW:schema" not in (f.metadata.metadata or {})
+    assert_trials_equal(read_bench(tmp_path / "parquet").trials[0], read_bench(folder).trials[0])
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf, 1e12, -1e12])
+def test_parquet_writer_refuses_what_18_digits_cannot_hold(value):
+    with pytest.raises(ValueError, match=r"^cannot write NaN, infinite values or values beyond 18 digits$"):
+        parquet.table_bytes(["count", "x"], [np.arange(3), np.array([0.5, value, 1.0])], [0, 6])
+
+
+def test_parquet_writer_rounds_half_to_even_as_the_csv_and_takes_empty_columns(tmp_path):
+    path = tmp_path / "t.parquet"
+    values = np.array([0.5, 1.5, -2.5, 999999999999.5, -0.25])
+    path.write_bytes(parquet.table_bytes(["x", "y"], [values, values], [0, 1]))
+    header, data = parquet.read_columns(path, 10, {"x", "y"})
+    assert header == ["x", "y"]
+    np.testing.assert_array_equal(data[:, 0], [0.0, 2.0, -2.0, 1e12, -0.0])
+    np.testing.assert_array_equal(data[:, 1], [0.5, 1.5, -2.5, 999999999999.5, -0.2])
+    path.write_bytes(parquet.table_bytes(["x"], [np.zeros(0)], [6]))
+    assert parquet.read_columns(path, 10, {"x"})[1].shape == (0, 1)
 
 
 def test_convert_refuses_an_unknown_format_and_trials_that_would_collide(tmp_path):

@@ -274,6 +274,17 @@ def test_parquet_of_floats_and_integers_is_read(parquet_dir, pristine):
     assert back.i_meas_a is None
 
 
+@pytest.mark.parametrize("kind", [pa.decimal32(9, 6), pa.decimal64(18, 6), pa.decimal256(18, 6)])
+def test_parquet_decimals_of_every_arrow_width_are_read(parquet_dir, kind):
+    """Another writer's stored Arrow schema may name any decimal width: the same numbers."""
+    before = read_bench(parquet_dir).trials[0]
+    columns = trial_columns(parquet_dir)
+    columns["torque"] = columns["torque"].cast(kind)
+    write_table(parquet_dir / "trial_01.parquet", columns)
+    assert pq.read_schema(parquet_dir / "trial_01.parquet").field("torque").type == kind
+    np.testing.assert_array_equal(read_bench(parquet_dir).trials[0].torque_nm, before.torque_nm)
+
+
 @pytest.mark.parametrize("value, pattern", [(np.nan, r"row 8: torque is not a finite number"),
                                             (np.inf, r"row 8: torque is not a finite number"),
                                             (None, r"row 8: torque is empty")])

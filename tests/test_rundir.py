@@ -3,6 +3,7 @@ non-finite numbers, and errors printed while the live table is on screen."""
 
 from __future__ import annotations
 
+import base64
 import builtins
 import dataclasses
 import errno
@@ -19,10 +20,24 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from filelock import FileLock
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.bench.format import MotorInfo, as_written, read_bench, write_trial_csv
-from ilcpmac.campaign.rundir import HOLDER_FILE, LOCK_FILE, RunDir, RunDirError, trial_file
+from ilcpmac.campaign import rundir
+from ilcpmac.campaign.rundir import (
+    HOLDER_FILE,
+    LOCK_FILE,
+    PACKED_KEY,
+    PACKED_MIN_LENGTH,
+    RunDir,
+    RunDirError,
+    RunFiles,
+    _packed,
+    _unpacked,
+    trial_file,
+)
 from ilcpmac.cli import main
 from ilcpmac.errors import ConfigError
 from ilcpmac.records import SensorCalibration, TrialData
@@ -407,3 +422,95 @@ def test_a_run_written_with_csv_trials_resumes_and_goes_on_in_parquet(tmp_path):
     assert after.trial_files == ("trial_001.csv", "trial_002.csv", "trial_003.parquet")
     for a, b in zip(before.trials, after.trials):
         np.testing.assert_array_equal(a.torque_nm, b.torque_nm)
+
+
+# ---------------------------------------------------------------- what a commit writes, cheaply (issue 10)
+
+def bits(values) -> np.ndarray:
+    return np.asarray(values, np.float64).view(np.int64)
+
+
+def test_a_state_reads_back_to_the_bit_with_its_long_float_lists_packed(tmp_path):
+    table = [0.1 + 0.2, -0.0, 5e-324, -1.7976931348623157e308, *np.random.default_rng(5).normal(size=40).tolist()]
+    state = {"request": {"feedforward_nm": table, "revolutions": 8}, "short": table[:PACKED_MIN_LENGTH - 1],
+             "P": [None, *table], "ints": list(range(40)), "zeros": [0.0] * 40, "nested": [table, table[:3]],
+             "empty": []}
+    path = new_run(tmp_path / "run")
+    run = RunDir.resume(path, DESCRIPTION)
+    run.add_trial(trial(), state, {})
+    run.close()
+    raw = json.loads((path / "states" / "trial_001.json").read_text())
+    assert set(raw["request"]["feedforward_nm"]) == {PACKED_KEY} and set(raw["nested"][0]) == {PACKED_KEY}
+    for key in ("short", "P", "ints", "zeros", "empty"):
+        assert raw[key] == state[key], key
+    assert raw["nested"][1] == table[:3]
+    back = RunFiles(path).read_state(1)
+    assert back == state
+    np.testing.assert_array_equal(bits(back["request"]["feedforward_nm"]), bits(table))
+    assert RunDir.resume(path, DESCRIPTION).state(1) == state  # as a resume reads it
+    (path / "states" / "trial_001.json").write_text(json.dumps(state))  # a run written before packing
+    assert RunFiles(path).read_state(1) == state
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False), max_size=2 * PACKED_MIN_LENGTH))
+def test_packed_float_lists_unpack_to_the_same_bits(values):
+    state = {"a": values, "b": [values]}
+    back = json.loads(json.dumps(_packed(state, Path("s.json"))), object_hook=_unpacked)
+    assert back == state
+    np.testing.assert_array_equal(bits(back["a"]), bits(values))
+
+
+def test_a_non_finite_number_in_a_packed_list_is_named_and_not_written(tmp_path):
+    table = [0.0] * PACKED_MIN_LENGTH
+    table[7] = float("-inf")
+    path = new_run(tmp_path / "run", trials=1)
+    run = RunDir.resume(path, DESCRIPTION)
+    add(run, 2.0, {"request": {"feedforward_nm": table}})
+    with pytest.raises(RunDirError, match=r"trial_002\.json: request\.feedforward_nm\.7 is -inf, not a finite "
+                                          r"number; not written$"):
+        run.close()
+    assert completed(path) == 1
+
+
+@pytest.mark.parametrize("packed", ["AAAA", "not base64!", 5, None, base64.b64encode(np.array([1.0, np.nan]).tobytes()
+                                                                                    ).decode()])
+def test_a_damaged_packed_list_is_one_line_naming_the_state_file(tmp_path, packed):
+    path = new_run(tmp_path / "run", trials=1)
+    (path / "states" / "trial_001.json").write_text(json.dumps({"request": {"feedforward_nm": {PACKED_KEY: packed}}}))
+    with pytest.raises(RunDirError) as error:
+        RunFiles(path).read_state(1)
+    assert str(error.value).startswith(f"{path / 'states' / 'trial_001.json'}: unreadable (")
+    assert "\n" not in str(error.value)
+
+
+def summary_of(path: Path) -> dict:
+    return json.loads((path / "summary.json").read_text())
+
+
+def test_summary_json_is_held_back_within_its_interval_and_is_the_last_trials_once_the_run_stops(tmp_path,
+                                                                                                monkeypatch):
+    path = new_run(tmp_path / "run")
+    monkeypatch.setattr(rundir, "SUMMARY_INTERVAL_S", 1e9)
+    run = RunDir.resume(path, DESCRIPTION)
+    for k in range(3):
+        add(run, 1.0 + k)  # summary {"trials": trials before this one}
+    run.flush()
+    assert summary_of(path) == {"trials": 0}  # a run's first commit writes it, the next two are held back
+    run.close()
+    assert summary_of(path) == {"trials": 2}
+
+    run = RunDir.resume(path, DESCRIPTION)
+    add(run, 4.0)
+    add(run, 5.0)
+    run.write_summary({"trials": "final"})  # after the commits, and in place of what they held back
+    run.close()
+    assert summary_of(path) == {"trials": "final"}
+
+    monkeypatch.setattr(rundir, "SUMMARY_INTERVAL_S", 0.0)
+    run = RunDir.resume(path, DESCRIPTION)
+    add(run, 6.0)
+    add(run, 7.0)
+    run.flush()
+    assert summary_of(path) == {"trials": 6}
+    run.close()

@@ -29,29 +29,33 @@ _COLUMN_SLACK_BYTES = 1 << 20
 def table_bytes(header: list[str], columns: list[np.ndarray], decimals: list[int]) -> bytes:
     """A Parquet file holding ``columns`` (1-D), column c as a decimal rounded to ``decimals[c]`` decimals.
 
-    A column of 0 decimals is stored as int64.
+    A column of 0 decimals is stored as int64. The decimals reach the writer as
+    Arrow decimal64 over the scaled int64 values themselves (no copy: decimal128
+    costs the writer as much again to narrow to int64), and the Arrow schema is
+    not stored, so every reader sees the file's DECIMAL(18, d) as it always has
+    (Arrow: decimal128). Columns are required (no value is ever null, so no
+    definition levels), and carry no statistics (no reader of a trial filters
+    on them).
 
     Raises
     ------
     ValueError
         For a non-finite value or one beyond 18 digits at its decimals.
     """
-    arrays = []
-    for values, d in zip(columns, decimals):
-        scaled = np.round(np.asarray(values, np.float64) * 10.0**d)
-        if not np.all(np.abs(scaled) < 10.0**PRECISION):
+    fields, arrays = [], []
+    for name, values, d in zip(header, columns, decimals):
+        scaled = np.multiply(values, 10.0**d, dtype=np.float64)
+        np.rint(scaled, out=scaled)
+        if scaled.size and not (-(10.0**PRECISION) < scaled.min() and scaled.max() < 10.0**PRECISION):
             raise ValueError("cannot write NaN, infinite values or values beyond 18 digits")
         ints = scaled.astype(np.int64)
-        if d == 0:
-            arrays.append(pa.array(ints))
-            continue
-        words = np.empty((ints.size, 2), np.int64)  # decimal128: little-endian low word, then the sign
-        words[:, 0] = ints
-        words[:, 1] = ints >> 63
-        arrays.append(pa.Array.from_buffers(pa.decimal128(PRECISION, d), ints.size, [None, pa.py_buffer(words)]))
+        arrays.append(pa.array(ints) if d == 0 else
+                      pa.Array.from_buffers(pa.decimal64(PRECISION, d), ints.size, [None, pa.py_buffer(ints)]))
+        fields.append(pa.field(name, arrays[-1].type, nullable=False))
     sink = pa.BufferOutputStream()
-    pq.write_table(pa.table(arrays, names=header), sink, compression="zstd", use_dictionary=False,
-                   store_decimal_as_integer=True, column_encoding="DELTA_BINARY_PACKED")
+    pq.write_table(pa.Table.from_arrays(arrays, schema=pa.schema(fields)), sink, compression="zstd",
+                   use_dictionary=False, store_decimal_as_integer=True, column_encoding="DELTA_BINARY_PACKED",
+                   store_schema=False, write_statistics=False)
     return sink.getvalue().to_pybytes()
 
 
@@ -61,21 +65,27 @@ def _one_line(e: Exception) -> str:
 
 
 def _as_float(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:
-    """A numeric column as float64: a decimal as its integer over 10^scale, exactly as the CSV text parses."""
+    """A numeric column as float64: a decimal as its integer over 10^scale, exactly as the CSV text parses.
+
+    Decimals may come as any of Arrow's decimal widths (32 to 256 bits, as another writer's stored Arrow schema
+    says), each value a little-endian two's-complement integer.
+    """
     kind = column.type
-    if pa.types.is_decimal(kind):
-        if kind.bit_width != 128 or kind.precision > PRECISION:
-            raise BenchFormatError(f"{path}: column {name!r} is {kind}; decimals may have at most {PRECISION} "
-                                   "digits (docs/bench-format.md)")
-        words = np.concatenate([np.frombuffer(chunk.buffers()[1], np.int64).reshape(-1, 2)[
-            chunk.offset: chunk.offset + len(chunk)] for chunk in column.chunks]) if column.num_chunks else np.zeros(
-            (0, 2), np.int64)
-        low, high = words[:, 0], words[:, 1]  # little-endian 128-bit integers
-        wide = np.flatnonzero(high != low >> 63)
-        if wide.size:
-            raise BenchFormatError(f"{path}: row {wide[0] + 1}: {name} holds more than its {kind.precision} digits")
-        return low / 10.0**kind.scale
-    return column.to_numpy().astype(np.float64)
+    if not pa.types.is_decimal(kind):
+        return column.to_numpy().astype(np.float64)
+    if kind.precision > PRECISION:
+        raise BenchFormatError(f"{path}: column {name!r} is {kind}; decimals may have at most {PRECISION} "
+                               "digits (docs/bench-format.md)")
+    words = max(kind.bit_width // 64, 1)
+    word = np.int64 if kind.bit_width >= 64 else np.int32
+    values = np.concatenate([np.frombuffer(chunk.buffers()[1], word).reshape(-1, words)[
+        chunk.offset: chunk.offset + len(chunk)] for chunk in column.chunks]) if column.num_chunks else np.zeros(
+        (0, words), word)
+    low = values[:, 0].astype(np.int64)
+    wide = np.flatnonzero((values[:, 1:] != (low >> 63)[:, None]).any(axis=1))
+    if wide.size:
+        raise BenchFormatError(f"{path}: row {wide[0] + 1}: {name} holds more than its {kind.precision} digits")
+    return low / 10.0**kind.scale
 
 
 def read_columns(path: Path, max_rows: int, wanted: Collection[str]) -> tuple[list[str], np.ndarray]:

@@ -11,6 +11,7 @@ Layout::
       states/run.json      the run's settings (seed, trials, config)
       states/trial_001.json  after each trial: the request, every stage's state,
                            the campaign's own state and the trial's ripple figures
+                           (a list of 32 or more floats, not all whole, as {"float64_base64": ...})
       states/identification.json
       compensation.json    what the drive applies (ilcpmac.compensation; written when learning ends, again
                            with its fade-out once validation ends; ilcpmac export reads it)
@@ -25,10 +26,14 @@ campaign.toml. One that holds only what an interrupted creation writes is
 Each trial is committed in this order: its trial file, its state file, then
 bench.toml (the commit point: a trial is complete once bench.toml lists it),
 then summary.json; every file is written to a temporary name, fsynced
-(summary.json, derived from the states, is not) and renamed. A background
-thread commits trials in order while the campaign runs the next one; after a
-failed write (a full disk) nothing more is committed. After a crash, files of
-trials bench.toml does not list, and temporary files, are removed.
+(summary.json, derived from the states, is not) and renamed. summary.json is
+written at most once a second (`SUMMARY_INTERVAL_S`): a trial's commit within
+that time of the last write holds its summary back for the next commit, for
+`write_summary` or for `close`, so the file is the last trial's once the run
+stops (end, error or Ctrl-C). A background thread commits trials in order
+while the campaign runs the next one; after a failed write (a full disk)
+nothing more is committed. After a crash, files of trials bench.toml does not
+list, and temporary files, are removed.
 
 A run holds an exclusive lock on its directory from before creation (or
 resume) to its end: a second run on it fails at once, saying which process
@@ -41,6 +46,8 @@ it, ``ilcpmac report`` reads through it (no lock needed).
 
 from __future__ import annotations
 
+import base64
+import binascii
 import json
 import math
 import os
@@ -53,6 +60,7 @@ from contextlib import contextmanager, suppress
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 from filelock import FileLock, Timeout
 
 from ilcpmac.bench.format import (
@@ -80,6 +88,12 @@ HOLDER_FILE = ".lock.holder"
 #: what creation writes before campaign.toml, at the top and in states/ (each also as NAME.tmp)
 _CREATION_FILES = {LOCK_FILE, HOLDER_FILE, BACKEMF_FILE, BENCH_FILE, CONFIG_FILE}
 _CREATION_STATES = {RUN_FILE}
+#: a state file stores a flat list of at least this many floats as its bytes ...
+PACKED_MIN_LENGTH = 32
+#: ... in an object whose one key is this: the base64 of the list's little-endian float64 values
+PACKED_KEY = "float64_base64"
+#: least time between two writes of summary.json while trials are committed, s
+SUMMARY_INTERVAL_S = 1.0
 
 
 class RunDirError(IlcpmacError):
@@ -134,17 +148,19 @@ class RunFiles:
         """states/trial_NNN.json, the state saved with trial ``index``."""
         return self.states / f"trial_{index:03d}.json"
 
-    def read_json(self, path: Path) -> dict | None:
+    def read_json(self, path: Path, packed: bool = False) -> dict | None:
         """The JSON object in ``path`` (one of these paths), None when it does not exist; `RunDirError`
-        naming it when it cannot be read."""
+        naming it when it cannot be read. ``packed``: a state file's packed float lists are unpacked."""
         try:
-            return json.loads(path.read_text()) if path.is_file() else None
+            return json.loads(path.read_text(), object_hook=_unpacked if packed else None) if path.is_file() \
+                else None
         except (OSError, ValueError) as e:
             raise RunDirError(f"{path}: unreadable ({e})") from None
 
     def read_state(self, index: int) -> dict:
-        """The state saved with trial ``index``; `RunDirError` when it is missing or unreadable."""
-        state = self.read_json(self.state(index))
+        """The state saved with trial ``index`` (as it was given to `RunDir.add_trial`: packed lists
+        unpacked); `RunDirError` when it is missing or unreadable."""
+        state = self.read_json(self.state(index), packed=True)
         if state is None:
             raise RunDirError(f"{self.state(index)}: missing (trial {index} is not complete)")
         return state
@@ -189,6 +205,41 @@ def _json_text(data, target: Path, indent: int | None = None) -> str:
         if found is None:
             raise
         raise RunDirError(f"{target}: {found[0]} is {found[1]}, not a finite number; not written") from None
+
+
+def _packed(data, target: Path, where: str = ""):
+    """``data`` with every flat list of `PACKED_MIN_LENGTH` or more floats, not all whole numbers, as
+    {`PACKED_KEY`: the base64 of its float64 bytes}: the same numbers to the bit in 10.7 characters each (a
+    measured value's decimal text takes about 19, a whole number's a few: those stay text), encoded in a
+    quarter of the time; a non-finite one is a `RunDirError` naming its key, as `_json_text` names one elsewhere."""
+    if isinstance(data, dict):
+        return {key: _packed(value, target, f"{where}.{key}" if where else str(key)) for key, value in data.items()}
+    if not isinstance(data, list | tuple):
+        return data
+    if len(data) >= PACKED_MIN_LENGTH and all(isinstance(v, float) for v in data):
+        values = np.array(data, "<f8")
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise RunDirError(f"{target}: {where}.{bad[0]} is {values[bad[0]]}, not a finite number; not written")
+        whole = np.array_equal(values, np.rint(values))
+        return data if whole else {PACKED_KEY: base64.b64encode(values.tobytes()).decode("ascii")}
+    return [_packed(value, target, f"{where}.{k}") for k, value in enumerate(data)]
+
+
+def _unpacked(data: dict):
+    """A JSON object of a state file as `_packed` was given it (the object_hook of `json.loads`)."""
+    if data.keys() != {PACKED_KEY}:
+        return data
+    text = data[PACKED_KEY]
+    if not isinstance(text, str):
+        raise ValueError(f"{PACKED_KEY} holds {type(text).__name__}, not text")
+    try:
+        values = np.frombuffer(base64.b64decode(text, validate=True), "<f8")
+    except binascii.Error as e:
+        raise ValueError(f"{PACKED_KEY}: {e}") from None
+    if not np.isfinite(values).all():
+        raise ValueError(f"{PACKED_KEY} holds a non-finite number")
+    return values.tolist()
 
 
 @contextmanager
@@ -304,6 +355,10 @@ class RunDir:
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rundir")
         self._pending: list[Future] = []
         self._failed = False
+        self._closed = False
+        #: when summary.json was last written (time.monotonic, s), and the summary a commit held back since
+        self._summary_written_s = -math.inf
+        self._held_summary: dict | None = None
         self._lock = lock
         self._resumable = f"the run stays resumable: make room or allow writing, then ilcpmac run --resume {path}"
 
@@ -412,16 +467,20 @@ class RunDir:
         return len(self._entries)
 
     def flush(self) -> None:
-        """Wait until every added trial is committed; re-raise a failed write."""
+        """Wait until every added trial (and queued summary) is committed; re-raise a failed write."""
         pending, self._pending = self._pending, []
         for future in pending:
             future.result()
 
     def close(self) -> None:
-        """Commit what is pending, stop the writer and release the lock the run took itself."""
+        """Commit what is pending and the summary held back, stop the writer and release the lock the run
+        took itself."""
         try:
-            self.flush()
+            if not self._closed:
+                self.flush()
+                self._writer.submit(self._write_held_summary).result()
         finally:
+            self._closed = True
             self._writer.shutdown(wait=True)
             if self._lock is not None:
                 self._lock.release()
@@ -457,10 +516,13 @@ class RunDir:
             with _writing(data, self._resumable):
                 write_trial(data, replace(trial, i_meas_a=None, i_true_a=None, speed_true_rad_s=None))
             with _writing(state_file, self._resumable):
-                atomic_write(state_file, _json_text(state, state_file))
+                atomic_write(state_file, _json_text(_packed(state, state_file), state_file))
             with _writing(self.files.bench, self._resumable):
                 self._write_bench_toml(entries)
-            self.write_summary(summary)
+            if time.monotonic() - self._summary_written_s < SUMMARY_INTERVAL_S:
+                self._held_summary = summary
+            else:
+                self._write_summary(summary)
         except BaseException:
             self._failed = True
             raise
@@ -488,13 +550,26 @@ class RunDir:
             atomic_write(target, _json_text(data, target, indent=1))
 
     def write_summary(self, summary: dict) -> None:
-        """Write summary.json atomically (not fsynced: it is rebuilt from the states on resume)."""
+        """Queue summary.json for writing after the trials added before it, in place of any summary a commit
+        held back (atomically; not fsynced: it is rebuilt from the states on resume). Complete once `flush`
+        returns, which re-raises a failed write."""
+        self._pending.append(self._writer.submit(self._write_summary, summary))
+
+    def _write_summary(self, summary: dict) -> None:
+        """Write ``summary`` (in the writer's thread)."""
         target = self.files.summary
+        self._held_summary = None
         with _writing(target, self._resumable):
             atomic_write(target, _json_text(summary, target, indent=1), durable=False)
+        self._summary_written_s = time.monotonic()
+
+    def _write_held_summary(self) -> None:
+        if self._held_summary is not None:
+            self._write_summary(self._held_summary)
 
     def read_trials(self, indices: list[int]) -> list[TrialData]:
-        """Read complete trials back from their files."""
-        self.flush()
+        """Read complete trials back from their files (waiting for their commit)."""
+        if indices:
+            self.flush()
         torque_sensor = self.description.motor.torque_sensor
         return [self.files.read_trial(i, *self._entries[i - 1][1:], torque_sensor) for i in indices]
