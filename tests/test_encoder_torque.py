@@ -12,13 +12,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
     count_speeds,
     encoder_error_table,
     quantisation_variance_nm2,
     separate_encoder_error,
+    staircase_bias,
     without_encoder_error,
+    without_staircase,
 )
 from ilcpmac.signals.harmonics import harmonic_amplitudes, table_from_amplitudes
 
@@ -242,6 +245,61 @@ def test_the_floor_closed_form_holds_on_the_seed_bench():
         std = np.sqrt(quantisation_variance_nm2(h, 4096, 1e-6, J_KGM2, speed_hz, 64))
         omega = 2.0 * np.pi * speed_hz
         np.testing.assert_allclose(std, J_KGM2 * h**2 * omega**3 * 1e-6 / np.sqrt(3 * 64 * 4096), rtol=0.03)
+
+
+def _lagged_staircase(h: int, cpr: int, tau_s: float, delay_steps: int, count_s: float, steps: int = 64
+                      ) -> tuple[complex, complex]:
+    """S and M of eq. (5) by brute force: x_c = e^{j h c 2 pi / cpr} held over each count, switched T_d =
+    ``delay_steps`` sub-steps after the line, through exp(-t / tau) stepped exactly over ``steps`` sub-steps a
+    count, for 12 revolutions; the last revolution's sample at each line and exact mean over each count, over x_c."""
+    step_s = count_s / steps
+    decay = np.exp(-step_s / tau_s)
+    n = 12 * cpr * steps
+    target = np.exp(2j * np.pi * h * ((np.arange(n) - delay_steps) // steps) / cpr)
+    level = np.empty(n + 1, complex)
+    level[0] = 0.0
+    for k in range(n):
+        level[k + 1] = target[k] + (level[k] - target[k]) * decay
+    area = target * step_s + (level[:-1] - target) * tau_s * (1.0 - decay)
+    lines = np.arange(n - cpr * steps, n, steps)
+    x = np.exp(2j * np.pi * h * (lines // steps) / cpr)
+    mean = area[lines[:, None] + np.arange(steps)].sum(axis=1) / count_s
+    return np.mean(level[lines] / x), np.mean(mean / x)
+
+
+@pytest.mark.parametrize("delay_steps", [0, 5, -3])
+def test_the_staircase_bias_is_the_count_mean_less_the_line_sample_of_a_lagged_staircase(delay_steps):
+    """eq. (5) against a staircase stepped exactly through the lag, T_d = 0, 5/64 and -3/64 of a count; and its
+    first-order form j h Delta dt / (12 tau) for dt << tau, T_d = 0."""
+    cpr, speed_hz, tau_s = 32, 2.0, 0.02
+    count_s = 1.0 / (cpr * speed_hz)
+    loop = CurrentLoop(np.full(3, tau_s), delay_steps * count_s / 64)
+    for h in (1, 3, 7):
+        sample, mean = _lagged_staircase(h, cpr, tau_s, delay_steps, count_s)
+        nu = 2.0 * np.pi * h / cpr
+        expected = mean / (np.exp(0.5j * nu) * np.sinc(h / cpr)) - sample
+        np.testing.assert_allclose(staircase_bias([h], cpr, speed_hz, loop), np.full((1, 3), expected), atol=1e-12)
+        assert loop.response([h], speed_hz, cpr)[0, 0] == pytest.approx(sample, abs=1e-12)
+    slow = CurrentLoop(np.full(3, 1.0), 0.0)
+    first_order = 1j * 3 * (2.0 * np.pi / 4096) * (1.0 / (4096 * 0.5)) / 12.0
+    assert staircase_bias([3], 4096, 0.5, slow)[0, 0] == pytest.approx(first_order, rel=0.01)
+    np.testing.assert_array_equal(staircase_bias([0, 5], cpr, speed_hz, CurrentLoop()), np.zeros((2, 3)))
+
+
+def test_without_staircase_takes_the_phases_mean_bias_times_the_reference_out():
+    n, t = _steady_trial(1.0, 0.0, revolutions=2)
+    spectrum = EncoderTorqueSpectrum.of(n, t, CPR, H, J_KGM2, Q_S)
+    loop = CurrentLoop([1e-3, 2e-3, 3e-3], 1e-5)
+    reference = 2.0 + 0.3 * np.cos(48 * 2.0 * np.pi * np.arange(CPR) / CPR + 0.4)
+    epsilon_alpha = np.array([0.9, 1.0, 1.2])
+    corrected = without_staircase(spectrum, reference, epsilon_alpha, loop)
+    bias = staircase_bias([48], CPR, spectrum.mean_speed_hz, loop)[0]
+    change = spectrum.harmonics_nm - corrected.harmonics_nm
+    assert change[48] == pytest.approx(np.mean(epsilon_alpha * bias) * 0.3 * np.exp(0.4j), rel=1e-9)
+    assert np.max(np.abs(np.delete(change, 48))) < 1e-15
+    np.testing.assert_array_equal(corrected.variance_nm2, spectrum.variance_nm2)
+    with pytest.raises(ValueError, match=f"reference_nm must hold {CPR} finite values"):
+        without_staircase(spectrum, reference[:-1], epsilon_alpha, loop)
 
 
 @pytest.mark.parametrize("change, message", [

@@ -9,9 +9,10 @@ revolutions before the revolution harmonics (`revolution_harmonics`) are taken.
 What measures the ripple is a `TorqueMeasurement` ([campaign] torque_source,
 docs/sensorless.md): the torque sensor, in its units (delta times the true
 torque through its high-pass); the encoder's time stamps
-(`ilcpmac.signals.encoder_torque`), in N m; or both fused per harmonic by
-inverse variance, in N m. `TorqueMeasurement.response` is the one place that
-says how a measured harmonic relates to the true torque's.
+(`ilcpmac.signals.encoder_torque`), the torque at the lines in N m; or both
+fused per harmonic by inverse mean-square error, in N m.
+`TorqueMeasurement.response` is the one place that says how a measured
+harmonic relates to the true torque's.
 """
 
 from __future__ import annotations
@@ -23,7 +24,12 @@ import numpy as np
 from ilcpmac.config import TORQUE_SOURCES
 from ilcpmac.errors import IlcpmacError
 from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
-from ilcpmac.signals.encoder_torque import EncoderTorqueSpectrum, brake_viscous_nm_s, with_viscous
+from ilcpmac.signals.encoder_torque import (
+    EncoderTorqueSpectrum,
+    brake_viscous_nm_s,
+    with_viscous,
+    without_staircase,
+)
 from ilcpmac.signals.harmonics import (
     RippleFigures,
     linear_trend,
@@ -127,13 +133,18 @@ class TorqueSpectrum:
         )
 
 
-def fused(sensor: TorqueSpectrum, encoder: TorqueSpectrum) -> TorqueSpectrum:
-    """Two spectra of one torque in N m, combined per harmonic by inverse variance; the mean (h = 0), which a
-    piezo does not see, is the encoder's.
+def fused(sensor: TorqueSpectrum, encoder: TorqueSpectrum, encoder_bias_nm: np.ndarray | None = None
+          ) -> TorqueSpectrum:
+    """Two spectra of one torque in N m, combined per harmonic by inverse mean-square error; the mean (h = 0),
+    which a piezo does not see, is the encoder's.
 
-    Each harmonic's variance is 1 / (1 / v_s + 1 / v_e), below either; ``rest_rms_nm`` is the smaller of the two.
+    ``encoder_bias_nm`` (shape (H + 1,), N m; None: 0) bounds the encoder's bias per harmonic, which repeats
+    trial after trial and no revolution scatter shows: its mean-square error is v_e + bias^2
+    (docs/sensorless.md, "both"). Each harmonic's variance is 1 / (1 / v_s + 1 / (v_e + bias^2)), below either;
+    ``rest_rms_nm`` is the smaller of the two.
     """
-    ws, we = 1.0 / sensor.variance_nm2, 1.0 / encoder.variance_nm2
+    bias2 = 0.0 if encoder_bias_nm is None else np.abs(encoder_bias_nm) ** 2
+    ws, we = 1.0 / sensor.variance_nm2, 1.0 / (encoder.variance_nm2 + bias2)
     harmonics = (ws * sensor.harmonics_nm + we * encoder.harmonics_nm) / (ws + we)
     variance = 1.0 / (ws + we)
     harmonics[0], variance[0] = encoder.harmonics_nm[0], encoder.variance_nm2[0]
@@ -204,16 +215,29 @@ class TorqueMeasurement:
     def encoder_spectrum(self, trial: TrialData, counts_per_rev: int, max_harmonic: int) -> TorqueSpectrum:
         """The encoder-derived torque of ``trial`` (whose ``request`` is set) as a `TorqueSpectrum` in N m.
 
-        Its variance is the fit's weight (`EncoderTorqueSpectrum.weight_variance_nm2`: the larger of the
-        revolution scatter and the quantisation floor, eq. 3); ``rest_rms_nm`` the revolution-to-revolution
-        scatter's RMS within the band 1..H.
+        The torque at the lines, as a torque sensor samples it: the currents' staircase taken out (eq. 5 of
+        `ilcpmac.signals.encoder_torque`, with the identified current loop at the trial's calibration). Its
+        variance is the fit's weight (`EncoderTorqueSpectrum.weight_variance_nm2`: the larger of the revolution
+        scatter and the quantisation floor, eq. 3); ``rest_rms_nm`` the revolution-to-revolution scatter's RMS
+        within the band 1..H.
         """
+        return self.encoder_spectrum_and_staircase(trial, counts_per_rev, max_harmonic)[0]
+
+    def encoder_spectrum_and_staircase(self, trial: TrialData, counts_per_rev: int, max_harmonic: int
+                                       ) -> tuple[TorqueSpectrum, np.ndarray]:
+        """`encoder_spectrum`, and what eq. 5 took out of it per harmonic 0..H (complex, N m): the bound on its
+        bias that "both" weights it with (`fused`)."""
+        request = trial.request
         spectrum = EncoderTorqueSpectrum.of(trial.count, trial.time_s, counts_per_rev, max_harmonic,
                                             self.inertia_kgm2, self.timer_resolution_s, 0.0, self.line_errors_counts)
-        spectrum = with_viscous(spectrum, brake_viscous_nm_s(self.mean_torque_nm(trial.request),
+        spectrum = with_viscous(spectrum, brake_viscous_nm_s(self.mean_torque_nm(request),
                                                              spectrum.speed_harmonics_rad_s[0].real, self.friction_nm))
-        rest = float(np.sqrt(spectrum.revolutions * np.sum(spectrum.variance_nm2[1:]) / 2.0))
-        return TorqueSpectrum(spectrum.harmonics_nm, spectrum.weight_variance_nm2, rest, counts_per_rev)
+        corrected = without_staircase(spectrum, request.torque_reference_nm(),
+                                      self.identified.epsilon_alpha_at(request.calibration),
+                                      self.identified.loop_at(request.calibration))
+        rest = float(np.sqrt(corrected.revolutions * np.sum(corrected.variance_nm2[1:]) / 2.0))
+        return (TorqueSpectrum(corrected.harmonics_nm, corrected.weight_variance_nm2, rest, counts_per_rev),
+                spectrum.harmonics_nm - corrected.harmonics_nm)
 
     def in_true_units(self, spectrum: TorqueSpectrum, speed_hz: float, calibration: SensorCalibration
                       ) -> TorqueSpectrum:
@@ -259,11 +283,11 @@ class TrialAnalysis:
             if torques else []
         measured = spectra.pop(0) if sensor and trial.torque_nm is not None else None
         if measurement is not None and measurement.source != "sensor":
-            encoder = measurement.encoder_spectrum(trial, counts_per_rev, max_harmonic)
+            encoder, staircase = measurement.encoder_spectrum_and_staircase(trial, counts_per_rev, max_harmonic)
             if measurement.source == "both":
                 response = measurement.sensor_response(np.arange(max_harmonic + 1),
                                                        trial.mean_speed_hz(counts_per_rev), trial.request.calibration)
-                encoder = fused(measured.divided_by(response), encoder)
+                encoder = fused(measured.divided_by(response), encoder, staircase)
             measured = encoder
         if trial.torque_true_nm is None:
             return cls(measured)

@@ -84,6 +84,35 @@ it is 8.3e-6 N m at h 150 and 0.5 Hz, 2.2e-4 N m at 1.5 Hz: a peak-to-peak
 2 std of 0.0017 % and 0.045 % of 1 N m (`benchmarks/sensorless_floor.py`
 tabulates it; the viscous b adds |b|^2 to |g_h|^2, which matters at low h).
 
+Staircase currents
+------------------
+Step 1 takes the torque for band-limited: the rotor then integrates over each count the torque at the lines
+through the boxcar B_h = e^{j h Delta / 2} sinc(h Delta / 2). The torque the currents make is not band-limited:
+the controller updates each phase's reference x_c once per count, at the line's crossing, and the current loop
+(`ilcpmac.model.current_loop`: a first-order lag tau per phase, a delay T_d within one count) moves within count c
+along x_c + (s_c - x_c) e^{-t / tau}, s_c the current at the count's start. A torque sensor, and the simulator's
+true torque, sample it at the lines: S_h x_h (`CurrentLoop.response`). The rotor integrates it over the count,
+the mean over [t_c - T_d, t_(c+1) - T_d] of the recursion: with dt = 1 / (N_c f), a = e^{-dt / tau},
+z = e^{j h Delta} and sigma_h = (1 - a) / (z - a) (s_c / x_c),
+
+    T_d >= 0, b = e^{-(dt - T_d) / tau}:
+        M_h dt = (T_d + (sigma_h - 1) tau (b - a)) / z + dt - T_d + (sigma_h - 1) tau (1 - b)
+    T_d < 0, b = e^{T_d / tau}:
+        M_h dt = dt + T_d + (sigma_h - 1) tau (b - a) + z (-T_d + (sigma_h - 1) tau (1 - b))
+
+Step 1 gives (M_h / B_h) x_h where the lines see S_h x_h: the estimate adds
+
+    beta_h x_h,   beta_h = M_h / B_h - S_h                                 (5)
+
+(`staircase_bias`, per phase). `without_staircase` takes it out with x_h the torque the currents are asked
+for: the torque reference's harmonics through each phase's epsilon alpha_p, the phases' mean (as the stages
+model the currents' torque, `StageSetup.torque_response`). For dt << tau and T_d = 0, beta_h = j h Delta dt /
+(12 tau): a phase lead of the currents' torque that falls as 1 / speed (0.0026j at h = 48 on the seed bench
+at 0.5 Hz, tau = 1.14 ms). It is not noise, and learning makes it a bias: once the currents cancel a
+position-fixed torque (cogging), the estimate without (5) is zero where the torque at the lines is
+-beta_h times the cogging's harmonic. An ideal loop (tau = 0) is left alone: its current jumps at the line,
+where a sample may read either value.
+
 Encoder graduation errors
 -------------------------
 Line c at the true angle (c + e_c) Delta makes interval c last as long as an
@@ -145,6 +174,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.signals.harmonics import (
     filtered,
     harmonic_amplitudes,
@@ -175,8 +205,10 @@ __all__ = [
     "separate_encoder_error",
     "significant_encoder_error",
     "speed_to_torque_gain",
+    "staircase_bias",
     "with_viscous",
     "without_encoder_error",
+    "without_staircase",
 ]
 
 
@@ -374,6 +406,50 @@ def with_viscous(spectrum: EncoderTorqueSpectrum, viscous_nm_s: float) -> Encode
                        h, s.counts_per_rev, s.timer_resolution_s, s.inertia_kgm2, s.mean_speed_hz, s.revolutions,
                        viscous_nm_s),
                    viscous_nm_s=float(viscous_nm_s))
+
+
+def staircase_bias(harmonics: np.ndarray, counts_per_rev: int, speed_hz: float, loop: CurrentLoop) -> np.ndarray:
+    """beta_h of eq. (5) per phase: what step 1 adds to the torque a phase's current makes, per unit of the
+    harmonic of its per-count target, through ``loop`` at the constant speed ``speed_hz``.
+
+    Shape (len(harmonics), 3), complex, as `CurrentLoop.response`; 0 at h = 0, and everywhere for an ideal loop.
+    """
+    h = np.asarray(harmonics, float)
+    if loop.is_ideal:
+        return np.zeros((h.size, 3), complex)
+    nu = 2.0 * np.pi * h / counts_per_rev
+    z = np.exp(1j * nu)[:, None]
+    dt = 1.0 / (counts_per_rev * speed_hz)
+    tau = np.maximum(loop.time_constant_s, 1e-300)
+    a = np.exp(-dt / tau)
+    state = (1.0 - a) / (z - a)
+    delay = loop.delay_s
+    if delay >= 0.0:
+        b = np.exp(-(dt - delay) / tau)
+        mean = ((delay + (state - 1.0) * tau * (b - a)) / z + dt - delay + (state - 1.0) * tau * (1.0 - b)) / dt
+    else:
+        b = np.exp(delay / tau)
+        mean = (dt + delay + (state - 1.0) * tau * (b - a) + z * (-delay + (state - 1.0) * tau * (1.0 - b))) / dt
+    boxcar = (np.exp(0.5j * nu) * np.sinc(h / counts_per_rev))[:, None]
+    return mean / boxcar - loop.response(h, speed_hz, counts_per_rev)
+
+
+def without_staircase(spectrum: EncoderTorqueSpectrum, reference_nm: np.ndarray, epsilon_alpha: np.ndarray,
+                      loop: CurrentLoop) -> EncoderTorqueSpectrum:
+    """``spectrum`` less eq. (5)'s beta_h x_h: the torque at the lines, as a torque sensor samples it.
+
+    The currents' torque is the torque reference per count, ``reference_nm`` (shape (counts_per_rev,), N m),
+    through each phase's current sensors and loop, x_h beta_h = mean_p(epsilon alpha_p beta_h,p) tau_ref,h (the
+    model of `ilcpmac.stages.base.StageSetup.torque_response`); ``epsilon_alpha`` (3,) and ``loop`` at the
+    trial's calibration. The variances stay.
+    """
+    x = np.asarray(reference_nm, float)
+    if x.shape != (spectrum.counts_per_rev,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"reference_nm must hold {spectrum.counts_per_rev} finite values, got shape {x.shape}")
+    bias = staircase_bias(np.arange(spectrum.max_harmonic + 1), spectrum.counts_per_rev, spectrum.mean_speed_hz,
+                          loop)
+    return replace(spectrum, harmonics_nm=spectrum.harmonics_nm - np.mean(np.asarray(epsilon_alpha) * bias, axis=1)
+                   * harmonic_amplitudes(x, spectrum.max_harmonic))
 
 
 def revolution_torques_nm(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int, max_harmonic: int,
