@@ -148,3 +148,10 @@ def plan(write_config):
 
     cfg = load_config(write_config(SMALL_CAMPAIGN))
     return CampaignPlan.build(cfg, simulator_backend(cfg).describe(), 7)
+
+
+@pytest.fixture
+def quick_emulator_stop(monkeypatch) -> None:
+    """Bench emulators started in the test check for a stop (or a restart) every 10 ms instead of 100 ms
+    (ilcpmac.backends.emulator._POLL_S, their listener's accept timeout): each stop() waited up to 0.1 s."""
+    monkeypatch.setattr("ilcpmac.backends.emulator._POLL_S", 0.01)

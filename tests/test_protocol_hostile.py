@@ -249,7 +249,7 @@ class FakeBackend:
 
 
 @pytest.fixture
-def emulator(request):
+def emulator(request, quick_emulator_stop):
     def start(backend=None, **options) -> BenchEmulator:
         options = {"chunk_samples": 32, "heartbeat_s": WAIT_S, "idle_timeout_s": WAIT_S, "frame_timeout_s": WAIT_S,
                    **options}

@@ -8,22 +8,36 @@ logs ``run_2nm.csv``, ``run_4nm.csv``, the grid's logs without torque ``grid_log
 ``scan_log.csv`` (ilcpmac/sim/standstill.py) are simulated. The guide's files (```python and ```toml blocks whose
 first line is ``# NAME``) are written as shown, except ``counts_per_rev``, kept at the stand-in's; a second
 ``my-motor.toml`` block adds its keys to the first. Only the commands of NOT_RUN are not run.
+
+How they run: ``ilcpmac emulate`` as a process of this environment's console script (it serves until stopped);
+``cp``, ``sed`` and any line with shell syntax (a redirection) through the shell; every other ``ilcpmac ...`` and
+``python SCRIPT.py ...`` in this process (`run_in_process`). The console script is ``sys.exit(ilcpmac.cli.main())``
+(checked) and python runs a script as ``__main__``: the same code on the same words, in the same folder and
+environment, its exit status, stdout and stderr checked as a process's are. Only the interpreter's start-up and
+imports (1-2 s a command, 20 of them) are not repeated.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import glob
+import io
 import json
 import os
 import re
+import runpy
 import select
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import time
 import tomllib
+from importlib.metadata import entry_points
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -33,6 +47,7 @@ from conftest import COUNTS_PER_REV, REAL_BENCH_CONFIG, SEED_CONFIG, toml_text
 from ilcpmac.bench.format import write_backemf_csv
 from ilcpmac.bench.importer import read_mapping
 from ilcpmac.bench.standstill import SensorErrors
+from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.sim.grid import grid_requests
@@ -71,6 +86,8 @@ BACKEMF_TOLERANCE = 2e-3
 #: RMS (1.6 % and 2.0 % measured on the stand-in's grid, 3 revolutions per trial), and the scan's cogging (0.23 %)
 ENCODER_EPSILON_TOLERANCE, ENCODER_COGGING_TOLERANCE, SCAN_COGGING_TOLERANCE = 0.03, 0.04, 0.02
 COMMAND_TIMEOUT_S = 300
+#: characters of a command line that only a shell understands (redirections, pipes, quotes, variables, lists)
+SHELL_SYNTAX = set("<>|&;$`'\"\\(){}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,8 +198,7 @@ def test_fit_backemf_recovers_the_table(steps, small_model, tmp_path, write_conf
     (tmp_path / "fit_backemf.py").write_text(script.text)
     truth = emf_log(tmp_path / "emf_log.csv", small_model)
     config = write_config({"bench": {"counts_per_rev": COUNTS_PER_REV}}, name="my-motor.toml")
-    done = subprocess.run([sys.executable, "fit_backemf.py", "emf_log.csv", config.name, "backemf.csv"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
+    done = run_in_process(f"python fit_backemf.py emf_log.csv {config.name} backemf.csv", tmp_path)
     assert done.returncode == 0, done.stderr
     fitted = np.loadtxt(tmp_path / "backemf.csv", delimiter=",", skiprows=1)[:, 1:]
     assert np.abs(fitted - truth).max() < BACKEMF_TOLERANCE * np.abs(truth).max()
@@ -195,8 +211,7 @@ def test_fit_backemf_recovers_the_table(steps, small_model, tmp_path, write_conf
     backwards = tmp_path / "backwards.csv"
     rows = np.loadtxt(tmp_path / "emf_log.csv", delimiter=",", skiprows=1)[:2000]
     np.savetxt(backwards, rows[::-1], delimiter=",", header="t,p,a,b,c", comments="")
-    refused = subprocess.run([sys.executable, "fit_backemf.py", backwards.name, config.name, "x.csv"],
-                             cwd=tmp_path, capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S)
+    refused = run_in_process(f"python fit_backemf.py {backwards.name} {config.name} x.csv", tmp_path)
     assert refused.returncode != 0 and "runs backwards" in refused.stderr and not (tmp_path / "x.csv").exists()
 
 
@@ -323,8 +338,11 @@ class Stand:
         for address in ADDRESSES:
             line = line.replace(address, self.address or address)
         started = time.monotonic()
-        done = subprocess.run(line, shell=True, cwd=self.folder, env=environment(), capture_output=True, text=True,
-                              timeout=COMMAND_TIMEOUT_S)
+        if runs_in_process(line):
+            done = run_in_process(line, self.folder)
+        else:
+            done = subprocess.run(line, shell=True, cwd=self.folder, env=environment(), capture_output=True,
+                                  text=True, timeout=COMMAND_TIMEOUT_S)
         print(f"{time.monotonic() - started:6.1f} s  {line}")
         said = f"{command.line}\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
         if command.error is None:
@@ -355,6 +373,64 @@ def write_log(path: Path, trial, position_counts_per_rev: int, header: str) -> N
                comments="")
 
 
+def runs_in_process(line: str) -> bool:
+    """Whether `run_in_process` runs ``line``: ``ilcpmac ...`` or ``python SCRIPT.py ...``, no shell syntax but
+    globs."""
+    words = shlex.split(line)
+    return not set(line) & SHELL_SYNTAX and (words[0] == "ilcpmac" or words[0] == "python" and
+                                             len(words) > 1 and words[1].endswith(".py"))
+
+
+class CommandTimeout(BaseException):
+    """A command run in this process outlived COMMAND_TIMEOUT_S (no command's ``except Exception`` takes it)."""
+
+
+@contextlib.contextmanager
+def deadline(seconds: int):
+    """Raise `CommandTimeout` in the main thread if the block runs longer than ``seconds``."""
+    def time_out(signum, frame):
+        raise CommandTimeout(f"still running after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, time_out)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def run_in_process(line: str, folder: Path) -> subprocess.CompletedProcess:
+    """``line`` (`runs_in_process`) run in this process as its program runs it: ``ilcpmac``, the console script
+    of this environment, is ``sys.exit(main())``; ``python`` runs the script as ``__main__``, its folder first on
+    sys.path. The words as the shell splits them, globs expanded as the shell expands them (sorted; a pattern
+    matching nothing stays as typed); in ``folder``, with `environment()` and sys.argv the words (all restored
+    after); stdout and stderr captured; stopped after COMMAND_TIMEOUT_S. The exit status is the `SystemExit`'s as
+    Python makes it one (None: 0; a message: printed to stderr, 1); any other exception escapes, failing the test
+    as its traceback would."""
+    words = []
+    for word in shlex.split(line):
+        matches = sorted(glob.glob(word, root_dir=folder)) if set(word) & set("*?[") else []
+        words += matches or [word]
+    program, *args = words
+    argv = args if program == "python" else [str(BIN / "ilcpmac"), *args]
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with mock.patch.dict(os.environ, environment(), clear=True), contextlib.chdir(folder), \
+            mock.patch.object(sys, "argv", argv), mock.patch.object(sys, "path", [str(folder), *sys.path]), \
+            contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), deadline(COMMAND_TIMEOUT_S):
+        try:
+            if program == "python":
+                runpy.run_path(args[0], run_name="__main__")
+            else:
+                main(args, prog_name="ilcpmac")
+            code = 0
+        except SystemExit as exit:
+            code = 0 if exit.code is None else exit.code if isinstance(exit.code, int) else 1
+            if not isinstance(exit.code, int | None):
+                print(exit.code, file=sys.stderr)
+    return subprocess.CompletedProcess(line, code, stdout.getvalue(), stderr.getvalue())
+
+
 def environment() -> dict[str, str]:
     """The commands' environment: this interpreter's `python` and `ilcpmac` first on the path, plots off-screen."""
     return {**os.environ, "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}", "MPLBACKEND": "Agg"}
@@ -363,6 +439,7 @@ def environment() -> dict[str, str]:
 @pytest.mark.slow
 def test_the_guide_runs_top_to_bottom(steps, tmp_path):
     assert (BIN / "ilcpmac").exists() and (BIN / "python").exists()
+    assert entry_points(group="console_scripts", name="ilcpmac")["ilcpmac"].load() is main
     stand = Stand(tmp_path)
     try:
         for step in steps:

@@ -73,7 +73,7 @@ def requests(config) -> list[TrialRequest]:
 
 
 @pytest.fixture
-def emulator(request, simulator):
+def emulator(request, simulator, quick_emulator_stop):
     """Start an in-process emulator on an ephemeral port; stopped when the test ends."""
 
     def start(backend: Backend = simulator, port: int = 0, **options) -> BenchEmulator:
@@ -245,7 +245,7 @@ def test_a_fault_once_ends_in_a_clean_retry(emulator, remote, simulator, request
 ])
 def test_a_persistent_fault_ends_in_a_clear_error(emulator, remote, requests, fault, reason):
     server = emulator(faults=FaultPlan(**{fault: Fault(2, repeat=True)}, stall_s=5.0))
-    backend = remote(server.address, retries=3, backoff_s=0.1)
+    backend = remote(server.address, retries=3)
     backend.run_trial(requests[0])
     with pytest.raises(BackendError, match=rf"^trial 2 \(2 N m, 0.6 Hz\) on 127.0.0.1:\d+: gave up after 4 "
                                            rf"attempts; last failure: .*({reason})"):

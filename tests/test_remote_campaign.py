@@ -2,15 +2,20 @@
 faults, and resumable after one it could not ride out.
 
 Every emulator runs in this process on 127.0.0.1 with an ephemeral port and is stopped by its
-fixture; timeouts are short and retries bounded, so no test can hang.
+fixture; timeouts are short and retries bounded, so no test can hang. The small campaign's config and
+its run on the simulator (the reference) are made once for the module: the tests only read them.
 """
 
 from __future__ import annotations
 
+import time
+import tomllib
+from types import SimpleNamespace
+
 import pytest
 from campaign_helpers import SMALL_CAMPAIGN, run_campaign, simulator_backend
 from click.testing import CliRunner
-from conftest import REAL_BENCH_CONFIG
+from conftest import REAL_BENCH_CONFIG, SEED_CONFIG, toml_text
 
 from ilcpmac.backends.emulator import BenchEmulator, Fault, FaultPlan
 from ilcpmac.backends.remote import RemoteBackend
@@ -20,13 +25,19 @@ from ilcpmac.config import load_config
 from ilcpmac.errors import BackendError
 
 
-@pytest.fixture
-def config(write_config):
-    return load_config(write_config(SMALL_CAMPAIGN))
+@pytest.fixture(scope="module")
+def config(tmp_path_factory):
+    """The seed campaign made small (SMALL_CAMPAIGN), as write_config writes it."""
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    for table, values in SMALL_CAMPAIGN.items():
+        data.setdefault(table, {}).update(values)
+    path = tmp_path_factory.mktemp("config") / "campaign.toml"
+    path.write_text(toml_text(data))
+    return load_config(path)
 
 
 @pytest.fixture
-def emulator(config):
+def emulator(config, quick_emulator_stop):
     """Start emulators of ``config``'s drive with a fault plan; all are stopped at the end."""
     started: list[BenchEmulator] = []
 
@@ -44,7 +55,7 @@ def remote(emu: BenchEmulator, retries: int = 2) -> RemoteBackend:
     return RemoteBackend(emu.address, connect_timeout_s=2.0, read_timeout_s=1.0, retries=retries, backoff_s=0.05)
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def reference(config, tmp_path_factory):
     """The same campaign on the simulator backend."""
     return run_campaign(config, tmp_path_factory.mktemp("sim") / "run")
@@ -90,17 +101,21 @@ def test_after_a_fault_it_cannot_ride_out_resume_completes_the_campaign(config, 
     assert summary == reference
 
 
-def test_ilcpmac_run_on_the_remote_backend(config, emulator, tmp_path):
+def test_ilcpmac_run_on_the_remote_backend(config, emulator, tmp_path, monkeypatch):
+    """The unreachable target's retries are kept, their back-off only recorded, not slept (3.5 s)."""
     emu = emulator()
     out = tmp_path / "run"
     result = CliRunner().invoke(main, ["run", str(config.path), "--out", str(out), "--backend", "remote",
                                        "--address", emu.address, "--trials", "2"])
     assert result.exit_code == 0, result.output
     assert (out / "summary.json").is_file()
+    slept: list[float] = []
+    monkeypatch.setattr("ilcpmac.backends.remote.time", SimpleNamespace(monotonic=time.monotonic, sleep=slept.append))
     unreachable = CliRunner().invoke(main, ["run", str(config.path), "--out", str(tmp_path / "b"),
                                             "--backend", "remote", "--address", "127.0.0.1:1"])
     assert unreachable.exit_code == 2
     assert unreachable.stderr.startswith("error: ") and "Traceback" not in unreachable.output
+    assert slept and slept == [slept[0] * 2**k for k in range(len(slept))]  # retried, backing off
 
 
 @pytest.mark.slow

@@ -178,7 +178,7 @@ def test_sweep_on_a_local_cluster_records_failures_and_resumes(spec_file, small_
             self.indices.append(result.task.index)
 
     events = Recorder()
-    client = local_client(2)
+    client = local_client(1)  # one worker process: a second only repeats its start-up and warm-up, seconds each
     try:
         runner.run(client, tasks[:1] + tasks[2:3], events)  # one good and one failing task, then stop
         first = {i: result_file(out, i).stat().st_mtime_ns for i in (0, 2)}
