@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import subprocess
 import sys
 
@@ -177,3 +178,31 @@ def test_the_cli_offers_the_plot_formats_without_importing_matplotlib():
     code = "import sys, ilcpmac.cli; print(sorted({'matplotlib', 'numba'} & set(sys.modules)))"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.stdout.strip() == "[]", done.stdout + done.stderr
+
+
+FAULTS_PROBE = """
+import resource, sys
+import numpy as np
+from ilcpmac.runtime import keep_freed_memory
+if sys.argv[1] == "kept":
+    keep_freed_memory()
+x, s = np.ones(2**18), np.ones((2, 1))
+for _ in range(3):
+    x * s + s  # two temporaries of 4 MiB, as `linear_trend` makes of a trial
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(50):
+    x * s + s
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+def test_the_cli_has_malloc_reuse_a_trials_worth_of_freed_memory_instead_of_faulting_it_in_again():
+    """50 times two temporaries of 4 MiB: freed, malloc gives them back to the system by default and faults
+    their 1024 pages in again the next time; it reuses them once `keep_freed_memory` has run (as every command
+    does)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    faults = {how: int(subprocess.run([sys.executable, "-c", FAULTS_PROBE, how], env=env, capture_output=True,
+                                      text=True, check=True).stdout) for how in ("default", "kept")}
+    assert faults["default"] > 50 * 512
+    assert faults["kept"] < 50 * 16

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import errno
-import os
 import sys
 
 import click
@@ -11,6 +10,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ilcpmac.errors import IlcpmacError
+from ilcpmac.runtime import tune_process
 
 #: progress and messages go to stderr; results (tables) may go to stdout
 console = Console(stderr=True)
@@ -54,17 +54,7 @@ def progress_bar() -> Progress:
 @click.version_option(package_name="ilcpmac")
 def main() -> None:
     """Identify and compensate the torque ripple of PM AC motors (Grassens 2009 and beyond)."""
-    use_one_blas_thread()
-
-
-def use_one_blas_thread() -> None:
-    """One OpenBLAS thread, unless OPENBLAS_NUM_THREADS says otherwise; no command has imported NumPy yet.
-
-    The matrices are small: a second BLAS thread costs more than it gains and, spinning while it waits,
-    takes a core from the simulator's threads (0.8 s of the default ``ilcpmac run``'s 7.3 s on two cores,
-    more when they are shared).
-    """
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    tune_process()
 
 
 # Each command lives in its own module and registers itself on `main` when imported.

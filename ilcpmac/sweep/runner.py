@@ -20,6 +20,7 @@ from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 from filelock import FileLock
 
 from ilcpmac.errors import IlcpmacError
+from ilcpmac.runtime import tune_process
 from ilcpmac.sweep.results import finished_tasks, read_results, write_result
 from ilcpmac.sweep.spec import SweepSpec, SweepSpecError, TaskDraw, toml_text
 from ilcpmac.sweep.task import SweepTask, TaskResult, run_task
@@ -90,7 +91,7 @@ class NumbaWarmup(WorkerPlugin):
         self.kind = kind
 
     def setup(self, worker) -> None:
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+        tune_process()
         warm_kernels(self.kind)
 
 
