@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ilcpmac.bench.format import MotorInfo
 from ilcpmac.identify.joint import _JointProblem, _lag_derivatives, _tall_product, harmonic_sets, time_shifted
@@ -202,3 +204,20 @@ def test_trial_amplitudes_of_the_derivatives_are_linear():
     stacked = trial_amplitudes(tables, 20)
     alone = np.concatenate([trial_amplitudes(tables[:, :, [j]], 20) for j in range(4)], axis=2)
     np.testing.assert_allclose(alone, stacked, rtol=1e-12, atol=1e-15)
+
+
+@given(st.integers(0, 5000), st.lists(st.integers(1, 3), min_size=1, max_size=400), st.sampled_from([16, 64]))
+@settings(max_examples=200, deadline=None)
+def test_the_whole_revolutions_span_selects_what_the_per_sample_rule_selects(start, steps, counts_per_rev):
+    """A sample is in a whole revolution when its revolution is covered from its first to its last count; for a
+    strictly increasing count those samples are one contiguous run, which the slice selects without a copy."""
+    from ilcpmac.signals.harmonics import whole_revolution_span, whole_revolutions
+
+    count = start + np.concatenate([[0], np.cumsum(steps)])
+    rev = count // counts_per_rev
+    first = rev[0] + (count[0] > rev[0] * counts_per_rev)
+    last = rev[-1] - (count[-1] < (rev[-1] + 1) * counts_per_rev - 1)
+    expected = (rev >= first) & (rev <= last)
+    span = whole_revolution_span(count, counts_per_rev)
+    np.testing.assert_array_equal(np.arange(count.size)[span], np.flatnonzero(expected))
+    np.testing.assert_array_equal(whole_revolutions(count, counts_per_rev), expected)

@@ -20,7 +20,7 @@ import numpy as np
 from ilcpmac.bench.format import Bench, MotorInfo, check_backemf, check_trial
 from ilcpmac.errors import BenchFormatError, IdentificationError
 from ilcpmac.records import TrialData
-from ilcpmac.signals.harmonics import harmonic_amplitudes, slow_trend, synchronous_table, whole_revolutions
+from ilcpmac.signals.harmonics import harmonic_amplitudes, slow_trend, synchronous_table, whole_revolution_span
 
 #: Highest Legendre degree of the torque sensor's slow trend (linear drift and slow settling).
 TREND_DEGREE = 5
@@ -125,9 +125,9 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
         With fewer than two whole revolutions: the sensor's drift cannot then
         be told from the ripple.
     """
-    mask = whole_revolutions(trial.count, counts_per_rev)
-    count, time_s = trial.count[mask], trial.time_s[mask]
-    revolutions = int(np.count_nonzero(np.diff(count // counts_per_rev))) + 1 if mask.any() else 0  # count increases
+    span = whole_revolution_span(trial.count, counts_per_rev)
+    count, time_s = trial.count[span], trial.time_s[span]
+    revolutions = int(np.count_nonzero(np.diff(count // counts_per_rev))) + 1 if count.size else 0  # count increases
     if revolutions < 2:
         raise IdentificationError(
             f"{revolutions} whole revolution(s); at least 2 are needed to tell the torque sensor's drift "
@@ -136,10 +136,10 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
         raise IdentificationError("no torque column (a bench without a torque sensor): identify it with the "
                                   "encoder-derived torque")
     degree = min(TREND_DEGREE, revolutions - 1)
-    torque = trial.torque_nm[mask]
+    torque = trial.torque_nm[span]
     trend, noise_variance = slow_trend(count, time_s, torque, counts_per_rev, degree)
     torque = torque - trend
-    speed_hz, i_ref_table, count_period = revolution_averages(count, time_s, trial.i_ref_a[mask], counts_per_rev)
+    speed_hz, i_ref_table, count_period = revolution_averages(count, time_s, trial.i_ref_a[span], counts_per_rev)
     return TrialTables(
         torque_setpoint_nm=trial.torque_setpoint_nm, speed_setpoint_hz=trial.speed_setpoint_hz,
         speed_hz=speed_hz, revolutions=revolutions, count=count, time_s=time_s,

@@ -36,7 +36,7 @@ from ilcpmac.signals.harmonics import (
     revolution_table,
     table_from_amplitudes,
     table_harmonics,
-    whole_revolutions,
+    whole_revolution_span,
 )
 from ilcpmac.stages.base import Identified
 
@@ -80,9 +80,9 @@ class TorqueSpectrum:
     def of_each(cls, count: np.ndarray, time_s: np.ndarray, torques_nm: list[np.ndarray], counts_per_rev: int,
                 max_harmonic: int) -> list[TorqueSpectrum]:
         """`of` for several torques sampled at the same ``count`` and ``time_s``, in one pass."""
-        mask = whole_revolutions(count, counts_per_rev)
-        count, time_s = count[mask], time_s[mask]
-        torque = np.stack([np.asarray(t, float)[mask] for t in torques_nm])
+        span = whole_revolution_span(count, counts_per_rev)
+        count, time_s = count[span], time_s[span]
+        torque = np.stack([np.asarray(t, float)[span] for t in torques_nm])
         detrended = torque - linear_trend(time_s, torque)
         table = revolution_table(count, detrended, counts_per_rev)
         harmonics, variance = table_harmonics(table, max_harmonic)

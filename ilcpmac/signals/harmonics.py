@@ -13,15 +13,25 @@ from dataclasses import dataclass
 import numpy as np
 
 
-def whole_revolutions(count: np.ndarray, counts_per_rev: int) -> np.ndarray:
-    """Mask of the samples that lie in revolutions covered from their first to their last count."""
-    rev = count // counts_per_rev
-    first, last = rev[0], rev[-1]
+def whole_revolution_span(count: np.ndarray, counts_per_rev: int) -> slice:
+    """The samples of strictly increasing ``count`` that lie in revolutions covered from their first to their
+    last count: a slice (empty when there are none), so that selecting them copies nothing."""
+    first, last = int(count[0]) // counts_per_rev, int(count[-1]) // counts_per_rev
     if count[0] > first * counts_per_rev:
         first += 1
     if count[-1] < (last + 1) * counts_per_rev - 1:
         last -= 1
-    return (rev >= first) & (rev <= last)
+    if last < first:
+        return slice(0, 0)
+    start, stop = np.searchsorted(count, [first * counts_per_rev, (last + 1) * counts_per_rev])
+    return slice(int(start), int(stop))
+
+
+def whole_revolutions(count: np.ndarray, counts_per_rev: int) -> np.ndarray:
+    """Mask of the samples of strictly increasing ``count`` in `whole_revolution_span`."""
+    mask = np.zeros(count.shape, bool)
+    mask[whole_revolution_span(count, counts_per_rev)] = True
+    return mask
 
 
 def synchronous_average(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
@@ -29,10 +39,10 @@ def synchronous_average(count: np.ndarray, values: np.ndarray, counts_per_rev: i
 
     Counts that were never sampled (skipped) are filled by periodic linear interpolation.
     """
-    mask = whole_revolutions(count, counts_per_rev)
-    if not mask.any():
+    span = whole_revolution_span(count, counts_per_rev)
+    if span.stop == span.start:
         raise ValueError("no whole revolution in the data")
-    return synchronous_table(count[mask], np.asarray(values)[mask], counts_per_rev)
+    return synchronous_table(count[span], np.asarray(values)[span], counts_per_rev)
 
 
 def linear_trend(x: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -169,8 +179,8 @@ def table_harmonics(table: np.ndarray, max_harmonic: int) -> tuple[np.ndarray, n
 def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: int,
                          max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
     """`table_harmonics` of ``values`` (shape (n,)) over the whole revolutions of ``count``."""
-    mask = whole_revolutions(count, counts_per_rev)
-    return table_harmonics(revolution_table(count[mask], np.asarray(values, float)[mask], counts_per_rev),
+    span = whole_revolution_span(count, counts_per_rev)
+    return table_harmonics(revolution_table(count[span], np.asarray(values, float)[span], counts_per_rev),
                            max_harmonic)
 
 
