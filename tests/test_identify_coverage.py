@@ -153,14 +153,16 @@ def test_the_encoder_paths_gain_and_scale_errors_cover_the_truth():
     assert structure.is_off and structure.warning in result.messages
 
 
-def _position_responses(rng, inertia: float, delay_s: float = 0.0, drift: float = 0.0) -> list[PositionResponse]:
-    """Six set points of eq. 3.1 in the position domain with known J*, b*_k and delay, and noise of known
-    variance; ``drift``: J* seen growing by that fraction from the lowest to the highest harmonic."""
+def _position_responses(rng, inertia: float, delay_s: float | np.ndarray = 0.0, drift: float = 0.0,
+                        ripple: float | np.ndarray = 1.0) -> list[PositionResponse]:
+    """Six set points of eq. 3.1 in the position domain with known J*, b*_k and delay (per harmonic if an
+    array), and noise of known variance; ``drift``: J* seen growing by that fraction from the lowest to the
+    highest harmonic; ``ripple``: the speed ripple's scale per harmonic (where J* takes its information)."""
     h = np.arange(1, 101)
     out = []
     for k, speed_hz in enumerate((0.5, 0.7, 1.0, 0.5, 0.7, 1.0)):
         w = 2.0 * np.pi * h * speed_hz
-        speed = (rng.normal(size=h.size) + 1j * rng.normal(size=h.size)) * 0.3 / h
+        speed = (rng.normal(size=h.size) + 1j * rng.normal(size=h.size)) * 0.3 / h * ripple
         inertial = 1j * w * speed * 2.0 * np.pi * speed_hz / w * h  # j h Omega omega_h
         variance = np.full(h.size, 1e-8)
         noise = rng.normal(0.0, np.sqrt(variance / 2.0)) + 1j * rng.normal(0.0, np.sqrt(variance / 2.0))
@@ -178,6 +180,7 @@ def test_the_pooled_inertia_fit_recovers_j_and_the_delay_and_keeps_its_errors_on
     np.testing.assert_allclose(fit.damping, 0.2 + 0.3 * np.arange(6), atol=0.01)
     assert fit.inflation <= 1.2
     assert np.all(fit.chi2_per_trial < 1.3)
+    assert fit.delay_structure_s == 0.0
 
 
 def test_a_j_that_drifts_over_the_harmonics_widens_the_pooled_error_to_cover_it():
@@ -186,6 +189,20 @@ def test_a_j_that_drifts_over_the_harmonics_widens_the_pooled_error_to_cover_it(
     assert fit.inflation > 3.0
     assert abs(fit.inertia - 0.0087) <= 3.0 * fit.inertia_std
     assert abs(fit.inertia - 0.0087) > 3.0 * fit.noise_std
+
+
+def test_a_delay_that_differs_over_the_harmonics_is_measured_and_the_pooled_error_covers_j():
+    """The delay seen at the harmonics holding most of J*'s information (a large speed ripple at 41-50, like
+    the cogging's) 0, elsewhere 30 us: the one fitted D is a compromise, and through b*_k omega_h J* moves
+    with it."""
+    h = np.arange(1, 101)
+    ripple = np.where((h >= 41) & (h <= 50), 10.0, 1.0)
+    fit = fit_pooled(_position_responses(np.random.default_rng(7), 0.0087, delay_s=np.where(ripple > 1.0, 0.0, 3e-5),
+                                         ripple=ripple))
+    assert fit.delay_structure_chi2 > 10.0
+    assert 5e-6 < fit.delay_structure_s < 2e-5
+    assert abs(fit.inertia - 0.0087) > 3.0 * fit.noise_std
+    assert abs(fit.inertia - 0.0087) <= 3.0 * fit.inertia_std
 
 
 def test_harmonic_structure_is_zero_for_scatter_and_the_structures_size_for_a_step():

@@ -37,7 +37,12 @@ for harmonic h of trial k at mean speed f_k, where
   current columns vary from trial to trial and T cannot absorb them;
 - H_s: the torque sensor, a first-order high-pass (the piezo cannot measure
   the mean, sec. 1.1) with corner f_hp, and a delay D of the measurement,
-  removed by advancing the data in time.
+  removed by advancing the data in time. H_s(h f_k) is the high-pass at a
+  constant speed; it acts in time, and with the speed rippling the time per
+  count differs from count to count: the difference mixes the speed ripple
+  into the torque's harmonics (the cogging's with the electrical ones onto
+  1x electrical, where beta is read). It is taken off the data
+  (`_ripple_highpass`) and the linear parameters solved again.
 
 The sensor's DC level and drift never enter: they were removed from the
 aperiodic part of each trial (`ilcpmac.identify.reduction`). The loop's time
@@ -60,7 +65,7 @@ from numba import njit
 from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
 from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
-from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
+from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
 from ilcpmac.model.lag_kernel import _advance
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
@@ -362,6 +367,8 @@ class _JointProblem:
         self.torque = np.stack([t.torque_table_nm for t in tables.trials])
         self.max_harmonic = int(max(self.max_fit, sets.cogging.max(initial=0)))
         self._cache: dict[str, dict] = {}
+        #: the high-pass's speed-ripple part at harmonics 0..max_harmonic, taken off the data (`_ripple_highpass`)
+        self.ripple_highpass: np.ndarray | None = None
         self.variance = np.array([t.harmonic_variance_nm2 for t in tables.trials])
         self.sensor = tables.torque_source == "sensor"
         self.variances = None if self.sensor else np.stack([t.harmonic_variances_nm2 for t in tables.trials])
@@ -393,8 +400,9 @@ class _JointProblem:
         instants) puts it back on the count instants of the model.
         """
         shift = phi[6] if self.sensor else 0.0  # the encoder-derived torque is at the count instants
-        return self._cached("data", (shift,), lambda: trial_amplitudes(
+        data = self._cached("data", (shift,), lambda: trial_amplitudes(
             shifted_at(self.torque, self.instants, shift)[:, :, None], self.max_harmonic)[:, :, 0])
+        return data if self.ripple_highpass is None else data - self.ripple_highpass
 
     def highpass(self, phi: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
         """The piezo sensor's first-order high-pass j w / (j w + w_c), shape (n_trials, len(harmonics)); 1
@@ -499,6 +507,21 @@ class _JointProblem:
         if saturation is not None:
             parts.append(saturation[:, :, None])
         return np.concatenate(parts, axis=2)
+
+    def model_counts(self, phi: np.ndarray, x: np.ndarray, table: dict) -> np.ndarray:
+        """The modelled torque per count before the sensor, N m (measured), shape (n_trials, cpr): the columns'
+        tables (`design`, the saturation's from ``x``) times ``x``, plus the position table ``table`` (T(h))."""
+        torque = np.zeros(self.i_ref.shape[:2])
+        for p in range(3):
+            k = self.backemf[:, p]
+            torque += k * (x[p] * self.phase_current(phi, p) + x[3 + p] + x[6] * self.lagged(
+                self.rejected(phi, p), phi[5], 0.0, continuous=True))
+        currents = x[:3] * self.currents(phi) + x[3:6]
+        torque -= x[7] * np.sum(self.backemf * (currents * currents * currents), axis=2)
+        amplitudes = np.zeros(self.cpr // 2 + 1, complex)
+        for h, value in table.items():
+            amplitudes[h] = value
+        return torque + table_from_amplitudes(amplitudes, self.cpr)
 
     def saturation_column(self, phi: np.ndarray, x: np.ndarray) -> np.ndarray:
         """S_k = -DFT(sum_p K_p i_p^3), i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, n_fit)."""
@@ -805,7 +828,9 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
 
     The report's ideal loop (currents equal to references at each count) is
     fitted too and kept unless the lagged loop, whose delay cannot be
-    negative, fits better by more than its extra parameters' worth.
+    negative, fits better by more than its extra parameters' worth. On a
+    torque sensor's data its linear parameters are solved again on the data
+    less the high-pass's speed-ripple part (`_ripple_highpass`).
 
     Raises
     ------
@@ -821,6 +846,10 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     ideal = _fit_nonlinear(problem, CurrentLoop(), np.array([0, 0, 0, 0, 1, 0, 1], bool))
     # the lag must pay for its five more parameters (Akaike)
     _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
+    if problem.sensor:
+        problem.ripple_highpass = _ripple_highpass(problem, phi, x, problem.position_table(
+            phi, problem.design(phi, saturation), x))
+        x, rest = problem.solve(phi, saturation)
     design = problem.design(phi, saturation)
     covariance, bound, names, chi2, misfit = _covariance(problem, phi, active, saturation, x, rest)
     structure = _gain_structure(problem, phi, saturation, rest, covariance)
@@ -876,6 +905,32 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     saturation = problem.saturation_column(phi, problem.solve(phi, saturation)[0])
     x, rest = problem.solve(phi, saturation)
     return float(rest @ rest), phi, active, saturation, x, rest
+
+
+def _ripple_highpass(problem: _JointProblem, phi: np.ndarray, x: np.ndarray, table: dict) -> np.ndarray:
+    """What the sensor's high-pass in time adds to H_s(h f_k) m_h with the speed rippling, per trial and
+    harmonic 0..max_harmonic (non-zero at the fit harmonics), N m.
+
+    The piezo's output is y = m - z, dz/dt = w_c (m - z), in time: with the
+    modelled torque per count m (`model_counts`, linear between counts) and
+    the measured count intervals, z is the periodic steady state of the lag
+    recursion of tau = 1 / w_c (`periodic_lag`), and
+
+        c_h = DFT(m - z)_h - H_s(h f_k) DFT(m)_h,
+
+    zero at a constant speed; to first order -(w_c / (j h w_0)) (eps m)_h
+    with eps the relative speed ripple. It is second order (w_c / w times the
+    ripple), so the first fit's parameters give it to well within the noise.
+    """
+    fit = problem.sets.fit
+    out = np.zeros((problem.speeds.size, problem.max_harmonic + 1), complex)
+    if not phi[4] > 0.0:  # no high-pass
+        return out
+    torque = problem.model_counts(phi, x, table)
+    output = torque - periodic_lag(torque, problem.count_period, 1.0 / (2.0 * np.pi * phi[4]))
+    amplitudes = trial_amplitudes(np.stack([output, torque], axis=2), problem.max_fit)[:, fit]
+    out[:, fit] = amplitudes[:, :, 0] - problem.highpass(phi, fit) * amplitudes[:, :, 1]
+    return out
 
 
 def _check_excitation(problem: _JointProblem) -> None:

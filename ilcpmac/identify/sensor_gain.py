@@ -143,6 +143,10 @@ class PooledInertia:
         Each set point's reduced chi-square.
     structure_chi2 : tuple of float
         Chi-square per degree of freedom of J* over blocks of harmonics and over set points.
+    delay_structure_chi2 : float
+        Chi-square per degree of freedom of D over blocks of harmonics (`fit_pooled`).
+    delay_structure_s : float
+        The standard deviation of D's structure over blocks of harmonics (0 without), s.
     """
 
     inertia: float
@@ -152,6 +156,8 @@ class PooledInertia:
     delay_s: float
     chi2_per_trial: np.ndarray
     structure_chi2: tuple
+    delay_structure_chi2: float = 0.0
+    delay_structure_s: float = 0.0
 
     @property
     def inflation(self) -> float:
@@ -215,8 +221,9 @@ class SensorGainEstimate:
         c = self.corrected
         if c is not None and c.inflation > 1.2:
             out.append(f"torque-sensor gain (corrected ch. 3): J* not constant (chi2/dof {c.structure_chi2[0]:.3g} "
-                       f"over blocks of harmonics, {c.structure_chi2[1]:.3g} over set points, residual chi2/dof up "
-                       f"to {c.chi2_per_trial.max():.3g}) - the model misses structure there; standard error "
+                       f"over blocks of harmonics, {c.structure_chi2[1]:.3g} over set points, the delay's "
+                       f"{c.delay_structure_chi2:.3g} over blocks of harmonics, residual chi2/dof up to "
+                       f"{c.chi2_per_trial.max():.3g}) - the model misses structure there; standard error "
                        f"inflated x{c.inflation:.2g}")
         return tuple(out)
 
@@ -335,7 +342,11 @@ def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
     the final fit so that J*'s error holds D's). With B the inverse of the normal matrix and X_k the
     rows of set point k, the covariance is B (sum_k max(chi2_k, 1) X_k^T X_k) B (a set point's misfit
     widens its share), and J*'s variance adds the structure of J* over blocks of harmonics and over set
-    points (`harmonic_structure`, `structure_variance`).
+    points (`harmonic_structure`, `structure_variance`), and that of D over blocks of harmonics times
+    J*'s dependence on D, (B_JD / B_DD)^2 var(D): one delay for every harmonic is a model, and the torque
+    sampled once per count as the current settles within it makes the delay seen at the excitation
+    harmonics differ from the one at the position-locked harmonics (cogging, 1x-2x electrical) that hold
+    most of J*'s information; through the brake's b*_k omega_h, rotated by the delay, J* moves with it.
     """
     n = len(responses)
     delay = 0.0
@@ -357,22 +368,32 @@ def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
     # J* over blocks of harmonics (pooled over set points) and per set point, D and b*_k held
     size = responses[0].torque_nm.size
     contribution, info = np.zeros(size), np.zeros(size)
+    delay_contribution, delay_info = np.zeros(size), np.zeros(size)
     per_trial, per_trial_variance = np.empty(n), np.empty(n)
     for k, r in enumerate(responses):
         weight = 2.0 / r.torque_variance_nm2
-        rest_k = r.torque_nm * np.exp(1j * r.frequency_rad_s * delay) - damping[k] * r.speed_rad_s
+        shifted = r.torque_nm * np.exp(1j * r.frequency_rad_s * delay)
+        rest_k = shifted - damping[k] * r.speed_rad_s
         contribution_k = weight * np.real(np.conj(r.inertial_rad2_s2) * rest_k)
         info_k = weight * np.abs(r.inertial_rad2_s2) ** 2
         contribution += contribution_k
         info += info_k
+        # D's step with J* and b*_k held: column -j w_h tau*_h exp(j w_h D) against the residual
+        step = -1j * r.frequency_rad_s * shifted
+        delay_contribution += weight * np.real(np.conj(step) * (rest_k - inertia * r.inertial_rad2_s2))
+        delay_info += weight * np.abs(step) ** 2
         per_trial[k] = contribution_k.sum() / info_k.sum()
         per_trial_variance[k] = max(chi2[k], 1.0) / info_k.sum()
     over_harmonics, q_harmonics = harmonic_structure(contribution, info, inertia)
     over_set_points, q_set_points = structure_variance(per_trial - inertia, per_trial_variance) if n > 1 else (0.0, 0.0)
+    delay_variance, q_delay = harmonic_structure(delay_contribution, delay_info, 0.0)
+    over_delay = (bound[0, 1] / bound[1, 1]) ** 2 * delay_variance if bound[1, 1] > 0.0 else 0.0
     return PooledInertia(
-        inertia=inertia, inertia_std=float(np.sqrt(covariance[0, 0] + over_harmonics + over_set_points)),
+        inertia=inertia,
+        inertia_std=float(np.sqrt(covariance[0, 0] + over_harmonics + over_set_points + over_delay)),
         noise_std=float(np.sqrt(bound[0, 0])), damping=damping, delay_s=float(delay), chi2_per_trial=chi2,
-        structure_chi2=(q_harmonics, q_set_points))
+        structure_chi2=(q_harmonics, q_set_points), delay_structure_chi2=q_delay,
+        delay_structure_s=float(np.sqrt(delay_variance)))
 
 
 def _least_squares(design: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

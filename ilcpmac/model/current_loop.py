@@ -141,3 +141,35 @@ def lagged_phase(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: flo
         else:
             out = out - delay_s / count_period_s * (np.roll(out, -1, axis=1) - out)
     return out
+
+
+def periodic_lag(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: float) -> np.ndarray:
+    """Periodic per-count tables ``x`` (n_trials, cpr), linear between counts in time, through a first-order
+    lag of time constant tau: its state at each count in the periodic steady state.
+
+    The count recursion (module docstring, for an input linear between counts)
+    s_{c+1} = a_c s_c + u_c, a_c = exp(-dt_c / tau), closed over a revolution:
+    s_0 = sum_c u_c prod_{i>c} a_i / (1 - prod_c a_c), for a tau long against
+    a revolution (a torque sensor's high-pass) where `lagged_phase`'s warm-up
+    within one revolution does not forget its start (down to a corner of
+    1e-15 Hz, whose state is the input's mean over time); for a tau whose
+    decay over a revolution is below 1e-16, `lagged_phase` (exact then).
+    """
+    x = np.asarray(x, float)
+    dt = np.asarray(count_period_s, float)
+    tau = float(time_constant_s)
+    log_decay = np.cumsum(-dt / tau, axis=1)  # log prod_{i<=c} a_i
+    if np.any(log_decay[:, -1] < np.log(1e-16)):
+        return lagged_phase(x, dt, tau, 0.0, continuous=True)
+    r = dt / tau
+    # u_c = x_{c+1} - a_c x_c - (x_{c+1} - x_c) (1 - a_c) / r_c, r_c = dt_c / tau, as (x_{c+1} - x_c) (1 - phi_c)
+    # + (1 - a_c) x_c with phi = (1 - exp(-r)) / r: every term O(r), exact to rounding for a tau of any length
+    one_minus_a = -np.expm1(-r)
+    one_minus_phi = np.where(r < 1e-3, r / 2.0 - r**2 / 6.0 + r**3 / 24.0 - r**4 / 120.0, 1.0 - one_minus_a / r)
+    u = (np.roll(x, -1, axis=1) - x) * one_minus_phi + one_minus_a * x
+    total = log_decay[:, -1:]
+    start = np.sum(u * np.exp(total - log_decay), axis=1, keepdims=True) / -np.expm1(total)
+    # s_c = prod_{i<c} a_i (s_0 + sum_{i<c} u_i / prod_{j<=i} a_j), every factor at most exp(-total) <= 1e16
+    before = np.concatenate([np.zeros((x.shape[0], 1)), log_decay[:, :-1]], axis=1)
+    return np.exp(before) * (start + np.concatenate([np.zeros((x.shape[0], 1)),
+                                                     np.cumsum(u * np.exp(-log_decay), axis=1)[:, :-1]], axis=1))
