@@ -34,6 +34,16 @@ counts_per_rev = {COUNTS_PER_REV}
 inertia_kgm2 = 0.01056
 backemf_file = "backemf.csv"
 """
+#: the [log] table of a drive log with phase currents and torque, the position in radians (columns of
+#: tests/test_importer.py's logs)
+PHASE_LOG = """\
+[log]
+time = "t"
+position = "theta"
+position_unit = "rad"
+phase_currents = ["ia", "ib", "ic"]
+torque = "tq"
+"""
 #: recorded revolutions of a test trial
 REVOLUTIONS = 2
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import COUNTS_PER_REV, MAPPING_BENCH, SEED_CONFIG, toml_text
+from conftest import COUNTS_PER_REV, MAPPING_BENCH, PHASE_LOG, SEED_CONFIG, toml_text
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -49,14 +49,6 @@ from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.grid import grid_requests, truth_dict
 from ilcpmac.sim.simulator import Simulator
 
-PHASE_LOG = """\
-[log]
-time = "t"
-position = "theta"
-position_unit = "rad"
-phase_currents = ["ia", "ib", "ic"]
-torque = "tq"
-"""
 HEADER = "t,theta,ia,ib,ic,tq"
 #: rows per second of the logs
 RATE_HZ = 2_000.0

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from conftest import COUNTS_PER_REV, MAPPING_BENCH, SEED_CONFIG, toml_text
+from conftest import COUNTS_PER_REV, MAPPING_BENCH, PHASE_LOG, SEED_CONFIG, toml_text
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -37,15 +37,6 @@ from ilcpmac.sim.simulator import Simulator
 
 #: counts per revolution of the logs' 16-bit single-turn position (q-axis layout)
 LOG_COUNTS_PER_REV = 2**16
-
-PHASE_LOG = """\
-[log]
-time = "t"
-position = "theta"
-position_unit = "rad"
-phase_currents = ["ia", "ib", "ic"]
-torque = "tq"
-"""
 
 Q_LOG = f"""\
 [log]

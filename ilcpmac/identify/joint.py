@@ -66,7 +66,7 @@ from ilcpmac.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
 from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
 from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
-from ilcpmac.model.lag_kernel import _advance
+from ilcpmac.model.lag_kernel import _advance, warm_up_start
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
@@ -756,11 +756,7 @@ def _lag_derivatives(x, dt, tau, delay, decay, sample_decay, continuous, d_tau, 
     state = np.empty(cpr)
     d_state = np.empty(cpr)
     for k in range(n_trials):
-        start = cpr - 1
-        remaining = 1.0
-        while start > 0 and remaining > 1e-16:
-            remaining *= decay[k, start]
-            start -= 1
+        start = warm_up_start(decay[k])
         s = x[k, start]
         ds = 0.0
         s_prev = s

@@ -15,6 +15,18 @@ def _advance(s, a, x_now, x_next, tau, dt, continuous):
 
 
 @njit(cache=True)
+def warm_up_start(decay):
+    """The count of a revolution from which the recursion, started there, has forgotten its start below 1e-16
+    by the revolution's end (``decay`` = exp(-dt / tau) per count)."""
+    start = decay.size - 1
+    remaining = 1.0
+    while start > 0 and remaining > 1e-16:
+        remaining *= decay[start]
+        start -= 1
+    return start
+
+
+@njit(cache=True)
 def lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
     """The count recursion (`ilcpmac.model.current_loop`) for one phase, x of shape (n_trials, cpr); fills ``out``.
 
@@ -26,12 +38,7 @@ def lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
     """
     n_trials, cpr = x.shape
     for k in range(n_trials):
-        # warm up over the end of the revolution until the start has decayed below 1e-16
-        start = cpr - 1
-        remaining = 1.0
-        while start > 0 and remaining > 1e-16:
-            remaining *= decay[k, start]
-            start -= 1
+        start = warm_up_start(decay[k])  # warm up over the end of the revolution
         s = x[k, start]
         s_prev = s
         for c in range(start, cpr):
