@@ -1173,8 +1173,13 @@ IMPORT_MUTATIONS: list[tuple[str, bool, Callable, Args]] = [
     ('position_unit "rad" on counts', True, _both(mapping("log", "position_unit", '"rad"', MAP_Q),
                                                    mapping("log", "position_counts_per_rev", None, MAP_Q)), Q_ARGS),
     ("position frozen", True, column("theta", lambda p: np.full_like(p, p[0]), (LOG_A,)), PHASE_ARGS),
-    ("position reversed", True, column("theta", lambda p: p[::-1], (LOG_A,)), PHASE_ARGS),
-    ("position negated (a reverse lap)", True, column("theta", lambda p: -p, (LOG_A,)), PHASE_ARGS),
+    # running backwards is a reverse lap, imported mirrored into BENCH_DIR-reverse; a partial one is refused
+    ("position reversed (a reverse lap)", False, column("theta", lambda p: p[::-1], (LOG_A,)), PHASE_ARGS),
+    ("position turns back for its last 1000 rows", True, column(
+        "theta", lambda p: np.concatenate([p[:-1000], 2 * p[-1001] - p[-1000:]]), (LOG_A,)), PHASE_ARGS),
+    # its currents commutate for +theta: a reverse lap of the motor with phases b and c swapped, which no log
+    # format can tell from a real one (as "i_ref phases a and b swapped" of a bench folder)
+    ("position negated (a reverse lap)", False, column("theta", lambda p: -p, (LOG_A,)), PHASE_ARGS),
     ("position one step back", True, cell(300, "theta", "0.0", LOG_A), PHASE_ARGS),
     ("position in degrees", True, column("theta", lambda p: p * 180 / np.pi, (LOG_A,)), PHASE_ARGS),
     ("position 1e300", True, column("theta", lambda p: p * 1e300, (LOG_A,)), PHASE_ARGS),
