@@ -42,7 +42,9 @@ for harmonic h of trial k at mean speed f_k, where
   count differs from count to count: the difference mixes the speed ripple
   into the torque's harmonics (the cogging's with the electrical ones onto
   1x electrical, where beta is read). It is taken off the data
-  (`_ripple_highpass`) and the linear parameters solved again.
+  (`_ripple_highpass`), the nonlinear parameters moved to the new minimum
+  by one Gauss-Newton step (`_gauss_newton_step`) and the linear ones
+  solved again.
 
 The sensor's DC level and drift never enter: they were removed from the
 aperiodic part of each trial (`ilcpmac.identify.reduction`). The loop's time
@@ -76,6 +78,8 @@ MISFIT_CHI2 = 1.5
 #: names of the nonlinear parameters, in order, and their typical sizes
 NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding_tau_s", "torque_delay_s")
 NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
+#: their lower bounds (time constants, delay and corner not negative; the torque's delay free)
+NONLINEAR_LOWER = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])
 LINEAR = ("theta_a", "theta_b", "theta_c", "beta_star_a", "beta_star_b", "beta_star_c", "emf", "saturation")
 #: why the common current offset is not identified where the back-EMFs sum to zero
 COMMON_OFFSET_NOT_IDENTIFIED = (
@@ -825,8 +829,8 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     The report's ideal loop (currents equal to references at each count) is
     fitted too and kept unless the lagged loop, whose delay cannot be
     negative, fits better by more than its extra parameters' worth. On a
-    torque sensor's data its linear parameters are solved again on the data
-    less the high-pass's speed-ripple part (`_ripple_highpass`).
+    torque sensor's data the fit is moved to the minimum of the data less the
+    high-pass's speed-ripple part (`_ripple_highpass`, `_gauss_newton_step`).
 
     Raises
     ------
@@ -845,6 +849,7 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     if problem.sensor:
         problem.ripple_highpass = _ripple_highpass(problem, phi, x, problem.position_table(
             phi, problem.design(phi, saturation), x))
+        phi = _gauss_newton_step(problem, phi, active, saturation)
         x, rest = problem.solve(phi, saturation)
     design = problem.design(phi, saturation)
     covariance, bound, names, chi2, misfit = _covariance(problem, phi, active, saturation, x, rest)
@@ -877,7 +882,7 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     from scipy.optimize import least_squares  # 0.35 s to import: only when fitting
 
     phi = np.array([*loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s, 0.01, 1e-3, 0.0])
-    lower = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])[active]
+    lower = NONLINEAR_LOWER[active]
     saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])
 
     def full(free: np.ndarray) -> np.ndarray:
@@ -926,6 +931,29 @@ def _ripple_highpass(problem: _JointProblem, phi: np.ndarray, x: np.ndarray, tab
     output = torque - periodic_lag(torque, problem.count_period, 1.0 / (2.0 * np.pi * phi[4]))
     amplitudes = trial_amplitudes(np.stack([output, torque], axis=2), problem.max_fit)[:, fit]
     out[:, fit] = amplitudes[:, :, 0] - problem.highpass(phi, fit) * amplitudes[:, :, 1]
+    return out
+
+
+def _gauss_newton_step(problem: _JointProblem, phi: np.ndarray, active: np.ndarray,
+                       saturation: np.ndarray) -> np.ndarray:
+    """The nonlinear parameters ``phi`` moved to the minimum of the data less `_ripple_highpass`'s part.
+
+    ``phi`` minimises |r|^2 on the data with the ripple part; taking it off changes the data by dy, small
+    (second order), and moves the minimum by the Gauss-Newton step (variable projection, J =
+    `_JointProblem.jacobian`)
+
+        d phi = -(J^T J)^-1 J^T r(phi),
+
+    r the weighted residual on the corrected data: to first order in dy the minimum a second nonlinear
+    fit finds (beta* within 0.02 mA of it, noise-free, at a tenth of its time). The first fit had absorbed
+    the ripple part in the loop's and the torque's delays (the step: +3 to +5 us and -4 to -5 us with the
+    PI loop at 80 Hz) and moved beta* with them. Kept within NONLINEAR_LOWER.
+    """
+    solution = problem.solution(phi, saturation)
+    jac = problem.jacobian(phi, saturation, active, solution) * NONLINEAR_SCALE[active]
+    step = np.linalg.lstsq(jac, -solution[1], rcond=None)[0] * NONLINEAR_SCALE[active]
+    out = phi.copy()
+    out[active] = np.maximum(phi[active] + step, NONLINEAR_LOWER[active])
     return out
 
 
