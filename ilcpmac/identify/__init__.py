@@ -352,6 +352,7 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
         if sensor.corrected is not None:
             c = sensor.corrected
             out["sensor_gain"]["corrected"] = {
-                "torque_to_speed_delay_s": c.delay_s, "chi2_per_set_point": c.chi2_per_trial.tolist(),
+                "torque_to_speed_delay_s": c.delay_s, "brake_delay_s": c.brake_delay_s,
+                "chi2_per_set_point": c.chi2_per_trial.tolist(),
                 "structure_chi2": [float(x) for x in c.structure_chi2], "std_inflation": c.inflation}
     return out

@@ -17,12 +17,18 @@ Beyond the report (`SensorGainEstimate.corrected_*`, `fit_pooled`): eq. 3.1
 in the position domain, harmonic by harmonic and exact for a periodic motion
 (`ilcpmac.signals.encoder_torque`, eq. 1),
 
-    tau*_h exp(j w_h D) / H_hp(w_h) = J* j h (omega^2)_h / 2 + b*_k omega_h,
+    tau*_h exp(j w_h D) / H_hp(w_h) = J* j h (omega^2)_h / 2 + b*_k omega_h exp(-j w_h D_b),
 
 with the speed from the encoder's time stamps (no splines), the sensor's
 high-pass H_hp identified by the joint fit divided out, the torque's delay D
-against the stamps fitted, one J* shared by all set points and a b*_k per set
-point, weighted by each harmonic's revolution-to-revolution scatter.
+against the stamps and the brake's delay D_b behind the speed fitted, one J*
+shared by all set points and a b*_k per set point, weighted by each
+harmonic's revolution-to-revolution scatter. The brake's torque lags the
+speed (an eddy-current brake by its electrical time constant; the
+simulator's explicit brake by half a control period against the stamps'
+speed): unmodelled, b*_k omega_h exp(-j w_h D_b) ~ b*_k omega_h - j w_h
+b*_k D_b omega_h reads as J* - b*_k D_b. D_b and J* separate over set points
+of different b*_k.
 
 Uncertainty. Where the residual holds more than noise, the standard error
 grows with it (docs/identification.md, "Uncertainty on mismatched data"):
@@ -127,7 +133,7 @@ class InertiaMisfit:
 
 @dataclass(frozen=True)
 class PooledInertia:
-    """One J* shared by all set points, a b*_k and the torque's delay D (`fit_pooled`).
+    """One J* shared by all set points, a b*_k, the torque's delay D and the brake's D_b (`fit_pooled`).
 
     Attributes
     ----------
@@ -139,6 +145,8 @@ class PooledInertia:
         b*_k, N m s / rad.
     delay_s : float
         D, the torque's delay against the encoder's stamps beyond the sensor response divided out, s.
+    brake_delay_s : float
+        D_b, the brake's torque b*_k omega's delay behind the stamps' speed, s.
     chi2_per_trial : ndarray, shape (n_trials,)
         Each set point's reduced chi-square.
     structure_chi2 : tuple of float
@@ -154,6 +162,7 @@ class PooledInertia:
     noise_std: float
     damping: np.ndarray
     delay_s: float
+    brake_delay_s: float
     chi2_per_trial: np.ndarray
     structure_chi2: tuple
     delay_structure_chi2: float = 0.0
@@ -335,11 +344,12 @@ def position_response(tables: BenchTables, index: int, max_harmonic: int, sensor
 
 
 def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
-    """J* shared by all set points, b*_k per set point and the delay D, by weighted least squares.
+    """J* shared by all set points, b*_k per set point and the delays D and D_b, by weighted least squares.
 
-    tau*_h exp(j w_h D) = J* inertial_h + b*_k omega_h, each real and imaginary part weighted by
-    2 / E|d tau*_h|^2; D by Gauss-Newton steps from 0 (the column -j w_h tau*_h exp(j w_h D), kept in
-    the final fit so that J*'s error holds D's). With B the inverse of the normal matrix and X_k the
+    tau*_h exp(j w_h D) = J* inertial_h + b*_k omega_h exp(-j w_h D_b), each real and imaginary part
+    weighted by 2 / E|d tau*_h|^2; D and D_b by Gauss-Newton steps from 0 (the columns
+    -j w_h tau*_h exp(j w_h D) and -j w_h b*_k omega_h exp(-j w_h D_b) with the previous step's b*_k,
+    kept in the final fit so that J*'s error holds theirs). With B the inverse of the normal matrix and X_k the
     rows of set point k, the covariance is B (sum_k max(chi2_k, 1) X_k^T X_k) B (a set point's misfit
     widens its share), and J*'s variance adds the structure of J* over blocks of harmonics and over set
     points (`harmonic_structure`, `structure_variance`), and that of D over blocks of harmonics times
@@ -349,11 +359,12 @@ def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
     most of J*'s information; through the brake's b*_k omega_h, rotated by the delay, J* moves with it.
     """
     n = len(responses)
-    delay = 0.0
+    delays, damping = np.zeros(2), np.zeros(n)
     for _ in range(PASSES):
-        design, y, _ = _pooled_rows(responses, delay)
-        delay += float(_least_squares(design, y)[0][1])
-    design, y, group = _pooled_rows(responses, delay)
+        step = _least_squares(*_pooled_rows(responses, delays, damping)[:2])[0]
+        delays, damping = delays + step[1:3], step[3:]
+    delay, brake_delay = delays
+    design, y, group = _pooled_rows(responses, delays, damping)
     x, bound = _least_squares(design, y)
     rest = y - design @ x
     information = np.zeros_like(bound)
@@ -364,8 +375,8 @@ def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
         chi2[k] = np.sum(rest[group == k] ** 2) / dof
         information += max(chi2[k], 1.0) * (part.T @ part)
     covariance = bound @ information @ bound
-    inertia, damping = float(x[0]), x[2:]
-    # J* over blocks of harmonics (pooled over set points) and per set point, D and b*_k held
+    inertia, damping = float(x[0]), x[3:]
+    # J* over blocks of harmonics (pooled over set points) and per set point, D, D_b and b*_k held
     size = responses[0].torque_nm.size
     contribution, info = np.zeros(size), np.zeros(size)
     delay_contribution, delay_info = np.zeros(size), np.zeros(size)
@@ -373,7 +384,7 @@ def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
     for k, r in enumerate(responses):
         weight = 2.0 / r.torque_variance_nm2
         shifted = r.torque_nm * np.exp(1j * r.frequency_rad_s * delay)
-        rest_k = shifted - damping[k] * r.speed_rad_s
+        rest_k = shifted - damping[k] * r.speed_rad_s * np.exp(-1j * r.frequency_rad_s * brake_delay)
         contribution_k = weight * np.real(np.conj(r.inertial_rad2_s2) * rest_k)
         info_k = weight * np.abs(r.inertial_rad2_s2) ** 2
         contribution += contribution_k
@@ -391,7 +402,8 @@ def fit_pooled(responses: list[PositionResponse]) -> PooledInertia:
     return PooledInertia(
         inertia=inertia,
         inertia_std=float(np.sqrt(covariance[0, 0] + over_harmonics + over_set_points + over_delay)),
-        noise_std=float(np.sqrt(bound[0, 0])), damping=damping, delay_s=float(delay), chi2_per_trial=chi2,
+        noise_std=float(np.sqrt(bound[0, 0])), damping=damping, delay_s=float(delay),
+        brake_delay_s=float(brake_delay), chi2_per_trial=chi2,
         structure_chi2=(q_harmonics, q_set_points), delay_structure_chi2=q_delay,
         delay_structure_s=float(np.sqrt(delay_variance)))
 
@@ -404,17 +416,21 @@ def _least_squares(design: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.nd
     return inverse @ (design.T @ y), inverse
 
 
-def _pooled_rows(responses: list[PositionResponse], delay_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`fit_pooled`'s weighted design (J*, the delay's step, b*_k), data and set point per row, real parts
-    then imaginary parts of each set point's harmonics, at the delay ``delay_s``."""
+def _pooled_rows(responses: list[PositionResponse], delays_s: np.ndarray,
+                 damping: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_pooled`'s weighted design (J*, the steps of D and D_b, b*_k), data and set point per row, real
+    parts then imaginary parts of each set point's harmonics, at the delays ``delays_s`` (D, D_b) with D_b's
+    column from ``damping`` (b*_k, N m s / rad)."""
     n = len(responses)
     rows, data, group = [], [], []
     for k, r in enumerate(responses):
-        shifted = r.torque_nm * np.exp(1j * r.frequency_rad_s * delay_s)
-        columns = np.zeros((r.torque_nm.size, n + 2), complex)
+        shifted = r.torque_nm * np.exp(1j * r.frequency_rad_s * delays_s[0])
+        brake = r.speed_rad_s * np.exp(-1j * r.frequency_rad_s * delays_s[1])
+        columns = np.zeros((r.torque_nm.size, n + 3), complex)
         columns[:, 0] = r.inertial_rad2_s2
         columns[:, 1] = -1j * r.frequency_rad_s * shifted
-        columns[:, 2 + k] = r.speed_rad_s
+        columns[:, 2] = -1j * r.frequency_rad_s * damping[k] * brake
+        columns[:, 3 + k] = brake
         root = np.sqrt(2.0 / r.torque_variance_nm2)
         rows.append(np.concatenate([(root[:, None] * columns).real, (root[:, None] * columns).imag]))
         data.append(np.concatenate([(root * shifted).real, (root * shifted).imag]))
