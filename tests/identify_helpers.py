@@ -5,27 +5,26 @@ Not a conftest: the tests import what they need from here.
 
 from __future__ import annotations
 
+import tomllib
 from dataclasses import replace
 from functools import lru_cache
+from pathlib import Path
+from tempfile import TemporaryDirectory
 
 import numpy as np
+from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.config import load_config
 from ilcpmac.identify import IdentificationResult, identify_bench
+from ilcpmac.sim.grid import simulated_bench
 from ilcpmac.sim.reduced import ReducedCampaign, ReducedMotor, ReducedSensors, reduced_bench
-
-SEED_CONFIG = "configs/seed-bench.toml"
 
 
 @lru_cache(maxsize=None)
 def seed_bench() -> tuple[Bench, dict]:
     """The seed bench of configs/seed-bench.toml, simulated in memory (30 trials, 8 revolutions)."""
-    from pathlib import Path
-
-    from ilcpmac.config import load_config
-    from ilcpmac.sim.grid import simulated_bench
-
-    return simulated_bench(load_config(Path(__file__).resolve().parents[1] / SEED_CONFIG))
+    return simulated_bench(load_config(SEED_CONFIG))
 
 
 #: a motor unlike the seed bench: 4 pole pairs, 36 slots (cogging order 72), 2048 counts
@@ -75,3 +74,22 @@ def assert_targets(result, truth) -> None:
     assert np.abs(result.alpha - truth["alpha"]).max() < 0.003
     assert np.abs(result.beta - truth["beta"]).max() < 0.01
     assert cogging_error(result.cogging_nm, truth) < 0.03
+
+
+#: 3 torques x 2 slow speeds (0.5, 0.6 Hz) of 4 revolutions: a small grid whose speed ripples
+SLOW_GRID = {"torque_setpoints_nm": [1.0, 3.0, 5.0], "speed_setpoints_hz": [0.5, 0.6], "revolutions": 4}
+
+
+def slow_grid_bench(seed: int, simulator: dict[str, dict]) -> tuple[Bench, dict]:
+    """The 1024-count seed bench's `SLOW_GRID` with ``seed``, its [simulator.X] tables updated by ``simulator``
+    ({"controller": {"bandwidth_hz": 80.0}}), simulated in memory: the bench and its truth."""
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    data["bench"]["counts_per_rev"] = COUNTS_PER_REV
+    data["trials"].update(SLOW_GRID, seed=seed)
+    for table, values in simulator.items():
+        data["simulator"][table].update(values)
+    with TemporaryDirectory() as folder:
+        path = Path(folder) / "campaign.toml"
+        path.write_text(toml_text(data))
+        config = load_config(path)
+    return simulated_bench(config)

@@ -3,22 +3,16 @@
 
 from __future__ import annotations
 
-import tomllib
 from functools import lru_cache
-from pathlib import Path
-from tempfile import TemporaryDirectory
 
 import numpy as np
 import pytest
-from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
-from identify_helpers import identified
+from identify_helpers import identified, slow_grid_bench
 
 from ilcpmac.bench.format import Bench
-from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify import joint as joint_module
 from ilcpmac.model.current_loop import periodic_lag
-from ilcpmac.sim.grid import simulated_bench
 
 
 def _brute_force_lag(x: np.ndarray, count_period_s: np.ndarray, tau_s: float, revolutions: int) -> np.ndarray:
@@ -70,22 +64,11 @@ def test_periodic_lag_passes_a_constant_and_trails_a_straight_input_by_tau_times
     np.testing.assert_allclose(periodic_lag(x, count_period, 1e-4), x - 1e-4 * slope, atol=1e-12)
 
 
-#: the seed bench at 1024 counts, slow (0.5 and 0.6 Hz) and with a 2 Hz high-pass: omega_c / omega at 1x
-#: electrical (h = 8) 0.4-0.5, so the speed ripple's share of the high-passed torque is large
-RIPPLE_GRID = {"torque_setpoints_nm": [1.0, 3.0, 5.0], "speed_setpoints_hz": [0.5, 0.6], "revolutions": 4}
-
-
 @lru_cache(maxsize=None)
 def rippling_bench(seed: int) -> tuple[Bench, dict]:
-    data = tomllib.loads(SEED_CONFIG.read_text())
-    data["bench"]["counts_per_rev"] = COUNTS_PER_REV
-    data["trials"].update(RIPPLE_GRID, seed=seed)
-    data["simulator"]["torque_sensor"]["highpass_hz"] = 2.0
-    with TemporaryDirectory() as folder:
-        path = Path(folder) / "campaign.toml"
-        path.write_text(toml_text(data))
-        config = load_config(path)
-    return simulated_bench(config)
+    """The slow grid with a 2 Hz high-pass: omega_c / omega at 1x electrical (h = 8) 0.4-0.5, so the speed
+    ripple's share of the high-passed torque is large."""
+    return slow_grid_bench(seed, {"torque_sensor": {"highpass_hz": 2.0}})
 
 
 def _beta_error_over_std(bench: Bench, truth: dict) -> float:
