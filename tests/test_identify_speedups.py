@@ -211,7 +211,7 @@ def test_trial_amplitudes_of_the_derivatives_are_linear():
 def test_the_whole_revolutions_span_selects_what_the_per_sample_rule_selects(start, steps, counts_per_rev):
     """A sample is in a whole revolution when its revolution is covered from its first to its last count; for a
     strictly increasing count those samples are one contiguous run, which the slice selects without a copy."""
-    from ilcpmac.signals.harmonics import whole_revolution_span, whole_revolutions
+    from ilcpmac.signals.harmonics import whole_revolution_span
 
     count = start + np.concatenate([[0], np.cumsum(steps)])
     rev = count // counts_per_rev
@@ -220,4 +220,3 @@ def test_the_whole_revolutions_span_selects_what_the_per_sample_rule_selects(sta
     expected = (rev >= first) & (rev <= last)
     span = whole_revolution_span(count, counts_per_rev)
     np.testing.assert_array_equal(np.arange(count.size)[span], np.flatnonzero(expected))
-    np.testing.assert_array_equal(whole_revolutions(count, counts_per_rev), expected)

@@ -182,7 +182,7 @@ from ilcpmac.signals.harmonics import (
     slow_trend,
     table_from_amplitudes,
     table_harmonics,
-    whole_revolutions,
+    whole_revolution_span,
 )
 
 #: false-alarm probability of each octave's test of the encoder error against zero (`significant_encoder_error`)
@@ -495,12 +495,12 @@ def _dwell_table(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int,
     if line_errors_counts is not None:
         time_s = at_nominal_angles(count, time_s, counts_per_rev, line_errors_counts)
     interval_count, mid_time_s, speed_rad_s = count_speeds(count, time_s, counts_per_rev)
-    mask = whole_revolutions(interval_count, counts_per_rev)
-    revolutions = int(np.count_nonzero(mask)) // counts_per_rev
+    span = whole_revolution_span(interval_count, counts_per_rev)
+    revolutions = (span.stop - span.start) // counts_per_rev
     if revolutions < 2:
         raise ValueError(f"the encoder torque needs at least 2 whole revolutions, the trial has {revolutions}")
-    interval_count, mid_time_s = interval_count[mask], mid_time_s[mask]
-    dwell_s_per_rad = 1.0 / speed_rad_s[mask]
+    interval_count, mid_time_s = interval_count[span], mid_time_s[span]
+    dwell_s_per_rad = 1.0 / speed_rad_s[span]
     mean_speed_hz = revolutions / float(np.sum(dwell_s_per_rad) * (2.0 * np.pi / counts_per_rev))
     trend, _ = slow_trend(interval_count, mid_time_s, dwell_s_per_rad, counts_per_rev, 1)
     table = revolution_table(interval_count, dwell_s_per_rad - trend, counts_per_rev)

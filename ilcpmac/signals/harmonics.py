@@ -27,13 +27,6 @@ def whole_revolution_span(count: np.ndarray, counts_per_rev: int) -> slice:
     return slice(int(start), int(stop))
 
 
-def whole_revolutions(count: np.ndarray, counts_per_rev: int) -> np.ndarray:
-    """Mask of the samples of strictly increasing ``count`` in `whole_revolution_span`."""
-    mask = np.zeros(count.shape, bool)
-    mask[whole_revolution_span(count, counts_per_rev)] = True
-    return mask
-
-
 def synchronous_average(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
     """Average of ``values`` per encoder count over the whole revolutions, shape (counts_per_rev, ...).
 
@@ -138,7 +131,7 @@ class RippleFigures:
 def revolution_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
     """Position-sampled ``values`` as one row per revolution, shape ``values.shape[:-1] + (n_revs, counts_per_rev)``.
 
-    ``count`` (strictly increasing) must cover whole revolutions (`whole_revolutions`); ``values`` holds
+    ``count`` (strictly increasing) must cover whole revolutions (`whole_revolution_span`); ``values`` holds
     its samples along the last axis. Skipped counts are filled by linear interpolation within their
     revolution. When no count is skipped the table is a view of ``values``.
     """
