@@ -74,18 +74,11 @@ def error_over_std(method, truth: dict) -> dict[str, float]:
     return out
 
 
+@pytest.mark.parametrize("method", ["joint", "report"])
 @pytest.mark.parametrize("name", list(BENCHES))
-def test_the_joint_methods_errors_cover_the_truth(name):
+def test_each_methods_errors_cover_the_truth(name, method):
     result, truth = identified(name)
-    ratios = error_over_std(result.methods["joint"], truth)
-    assert set(ratios) == {"delta_epsilon", "delta", "epsilon", "inertia_estimate", "alpha", "beta"}
-    assert max(ratios.values()) <= 3.0, ratios
-
-
-@pytest.mark.parametrize("name", list(BENCHES))
-def test_the_report_methods_gain_and_decoupling_errors_cover_the_truth(name):
-    result, truth = identified(name)
-    ratios = error_over_std(result.methods["report"], truth)
+    ratios = error_over_std(result.methods[method], truth)
     assert set(ratios) == {"delta_epsilon", "delta", "epsilon", "inertia_estimate", "alpha", "beta"}
     assert max(ratios.values()) <= 3.0, ratios
 
