@@ -140,6 +140,8 @@ class CampaignRunner:
         self.compensation: Compensation | None = None
         self.gains: dict[str, float] = {}
         self._grid_data: dict[int, TrialData] = {}
+        #: the grid trials' measured spectra as analysed when they finished (before the identification)
+        self._grid_spectra: dict[int, TorqueSpectrum | None] = {}
         #: waits for the imports begun while the grid runs (`import_in_background`)
         self._imported: Callable[[], None] = lambda: None
 
@@ -181,9 +183,12 @@ class CampaignRunner:
                 self._run_at_once(steps, [self._compensation().apply(s.request) if s.role == "validate"
                                           else s.request for s in steps])
 
-    def _run(self, request: TrialRequest) -> TrialData:
-        trial = self.backend.run_trial(request)
-        return as_written(replace(trial, request=request))
+    def _run(self, request: TrialRequest, measurement: TorqueMeasurement | None) -> tuple[TrialData, TrialAnalysis]:
+        """Run ``request`` and analyse its trial as written, measured by ``measurement`` (in a worker thread of
+        `_run_at_once`: the analysis overlaps the other trials' kernels and the main thread's learning)."""
+        trial = as_written(replace(self.backend.run_trial(request), request=request))
+        return trial, TrialAnalysis.of(trial, self.description.motor.counts_per_rev,
+                                       self.config.campaign.ripple_harmonics, measurement)
 
     def _run_round(self, begun: int, steps: list[Step]) -> None:
         """Run what is left of a round of learning (`CampaignPlan.learning_round`): every request shaped by the
@@ -202,16 +207,16 @@ class CampaignRunner:
         (`CampaignPlan.independent_steps`, `CampaignPlan.learning_round`), in parallel where the backend
         allows; finish them in the plan's order, as if they had run one by one."""
         workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1, len(steps))
+        measurement = self.measurement  # fixed until the grid's last trial is finished
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
-            for step, trial in zip(steps, pool.map(self._run, requests)):
-                self._finish(step, trial)
+            for step, (trial, analysis) in zip(steps, pool.map(self._run, requests, [measurement] * len(steps))):
+                self._finish(step, trial, analysis)
 
-    def _finish(self, step: Step, trial: TrialData) -> None:
-        """Analyse a finished trial once, teach the pipeline from it, record its ripple, persist it, tell the user."""
+    def _finish(self, step: Step, trial: TrialData, analysis: TrialAnalysis) -> None:
+        """Teach the pipeline from a finished trial and its analysis, record its ripple, persist it, tell the
+        user."""
         request = step.request
         key = request.setpoint_key
-        analysis = TrialAnalysis.of(trial, self.description.motor.counts_per_rev,
-                                    self.config.campaign.ripple_harmonics, self.measurement)
         record = TrialRecord(len(self.records) + 1, step.phase, step.role, request.torque_setpoint_nm,
                              request.speed_setpoint_hz, true=self._true_figures(analysis))
         if record.learns:
@@ -230,6 +235,7 @@ class CampaignRunner:
         self.run_dir.add_trial(trial, state, self.summary())
         if step.role == "grid":
             self._grid_data[record.index] = trial
+            self._grid_spectra[record.index] = analysis.measured
             if len(self.records) == len(self.grid):
                 self._identify(self._grid_trials())
         self.events.trial(record, self.records)
@@ -281,8 +287,10 @@ class CampaignRunner:
         self.identification_json = result.to_json()
         self._set_identified(result)
         cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
-        spectra = [TrialAnalysis.of(replace(trial, request=request), cpr, H, self.measurement).measured
-                   for trial, request in zip(grid_trials, self.grid)]
+        # the sensor's spectrum is its torque column's, before the identification as after it
+        spectra = [self._grid_spectra[i] if self.torque_source == "sensor" and i in self._grid_spectra else
+                   TrialAnalysis.of(replace(trial, request=request), cpr, H, self.measurement).measured
+                   for i, trial, request in zip(range(1, n + 1), grid_trials, self.grid)]
         self.records[:n] = [replace(r, measured=self._measured_figures(request, spectrum))
                             for r, request, spectrum in zip(self.records, self.grid, spectra)]
         self.run_dir.write_identification({"result": self.identification_json,
