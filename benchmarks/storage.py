@@ -19,10 +19,18 @@ Everything runs as a user runs it, as whole processes with a warm numba cache
    ``--baseline ''`` skips it; the figures recorded at BEFORE_REVISION
    (BEFORE_FIGURES) are printed in any case.
 
-The machine may be shared (two cores here): the load average before each
-figure's runs is printed beside it, and a figure measured while the machine
-was busier than its cores is marked "contended" (best-of-N keeps the least
-disturbed run, but a contended figure is an upper bound).
+"Warm" means what a second run finds on any machine: the numba cache and
+Python's bytecode cache filled by the warm-up run. This sandbox sets
+PYTHONDONTWRITEBYTECODE=1, so Python never caches the bytecode of ilcpmac's
+own modules (an editable install: pip compiled the libraries' at install) and
+compiles about 90 modules on every start, about 0.4 s of CPU; the timed runs
+therefore keep their bytecode under a PYTHONPYCACHEPREFIX of their own, and
+the campaign is also timed as this sandbox runs it ("no bytecode cache").
+
+The machine may be shared (two cores here): beside each figure is the CPU
+that other processes used during its best run (from /proc/stat: the machine's
+busy time less the run's own), and a figure whose best run shared the machine
+with more than a fifth of a core is marked "contended": an upper bound.
 """
 
 from __future__ import annotations
@@ -69,44 +77,66 @@ def one_speed_config(tree: Path, work: Path) -> list[str]:
     return [str(path)]
 
 
-def ilcpmac(tree: Path, args: list[str], cache: Path) -> float:
-    """Run ``ilcpmac ARGS`` from the source tree ``tree``; return its wall time, s."""
+#: CPU seconds of other processes during a run above which its figure is "contended"
+CONTENDED_CPU_S = 0.2
+
+
+def busy_s() -> float:
+    """CPU seconds the whole machine has been busy since boot (/proc/stat; 0 where there is none)."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    except OSError:
+        return 0.0
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(f) for f in fields[:8])
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
+def ilcpmac(tree: Path, args: list[str], cache: Path, bytecode: Path | None) -> tuple[float, float]:
+    """Run ``ilcpmac ARGS`` from the source tree ``tree`` with the numba cache ``cache`` and Python's bytecode
+    cache under ``bytecode`` (None: as this environment runs Python); return its wall time and the CPU time
+    other processes used meanwhile, s."""
     env = dict(os.environ, PYTHONPATH=str(tree), NUMBA_CACHE_DIR=str(cache))
+    if bytecode is not None:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env["PYTHONPYCACHEPREFIX"] = str(bytecode)
+    before_cpu, before_busy = os.times(), busy_s()
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", "from ilcpmac.cli import main; main()", *args], cwd=tree, env=env,
                           capture_output=True, text=True)
     elapsed = time.perf_counter() - start
+    after_cpu, after_busy = os.times(), busy_s()
     if done.returncode != 0:
         sys.exit(f"ilcpmac {' '.join(args)} failed ({done.returncode}): {done.stderr.strip().splitlines()[-1:]}")
-    return elapsed
+    own = (after_cpu.children_user + after_cpu.children_system - before_cpu.children_user
+           - before_cpu.children_system)
+    return elapsed, max(after_busy - before_busy - own, 0.0)
 
 
 def size_mb(folder: Path) -> float:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
 
 
-def best(tree: Path, args: list[str], cache: Path, repeats: int, fresh: Path | None = None,
+def best(tree: Path, args: list[str], cache: Path, repeats: int, bytecode: Path | None, fresh: Path | None = None,
          cold: bool = False) -> tuple[float, float]:
-    """Best wall time of ``repeats`` runs and the highest 1-minute load average before one of them.
+    """Best wall time of ``repeats`` runs (`ilcpmac`) and the CPU other processes used during that run.
 
     ``fresh`` is removed before each run (a run's --out); ``cold`` empties the numba cache before each.
     """
-    times, loads = [], []
+    runs = []
     for _ in range(repeats):
         if fresh is not None:
             shutil.rmtree(fresh, ignore_errors=True)
         if cold:
             shutil.rmtree(cache, ignore_errors=True)
-        loads.append(os.getloadavg()[0])
-        times.append(ilcpmac(tree, args, cache))
-    return min(times), max(loads)
+        runs.append(ilcpmac(tree, args, cache, bytecode))
+    return min(runs)
 
 
 def measure(tree: Path, work: Path, repeats: int, cold_repeats: int, label: str) -> dict:
     """Every figure for the source tree ``tree``; its seed bench is converted to the other format in-process."""
-    cache = work / "numba-cache"
+    cache, bytecode = work / "numba-cache", work / "bytecode"
     bench = work / "bench"
-    ilcpmac(tree, ["simulate", str(seed_config(tree)), "--out", str(bench)], cache)
+    ilcpmac(tree, ["simulate", str(seed_config(tree)), "--out", str(bench)], cache, bytecode)
     figures = {"label": label, "bench": {}}
     code = ("import sys; from ilcpmac.bench.format import convert_bench; "
             "convert_bench(sys.argv[1], sys.argv[2], '.parquet')")
@@ -117,13 +147,15 @@ def measure(tree: Path, work: Path, repeats: int, cold_repeats: int, label: str)
         if folder is None:
             continue
         args = ["identify", str(folder), "--output", str(work / "result.json")]
-        ilcpmac(tree, args, cache)  # warm-up: numba compiles into the cache
-        figures["bench"][kind] = (size_mb(folder), *best(tree, args, cache, repeats))
+        ilcpmac(tree, args, cache, bytecode)  # warm-up: numba compiles into the cache
+        figures["bench"][kind] = (size_mb(folder), *best(tree, args, cache, repeats, bytecode))
     run = work / "run"
     campaign = ["run", *one_speed_config(tree, work), "--out", str(run)]
-    figures["cold"] = best(tree, campaign, work / "cold-cache", cold_repeats, fresh=run, cold=True)
+    # cold: a first run, no numba cache and ilcpmac's bytecode compiled as this environment does
+    figures["cold"] = best(tree, campaign, work / "cold-cache", cold_repeats, None, fresh=run, cold=True)
     shutil.rmtree(work / "cold-cache", ignore_errors=True)
-    figures["warm"] = best(tree, campaign, cache, repeats, fresh=run)
+    figures["warm"] = best(tree, campaign, cache, repeats, bytecode, fresh=run)
+    figures["warm_sandbox"] = best(tree, campaign, cache, repeats, None, fresh=run)
     figures["run_mb"] = size_mb(run)
     figures["run_format"] = "Parquet" if any(run.glob("trial_*.parquet")) else "CSV"
     return figures
@@ -134,8 +166,7 @@ def verdict(ok: bool) -> str:
 
 
 def report(columns: list[dict]) -> None:
-    cores = os.cpu_count() or 1
-    width = 34
+    width = 44
     names = ["recorded before"] + [c["label"] for c in columns]
     print(f"\n{'':<42}" + "".join(f"{n:>{width}}" for n in names) + "   target")
 
@@ -150,6 +181,7 @@ def report(columns: list[dict]) -> None:
              TARGET_IDENTIFY_S),
             ("one-speed run directory MB", lambda c: (c["run_mb"], None), "run directory MB", TARGET_MB),
             ("one-speed campaign warm s (best)", lambda c: c["warm"], "campaign warm s", TARGET_WARM_S),
+            ("  the same, no bytecode cache (sandbox)", lambda c: c["warm_sandbox"], None, TARGET_WARM_S),
             ("one-speed campaign cold s (best)", lambda c: c["cold"], "campaign cold s", TARGET_COLD_S)]
     contended = False
     for name, get, before, bound in rows:
@@ -159,16 +191,18 @@ def report(columns: list[dict]) -> None:
             if figure is None:
                 cells.append("-")
                 continue
-            value, load = figure
+            value, others_s = figure
             text = f"{value:.2f}" + ("" if bound is None else f" {verdict(value <= bound)}")
-            if load is not None:  # a timing: the load average before its runs
-                text += f" (load {load:.1f}{', contended' if load > cores else ''})"
-                contended |= load > cores
+            if others_s is not None:  # a timing: the CPU other processes used during its best run
+                busy = others_s > CONTENDED_CPU_S
+                text += f" (others {others_s:.1f} s{', contended' if busy else ''})"
+                contended |= busy
             cells.append(text)
         print(f"{name:<42}" + "".join(f"{c:>{width}}" for c in cells) + f"   {'' if bound is None else bound}")
     print("run-directory trials: " + ", ".join(f"{c['label']}: {c['run_format']}" for c in columns))
+    print("others: CPU seconds other processes used during the best run (/proc/stat)")
     if contended:
-        print(f"contended: the load average exceeded the {cores} cores before some runs (other processes); "
+        print(f"contended: other processes used more than {CONTENDED_CPU_S} s of CPU during some best runs; "
               "those figures are upper bounds")
 
 
@@ -180,7 +214,6 @@ def main() -> None:
     parser.add_argument("--baseline", default=BEFORE_REVISION,
                         help=f"git revision to compare with (default {BEFORE_REVISION}; '' for none)")
     args = parser.parse_args()
-    print(f"load average before: {os.getloadavg()[0]:.2f} ({os.cpu_count()} cores)")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         columns = []
@@ -196,7 +229,6 @@ def main() -> None:
         (tmp / "new").mkdir()
         columns.append(measure(ROOT, tmp / "new", args.repeats, args.cold_repeats, "work tree (after)"))
     report(columns)
-    print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
