@@ -32,7 +32,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "seed-bench.toml"
-ILCPMAC = [sys.executable, "-c", "from ilcpmac.cli import main; main()"]
+ILCPMAC = [sys.executable, "-m", "ilcpmac"]
 
 
 def run_campaign(config: Path, out: Path, cache_dir: Path) -> tuple[float, dict]:

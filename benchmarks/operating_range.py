@@ -29,7 +29,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "seed-bench.toml"
-ILCPMAC = [sys.executable, "-c", "from ilcpmac.cli import main; main()"]
+ILCPMAC = [sys.executable, "-m", "ilcpmac"]
 #: seeds of the comparison trials, away from the campaign's
 COMPARISON_SEED = 77_000
 

@@ -77,6 +77,8 @@ def one_speed_config(tree: Path, work: Path) -> list[str]:
     return [str(path)]
 
 
+#: the ``ilcpmac`` executable of any tree (`ilcpmac.cli.entry_point`, or `main` in trees before it)
+ENTRY_POINT = "import ilcpmac.cli as cli; getattr(cli, 'entry_point', cli.main)()"
 #: CPU seconds of other processes during a run above which its figure is "contended"
 CONTENDED_CPU_S = 0.2
 
@@ -101,8 +103,8 @@ def ilcpmac(tree: Path, args: list[str], cache: Path, bytecode: Path | None) -> 
         env["PYTHONPYCACHEPREFIX"] = str(bytecode)
     before_cpu, before_busy = os.times(), busy_s()
     start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-c", "from ilcpmac.cli import main; main()", *args], cwd=tree, env=env,
-                          capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", ENTRY_POINT, *args], cwd=tree, env=env, capture_output=True,
+                          text=True)
     elapsed = time.perf_counter() - start
     after_cpu, after_busy = os.times(), busy_s()
     if done.returncode != 0:

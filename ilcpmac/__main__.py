@@ -1,5 +1,5 @@
 """``python -m ilcpmac``: the ``ilcpmac`` command line."""
 
-from ilcpmac.cli import main
+from ilcpmac.cli import entry_point
 
-main(prog_name="ilcpmac")
+entry_point()

@@ -206,3 +206,64 @@ def test_the_cli_has_malloc_reuse_a_trials_worth_of_freed_memory_instead_of_faul
                                       text=True, check=True).stdout) for how in ("default", "kept")}
     assert faults["default"] > 50 * 512
     assert faults["kept"] < 50 * 16
+
+
+# ---------------------------------------------------------------- the executable's exit
+
+
+class _Ended(Exception):
+    """Raised by the stand-in for os._exit."""
+
+
+@pytest.fixture
+def fast_exit(monkeypatch):
+    """entry_point's exit recorded instead of taken: {"status": ..., "handlers": ...}."""
+    import ilcpmac.cli as cli
+
+    ended = {}
+
+    def _exit(status):
+        ended["status"] = status
+        raise _Ended
+
+    monkeypatch.setattr(cli.os, "_exit", _exit)
+    monkeypatch.setattr(cli.atexit, "_run_exitfuncs", lambda: ended.setdefault("handlers", True))
+    return ended
+
+
+@pytest.mark.parametrize("argv, status", [(["backends"], 0), (["stages", "extra"], 2)])
+def test_the_executable_ends_with_the_commands_status_after_its_exit_handlers(fast_exit, monkeypatch, capsys, argv,
+                                                                             status):
+    from ilcpmac.cli import entry_point
+
+    monkeypatch.setattr(sys, "argv", ["ilcpmac", *argv])
+    with pytest.raises(_Ended):
+        entry_point()
+    assert fast_exit == {"status": status, "handlers": True}
+    assert ("backends (entry-point group" in capsys.readouterr().out) == (status == 0)
+
+
+def test_the_executable_exits_as_python_does_while_a_thread_still_runs(fast_exit, monkeypatch):
+    import threading
+
+    from ilcpmac.cli import entry_point
+
+    release = threading.Event()
+    worker = threading.Thread(target=release.wait)
+    worker.start()
+    try:
+        monkeypatch.setattr(sys, "argv", ["ilcpmac", "backends"])
+        with pytest.raises(SystemExit) as stopped:
+            entry_point()
+    finally:
+        release.set()
+        worker.join()
+    assert stopped.value.code == 0 and fast_exit == {}
+
+
+def test_the_executable_flushes_what_it_printed_and_gives_its_status():
+    """The whole process: a pipe gets the full output, an error its status."""
+    listed = subprocess.run([sys.executable, "-m", "ilcpmac", "backends"], capture_output=True, text=True)
+    refused = subprocess.run([sys.executable, "-m", "ilcpmac", "stages", "extra"], capture_output=True, text=True)
+    assert listed.returncode == 0 and "sim" in listed.stdout.split() and listed.stdout.endswith("\n")
+    assert refused.returncode == 2 and "unexpected extra argument" in refused.stderr
