@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from ilcpmac.bench import fastcsv, parquet
 from ilcpmac.bench.fastcsv import format_rows, parse_rows
-from ilcpmac.bench.format import Bench, MotorInfo, as_written, convert_bench, read_bench, write_bench
+from ilcpmac.bench.format import Bench, MotorInfo, as_written, check_trial, convert_bench, read_bench, write_bench
 from ilcpmac.errors import BenchFormatError
 from ilcpmac.records import SensorCalibration, TrialData
 
@@ -242,6 +242,86 @@ def test_bad_folder_names_file_and_line_or_key(tmp_path, edit, message):
         read_bench(folder)
 
 
+def three_trials(folder: Path, bad: dict[int, str] | None = None) -> Path:
+    """The valid folder with trial_01..03.csv, trial k's text with the edit ``bad[k]`` (a ``(old, new)`` pair) or
+    its [[trials]] entry with ``bad[k]`` = "key" carrying an unknown key."""
+    write_folder(folder)
+    entries, bad = [], bad or {}
+    for k in (1, 2, 3):
+        text = TRIAL_CSV.replace("0.01\n", f"0.0{k}\n", 1)
+        if isinstance(bad.get(k), tuple):
+            text = text.replace(*bad[k])
+        (folder / f"trial_0{k}.csv").write_text(text)
+        entries.append(f'[[trials]]\nfile = "trial_0{k}.csv"\ntorque_setpoint = {k}.0\nspeed_setpoint = 0.5\n'
+                       + ("speed = 0.5\n" if bad.get(k) == "key" else ""))
+    (folder / "bench.toml").write_text(BENCH_TOML[:BENCH_TOML.index("[[trials]]")] + "\n".join(entries))
+    return folder
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({2: ("0.03\n", "nan\n"), 3: ("0.03\n", "nan\n")}, r"trial_02\.csv: line 4: torque is not a finite number"),
+    ({2: ("0.03\n", "nan\n"), 3: "key"}, r"trial_02\.csv: line 4: torque is not a finite number"),
+    ({2: "key", 3: ("0.03\n", "nan\n")}, r"bench\.toml: \[\[trials\]\] #2: unknown key 'speed'"),
+    ({1: ("-3.3,1.7,1.7", "-3.3,1.7e9,1.7"), 2: ("0.03\n", "nan\n")}, r"trial_01\.csv: sample 3: i_ref beyond"),
+])
+def test_trials_read_at_once_fail_as_read_in_order(tmp_path, bad, message):
+    """`read_bench` reads trials two at a time, and raises the error a reading one by one meets first."""
+    with pytest.raises(BenchFormatError, match=message):
+        read_bench(three_trials(tmp_path, bad))
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_trials_keep_their_order_and_c_ordered_phases(tmp_path, suffix):
+    convert_bench(three_trials(tmp_path / "in"), tmp_path / "out", suffix)
+    bench = read_bench(tmp_path / "out")
+    assert bench.trial_files == tuple(f"trial_0{k}{suffix}" for k in (1, 2, 3))
+    assert [t.torque_setpoint_nm for t in bench.trials] == [1.0, 2.0, 3.0]
+    assert [t.torque_nm[0] for t in bench.trials] == [0.01, 0.02, 0.03]
+    for trial in bench.trials:
+        assert trial.i_ref_a.shape == (5, 3) and trial.i_ref_a.flags.c_contiguous
+        np.testing.assert_array_equal(trial.i_ref_a[1], [3.3, -1.7, -1.7])
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_without_extras_the_simulators_columns_are_left_out(tmp_path, suffix):
+    """read_bench(extras=False) gives the same trials less the simulator's columns; a Parquet trial's are never read,
+    so that a NaN there goes unseen."""
+    bench = read_bench(write_folder(tmp_path / "in"))
+    trial = dataclasses.replace(bench.trials[0], i_meas_a=bench.trials[0].i_ref_a * 1.01,
+                                torque_true_nm=bench.trials[0].torque_nm + 0.5)
+    write_bench(tmp_path / "out", dataclasses.replace(bench, trials=(trial,), trial_files=("t" + suffix,)))
+    full, lean = read_bench(tmp_path / "out"), read_bench(tmp_path / "out", extras=False)
+    assert_trials_equal(full.trials[0], as_written(trial))
+    assert_trials_equal(lean.trials[0], dataclasses.replace(as_written(trial), i_meas_a=None, torque_true_nm=None))
+    if suffix == ".parquet":
+        table = pq.read_table(tmp_path / "out" / "t.parquet")
+        i_meas_b = table.column("i_meas_b").cast(pa.float64()).to_numpy().copy()
+        i_meas_b[2] = np.nan
+        pq.write_table(table.set_column(table.schema.get_field_index("i_meas_b"), "i_meas_b", pa.array(i_meas_b)),
+                       tmp_path / "out" / "t.parquet")
+        assert_trials_equal(read_bench(tmp_path / "out", extras=False).trials[0], lean.trials[0])
+        with pytest.raises(BenchFormatError, match=r"t\.parquet: row 3: i_meas_b is not a finite number"):
+            read_bench(tmp_path / "out")
+
+
+@pytest.mark.parametrize("field, row, value, message", [
+    ("time_s", 3, np.nan, "sample 3: time is not a finite number"),
+    ("i_ref_a", 2, np.inf, "sample 2: i_ref is not a finite number"),
+    ("torque_nm", 1, -np.inf, "sample 1: torque is not a finite number"),
+    ("i_ref_a", 4, -2e4, "sample 4: i_ref beyond 10000 A"),
+    ("torque_nm", 2, 2e5, "sample 2: torque beyond 100000 N m"),
+])
+def test_check_trial_names_the_first_bad_sample(tmp_path, field, row, value, message):
+    """A trial built in memory (not read) with a bad value at ``row`` and another after it."""
+    bench = read_bench(write_folder(tmp_path))
+    values = getattr(bench.trials[0], field).copy()
+    values[row] = value
+    values[-1] = value
+    trial = dataclasses.replace(bench.trials[0], **{field: values})
+    with pytest.raises(BenchFormatError, match=f"^here: {re.escape(message)}"):
+        check_trial(trial, bench.motor, "here")
+
+
 def test_unreadable_trial_file(tmp_path):
     trial = write_folder(tmp_path) / "trial_01.csv"
     trial.write_bytes(b"count,time\xff\xfe,i_ref_a\n")
@@ -316,12 +396,29 @@ def test_parquet_writer_rounds_half_to_even_as_the_csv_and_takes_empty_columns(t
     path = tmp_path / "t.parquet"
     values = np.array([0.5, 1.5, -2.5, 999999999999.5, -0.25])
     path.write_bytes(parquet.table_bytes(["x", "y"], [values, values], [0, 1]))
-    header, data = parquet.read_columns(path, 10, {"x", "y"})
+    header, (x, y) = parquet.read_columns(path, 10, {"x", "y"})
     assert header == ["x", "y"]
-    np.testing.assert_array_equal(data[:, 0], [0.0, 2.0, -2.0, 1e12, -0.0])
-    np.testing.assert_array_equal(data[:, 1], [0.5, 1.5, -2.5, 999999999999.5, -0.2])
+    np.testing.assert_array_equal(x, [0.0, 2.0, -2.0, 1e12, -0.0])
+    np.testing.assert_array_equal(y, [0.5, 1.5, -2.5, 999999999999.5, -0.2])
     path.write_bytes(parquet.table_bytes(["x"], [np.zeros(0)], [6]))
-    assert parquet.read_columns(path, 10, {"x"})[1].shape == (0, 1)
+    assert [column.shape for column in parquet.read_columns(path, 10, {"x"})[1]] == [(0,)]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-2.0**53, 2.0**53) | st.integers(-2**52, 2**52).map(lambda k: k + 0.5)
+                | st.integers(-2**12, 2**12).map(lambda k: 2.0**51 + k / 2), min_size=1, max_size=40),
+       st.sampled_from([0, 1, 3]))
+def test_parquet_writer_rounds_every_value_as_numpy_does(tmp_path_factory, values, decimals):
+    """Near and beyond 2^51, where the writer's one-addition rounding gives way to numpy's: half to even."""
+    values = np.array(values) / 10.0**decimals
+    path = tmp_path_factory.mktemp("rounding") / "t.parquet"
+    path.write_bytes(parquet.table_bytes(["x"], [values], [decimals]))
+    (x,) = parquet.read_columns(path, 100, {"x"})[1]
+    scaled = values * 10.0**decimals
+    np.testing.assert_array_equal(x, np.rint(scaled) / 10.0**decimals)
+    counts = np.rint(scaled).astype(np.int64)
+    path.write_bytes(parquet.table_bytes(["x"], [counts], [0]))
+    np.testing.assert_array_equal(parquet.read_columns(path, 100, {"x"})[1][0], counts.astype(float))
 
 
 def test_convert_refuses_an_unknown_format_and_trials_that_would_collide(tmp_path):

@@ -79,9 +79,10 @@ def format_rows(values: np.ndarray, decimals: np.ndarray, threads: int = 2) -> b
 _POW10 = 10.0 ** np.arange(23)
 
 
-def parse_rows(body: bytes, columns: int, max_rows: int) -> np.ndarray | None:
-    """The rows of a CSV body (after its header) of plain decimal numbers, ``columns`` per row, exactly as a
-    correctly rounding parser reads them; at most ``max_rows`` + 1 rows are parsed.
+def parse_rows(body: bytes | np.ndarray, columns: int, max_rows: int) -> np.ndarray | None:
+    """The rows of a CSV body (after its header; bytes or a read-only uint8 array) of plain decimal numbers,
+    ``columns`` per row, exactly as a correctly rounding parser reads them, every one finite; at most ``max_rows``
+    + 1 rows are parsed.
 
     Returns None when a field is not a plain decimal number, a row has another
     number of fields, or a line is blank: parse such a body another way.
@@ -90,7 +91,8 @@ def parse_rows(body: bytes, columns: int, max_rows: int) -> np.ndarray | None:
 
     if columns < 1:
         return None
-    lines = body.count(b"\n") + (len(body) > 0 and not body.endswith(b"\n"))
+    text = np.frombuffer(body, np.uint8)
+    lines = np.count_nonzero(text == 10) + (text.size > 0 and text[-1] != 10)
     out = np.empty((min(lines, max_rows + 1), columns))
-    used = parse_kernel(np.frombuffer(body, np.uint8), out, _POW10)
+    used = parse_kernel(text, out, _POW10)
     return None if used < 0 else out[:used]

@@ -9,7 +9,7 @@ is (decimals as decimal numbers).
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,26 @@ PRECISION = 18
 #: bytes a numeric column may take per row once decompressed (a 16-byte decimal), and per column chunk besides
 _COLUMN_ROW_BYTES = 16
 _COLUMN_SLACK_BYTES = 1 << 20
+#: integers up to this magnitude are exact in a double (2^53)
+_EXACT = 2**53
+
+
+def _scaled(values: np.ndarray, d: int) -> np.ndarray:
+    """round(``values`` 10^d) (half to even, through a double) as int64; int64 values at d = 0 that a double
+    holds exactly as they are.
+
+    Raises
+    ------
+    ValueError
+        For a non-finite value or one beyond 18 digits at ``d`` decimals.
+    """
+    if d == 0 and values.dtype == np.int64 and values.size and -_EXACT <= values.min() and values.max() <= _EXACT:
+        return np.ascontiguousarray(values)
+    scaled = np.multiply(values, 10.0**d, dtype=np.float64)
+    np.rint(scaled, out=scaled)
+    if scaled.size and not (-(10.0**PRECISION) < scaled.min() and scaled.max() < 10.0**PRECISION):
+        raise ValueError("cannot write NaN, infinite values or values beyond 18 digits")
+    return scaled.astype(np.int64)
 
 
 def table_bytes(header: list[str], columns: list[np.ndarray], decimals: list[int]) -> bytes:
@@ -44,11 +64,7 @@ def table_bytes(header: list[str], columns: list[np.ndarray], decimals: list[int
     """
     fields, arrays = [], []
     for name, values, d in zip(header, columns, decimals):
-        scaled = np.multiply(values, 10.0**d, dtype=np.float64)
-        np.rint(scaled, out=scaled)
-        if scaled.size and not (-(10.0**PRECISION) < scaled.min() and scaled.max() < 10.0**PRECISION):
-            raise ValueError("cannot write NaN, infinite values or values beyond 18 digits")
-        ints = scaled.astype(np.int64)
+        ints = _scaled(values, d)
         arrays.append(pa.array(ints) if d == 0 else
                       pa.Array.from_buffers(pa.decimal64(PRECISION, d), ints.size, [None, pa.py_buffer(ints)]))
         fields.append(pa.field(name, arrays[-1].type, nullable=False))
@@ -64,37 +80,64 @@ def _one_line(e: Exception) -> str:
     return text if len(text) <= 160 else text[:160] + "..."
 
 
-def _as_float(path: Path, name: str, column: pa.ChunkedArray) -> np.ndarray:
-    """A numeric column as float64: a decimal as its integer over 10^scale, exactly as the CSV text parses.
+def _separate(header: list[str], rows: int) -> list[np.ndarray]:
+    """One new float64 array of ``rows`` values per column."""
+    return [np.empty(rows) for _ in header]
+
+
+def _decode(path: Path, name: str, column: pa.ChunkedArray, integral: bool, out: np.ndarray) -> None:
+    """A numeric column into the float64 array ``out``: a decimal as its integer over 10^scale, exactly as the
+    CSV text parses.
 
     Decimals may come as any of Arrow's decimal widths (32 to 256 bits, as another writer's stored Arrow schema
-    says), each value a little-endian two's-complement integer.
+    says), each value a little-endian two's-complement integer. Its high words are checked to extend the low
+    word's sign unless the file stores it in an INT32 or INT64 (``integral``), which Arrow widens by sign
+    extension.
     """
     kind = column.type
-    if not pa.types.is_decimal(kind):
-        return column.to_numpy().astype(np.float64)
-    if kind.precision > PRECISION:
+    if pa.types.is_decimal(kind) and kind.precision > PRECISION:
         raise BenchFormatError(f"{path}: column {name!r} is {kind}; decimals may have at most {PRECISION} "
                                "digits (docs/bench-format.md)")
-    words = max(kind.bit_width // 64, 1)
-    word = np.int64 if kind.bit_width >= 64 else np.int32
-    values = np.concatenate([np.frombuffer(chunk.buffers()[1], word).reshape(-1, words)[
-        chunk.offset: chunk.offset + len(chunk)] for chunk in column.chunks]) if column.num_chunks else np.zeros(
-        (0, words), word)
-    low = values[:, 0].astype(np.int64)
-    wide = np.flatnonzero((values[:, 1:] != (low >> 63)[:, None]).any(axis=1))
-    if wide.size:
-        raise BenchFormatError(f"{path}: row {wide[0] + 1}: {name} holds more than its {kind.precision} digits")
-    return low / 10.0**kind.scale
+    start = 0
+    for chunk in column.chunks:
+        part = out[start: start + len(chunk)]
+        start += len(chunk)
+        if not pa.types.is_decimal(kind):
+            part[:] = chunk.to_numpy()
+            continue
+        words = max(kind.bit_width // 64, 1)
+        values = np.frombuffer(chunk.buffers()[1], np.int64 if kind.bit_width >= 64 else np.int32).reshape(
+            -1, words)[chunk.offset: chunk.offset + len(chunk)]
+        if words > 1 and not integral:
+            wide = np.flatnonzero((values[:, 1:] != (values[:, :1] >> 63)).any(axis=1))
+            if wide.size:
+                raise BenchFormatError(f"{path}: row {start - len(chunk) + wide[0] + 1}: {name} holds more than "
+                                       f"its {kind.precision} digits")
+        np.divide(values[:, 0], 10.0**kind.scale, out=part)
 
 
-def read_columns(path: Path, max_rows: int, wanted: Collection[str]) -> tuple[list[str], np.ndarray]:
-    """The columns of ``path`` named in ``wanted`` (those it has), as float64 rows.
+def _first_not_finite(columns: list[np.ndarray]) -> tuple[int, int] | None:
+    """(row, column) of the first value, row by row, of ``columns`` that is NaN or infinite; None if none is."""
+    first = None
+    for k, values in enumerate(columns):
+        if values.size and not (np.isfinite(values.min()) and np.isfinite(values.max())):
+            row = int(np.argmin(np.isfinite(values)))
+            if first is None or row < first[0]:
+                first = (row, k)
+    return first
+
+
+def read_columns(path: Path, max_rows: int, wanted: Collection[str],
+                 allocate: Callable[[list[str], int], list[np.ndarray]] = _separate) -> tuple[
+                     list[str], list[np.ndarray]]:
+    """The columns of ``path`` named in ``wanted`` (those it has), as float64 arrays, every value finite.
 
     The footer is read first: a file declaring more than ``max_rows`` rows, a
     column ``wanted`` that is not a number (integer, float or decimal), or a
     column chunk larger than its rows may take is refused before any data is
-    decompressed. Other columns are never read.
+    decompressed. Other columns are never read. Each column is decoded straight
+    into its array of ``allocate(header, rows)`` (1-D, float64, possibly strided: a column of a larger
+    array), in one pass.
 
     Raises
     ------
@@ -116,6 +159,9 @@ def read_columns(path: Path, max_rows: int, wanted: Collection[str]) -> tuple[li
                 kind = schema.field(name).type
                 if not (pa.types.is_integer(kind) or pa.types.is_floating(kind) or pa.types.is_decimal(kind)):
                     raise BenchFormatError(f"{path}: column {name!r} holds {kind}, not numbers")
+            stored = f.schema
+            integral = {stored.column(c).path: stored.column(c).physical_type in ("INT32", "INT64")
+                        for c in range(len(stored))}
             for g in range(meta.num_row_groups):
                 group = meta.row_group(g)
                 bound = _COLUMN_ROW_BYTES * group.num_rows + _COLUMN_SLACK_BYTES
@@ -130,11 +176,15 @@ def read_columns(path: Path, max_rows: int, wanted: Collection[str]) -> tuple[li
         raise BenchFormatError(f"{path}: not a readable Parquet file ({_one_line(e)})") from None
     if table.num_rows != meta.num_rows:
         raise BenchFormatError(f"{path}: holds {table.num_rows} rows, its footer declares {meta.num_rows}")
-    data = np.empty((len(header), table.num_rows)).T  # each column contiguous
-    for k, name in enumerate(header):
+    columns = allocate(header, table.num_rows)
+    for name, out in zip(header, columns):
         column = table.column(name)
         if column.null_count:
             row = int(np.flatnonzero(column.is_null().to_numpy(zero_copy_only=False))[0]) + 1
             raise BenchFormatError(f"{path}: row {row}: {name[:120]} is empty")
-        data[:, k] = _as_float(path, name, column)
-    return header, data
+        _decode(path, name, column, integral.get(name, False), out)
+    floats = [k for k, name in enumerate(header) if pa.types.is_floating(table.schema.field(name).type)]
+    bad = _first_not_finite([columns[k] for k in floats])
+    if bad:
+        raise BenchFormatError(f"{path}: row {bad[0] + 1}: {header[floats[bad[1]]][:120]} is not a finite number")
+    return header, columns

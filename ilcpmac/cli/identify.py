@@ -174,7 +174,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     truth = read_truth(bench_dir)
     with progress_bar() as progress:
         task = progress.add_task("reading bench folder", total=len(STEPS) + 1)
-        bench = read_bench(bench_dir)
+        bench = read_bench(bench_dir, extras=False)  # the simulator's own columns: never used here
 
         def advance(step: str, index: int, total: int) -> None:
             progress.update(task, description=step, completed=index + 1)
