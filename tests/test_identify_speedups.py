@@ -15,10 +15,10 @@ from hypothesis import strategies as st
 
 from ilcpmac.bench.format import MotorInfo
 from ilcpmac.identify.joint import _JointProblem, _lag_derivatives, _tall_product, harmonic_sets, time_shifted
-from ilcpmac.identify.reduction import BenchTables, TrialTables, trial_amplitudes
+from ilcpmac.identify.reduction import BenchTables, TrialTables, revolution_averages, trial_amplitudes
 from ilcpmac.identify.sensor_gain import trial_response
 from ilcpmac.identify.system_gain import chi2_quantile
-from ilcpmac.model.current_loop import count_decay, lagged_phase, sample_decay
+from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
 from ilcpmac.signals.harmonics import not_a_knot_spline, uniform_time_resample
 
 CPR = 256
@@ -123,6 +123,55 @@ def test_joint_jacobian_matches_finite_differences(source, symmetric):
         assert not jacobian[:, [4, 6]].any()
 
 
+def test_the_joint_problem_keeps_each_result_for_its_own_parameters():
+    """The data and their slope in the torque's delay (computed together, the last shift kept) and the loop's
+    derivatives (kept for the Gauss-Newton step) at one point after another equal a fresh problem's there."""
+    tables = _tables(np.random.default_rng(10), "sensor")
+    sets = harmonic_sets(tables)
+    problem = _JointProblem(tables, sets)
+    start = np.array([5e-4, 6e-4, 7e-4, 2e-5, 0.05, 2e-3, 4e-6])
+    points = [start]
+    for i, step in zip((0, 1, 2, 3, 5, 6), (1e-5, 1e-5, 1e-5, 3e-6, 1e-4, 2e-6)):
+        point = start.copy()
+        point[i] += step
+        points += [point, start]
+    for phi in points:
+        fresh = _JointProblem(tables, sets)
+        np.testing.assert_array_equal(problem.data_slope(phi), fresh.data_slope(phi))
+        np.testing.assert_array_equal(problem.data(phi), fresh.data(phi))
+        np.testing.assert_array_equal(problem.loop_derivatives(phi), fresh.loop_derivatives(phi))
+    instants_table = np.stack([t.torque_table_nm for t in tables.trials])
+    dt = np.stack([t.count_period_s for t in tables.trials])
+    expected = trial_amplitudes(time_shifted(instants_table, dt, start[6], slope=True)[:, :, None],
+                                problem.max_harmonic)[:, :, 0]
+    np.testing.assert_array_equal(problem.data_slope(start), expected)
+
+
+def test_the_loop_response_over_speeds_is_the_response_at_each_speed():
+    """`CurrentLoop.response` at an array of speeds: the same numbers as one speed at a time, either sign of the
+    delay."""
+    h, speeds = np.arange(1, 40), np.array([0.5, 0.75, 1.3])
+    for loop in (CurrentLoop(np.array([5e-4, 6e-4, 7e-4]), 2e-5), CurrentLoop(np.full(3, 8e-4), -1e-5),
+                 CurrentLoop()):
+        together = loop.response(h, speeds, CPR)
+        assert together.shape == (3, h.size, 3)
+        np.testing.assert_array_equal(together, np.stack([loop.response(h, f, CPR) for f in speeds]))
+
+
+@pytest.mark.parametrize("first", [0, 5])
+def test_revolution_averages_give_the_count_periods_of_a_rippling_speed(first):
+    """Every count of three revolutions sampled, from a revolution's start (the index a revolution later
+    taken directly) or not (searched): the speed ripple's count periods and the mean speed, as recorded."""
+    rng = np.random.default_rng(11)
+    dt = _count_periods(rng, 1, speed_hz=2.0)[0]
+    count = first + np.arange(3 * CPR)
+    time_s = np.concatenate([[0.0], np.cumsum(np.roll(np.tile(dt, 3), -first))[:-1]])
+    speed_hz, i_ref, count_period_s = revolution_averages(count, time_s, np.ones((count.size, 3)), CPR)
+    assert speed_hz == pytest.approx(2.0, rel=1e-12)
+    np.testing.assert_allclose(count_period_s, dt, rtol=1e-9)
+    np.testing.assert_array_equal(i_ref, np.ones((CPR, 3)))
+
+
 def test_tall_product_is_the_matrix_product():
     rng = np.random.default_rng(6)
     tall, narrow = rng.standard_normal((500, 8)), rng.standard_normal((8, 7))
@@ -197,7 +246,7 @@ def test_identification_does_not_import_scipy_stats():
 
 
 def test_trial_amplitudes_of_the_derivatives_are_linear():
-    """The Jacobian transforms each derivative table alone (`_JointProblem.phase_derivatives`): the same
+    """The Jacobian transforms each derivative table alone (`_JointProblem.loop_derivatives`): the same
     amplitudes as a stack of them."""
     rng = np.random.default_rng(9)
     tables = rng.standard_normal((3, CPR, 4))

@@ -80,6 +80,10 @@ NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding
 NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
 #: their lower bounds (time constants, delay and corner not negative; the torque's delay free)
 NONLINEAR_LOWER = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])
+#: per loop parameter (index in NONLINEAR), the columns of `_JointProblem.loop_derivatives` and the linear
+#: columns (LINEAR) they move
+LOOP_COLUMNS = {0: ([0, 6], [0, 6]), 1: ([1, 7], [1, 6]), 2: ([2, 8], [2, 6]), 3: ([3, 4, 5, 9], [0, 1, 2, 6]),
+                5: ([10], [6])}
 LINEAR = ("theta_a", "theta_b", "theta_c", "beta_star_a", "beta_star_b", "beta_star_c", "emf", "saturation")
 #: why the common current offset is not identified where the back-EMFs sum to zero
 COMMON_OFFSET_NOT_IDENTIFIED = (
@@ -373,6 +377,9 @@ class _JointProblem:
         self._cache: dict[str, dict] = {}
         #: the high-pass's speed-ripple part at harmonics 0..max_harmonic, taken off the data (`_ripple_highpass`)
         self.ripple_highpass: np.ndarray | None = None
+        #: the last shift and its tables (`shifted`); the last loop parameters and their `loop_derivatives`
+        self._shifted: tuple = (None,)
+        self._loop_derivatives: tuple = (None,)
         self.variance = np.array([t.harmonic_variance_nm2 for t in tables.trials])
         self.sensor = tables.torque_source == "sensor"
         self.variances = None if self.sensor else np.stack([t.harmonic_variances_nm2 for t in tables.trials])
@@ -405,8 +412,20 @@ class _JointProblem:
         """
         shift = phi[6] if self.sensor else 0.0  # the encoder-derived torque is at the count instants
         data = self._cached("data", (shift,), lambda: trial_amplitudes(
-            shifted_at(self.torque, self.instants, shift)[:, :, None], self.max_harmonic)[:, :, 0])
+            self.shifted(shift)[0][:, :, None], self.max_harmonic)[:, :, 0])
         return data if self.ripple_highpass is None else data - self.ripple_highpass
+
+    def data_slope(self, phi: np.ndarray) -> np.ndarray:
+        """The derivative of `data` with respect to D = phi[6] (the torque sensor's), per s."""
+        return self._cached("data_slope", (phi[6],), lambda: trial_amplitudes(
+            self.shifted(phi[6])[1][:, :, None], self.max_harmonic)[:, :, 0])
+
+    def shifted(self, shift_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The torque tables advanced by ``shift_s`` and their derivative in it (`shifted_at`), both from one
+        pass; the last shift's kept (a fit asks for the data, then for their slope at the same shift)."""
+        if self._shifted[0] != shift_s:
+            self._shifted = (shift_s, *shifted_at(self.torque, self.instants, shift_s, both=True))
+        return self._shifted[1:]
 
     def highpass(self, phi: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
         """The piezo sensor's first-order high-pass j w / (j w + w_c), shape (n_trials, len(harmonics)); 1
@@ -443,9 +462,13 @@ class _JointProblem:
         return self._cached(f"current{p}", (phi[p], phi[3]), lambda: self.lagged(self.phase_i_ref[p], phi[p],
                                                                                  phi[3]))
 
-    def currents(self, phi: np.ndarray) -> np.ndarray:
-        """G_p I*_p per count, shape (n_trials, cpr, 3)."""
-        return np.stack([self.phase_current(phi, p) for p in range(3)], axis=2)
+    def cubic_torque(self, phi: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """sum_p K_p i_p^3 per count, i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, cpr)."""
+        terms = []
+        for p in range(3):
+            current = x[p] * self.phase_current(phi, p) + x[3 + p]
+            terms.append(self.backemf[:, p] * (current * current * current))
+        return terms[0] + terms[1] + terms[2]
 
     def amplitudes(self, tables: np.ndarray) -> np.ndarray:
         """Fit-harmonic amplitudes of per-count torque tables (n_trials, cpr, m) -> (n_trials, n_fit, m).
@@ -487,16 +510,27 @@ class _JointProblem:
                          continuous, d_tau, d_delay)
         return d_tau, d_delay
 
-    def phase_derivatives(self, phi: np.ndarray, p: int) -> np.ndarray:
-        """Derivatives of `phase_columns`, shape (n_trials, n_fit, 5): of K_p G_p I*_p with respect to tau_p
-        and T_d, of K_p W (1 - G_p) e_p with respect to tau_p, T_d and L/R."""
-        k = self.backemf[:, p]
-        current = self.lag_derivatives(self.phase_i_ref[p], phi[p], phi[3])
-        emf = self.lag_derivatives(self.phase_emf[p], phi[p], phi[3], continuous=True)
-        winding, _ = self.lag_derivatives(self.rejected(phi, p), phi[5], 0.0, continuous=True)
-        tables = [*current, *(-self.lagged(d, phi[5], 0.0, continuous=True) for d in emf), winding]
-        # one transform per table: a stack of them transforms slower than its parts
-        return np.concatenate([self.amplitudes((k * table)[:, :, None]) for table in tables], axis=2)
+    def loop_derivatives(self, phi: np.ndarray) -> np.ndarray:
+        """Derivatives of the current and back-EMF columns (`phase_columns`) with respect to the loop's parameters,
+        shape (n_trials, n_fit, 11): of K_p G_p I*_p with respect to tau_p (p = a, b, c), then T_d; of
+        K_p W (1 - G_p) e_p with respect to tau_p; of sum_p K_p W (1 - G_p) e_p with respect to T_d and L/R.
+        The last ones kept: the Gauss-Newton step of `fit_joint` starts where the lagged loop's fit took its last
+        Jacobian."""
+        key = tuple(phi[[0, 1, 2, 3, 5]])
+        if self._loop_derivatives[0] != key:
+            per_phase = []
+            for p in range(3):
+                k = self.backemf[:, p]
+                current = self.lag_derivatives(self.phase_i_ref[p], phi[p], phi[3])
+                emf = self.lag_derivatives(self.phase_emf[p], phi[p], phi[3], continuous=True)
+                winding, _ = self.lag_derivatives(self.rejected(phi, p), phi[5], 0.0, continuous=True)
+                tables = [*current, *(-self.lagged(d, phi[5], 0.0, continuous=True) for d in emf), winding]
+                # one transform per table: a stack of them transforms slower than its parts
+                per_phase.append([self.amplitudes((k * table)[:, :, None]) for table in tables])
+            a, b, c = per_phase
+            self._loop_derivatives = (key, np.concatenate([a[0], b[0], c[0], a[1], b[1], c[1], a[2], b[2], c[2],
+                                                           a[3] + b[3] + c[3], a[4] + b[4] + c[4]], axis=2))
+        return self._loop_derivatives[1]
 
     def design(self, phi: np.ndarray, saturation: np.ndarray | None) -> np.ndarray:
         """All linear columns (LINEAR, without saturation when None), shape (n_trials, n_fit, n_columns).
@@ -520,8 +554,7 @@ class _JointProblem:
             k = self.backemf[:, p]
             torque += k * (x[p] * self.phase_current(phi, p) + x[3 + p] + x[6] * self.lagged(
                 self.rejected(phi, p), phi[5], 0.0, continuous=True))
-        currents = x[:3] * self.currents(phi) + x[3:6]
-        torque -= x[7] * np.sum(self.backemf * (currents * currents * currents), axis=2)
+        torque -= x[7] * self.cubic_torque(phi, x)
         amplitudes = np.zeros(self.cpr // 2 + 1, complex)
         for h, value in table.items():
             amplitudes[h] = value
@@ -529,8 +562,7 @@ class _JointProblem:
 
     def saturation_column(self, phi: np.ndarray, x: np.ndarray) -> np.ndarray:
         """S_k = -DFT(sum_p K_p i_p^3), i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, n_fit)."""
-        currents = x[:3] * self.currents(phi) + x[3:6]
-        return self.amplitudes(-np.sum(self.backemf * (currents * currents * currents), axis=2)[:, :, None])[:, :, 0]
+        return self.amplitudes(-self.cubic_torque(phi, x)[:, :, None])[:, :, 0]
 
     def weights(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """High-pass per trial and fit harmonic, and the weights |H_hp|^2 / variance."""
@@ -549,31 +581,6 @@ class _JointProblem:
         design = (root[:, :, None] * design).reshape(-1, design.shape[2])
         return np.concatenate([y.real, y.imag]), np.concatenate([design.real, design.imag])
 
-    def weighted_derivative(self, phi: np.ndarray, design: np.ndarray, d_data: np.ndarray | None,
-                            d_design: np.ndarray, d_log_weight: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """The derivative of `weighted`'s output with respect to one nonlinear parameter.
-
-        ``d_data``: that of the data over the high-pass (None: 0), ``d_design`` that of the columns, shaped as
-        ``design``, and ``d_log_weight`` that of the log of the weights (None: 0). With root = sqrt(w) and
-        M the weighted mean over trials, weighted(Q) = root (Q - free M(Q)) has the derivative
-        root [dQ - free M(dQ) + d(log w) / 2 (Q - free M(Q)) - free M(d(log w) (Q - M(Q)))].
-        """
-        hp, weights = self.weights(phi)
-        weights = weights[:, :, None]
-        free = self.sets.table_free[:, None]
-        y = (self.data(phi)[:, self.sets.fit] / hp)[:, :, None]
-        out = []
-        for value, change in ((y, np.zeros_like(y) if d_data is None else d_data[:, :, None]), (design, d_design)):
-            derivative = change - free * _weighted_mean(change, weights)
-            if d_log_weight is not None:
-                log_weight = d_log_weight[:, :, None]
-                mean = _weighted_mean(value, weights)
-                derivative = derivative + log_weight / 2.0 * (value - free * mean) - free * _weighted_mean(
-                    log_weight * (value - mean), weights)
-            derivative = (np.sqrt(weights) * derivative).reshape(-1, value.shape[2])
-            out.append(np.concatenate([derivative.real, derivative.imag]))
-        return out[0][:, 0], out[1]
-
     def sensitivities(self, phi: np.ndarray, saturation: np.ndarray, x: np.ndarray, rest: np.ndarray,
                       active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per ``active`` nonlinear parameter, the analytic derivatives the fit and its covariance need.
@@ -582,36 +589,41 @@ class _JointProblem:
         parameters ``x`` (n_rows, n_active), and D'^T ``rest`` (n_columns,
         n_active), D' that of the weighted columns: the current and back-EMF
         columns through the count recursion's derivatives
-        (`phase_derivatives`), the data through the derivative of their time
+        (`loop_derivatives`), the data through the derivative of their time
         shift, the high-pass through 1 / H_hp = 1 + w_c / (j w) and the
         weights |H_hp|^2 / variance = w^2 / ((w^2 + w_c^2) variance).
+
+        With root = sqrt(w) and M the weighted mean over trials, `weighted`'s
+        root (Q - free M(Q)) has the derivative root [dQ - free M(dQ) +
+        d(log w) / 2 (Q - free M(Q)) - free M(d(log w) (Q - M(Q)))]
+        (`_weighted_change`); a loop parameter moves one to four columns and
+        neither the data nor the weights.
         """
         design = self.design(phi, saturation)
-        loop = [self.phase_derivatives(phi, p) for p in range(3)] if active[[0, 1, 2, 3, 5]].any() else []
+        loop = self.loop_derivatives(phi) if active[[0, 1, 2, 3, 5]].any() else None
+        hp, weights = self.weights(phi)
+        weights = weights[:, :, None]
+        root = np.sqrt(weights)
+        free = self.sets.table_free[:, None]
+        n_rows = 2 * design.shape[0] * design.shape[1]
         residuals, products = [], []
         for i in np.flatnonzero(active):
-            d_design = np.zeros(design.shape, complex)
-            d_data = d_log_weight = None
-            if i < 3:
-                d_design[:, :, i] = loop[i][:, :, 0]
-                d_design[:, :, 6] = loop[i][:, :, 2]
-            elif i == 3:
-                for p in range(3):
-                    d_design[:, :, p] = loop[p][:, :, 1]
-                d_design[:, :, 6] = sum(d[:, :, 3] for d in loop)
-            elif i == 5:
-                d_design[:, :, 6] = sum(d[:, :, 4] for d in loop)
+            d_y, d_columns = np.zeros(n_rows), np.zeros((n_rows, design.shape[2]))
+            if i in LOOP_COLUMNS:
+                source, target = LOOP_COLUMNS[i]
+                d_columns[:, target] = _weighted_change(loop[:, :, source], weights, root, free)
             elif i == 4 and self.sensor:
                 omega = 2.0 * np.pi * self.speeds[:, None] * self.sets.fit[None, :]
                 corner = 2.0 * np.pi * phi[4]
-                d_data = self.data(phi)[:, self.sets.fit] * (2.0 * np.pi / (1j * omega))
-                d_log_weight = -4.0 * np.pi * corner / (omega**2 + corner**2)
+                data = self.data(phi)[:, self.sets.fit]
+                d_data = data * (2.0 * np.pi / (1j * omega))
+                d_log_weight = (-4.0 * np.pi * corner / (omega**2 + corner**2))[:, :, None]
+                d_y = _weighted_change(d_data[:, :, None], weights, root, free, (data / hp)[:, :, None],
+                                       d_log_weight)[:, 0]
+                d_columns = _weighted_change(None, weights, root, free, design, d_log_weight)
             elif i == 6 and self.sensor:
-                shift = self._cached("data_slope", (phi[6],), lambda: trial_amplitudes(
-                    shifted_at(self.torque, self.instants, phi[6], slope=True)[:, :, None],
-                    self.max_harmonic)[:, :, 0])
-                d_data = shift[:, self.sets.fit] / self.highpass(phi, self.sets.fit)
-            d_y, d_columns = self.weighted_derivative(phi, design, d_data, d_design, d_log_weight)
+                d_data = self.data_slope(phi)[:, self.sets.fit] / self.highpass(phi, self.sets.fit)
+                d_y = _weighted_change(d_data[:, :, None], weights, root, free)[:, 0]
             residuals.append(d_y - d_columns @ x)
             products.append(d_columns.T @ rest)
         return np.stack(residuals, axis=1), np.stack(products, axis=1)
@@ -627,7 +639,7 @@ class _JointProblem:
         x, rest, design = self.solution(phi, saturation) if solution is None else solution
         residual, products = self.sensitivities(phi, saturation, x, rest, active)
         constraint = self.constraint(design.shape[1])
-        free = _tall_product(design, constraint)
+        free = self.constrained(design)
         scale = np.sqrt(np.sum(free**2, axis=0))
         scale[scale == 0.0] = 1.0
         free = free / scale
@@ -645,6 +657,11 @@ class _JointProblem:
         constraint[5, 3:5] = -1.0
         return constraint
 
+    def constrained(self, columns: np.ndarray) -> np.ndarray:
+        """``columns`` times `constraint`: the free parameters' columns (``columns`` itself where P is the
+        identity)."""
+        return columns if self.common_offset else _tall_product(columns, self.constraint(columns.shape[1]))
+
     def solve(self, phi: np.ndarray, saturation: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Linear parameters and the weighted residual vector at ``phi``."""
         return self.solution(phi, saturation)[:2]
@@ -653,7 +670,7 @@ class _JointProblem:
         """`solve`'s linear parameters and residual, and the weighted columns they come from."""
         y, design = self.weighted(phi, self.design(phi, saturation))
         constraint = self.constraint(design.shape[1])
-        free = _tall_product(design, constraint)
+        free = self.constrained(design)
         scale = np.sqrt(np.sum(free**2, axis=0))
         scale[scale == 0.0] = 1.0
         x = constraint @ (np.linalg.lstsq((free.T @ free) / np.outer(scale, scale), (free.T @ y) / scale,
@@ -694,11 +711,13 @@ def count_instants(count_period_s: np.ndarray) -> np.ndarray:
     return out
 
 
-def shifted_at(tables: np.ndarray, instants: np.ndarray, shift_s: float, slope: bool = False) -> np.ndarray:
-    """`time_shifted` with the `count_instants` of its count periods given."""
-    out = np.empty_like(tables, dtype=float)
-    _time_shift_kernel(np.ascontiguousarray(tables, float), instants, float(shift_s), slope, out)
-    return out
+def shifted_at(tables: np.ndarray, instants: np.ndarray, shift_s: float, slope: bool = False,
+               both: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """`time_shifted` with the `count_instants` of its count periods given; ``both``: the values and the slopes,
+    from one pass."""
+    out, out_slope = np.empty_like(tables, dtype=float), np.empty_like(tables, dtype=float)
+    _time_shift_kernel(np.ascontiguousarray(tables, float), instants, float(shift_s), out, out_slope)
+    return (out, out_slope) if both else out_slope if slope else out
 
 
 @njit(cache=True)
@@ -712,7 +731,7 @@ def _instants_kernel(count_period_s, out):
 
 
 @njit(cache=True)
-def _time_shift_kernel(tables, instants, shift_s, slope, out):
+def _time_shift_kernel(tables, instants, shift_s, out, out_slope):
     n_trials, cpr = tables.shape
     for k in range(n_trials):
         t = instants[k]  # over three revolutions, the middle one holding the target instants
@@ -725,20 +744,22 @@ def _time_shift_kernel(tables, instants, shift_s, slope, out):
                 base += 1
             t0, t1, t2, t3 = t[base - 1], t[base], t[base + 1], t[base + 2]
             d0, d1, d2, d3 = target - t0, target - t1, target - t2, target - t3
-            if slope:  # the weights' derivatives with respect to the target instant
-                numerators = (d2 * d3 + d1 * d3 + d1 * d2, d2 * d3 + d0 * d3 + d0 * d2,
-                              d1 * d3 + d0 * d3 + d0 * d1, d1 * d2 + d0 * d2 + d0 * d1)
-            else:
-                numerators = (d1 * d2 * d3, d0 * d2 * d3, d0 * d1 * d3, d0 * d1 * d2)
+            # the weights, and their derivatives with respect to the target instant
+            numerators = (d1 * d2 * d3, d0 * d2 * d3, d0 * d1 * d3, d0 * d1 * d2)
+            slopes = (d2 * d3 + d1 * d3 + d1 * d2, d2 * d3 + d0 * d3 + d0 * d2,
+                      d1 * d3 + d0 * d3 + d0 * d1, d1 * d2 + d0 * d2 + d0 * d1)
+            denominators = ((t0 - t1) * (t0 - t2) * (t0 - t3), (t1 - t0) * (t1 - t2) * (t1 - t3),
+                            (t2 - t0) * (t2 - t1) * (t2 - t3), (t3 - t0) * (t3 - t1) * (t3 - t2))
             first = (base - 1) % cpr
             value = 0.0
-            for i, weight in enumerate((numerators[0] / ((t0 - t1) * (t0 - t2) * (t0 - t3)),
-                                        numerators[1] / ((t1 - t0) * (t1 - t2) * (t1 - t3)),
-                                        numerators[2] / ((t2 - t0) * (t2 - t1) * (t2 - t3)),
-                                        numerators[3] / ((t3 - t0) * (t3 - t1) * (t3 - t2)))):
+            slope = 0.0
+            for i in range(4):
                 index = first + i
-                value += weight * tables[k, index - cpr if index >= cpr else index]
+                sample = tables[k, index - cpr if index >= cpr else index]
+                value += numerators[i] / denominators[i] * sample
+                slope += slopes[i] / denominators[i] * sample
             out[k, c] = value
+            out_slope[k, c] = slope
 
 
 @njit(cache=True)
@@ -821,6 +842,20 @@ def _tall_product(tall: np.ndarray, narrow: np.ndarray) -> np.ndarray:
 def _weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Weighted mean over trials (axis 0), kept as a leading axis of length 1."""
     return np.sum(weights * values, axis=0, keepdims=True) / np.sum(weights, axis=0, keepdims=True)
+
+
+def _weighted_change(change: np.ndarray | None, weights: np.ndarray, root: np.ndarray, free: np.ndarray,
+                     value: np.ndarray | None = None, d_log_weight: np.ndarray | None = None) -> np.ndarray:
+    """The derivative of `_JointProblem.weighted`'s output for the change ``change`` (n_trials, n_fit, m; None: 0)
+    of its input ``value`` and ``d_log_weight`` (None: 0) of the log of its ``weights`` (``root`` their square
+    root), stacked real, shape (2 n_trials n_fit, m) (`_JointProblem.sensitivities`)."""
+    derivative = 0.0 if change is None else change - free * _weighted_mean(change, weights)
+    if d_log_weight is not None:
+        mean = _weighted_mean(value, weights)
+        derivative = derivative + d_log_weight / 2.0 * (value - free * mean) - free * _weighted_mean(
+            d_log_weight * (value - mean), weights)
+    derivative = (root * derivative).reshape(-1, derivative.shape[2])
+    return np.concatenate([derivative.real, derivative.imag])
 
 
 def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
@@ -992,7 +1027,7 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
     columns = [design, -problem.sensitivities(phi, saturation, x, rest, active)[0]]
     names = list(LINEAR) + [NONLINEAR[i] for i in np.flatnonzero(active)]
     constraint = problem.constraint(sum(c.shape[1] for c in columns))
-    jac = _tall_product(np.hstack(columns), constraint)
+    jac = problem.constrained(np.hstack(columns))
     bound = np.linalg.pinv(jac.T @ jac)
     n_trials, n_fit = problem.variance.shape[0], problem.sets.fit.size
     per_harmonic = np.sum(rest.reshape(2, n_trials, n_fit) ** 2, axis=(0, 1))

@@ -20,7 +20,13 @@ import numpy as np
 from ilcpmac.bench.format import Bench, MotorInfo, check_backemf, check_trial
 from ilcpmac.errors import BenchFormatError, IdentificationError
 from ilcpmac.records import TrialData
-from ilcpmac.signals.harmonics import harmonic_amplitudes, slow_trend, synchronous_table, whole_revolution_span
+from ilcpmac.signals.harmonics import (
+    every_count,
+    harmonic_amplitudes,
+    slow_trend,
+    synchronous_table,
+    whole_revolution_span,
+)
 
 #: Highest Legendre degree of the torque sensor's slow trend (linear drift and slow settling).
 TREND_DEGREE = 5
@@ -173,7 +179,9 @@ def revolution_averages(count: np.ndarray, time_s: np.ndarray, i_ref_a: np.ndarr
     Raises `IdentificationError` when a mean count period is not positive (a trial of too few revolutions
     for its speed ripple).
     """
-    later = np.searchsorted(count, count + counts_per_rev)
+    # every count of whole revolutions sampled (as a simulator records): the count a revolution later is there
+    later = np.arange(count.size) + counts_per_rev if every_count(count, counts_per_rev) else np.searchsorted(
+        count, count + counts_per_rev)
     paired = later < count.size
     paired[paired] = count[later[paired]] == count[paired] + counts_per_rev
     seconds_per_count = float(np.mean(time_s[later[paired]] - time_s[paired])) / counts_per_rev

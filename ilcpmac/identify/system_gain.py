@@ -243,7 +243,7 @@ def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses
     def residual(params: np.ndarray) -> np.ndarray:
         gain, tau, delay = params
         loop = CurrentLoop(np.full(3, tau), delay)
-        model = np.stack([gain * loop.response(harmonics, f, counts_per_rev)[:, 0] for f in speeds_hz])
+        model = gain * loop.response(harmonics, speeds_hz, counts_per_rev)[:, :, 0]
         error = np.where(valid, root * (np.nan_to_num(responses) - model), 0.0).ravel()
         return np.concatenate([error.real, error.imag])
 

@@ -72,14 +72,15 @@ class CurrentLoop:
         """The loop with each phase's time constant times ``factor`` (the delay kept)."""
         return CurrentLoop(self.time_constant_s * factor, self.delay_s)
 
-    def response(self, harmonics: np.ndarray, speed_hz: float, counts_per_rev: int) -> np.ndarray:
-        """The loop's response per harmonic and phase at a constant speed, shape (len(harmonics), 3).
+    def response(self, harmonics: np.ndarray, speed_hz: float | np.ndarray, counts_per_rev: int) -> np.ndarray:
+        """The loop's response per harmonic and phase at a constant speed, shape (len(harmonics), 3); for an
+        array of speeds, one such block per speed, shape speed_hz.shape + (len(harmonics), 3).
 
         The z-transform of the count recursion (module docstring) with equal
         count intervals 1 / (counts_per_rev speed_hz), at z = exp(j 2 pi h / counts_per_rev).
         """
         z_inv = np.exp(-2j * np.pi * np.asarray(harmonics, float)[:, None] / counts_per_rev)
-        dt = 1.0 / (counts_per_rev * speed_hz)
+        dt = 1.0 / (counts_per_rev * np.asarray(speed_hz, float)[..., None, None])
         tau = np.maximum(self.time_constant_s, 1e-300)
         a = np.exp(-dt / tau)
         state = (1.0 - a) * z_inv / (1.0 - a * z_inv)  # s_c / x_c

@@ -188,7 +188,7 @@ def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int
     increasing (as in `TrialData`).
     """
     values = np.asarray(values, float)
-    if _every_count(count, counts_per_rev):
+    if every_count(count, counts_per_rev):
         return values.reshape((-1, counts_per_rev) + values.shape[1:]).mean(axis=0)
     position = count % counts_per_rev
     hits = np.bincount(position, minlength=counts_per_rev)
@@ -204,7 +204,7 @@ def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int
     return table.reshape((counts_per_rev,) + values.shape[1:])
 
 
-def _every_count(count: np.ndarray, counts_per_rev: int) -> bool:
+def every_count(count: np.ndarray, counts_per_rev: int) -> bool:
     """Whether strictly increasing ``count`` samples every count of whole revolutions, from a revolution's start."""
     return bool(count[0] % counts_per_rev == 0 and count.size % counts_per_rev == 0
                 and count[-1] - count[0] + 1 == count.size)
@@ -212,8 +212,8 @@ def _every_count(count: np.ndarray, counts_per_rev: int) -> bool:
 
 def _at_samples(table: np.ndarray, count: np.ndarray, counts_per_rev: int) -> np.ndarray:
     """``table[count % counts_per_rev]`` for a per-count ``table`` (counts_per_rev, m): a copy per revolution
-    where `_every_count` (far faster than the gather)."""
-    if _every_count(count, counts_per_rev):
+    where `every_count` (far faster than the gather)."""
+    if every_count(count, counts_per_rev):
         return np.tile(table, (count.size // counts_per_rev, 1))
     return np.take(table, count % counts_per_rev, axis=0)
 
@@ -237,9 +237,9 @@ def slow_trend(count: np.ndarray, time_s: np.ndarray, values: np.ndarray, counts
     noise_variance : float
         Per-sample variance of the rest (neither periodic nor trend).
     """
-    position = count % counts_per_rev
-    hits = np.bincount(position, minlength=counts_per_rev)
-    dof = count.size - np.count_nonzero(hits) - degree
+    counts_seen = counts_per_rev if every_count(count, counts_per_rev) else np.count_nonzero(
+        np.bincount(count % counts_per_rev, minlength=counts_per_rev))
+    dof = count.size - counts_seen - degree
     if dof <= 0:
         raise ValueError("the slow trend needs more samples than counts per revolution plus its degree")
     u = 2.0 * (time_s - time_s[0]) / (time_s[-1] - time_s[0]) - 1.0
@@ -312,8 +312,12 @@ def not_a_knot_spline(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> tuple[np.
     bands[1, -1], bands[-1, -2] = dx[-2], last
     rhs[-1] = (column[-1] ** 2 * slope[-2] + (2.0 * last + column[-1]) * column[-2] * slope[-1]) / last
     knot_slope = solve_banded((1, 1), bands, rhs, overwrite_ab=True, overwrite_b=True, check_finite=False)
-    t = (knot_slope[:-1] + knot_slope[1:] - 2.0 * slope) / column
     piece = np.clip(np.searchsorted(x, at, side="right") - 1, 0, x.size - 2)
+    # the Hermite coefficients of the pieces evaluated only
+    width, secant, linear, right = (np.take(a, piece, axis=0) for a in (column, slope, knot_slope[:-1],
+                                                                          knot_slope[1:]))
+    t = (linear + right - 2.0 * secant) / width
+    cubic, square = t / width, (secant - linear) / width - t
     u = (at - x[piece])[:, None]
-    cubic, square, linear = (t / column)[piece], ((slope - knot_slope[:-1]) / column - t)[piece], knot_slope[piece]
-    return ((cubic * u + square) * u + linear) * u + y[piece], (3.0 * cubic * u + 2.0 * square) * u + linear
+    value = ((cubic * u + square) * u + linear) * u + np.take(y, piece, axis=0)
+    return value, (3.0 * cubic * u + 2.0 * square) * u + linear
