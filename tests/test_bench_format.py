@@ -270,6 +270,18 @@ def test_trials_read_at_once_fail_as_read_in_order(tmp_path, bad, message):
         read_bench(three_trials(tmp_path, bad))
 
 
+@pytest.mark.parametrize("entries", ["bad trial", "no trials"])
+def test_a_bad_backemf_is_refused_before_the_trials_read_beside_it(tmp_path, entries):
+    """backemf.csv is read while the trials are: its error still comes first, as in a reading in order."""
+    folder = three_trials(tmp_path, {1: ("0.03\n", "nan\n")})
+    if entries == "no trials":
+        text = (folder / "bench.toml").read_text()
+        (folder / "bench.toml").write_text(text[:text.index("[[trials]]")])
+    (folder / "backemf.csv").write_text((folder / "backemf.csv").read_text().replace("count,", "position,", 1))
+    with pytest.raises(BenchFormatError, match=r"backemf\.csv: line 1: header must be count,k_a,k_b,k_c"):
+        read_bench(folder)
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_trials_keep_their_order_and_c_ordered_phases(tmp_path, suffix):
     convert_bench(three_trials(tmp_path / "in"), tmp_path / "out", suffix)

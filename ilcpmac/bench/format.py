@@ -571,6 +571,13 @@ class BenchHead:
 
 def read_bench_head(folder: str | Path) -> BenchHead:
     """bench.toml and backemf.csv of ``folder``, with every check `read_bench` makes of them."""
+    motor, backemf_path, sensors, entries = _bench_toml(folder)
+    return BenchHead(motor, read_backemf_csv(backemf_path, motor), sensors, entries)
+
+
+def _bench_toml(folder: str | Path) -> tuple[MotorInfo, Path, SensorCalibration | None, object]:
+    """`read_bench_head`'s motor, back-EMF file, sensors and [[trials]] entries (not yet checked), from
+    bench.toml alone."""
     folder = Path(folder)
     if not folder.is_dir():
         raise BenchFormatError(f"{folder}: not a folder")
@@ -587,7 +594,7 @@ def read_bench_head(folder: str | Path) -> BenchHead:
     backemf_path = folder / backemf_file
     _inside(backemf_path, root)
     sensors = _sensors(data["sensors"], f"{toml_path}: [sensors]") if "sensors" in data else None
-    return BenchHead(motor, read_backemf_csv(backemf_path, motor), sensors, data.get("trials"))
+    return motor, backemf_path, sensors, data.get("trials")
 
 
 def read_bench(folder: str | Path, extras: bool = True) -> Bench:
@@ -596,20 +603,21 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
     Every file is a regular file inside the folder (symbolic links resolved),
     no larger than its rows may take; each trial is checked against the motor
     (`check_trial`) and the back-EMF against the pole pairs (`check_backemf`).
-    The trials are read `READERS` at a time; the error raised is the one a
-    reading in order meets first. Without ``extras`` the trials leave out the
-    simulator's columns (`read_trial`), which nothing but a simulation's own
-    analysis uses: a Parquet bench reads in about half the time.
+    The trials are read `READERS` at a time, while backemf.csv is read (its
+    parser is the first use of numba in a process, GIL-bound: 0.3 s); the
+    error raised is the one a reading in order, backemf.csv first, meets
+    first. Without ``extras`` the trials leave out the simulator's columns
+    (`read_trial`), which nothing but a simulation's own analysis uses: a
+    Parquet bench reads in about half the time.
     """
     folder = Path(folder)
-    head = read_bench_head(folder)
-    motor, backemf, sensors, entries = head.motor, head.backemf_nm_per_a, head.sensors, head.entries
+    motor, backemf_path, sensors, entries = _bench_toml(folder)
     root = folder.resolve()
     toml_path = folder / BENCH_FILE
-    if not isinstance(entries, list) or not entries:
-        raise BenchFormatError(f"{toml_path}: needs at least one [[trials]] entry")
-    max_rows = min(MAX_REVOLUTIONS * motor.counts_per_rev, MAX_TRIAL_ROWS)
     jobs, files, seen, refusal = [], [], {}, None
+    if not isinstance(entries, list) or not entries:
+        entries, refusal = [], BenchFormatError(f"{toml_path}: needs at least one [[trials]] entry")
+    max_rows = min(MAX_REVOLUTIONS * motor.counts_per_rev, MAX_TRIAL_ROWS)
     for i, entry in enumerate(entries, start=1):
         where = f"{toml_path}: [[trials]] #{i}"
         try:
@@ -636,7 +644,9 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
 
     pool = ThreadPoolExecutor(READERS)
     try:
-        trials = tuple(pool.map(read, jobs))
+        read_trials = pool.map(read, jobs)
+        backemf = read_backemf_csv(backemf_path, motor)
+        trials = tuple(read_trials)
     finally:
         pool.shutdown(cancel_futures=True)
     if refusal is not None:
