@@ -47,7 +47,7 @@ from conftest import COUNTS_PER_REV, REAL_BENCH_CONFIG, SEED_CONFIG, toml_text
 from ilcpmac.bench.format import write_backemf_csv
 from ilcpmac.bench.importer import read_mapping
 from ilcpmac.bench.standstill import SensorErrors
-from ilcpmac.cli import main
+from ilcpmac.cli import entry_point, main
 from ilcpmac.config import load_config
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.sim.grid import grid_requests
@@ -401,13 +401,13 @@ def deadline(seconds: int):
 
 
 def run_in_process(line: str, folder: Path) -> subprocess.CompletedProcess:
-    """``line`` (`runs_in_process`) run in this process as its program runs it: ``ilcpmac``, the console script
-    of this environment, is ``sys.exit(main())``; ``python`` runs the script as ``__main__``, its folder first on
-    sys.path. The words as the shell splits them, globs expanded as the shell expands them (sorted; a pattern
-    matching nothing stays as typed); in ``folder``, with `environment()` and sys.argv the words (all restored
-    after); stdout and stderr captured; stopped after COMMAND_TIMEOUT_S. The exit status is the `SystemExit`'s as
-    Python makes it one (None: 0; a message: printed to stderr, 1); any other exception escapes, failing the test
-    as its traceback would."""
+    """``line`` (`runs_in_process`) run in this process as its program runs it: ``ilcpmac``, the console script of
+    this environment, is `entry_point`: `main`, then the process's end (which stays out); ``python`` runs the script
+    as ``__main__``, its folder first on sys.path. The words as the shell splits them, globs expanded as the shell
+    expands them (sorted; a pattern matching nothing stays as typed); in ``folder``, with `environment()` and
+    sys.argv the words (all restored after); stdout and stderr captured; stopped after COMMAND_TIMEOUT_S. The exit
+    status is the `SystemExit`'s as Python makes it one (None: 0; a message: printed to stderr, 1); any other
+    exception escapes, failing the test as its traceback would."""
     words = []
     for word in shlex.split(line):
         matches = sorted(glob.glob(word, root_dir=folder)) if set(word) & set("*?[") else []
@@ -439,7 +439,7 @@ def environment() -> dict[str, str]:
 @pytest.mark.slow
 def test_the_guide_runs_top_to_bottom(steps, tmp_path):
     assert (BIN / "ilcpmac").exists() and (BIN / "python").exists()
-    assert entry_points(group="console_scripts", name="ilcpmac")["ilcpmac"].load() is main
+    assert entry_points(group="console_scripts", name="ilcpmac")["ilcpmac"].load() is entry_point
     stand = Stand(tmp_path)
     try:
         for step in steps:
