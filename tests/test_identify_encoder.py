@@ -26,8 +26,20 @@ from ilcpmac.cli import main
 from ilcpmac.cli.identify import estimates_table
 from ilcpmac.config import load_config
 from ilcpmac.errors import BenchFormatError, IdentificationError
-from ilcpmac.identify import identify_bench
+from ilcpmac.identify import DEFAULT_LOOP, identify_bench
 from ilcpmac.identify.encoder import timer_resolution_s
+from ilcpmac.identify.joint import (
+    LINEAR,
+    NONLINEAR,
+    SENSOR_PARAMETERS,
+    _covariance,
+    _fit_nonlinear,
+    _JointProblem,
+    fit_joint,
+    harmonic_sets,
+)
+from ilcpmac.identify.reduction import BenchTables
+from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.records import IdentificationResult
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
@@ -260,6 +272,50 @@ def test_the_common_offset_is_identified_where_the_backemfs_do_not_sum_to_zero(i
     result, _ = identified
     assert result.details.joint.common_offset_identified
     assert not any(m.startswith("current offsets:") for m in result.messages)
+
+
+def _fit(tables: BenchTables) -> dict[str, np.ndarray]:
+    """The joint fit's estimates and standard errors on ``tables``, by name."""
+    joint = fit_joint(tables, DEFAULT_LOOP)
+    return {"theta": joint.theta, "theta_std": joint.theta_std, "beta": joint.beta_star_a,
+            "beta_std": joint.beta_star_std, "saturation": joint.saturation_per_a2,
+            "saturation_std": joint.saturation_std, "loop": joint.loop.time_constant_s, "delay": joint.loop.delay_s,
+            "loop_std": joint.loop_std, "winding": joint.winding_time_constant_s,
+            "cogging": np.array([joint.position_table[h] for h in joint.cogging_harmonics])}
+
+
+def test_the_encoder_fit_does_not_move_under_a_one_ulp_change_of_the_backemf(identified):
+    """Without a sensor the high-pass and the torque's delay have no effect: left in the fit, the solver wandered
+    along them and a one-ulp change of K moved eps's standard error by 1e-4 and the loop's delay by 3e-4."""
+    tables = identified[0].details.tables
+    base = _fit(tables)
+    nudged = _fit(dataclasses.replace(tables, backemf_nm_per_a=tables.backemf_nm_per_a * (1.0 + 2.0**-52)))
+    for name, value in base.items():
+        np.testing.assert_allclose(nudged[name], value, rtol=1e-8, atol=0.0, err_msg=name)
+
+
+def test_the_encoder_fit_holds_no_sensor_parameter(identified):
+    """The sensor's corner and delay: not fitted, not in the covariance, not reported (None)."""
+    joint = identified[0].details.joint
+    assert not {"highpass_hz", "torque_delay_s"} & set(joint.parameter_names)
+    assert set(NONLINEAR) - {"highpass_hz", "torque_delay_s"} <= set(joint.parameter_names)
+    assert joint.covariance.shape == joint.bound_covariance.shape == (len(joint.parameter_names),) * 2
+    assert np.all(np.diag(joint.bound_covariance) > 0.0)
+    assert joint.highpass_hz is None and joint.highpass_std is None and joint.torque_delay_s is None
+    np.testing.assert_array_equal(joint.sensor_response(np.arange(1, 9), 1.0), 1.0)
+
+
+def test_the_encoder_fit_with_the_ideal_loop_has_the_linear_parameters_alone(identified):
+    """The ideal loop leaves no nonlinear parameter to fit on the encoder-derived torque: the linear fit, its
+    covariance over LINEAR."""
+    tables = identified[0].details.tables
+    problem = _JointProblem(tables, harmonic_sets(tables))
+    _, phi, active, saturation, x, rest = _fit_nonlinear(problem, CurrentLoop(),
+                                                        SENSOR_PARAMETERS & problem.identifiable)
+    assert not active.any() and phi[4] == phi[6] == 0.0
+    covariance, _, names, _, _ = _covariance(problem, phi, active, saturation, x, rest)
+    assert names == LINEAR and covariance.shape == (len(LINEAR), len(LINEAR))
+    assert np.all(np.diag(covariance) > 0.0)
 
 
 def test_one_speed_leaves_the_encoder_error_not_identified(one_speed):

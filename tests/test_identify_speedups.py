@@ -119,8 +119,9 @@ def test_joint_jacobian_matches_finite_differences(source, symmetric):
         columns = [problem.weighted(p, problem.design(p, saturation))[1] for p in (up, down)]
         np.testing.assert_allclose(products[:, i], (columns[0] - columns[1]).T @ rest / (2 * step),
                                    atol=1e-5 * max(np.abs(products[:, i]).max(), 1e-300))
-    if source == "encoder":  # no sensor: neither its high-pass nor its delay acts
+    if source == "encoder":  # no sensor: neither its high-pass nor its delay acts, and the fit leaves them out
         assert not jacobian[:, [4, 6]].any()
+        assert not problem.identifiable[[4, 6]].any() and problem.identifiable.sum() == 5
 
 
 def test_the_joint_problem_keeps_each_result_for_its_own_parameters():

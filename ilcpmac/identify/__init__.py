@@ -282,11 +282,7 @@ def _encoder_error_fields(encoder: EncoderIdentification | None) -> dict:
 
 
 def _encoder_diagnostics(diagnostics: dict, bench: Bench, encoder: EncoderIdentification) -> dict:
-    """``diagnostics`` with the sensor's dynamics (not identified) as None and the encoder path's details."""
-    joint = diagnostics.get("joint")
-    if joint is not None:
-        joint.update(dict.fromkeys(("torque_sensor_highpass_hz", "torque_sensor_highpass_std_hz",
-                                    "torque_sensor_delay_s")))
+    """``diagnostics`` with the encoder path's details."""
     return {**diagnostics, "encoder": {
         "inertia_given": bench.motor.inertia_kgm2, "timer_resolution_s": encoder.timer_resolution_s,
         "harmonics": int(encoder.tables.trials[0].harmonic_variances_nm2.size - 1),

@@ -45,6 +45,9 @@ for harmonic h of trial k at mean speed f_k, where
   (`_ripple_highpass`), the nonlinear parameters moved to the new minimum
   by one Gauss-Newton step (`_gauss_newton_step`) and the linear ones
   solved again.
+  The encoder-derived torque passes no sensor: H_s = 1, and f_hp and D
+  are not fitted (`SENSOR_PARAMETERS`, held at none), nor in the
+  covariance, nor reported (None).
 
 The sensor's DC level and drift never enter: they were removed from the
 aperiodic part of each trial (`ilcpmac.identify.reduction`). The loop's time
@@ -80,6 +83,9 @@ NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding
 NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
 #: their lower bounds (time constants, delay and corner not negative; the torque's delay free)
 NONLINEAR_LOWER = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])
+#: the torque sensor's (high-pass corner and delay): held at 0 (none) on the encoder-derived torque, which
+#: passes no sensor
+SENSOR_PARAMETERS = np.array([False, False, False, False, True, False, True])
 #: per loop parameter (index in NONLINEAR), the columns of `_JointProblem.loop_derivatives` and the linear
 #: columns (LINEAR) they move
 LOOP_COLUMNS = {0: ([0, 6], [0, 6]), 1: ([1, 7], [1, 6]), 2: ([2, 8], [2, 6]), 3: ([3, 4, 5, 9], [0, 1, 2, 6]),
@@ -204,18 +210,19 @@ class JointEstimate:
         The identified current loop.
     loop_std : ndarray, shape (4,)
         Standard errors of tau_a, tau_b, tau_c and delay_s, s.
-    highpass_hz, highpass_std : float
-        The torque sensor's high-pass corner.
+    highpass_hz, highpass_std : float or None
+        The torque sensor's high-pass corner; None on the encoder-derived torque (no sensor: not identified).
     winding_time_constant_s : float
         L / R of the winding filter of the back-EMF column.
-    torque_delay_s : float
-        Delay of the torque measurement (its filter and sampling), s.
+    torque_delay_s : float or None
+        Delay of the torque measurement (its filter and sampling), s; None on the encoder-derived torque.
     position_table : dict[int, complex]
         T(h), N m (measured), for every harmonic where it is free.
     cogging_harmonics : ndarray of int
     covariance : ndarray
         Covariance of (LINEAR + NONLINEAR active) parameters, named in ``parameter_names``, inflated
-        by the misfit of each harmonic family (`_covariance`).
+        by the misfit of each harmonic family (`_covariance`); on the encoder-derived torque the sensor's
+        (SENSOR_PARAMETERS) are never active.
     bound_covariance : ndarray
         (J^T J)^-1 with the measured noise alone: the Cramer-Rao bound of the model.
     parameter_names : tuple of str
@@ -243,10 +250,10 @@ class JointEstimate:
     saturation_std: float
     loop: CurrentLoop
     loop_std: np.ndarray
-    highpass_hz: float
-    highpass_std: float
+    highpass_hz: float | None
+    highpass_std: float | None
     winding_time_constant_s: float
-    torque_delay_s: float
+    torque_delay_s: float | None
     position_table: dict
     cogging_harmonics: np.ndarray
     covariance: np.ndarray
@@ -309,10 +316,18 @@ class JointEstimate:
             out.append(self.std_of(grad, covariance))
         return np.array(out)
 
+    @property
+    def nonlinear(self) -> np.ndarray:
+        """The nonlinear parameters in the order of NONLINEAR, the sensor's at none (0) where not identified."""
+        return np.array([*self.loop.time_constant_s, self.loop.delay_s, self.highpass_hz or 0.0,
+                         self.winding_time_constant_s, self.torque_delay_s or 0.0])
+
     def sensor_response(self, harmonics: np.ndarray, speed_hz: float) -> np.ndarray:
-        """The torque sensor's identified response per harmonic at a speed: high-pass and delay."""
+        """The torque sensor's identified response per harmonic at a speed: high-pass and delay (1 without a
+        sensor)."""
+        _, _, _, _, highpass_hz, _, delay_s = self.nonlinear
         w = 2.0 * np.pi * np.asarray(harmonics, float) * speed_hz
-        return 1j * w / (1j * w + 2.0 * np.pi * self.highpass_hz) * np.exp(-1j * w * self.torque_delay_s)
+        return 1j * w / (1j * w + 2.0 * np.pi * highpass_hz) * np.exp(-1j * w * delay_s)
 
     def cogging_table_nm(self, counts_per_rev: int) -> np.ndarray:
         """delta tau_c per count, N m (measured units): T on the cogging harmonics."""
@@ -382,6 +397,8 @@ class _JointProblem:
         self._loop_derivatives: tuple = (None,)
         self.variance = np.array([t.harmonic_variance_nm2 for t in tables.trials])
         self.sensor = tables.torque_source == "sensor"
+        #: the nonlinear parameters the data determine: without a sensor, not the sensor's, held at none
+        self.identifiable = np.ones(len(NONLINEAR), bool) if self.sensor else ~SENSOR_PARAMETERS
         self.variances = None if self.sensor else np.stack([t.harmonic_variances_nm2 for t in tables.trials])
         if not self.sensor:  # the brake's b omega leaves the data, and enters through the columns (`amplitudes`)
             speed = np.stack([t.speed_table_rad_s for t in tables.trials])
@@ -587,7 +604,8 @@ class _JointProblem:
 
         Returns the derivative of the weighted residual at fixed linear
         parameters ``x`` (n_rows, n_active), and D'^T ``rest`` (n_columns,
-        n_active), D' that of the weighted columns: the current and back-EMF
+        n_active; n_active 0 for the ideal loop on the encoder-derived
+        torque), D' that of the weighted columns: the current and back-EMF
         columns through the count recursion's derivatives
         (`loop_derivatives`), the data through the derivative of their time
         shift, the high-pass through 1 / H_hp = 1 + w_c / (j w) and the
@@ -606,8 +624,9 @@ class _JointProblem:
         root = np.sqrt(weights)
         free = self.sets.table_free[:, None]
         n_rows = 2 * design.shape[0] * design.shape[1]
-        residuals, products = [], []
-        for i in np.flatnonzero(active):
+        indices = np.flatnonzero(active)
+        residuals, products = np.empty((n_rows, indices.size)), np.empty((design.shape[2], indices.size))
+        for column, i in enumerate(indices):
             d_y, d_columns = np.zeros(n_rows), np.zeros((n_rows, design.shape[2]))
             if i in LOOP_COLUMNS:
                 source, target = LOOP_COLUMNS[i]
@@ -624,9 +643,9 @@ class _JointProblem:
             elif i == 6 and self.sensor:
                 d_data = self.data_slope(phi)[:, self.sets.fit] / self.highpass(phi, self.sets.fit)
                 d_y = _weighted_change(d_data[:, :, None], weights, root, free)[:, 0]
-            residuals.append(d_y - d_columns @ x)
-            products.append(d_columns.T @ rest)
-        return np.stack(residuals, axis=1), np.stack(products, axis=1)
+            residuals[:, column] = d_y - d_columns @ x
+            products[:, column] = d_columns.T @ rest
+        return residuals, products
 
     def jacobian(self, phi: np.ndarray, saturation: np.ndarray, active: np.ndarray,
                  solution: tuple | None = None) -> np.ndarray:
@@ -877,8 +896,8 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     sets = harmonic_sets(tables)
     problem = _JointProblem(tables, sets)
     _check_excitation(problem)
-    lagged = _fit_nonlinear(problem, initial_loop, np.ones(7, bool))
-    ideal = _fit_nonlinear(problem, CurrentLoop(), np.array([0, 0, 0, 0, 1, 0, 1], bool))
+    lagged = _fit_nonlinear(problem, initial_loop, problem.identifiable)
+    ideal = _fit_nonlinear(problem, CurrentLoop(), SENSOR_PARAMETERS & problem.identifiable)
     # the lag must pay for its five more parameters (Akaike)
     _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
     if problem.sensor:
@@ -898,8 +917,9 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
         saturation_per_a2=float(x[-1]), saturation_std=float(std["saturation"]),
         loop=problem.loop_of(phi),
         loop_std=np.array([std.get(name, 0.0) for name in NONLINEAR[:4]]),
-        highpass_hz=float(phi[4]), highpass_std=float(std["highpass_hz"]), winding_time_constant_s=float(phi[5]),
-        torque_delay_s=float(phi[6]),
+        highpass_hz=float(phi[4]) if problem.sensor else None,
+        highpass_std=float(std["highpass_hz"]) if problem.sensor else None, winding_time_constant_s=float(phi[5]),
+        torque_delay_s=float(phi[6]) if problem.sensor else None,
         position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
         covariance=covariance, bound_covariance=bound, parameter_names=names, chi2_reduced=chi2, misfit=misfit,
         gain_structure=structure, sets=sets, common_offset_identified=problem.common_offset)
@@ -910,13 +930,15 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
 
     The saturation column is built from the currents of the starting point,
     and rebuilt once from the fitted ones. The Jacobian is analytic
-    (`_JointProblem.jacobian`).
+    (`_JointProblem.jacobian`). The parameters not ``active`` keep their
+    starting values: ``loop``'s, L / R at 1 ms, no high-pass, no torque delay.
 
     Returns (weighted residual sum of squares, phi, active, saturation column, linear parameters, residual).
     """
     from scipy.optimize import least_squares  # 0.35 s to import: only when fitting
 
-    phi = np.array([*loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s, 0.01, 1e-3, 0.0])
+    phi = np.array([*loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s,
+                    0.01 if active[4] else 0.0, 1e-3, 0.0])
     lower = NONLINEAR_LOWER[active]
     saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])
 
@@ -935,9 +957,9 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
         known = last["solution"] if np.array_equal(free, last.get("free")) else None
         return problem.jacobian(full(free), saturation, active, known)
 
-    solution = least_squares(residual, np.maximum(phi[active], lower), jac=jacobian, bounds=(lower, np.inf),
-                             x_scale=NONLINEAR_SCALE[active], method="trf", ftol=1e-6, xtol=1e-6)
-    phi[active] = solution.x
+    if active.any():
+        phi[active] = least_squares(residual, np.maximum(phi[active], lower), jac=jacobian, bounds=(lower, np.inf),
+                                    x_scale=NONLINEAR_SCALE[active], method="trf", ftol=1e-6, xtol=1e-6).x
     saturation = problem.saturation_column(phi, problem.solve(phi, saturation)[0])
     x, rest = problem.solve(phi, saturation)
     return float(rest @ rest), phi, active, saturation, x, rest
@@ -1042,7 +1064,7 @@ def _covariance(problem: _JointProblem, phi: np.ndarray, active: np.ndarray, sat
         scale = max(chi2, 1.0)
         information += scale * (part.T @ part)
         alone = bound @ (jac.T @ jac + (scale - 1.0) * (part.T @ part)) @ bound
-        seen = np.diag(bound) > 0  # parameters the data move (not the encoder source's inert sensor ones)
+        seen = np.diag(bound) > 0  # a parameter the data do not move (a zero column) has no error to widen
         inflation = float(np.sqrt(np.max(np.diag(alone)[seen] / np.diag(bound)[seen], initial=1.0)))
         groups.append(MisfitGroup(label, problem.sets.fit[members], chi2, float(dof), inflation))
     dof = jac.shape[0] - jac.shape[1] - 2 * int(problem.sets.table_free.sum())
@@ -1125,8 +1147,7 @@ def fitted_columns_nm(tables: BenchTables, estimate: JointEstimate) -> np.ndarra
     trials do not share.
     """
     problem = _JointProblem(tables, estimate.sets)
-    phi = np.array([*estimate.loop.time_constant_s, estimate.loop.delay_s, estimate.highpass_hz,
-                    estimate.winding_time_constant_s, estimate.torque_delay_s])
+    phi = estimate.nonlinear
     saturation = problem.saturation_column(phi, np.concatenate([estimate.theta, estimate.beta_star_a]))
     x, _ = problem.solve(phi, saturation)
     return problem.highpass(phi, estimate.sets.fit) * (problem.design(phi, saturation) @ x)
