@@ -3,7 +3,8 @@
     python benchmarks/storage.py [--repeats N] [--cold-repeats N] [--baseline REF]
 
 Everything runs as a user runs it, as whole processes with a warm numba cache
-(one warm-up run first), best of N:
+(one warm-up run first), best of N, each run of the work tree alternating with
+one of the revision it is compared with:
 
 1. the seed bench (``ilcpmac simulate``) as CSV and as Parquet: folder size,
    and ``ilcpmac identify`` of each (target <= 2 s, either format);
@@ -43,6 +44,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from campaign import ONE_SPEED
@@ -118,48 +120,85 @@ def size_mb(folder: Path) -> float:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
 
 
-def best(tree: Path, args: list[str], cache: Path, repeats: int, bytecode: Path | None, fresh: Path | None = None,
-         cold: bool = False) -> tuple[float, float]:
-    """Best wall time of ``repeats`` runs (`ilcpmac`) and the CPU other processes used during that run.
+@dataclass(frozen=True)
+class Subject:
+    """A source tree measured, its working folder and its column's label."""
 
-    ``fresh`` is removed before each run (a run's --out); ``cold`` empties the numba cache before each.
-    """
-    runs = []
-    for _ in range(repeats):
-        if fresh is not None:
-            shutil.rmtree(fresh, ignore_errors=True)
-        if cold:
-            shutil.rmtree(cache, ignore_errors=True)
-        runs.append(ilcpmac(tree, args, cache, bytecode))
-    return min(runs)
+    tree: Path
+    work: Path
+    label: str
+
+    @property
+    def cache(self) -> Path:
+        return self.work / "numba-cache"
+
+    @property
+    def bytecode(self) -> Path:
+        return self.work / "bytecode"
+
+    @property
+    def run(self) -> Path:
+        return self.work / "run"
 
 
-def measure(tree: Path, work: Path, repeats: int, cold_repeats: int, label: str) -> dict:
-    """Every figure for the source tree ``tree``; its seed bench is converted to the other format in-process."""
-    cache, bytecode = work / "numba-cache", work / "bytecode"
+def prepare(subject: Subject) -> tuple[dict, dict]:
+    """``subject``'s seed bench (simulated, converted to Parquet in-process), its campaign config and a warm-up
+    run of each timed command (numba's cache and the bytecode filled); the figures so far and the commands."""
+    tree, work = subject.tree, subject.work
     bench = work / "bench"
-    ilcpmac(tree, ["simulate", str(seed_config(tree)), "--out", str(bench)], cache, bytecode)
-    figures = {"label": label, "bench": {}}
+    ilcpmac(tree, ["simulate", str(seed_config(tree)), "--out", str(bench)], subject.cache, subject.bytecode)
     code = ("import sys; from ilcpmac.bench.format import convert_bench; "
             "convert_bench(sys.argv[1], sys.argv[2], '.parquet')")
     converted = work / "bench-parquet"
     has_parquet = subprocess.run([sys.executable, "-c", code, str(bench), str(converted)], cwd=tree,
                                  env=dict(os.environ, PYTHONPATH=str(tree)), capture_output=True).returncode == 0
+    figures, commands = {"label": subject.label, "bench": {}}, {}
     for kind, folder in (("CSV", bench), ("Parquet", converted if has_parquet else None)):
-        if folder is None:
-            continue
-        args = ["identify", str(folder), "--output", str(work / "result.json")]
-        ilcpmac(tree, args, cache, bytecode)  # warm-up: numba compiles into the cache
-        figures["bench"][kind] = (size_mb(folder), *best(tree, args, cache, repeats, bytecode))
-    run = work / "run"
-    campaign = ["run", *one_speed_config(tree, work), "--out", str(run)]
-    # cold: a first run, no numba cache and ilcpmac's bytecode compiled as this environment does
-    figures["cold"] = best(tree, campaign, work / "cold-cache", cold_repeats, None, fresh=run, cold=True)
-    shutil.rmtree(work / "cold-cache", ignore_errors=True)
-    figures["warm"] = best(tree, campaign, cache, repeats, bytecode, fresh=run)
-    figures["warm_sandbox"] = best(tree, campaign, cache, repeats, None, fresh=run)
-    figures["run_mb"] = size_mb(run)
-    figures["run_format"] = "Parquet" if any(run.glob("trial_*.parquet")) else "CSV"
+        if folder is not None:
+            figures["bench"][kind] = size_mb(folder)
+            commands[kind] = ["identify", str(folder), "--output", str(work / "result.json")]
+    commands["campaign"] = ["run", *one_speed_config(tree, work), "--out", str(subject.run)]
+    for args in commands.values():
+        shutil.rmtree(subject.run, ignore_errors=True)
+        ilcpmac(tree, args, subject.cache, subject.bytecode)
+    figures["run_mb"] = size_mb(subject.run)
+    figures["run_format"] = "Parquet" if any(subject.run.glob("trial_*.parquet")) else "CSV"
+    return figures, commands
+
+
+def interleaved(subjects: list[Subject], commands: list[dict], kind: str, repeats: int, bytecode: bool = True,
+                cold: bool = False) -> list[tuple[float, float]]:
+    """Per subject, the best wall time of ``repeats`` runs of its command ``kind`` and the CPU other processes
+    used during that run; the subjects' runs alternate, so that the machine's changes of speed (tens of per
+    cent over minutes here) fall on all alike. ``cold``: an empty numba cache each time, and the bytecode as
+    this environment keeps it (a first run)."""
+    runs = [[] for _ in subjects]
+    for _ in range(repeats):
+        for subject, done, command in zip(subjects, runs, commands):
+            if kind not in command:
+                continue
+            shutil.rmtree(subject.run, ignore_errors=True)
+            cache = subject.work / "cold-cache" if cold else subject.cache
+            if cold:
+                shutil.rmtree(cache, ignore_errors=True)
+            done.append(ilcpmac(subject.tree, command[kind], cache, subject.bytecode if bytecode and not cold
+                                else None))
+    return [min(done) if done else None for done in runs]
+
+
+def measure(subjects: list[Subject], repeats: int, cold_repeats: int) -> list[dict]:
+    """Every figure of every subject (`prepare`, then each timed command `interleaved`)."""
+    prepared = [prepare(subject) for subject in subjects]
+    figures, commands = [p[0] for p in prepared], [p[1] for p in prepared]
+    for kind in ("CSV", "Parquet"):
+        for f, timing in zip(figures, interleaved(subjects, commands, kind, repeats)):
+            if timing is not None:
+                f["bench"][kind] = (f["bench"][kind], *timing)
+    for key, options in (("warm", {}), ("warm_sandbox", {"bytecode": False}),
+                         ("cold", {"cold": True})):
+        count = cold_repeats if key == "cold" else repeats
+        for f, timing in zip(figures, interleaved(subjects, commands, "campaign", count, **options)):
+            f[key] = timing
     return figures
 
 
@@ -218,18 +257,17 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        columns = []
+        subjects = []
         if args.baseline:
             old = tmp / "baseline-tree"
             old.mkdir()
             archive = subprocess.run(["git", "archive", args.baseline], cwd=ROOT, capture_output=True, check=True)
             subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
-            (tmp / "baseline").mkdir()
-            columns.append(measure(old, tmp / "baseline", args.repeats, args.cold_repeats,
-                                   f"{args.baseline} (before)"))
-            shutil.rmtree(tmp / "baseline")
-        (tmp / "new").mkdir()
-        columns.append(measure(ROOT, tmp / "new", args.repeats, args.cold_repeats, "work tree (after)"))
+            subjects.append(Subject(old, tmp / "baseline", f"{args.baseline} (before)"))
+        subjects.append(Subject(ROOT, tmp / "new", "work tree (after)"))
+        for subject in subjects:
+            subject.work.mkdir()
+        columns = measure(subjects, args.repeats, args.cold_repeats)
     report(columns)
 
 
