@@ -507,7 +507,7 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
             f"= {cpr}, but speed_setpoint = {trial.speed_setpoint_hz:g} Hz (wrong counts_per_rev or time unit?)")
     if span + 1 < cpr:
         return
-    position = trial.count & (cpr - 1) if cpr & (cpr - 1) == 0 else trial.count % cpr
+    position = trial.count % cpr
     hits = np.maximum(np.bincount(position, minlength=cpr), 1)
     table = np.stack([np.bincount(position, weights=trial.i_ref_a[:, p], minlength=cpr) / hits
                       for p in range(3)], axis=1)

@@ -441,7 +441,7 @@ class _JointProblem:
         """The torque tables advanced by ``shift_s`` and their derivative in it (`shifted_at`), both from one
         pass; the last shift's kept (a fit asks for the data, then for their slope at the same shift)."""
         if self._shifted[0] != shift_s:
-            self._shifted = (shift_s, *shifted_at(self.torque, self.instants, shift_s, both=True))
+            self._shifted = (shift_s, *shifted_at(self.torque, self.instants, shift_s))
         return self._shifted[1:]
 
     def highpass(self, phi: np.ndarray, harmonics: np.ndarray) -> np.ndarray:
@@ -719,7 +719,7 @@ def time_shifted(tables: np.ndarray, count_period_s: np.ndarray, shift_s: float,
     of the tables with respect to ``shift_s`` (at a count instant, the one
     towards later instants).
     """
-    return shifted_at(tables, count_instants(count_period_s), shift_s, slope)
+    return shifted_at(tables, count_instants(count_period_s), shift_s)[1 if slope else 0]
 
 
 def count_instants(count_period_s: np.ndarray) -> np.ndarray:
@@ -730,13 +730,11 @@ def count_instants(count_period_s: np.ndarray) -> np.ndarray:
     return out
 
 
-def shifted_at(tables: np.ndarray, instants: np.ndarray, shift_s: float, slope: bool = False,
-               both: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
-    """`time_shifted` with the `count_instants` of its count periods given; ``both``: the values and the slopes,
-    from one pass."""
+def shifted_at(tables: np.ndarray, instants: np.ndarray, shift_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """`time_shifted`'s values and slopes, from one pass, with the `count_instants` of its count periods given."""
     out, out_slope = np.empty_like(tables, dtype=float), np.empty_like(tables, dtype=float)
     _time_shift_kernel(np.ascontiguousarray(tables, float), instants, float(shift_s), out, out_slope)
-    return (out, out_slope) if both else out_slope if slope else out
+    return out, out_slope
 
 
 @njit(cache=True)
