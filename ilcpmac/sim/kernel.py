@@ -267,8 +267,12 @@ def simulate_trial(
         f = (line_from / counts_per_rad - theta_old) / (theta_rev - theta_old)
         t_c = t - dt_s + dt_s * f
         out_count[n] = count - warmup_counts
-        out_time[n] = np.round(t_c / timer_resolution_s) * timer_resolution_s
-        out_i_ref[n] = i_ref_table[count_in_rev]
+        # element by element, and rint rather than round: a row assignment compiles numba's formatting of its
+        # shape-mismatch error, np.round its rounding to any decimals; together 4.4 of the 8.5 s cold compile
+        out_time[n] = np.rint(t_c / timer_resolution_s) * timer_resolution_s
+        out_i_ref[n, 0] = i_ref_table[count_in_rev, 0]
+        out_i_ref[n, 1] = i_ref_table[count_in_rev, 1]
+        out_i_ref[n, 2] = i_ref_table[count_in_rev, 2]
         out_i_meas[n, 0], out_i_meas[n, 1], out_i_meas[n, 2] = ma, mb, mc
         out_i_true[n, 0] = ia_old + f * (ia - ia_old)
         out_i_true[n, 1] = ib_old + f * (ib - ib_old)
