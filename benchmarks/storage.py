@@ -116,6 +116,18 @@ def ilcpmac(tree: Path, args: list[str], cache: Path, bytecode: Path | None) -> 
     return elapsed, max(after_busy - before_busy - own, 0.0)
 
 
+def machine_speed_s() -> float:
+    """Best of three of a fixed pure-Python loop, s: how fast the machine runs Python at the moment (on this machine it
+    changed by up to 1.8x within a day, with nothing else running)."""
+    best = float("inf")
+    for _ in range(3):
+        start, total = time.perf_counter(), 0
+        for i in range(10_000_000):
+            total += i
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
 def size_mb(folder: Path) -> float:
     return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
 
@@ -267,8 +279,12 @@ def main() -> None:
         subjects.append(Subject(ROOT, tmp / "new", "work tree (after)"))
         for subject in subjects:
             subject.work.mkdir()
+        speed = machine_speed_s()
         columns = measure(subjects, args.repeats, args.cold_repeats)
+        speeds = (speed, machine_speed_s())
     report(columns)
+    print(f"machine speed: a 10^7-step Python loop took {speeds[0]:.2f} s before the runs and {speeds[1]:.2f} s "
+          "after (best of 3); figures measured at other speeds compare only as ratios")
 
 
 if __name__ == "__main__":
