@@ -36,7 +36,7 @@ def format_kernel(values, decimals, out, pairs):
         scales[c] = 10 ** decimals[c]
     for r in range(n):
         for c in range(m):
-            scaled = int(np.round(values[r, c] * scales[c]))
+            scaled = int(np.rint(values[r, c] * scales[c]))  # rint: np.round would compile rounding to any decimals
             if scaled < 0:
                 out[pos] = 45  # '-'
                 pos += 1
