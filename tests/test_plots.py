@@ -257,6 +257,29 @@ def test_ripple_per_trial_marks_set_points_and_phases(run_report, report_figures
     assert {marker for marker, _ in markers} == {"o", "x"}
 
 
+def test_ripple_per_trial_phase_names_do_not_overlap():
+    """The default campaign's phases (a short compensation between the grid and the learning): each name
+    readable, none over another or over the title."""
+    from ilcpmac.campaign.record import TrialRecord
+    from ilcpmac.report.plots import ripple_per_trial
+    from ilcpmac.signals.harmonics import RippleFigures
+
+    runs = [("identify", 39), ("compensate", 9), ("ilc", 53), ("validate", 12)]
+    phases = [phase for phase, n in runs for _ in range(n)]
+    ripple = RippleFigures(0.01, *(1e-3,) * 7)
+    records = [TrialRecord(i, phase, "learn", 1.0, 0.5, ripple, ripple) for i, phase in enumerate(phases, 1)]
+    fig = ripple_per_trial(records)
+    fig.canvas.draw()
+    (axis,) = fig.axes
+    boxes = {t.get_text(): t.get_window_extent() for t in axis.texts}
+    assert list(boxes) == [phase for phase, _ in runs]
+    title = axis.title.get_window_extent()
+    for i, (name, box) in enumerate(boxes.items()):
+        assert not box.overlaps(title), name
+        for other, other_box in list(boxes.items())[i + 1:]:
+            assert not box.overlaps(other_box), (name, other)
+
+
 def test_before_after_shows_measured_and_true_torque_over_one_revolution(report_figures):
     fig = report_figures["before_after_2Nm_0.9Hz"]
     top, middle, spectrum = fig.axes

@@ -39,6 +39,8 @@ __all__ = ["LearnedFeedForward", "RunReport", "before_after", "build_figures", "
 #: the shade of each phase's band in the ripple plot
 PHASE_SHADES = {"identify": "0.85", "compensate": "tab:orange", "ilc": "tab:blue", "learn": "tab:blue",
                 "validate": "tab:green"}
+#: the height of a line of phase names over the per-trial ripple, points
+PHASE_LINE_PT = 9
 #: the ripple figure everything aims below, % of the mean torque
 TARGET_PERCENT = 0.1
 #: spectrum amplitudes below this fraction of a figure's largest are numerical zeros and not drawn
@@ -107,11 +109,13 @@ def ripple_per_trial(records: list[TrialRecord]) -> Figure:
     """Peak-to-peak ripple per trial (log scale), measured and true, coloured by torque set point, with the
     campaign's phases as bands."""
     fig, (axis,) = plotting.figure(1, 4.0)
-    for phase, run in groupby(records, key=lambda r: r.phase):
+    for i, (phase, run) in enumerate(groupby(records, key=lambda r: r.phase)):
         run = list(run)
         axis.axvspan(run[0].index - 0.5, run[-1].index + 0.5, color=PHASE_SHADES.get(phase, "0.9"), alpha=0.15,
                      lw=0)
-        axis.text(run[0].index - 0.4, 1.0, phase, transform=axis.get_xaxis_transform(), va="top", fontsize=7)
+        # above the axes, every other name a line higher: a short phase's name would run into the next one's
+        axis.annotate(phase, (run[0].index - 0.5, 1.0), xycoords=axis.get_xaxis_transform(),
+                      xytext=(1, 2 + PHASE_LINE_PT * (i % 2)), textcoords="offset points", va="bottom", fontsize=7)
     colours = plotting.group_colours([r.torque_setpoint_nm for r in records])
     for torque, colour in colours.items():
         for kind, marker, fill in (("measured", "o", colour), ("true", "x", "none")):
@@ -124,7 +128,7 @@ def ripple_per_trial(records: list[TrialRecord]) -> Figure:
     _legend_proxy(axis, "kx", "true (simulator)")
     axis.axhline(TARGET_PERCENT, color="k", lw=0.8, ls=":", label=f"{TARGET_PERCENT:g} %")
     axis.set_yscale("log")
-    axis.set_title("ripple per trial (bands: the campaign's phases)")
+    axis.set_title("ripple per trial (bands: the campaign's phases)", pad=6 + 2 * PHASE_LINE_PT)
     axis.set_xlabel("trial (index)")
     axis.set_ylabel("ripple peak-to-peak (% of mean torque)")
     if records:
