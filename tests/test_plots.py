@@ -377,6 +377,9 @@ def test_operating_range_shows_learned_and_validation_points_measured_and_true(r
         assert axis.get_ylabel() == "torque set point (N m)"
         assert kind in axis.get_title()
         assert _legend_texts(axis) == ["learned", "validation (never learned)"]
+        fig.canvas.draw()  # drawing maps a collection's values to colours
+        for handle in axis.get_legend().legend_handles:  # shapes only: no colour of the ripple scale
+            np.testing.assert_array_equal(handle.get_facecolor(), [[1.0, 1.0, 1.0, 1.0]])
         scatters = _scatters(axis)
         np.testing.assert_array_equal(scatters["learned"].get_offsets(), [[0.9, 2.0], [0.9, 4.0]])
         np.testing.assert_array_equal(scatters["validation (never learned)"].get_offsets(), [[0.9, 3.0]])

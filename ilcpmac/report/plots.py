@@ -322,6 +322,9 @@ def operating_range(records: list[TrialRecord], learned: list[Point], validated:
                       max(speeds) + 0.35 * (max(speeds) - min(speeds) + 0.1))
         axis.margins(y=0.15)
         plotting.legend(axis, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=2, borderaxespad=0.0)
+        for handle in axis.get_legend().legend_handles:  # the shape tells the kind; a colour would read as a ripple
+            handle.set_array(None)
+            handle.set_facecolor("white")
     return fig
 
 
