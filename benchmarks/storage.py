@@ -279,11 +279,11 @@ def main() -> None:
         subjects.append(Subject(ROOT, tmp / "new", "work tree (after)"))
         for subject in subjects:
             subject.work.mkdir()
-        speed = machine_speed_s()
+        before = machine_speed_s()
         columns = measure(subjects, args.repeats, args.cold_repeats)
-        speeds = (speed, machine_speed_s())
+        after = machine_speed_s()
     report(columns)
-    print(f"machine speed: a 10^7-step Python loop took {speeds[0]:.2f} s before the runs and {speeds[1]:.2f} s "
+    print(f"machine speed: a 10^7-step Python loop took {before:.2f} s before the runs and {after:.2f} s "
           "after (best of 3); figures measured at other speeds compare only as ratios")
 
 

@@ -368,6 +368,7 @@ def _scatters(axis) -> dict[str, object]:
 
 def test_operating_range_shows_learned_and_validation_points_measured_and_true(run_report, report_figures):
     fig = report_figures["operating_range"]
+    fig.canvas.draw()  # drawing maps a collection's values to colours (the legend's handles' below)
     panels = _panels(fig)
     assert [a.get_label() for a in fig.axes].count("<colorbar>") == len(panels) == 2
     bars = [a for a in fig.axes if a.get_label() == "<colorbar>"]
@@ -377,7 +378,6 @@ def test_operating_range_shows_learned_and_validation_points_measured_and_true(r
         assert axis.get_ylabel() == "torque set point (N m)"
         assert kind in axis.get_title()
         assert _legend_texts(axis) == ["learned", "validation (never learned)"]
-        fig.canvas.draw()  # drawing maps a collection's values to colours
         for handle in axis.get_legend().legend_handles:  # shapes only: no colour of the ripple scale
             np.testing.assert_array_equal(handle.get_facecolor(), [[1.0, 1.0, 1.0, 1.0]])
         scatters = _scatters(axis)
