@@ -46,7 +46,6 @@ from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
 from ilcpmac.errors import ConfigError, IdentificationError, IlcpmacError
-from ilcpmac.estimators import import_in_background
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
@@ -142,8 +141,6 @@ class CampaignRunner:
         self._grid_data: dict[int, TrialData] = {}
         #: the grid trials' measured spectra as analysed when they finished (before the identification)
         self._grid_spectra: dict[int, TorqueSpectrum | None] = {}
-        #: waits for the imports begun while the grid runs (`import_in_background`)
-        self._imported: Callable[[], None] = lambda: None
 
     @property
     def grid(self) -> list[TrialRequest]:
@@ -173,7 +170,6 @@ class CampaignRunner:
         while (step := self.next_step()) is not None:
             if step.role == "grid":
                 self.events.message(f"identify: {len(self.grid)} multisine trials over the set-point grid")
-                self._imported = import_in_background()  # the stages' filterpy, while the grid's kernels run
             elif self.pipeline is None:
                 self._start_pipeline()
             if step.role in ("compensate", "learn"):
@@ -275,7 +271,6 @@ class CampaignRunner:
 
     def _identify(self, grid_trials: list[TrialData]) -> None:
         """Identify from the grid; measured ripple of the grid trials follows from it."""
-        self._imported()  # before the identification imports more of scipy
         self.events.message("identify: estimating delta*epsilon, delta, alpha, beta and cogging")
         n = len(grid_trials)
         bench = self._grid_bench(grid_trials)

@@ -8,30 +8,7 @@ and a vague prior the filter reproduces the batch least-squares answer.
 
 from __future__ import annotations
 
-import importlib
-import threading
-from typing import Callable
-
 import numpy as np
-
-#: what the first estimator imports: about 1 s, most of it scipy.stats (which filterpy imports) building docstrings
-FILTERPY_MODULE = "filterpy.kalman"
-
-
-def import_in_background() -> Callable[[], None]:
-    """Start importing filterpy in a thread, so that the import overlaps work that releases the GIL (the
-    simulator's kernels); return the function that waits for it to end.
-
-    Meanwhile the caller may import only modules that import nothing of scipy's but scipy.linalg (two threads
-    importing modules that import each other could deadlock): it waits before it does more.
-    """
-    def imports() -> None:
-        importlib.import_module("scipy.linalg")
-        importlib.import_module(FILTERPY_MODULE)
-
-    thread = threading.Thread(target=imports, name="import-filterpy", daemon=True)
-    thread.start()
-    return thread.join
 
 
 class KalmanEstimator:
@@ -50,7 +27,7 @@ class KalmanEstimator:
     def __init__(self, x0: np.ndarray, P0: np.ndarray, process_noise: float | np.ndarray = 0.0) -> None:
         x0 = np.asarray(x0, float).ravel()
         n = x0.size
-        from filterpy.kalman import KalmanFilter
+        from filterpy.kalman import KalmanFilter  # 0.8 s to import (scipy.stats): only when a stage learns
 
         self._kf = KalmanFilter(dim_x=n, dim_z=n)
         self._kf.x = x0.reshape(n, 1)
