@@ -403,8 +403,8 @@ def client_main(address: str, out: str) -> int:
     Exits like the CLI: 0 with the JSON written, or 2 with one ``error:`` line.
     """
     from ilcpmac.backends.remote import RemoteBackend
-    from ilcpmac.errors import IlcpmacError
-    from ilcpmac.records import SensorCalibration, TrialRequest
+    from ilcpmac.core.errors import IlcpmacError
+    from ilcpmac.core.records import SensorCalibration, TrialRequest
 
     try:
         with RemoteBackend(address, connect_timeout_s=2.0, read_timeout_s=2.0, retries=1, backoff_s=0.05,

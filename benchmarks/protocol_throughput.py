@@ -26,8 +26,7 @@ import numpy as np
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.backends.emulator import BenchEmulator
 from ilcpmac.backends.remote import RemoteBackend
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
 
 TARGET_MB_S = 50.0
 COUNTS_PER_REV = 4096

@@ -26,8 +26,8 @@ import numpy as np
 
 from ilcpmac.bench.format import Bench
 from ilcpmac.config import load_config
+from ilcpmac.core.records import BenchLimits
 from ilcpmac.identify import identify_bench
-from ilcpmac.records import BenchLimits
 from ilcpmac.signals.encoder_torque import encoder_error_torque_nm
 from ilcpmac.sim.grid import encoder_error_json, grid_requests, simulated_description, truth_dict
 from ilcpmac.sim.simulator import Simulator

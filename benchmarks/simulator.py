@@ -69,9 +69,9 @@ from scipy.integrate import solve_ivp
 
 import ilcpmac.sim.simulator as simulator_module
 from ilcpmac.config import CampaignConfig, load_config
+from ilcpmac.core.records import TrialRequest
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import backemf_table, current_references
-from ilcpmac.records import TrialRequest
 from ilcpmac.sim.grid import grid_requests
 from ilcpmac.sim.simulator import Simulator
 

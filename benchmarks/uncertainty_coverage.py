@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.bench.format import Bench
 from ilcpmac.config import load_config
+from ilcpmac.core.records import MotorInfo
 from ilcpmac.identify import identify_bench
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.sim.grid import grid_requests, truth_dict

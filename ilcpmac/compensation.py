@@ -33,11 +33,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.bench.format import MAX_CALIBRATION, MAX_SPEED_HZ, MAX_TORQUE_NM
-from ilcpmac.errors import BenchFormatError
-from ilcpmac.files import read_bounded
-from ilcpmac.model.motor import MAX_GRID_SETPOINTS, MOTOR_RANGES, finite_number, shown
-from ilcpmac.records import SensorCalibration, TrialRequest
+from ilcpmac.core.errors import BenchFormatError
+from ilcpmac.core.files import read_bounded
+from ilcpmac.core.records import (
+    MAX_CALIBRATION,
+    MAX_GRID_SETPOINTS,
+    MAX_SPEED_HZ,
+    MAX_TORQUE_NM,
+    MOTOR_RANGES,
+    SensorCalibration,
+    TrialRequest,
+)
+from ilcpmac.core.schema import finite_number, shown
 
 __all__ = ["COMPENSATION_FILE", "FORMAT", "MAX_FILE_BYTES", "MAX_TABLE_VALUES", "UNITS", "Compensation", "FadeOut"]
 

@@ -13,18 +13,23 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
-import tomllib
-import types
 import typing
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-
-from ilcpmac.errors import ConfigError, IlcpmacError
-from ilcpmac.files import read_bounded
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.schema import (
+    all_of,
+    field_like,
+    in_range,
+    length_in,
+    parse_section,
+    read_toml,
+    section_problem,
+    setting,
+    toml_name,
+)
 from ilcpmac.model.motor import (
     BackEmf,
     Cogging,
@@ -38,33 +43,16 @@ from ilcpmac.model.motor import (
     TrialGrid,
     Unexplained,
     Winding,
-    all_of,
     backemf_problem,
-    field_like,
-    finite_number,
-    in_range,
-    length_in,
-    lengths_problem,
     model_problem,
-    section_problem,
-    shown,
-    value_problem,
 )
-from ilcpmac.model.tables import backemf_table
 
-#: Largest campaign config or bench.toml read, bytes (the seed config is 4 kB).
-MAX_TOML_BYTES = 2**20
 #: Most learned or validated torques, and speeds, of [campaign].
 MAX_OPERATING_POINTS = 32
 #: [campaign] torque_source: what the campaign measures the torque ripple with (docs/sensorless.md).
 TORQUE_SOURCES = ("sensor", "encoder", "both")
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
-
-
-def setting(check, doc: str, default):
-    """A field of a config section: its default, the check a value must pass and the doc its error quotes."""
-    return dataclasses.field(default=default, metadata={"check": check, "doc": doc})
 
 
 def _positive(x) -> bool:
@@ -307,99 +295,6 @@ class CampaignConfig:
         return self.model
 
 
-def coerce_value(value, annotation, where: str):
-    """``value`` from TOML as the type ``annotation`` names (ints as floats, lists as tuples); `ConfigError`
-    naming ``where`` for any other type."""
-    origin = typing.get_origin(annotation)
-    if origin in (typing.Union, types.UnionType):
-        (annotation,) = [a for a in typing.get_args(annotation) if a is not type(None)]
-        return coerce_value(value, annotation, where)
-    if origin is tuple:
-        (item,) = {a for a in typing.get_args(annotation) if a is not Ellipsis}
-        if not isinstance(value, list):
-            raise ConfigError(f"{where}: expected a list, got {shown(value)}")
-        return tuple(coerce_value(v, item, where) for v in value)
-    if annotation is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {shown(value)}")
-        return value
-    if annotation is float:
-        if not finite_number(value):
-            raise ConfigError(f"{where}: expected a finite number, got {shown(value)}")
-        return float(value)
-    if annotation is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {shown(value)}")
-        return value
-    raise TypeError(f"unsupported config type {annotation}")  # a programming error, not user input
-
-
-def _name(key: str) -> str:
-    """A table or key name as the message shows it: bare if TOML allows, else quoted and cut short."""
-    return key if re.fullmatch(r"[A-Za-z0-9_-]{1,60}", key) else shown(key)
-
-
-def parse_section(table: dict, cls: type, source: str, section: str, given: dict | None = None):
-    """Build dataclass ``cls`` from TOML ``table``; every error names ``source`` and the key.
-
-    A field whose metadata names a ``"table"`` class is the optional sub-table
-    ``[section.field]``; the fields in ``given`` take its values and are not read.
-    """
-    if not isinstance(table, dict):
-        raise ConfigError(f"{source}: [{section}] must be a table")
-    given = given or {}
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.name not in given}
-    unknown = sorted(set(table) - set(fields))
-    renamed = getattr(cls, "RENAMED", {})
-    if unknown and unknown[0] in renamed:
-        raise ConfigError(f"{source}: [{section}] {unknown[0]} is now {renamed[unknown[0]]}")
-    if unknown:
-        raise ConfigError(f"{source}: [{section}] unknown key {shown(unknown[0])} (known: {', '.join(fields)})")
-    values = dict(given)
-    for name, f in fields.items():
-        where = f"{source}: [{section}] {name}"
-        if "table" in f.metadata:
-            values[name] = (parse_section(table[name], f.metadata["table"], source, f"{section}.{name}")
-                            if name in table else None)
-            continue
-        if name not in table:
-            if f.default is not dataclasses.MISSING:
-                values[name] = f.default
-                continue
-            raise ConfigError(f"{where}: missing ({f.metadata.get('doc', '')})")
-        values[name] = coerce_value(table[name], hints[name], where)
-        problem = value_problem(f, values[name])
-        if problem is not None:
-            raise ConfigError(f"{source}: [{section}] {problem}")
-    obj = cls(**values)
-    problem = lengths_problem(obj)
-    if problem is not None:
-        raise ConfigError(f"{source}: [{section}] {problem}")
-    return obj
-
-
-def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict:
-    """Read a TOML file of at most `MAX_TOML_BYTES`; anything else raises ``error`` naming it.
-
-    A folder, FIFO or device is refused: the file is opened without blocking
-    and checked to be a regular file before a byte is read. A file that is
-    too large, not UTF-8 or nested too deeply for the parser is refused too.
-    """
-    raw = read_bounded(path, MAX_TOML_BYTES, error)
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        line = raw.count(b"\n", 0, e.start) + 1
-        raise error(f"{path}: line {line}: not UTF-8 text (byte {raw[e.start]:#04x})") from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise error(f"{path}: not valid TOML ({e})") from None
-    except RecursionError:
-        raise error(f"{path}: not valid TOML (nested too deeply)") from None
-
-
 #: optional tables of ``ilcpmac run``
 RUN_SECTIONS: dict[str, type] = {"campaign": CampaignSettings, "limits": LimitSettings,
                                  "pipeline": PipelineSettings}
@@ -417,7 +312,7 @@ def load_config(path: str | Path) -> CampaignConfig:
     known = {"bench", "simulator", "trials", "excitation", "stages"} | set(RUN_SECTIONS)
     unknown = sorted(set(data) - known)
     if unknown:
-        raise ConfigError(f"{path}: unknown table [{_name(unknown[0])}] (known: {', '.join(sorted(known))})")
+        raise ConfigError(f"{path}: unknown table [{toml_name(unknown[0])}] (known: {', '.join(sorted(known))})")
     for name in ["bench", "trials", "excitation"]:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
@@ -430,9 +325,9 @@ def load_config(path: str | Path) -> CampaignConfig:
         raise ConfigError(f"{path}: [stages] must be a table of [stages.NAME] tables")
     for name, table in stage_options.items():
         if not isinstance(table, dict):
-            raise ConfigError(f"{path}: [stages.{_name(name)}] must be a table")
+            raise ConfigError(f"{path}: [stages.{toml_name(name)}] must be a table")
         if name not in run["pipeline"].stages:
-            raise ConfigError(f"{path}: [stages.{_name(name)}] configures a stage that [pipeline] stages "
+            raise ConfigError(f"{path}: [stages.{toml_name(name)}] configures a stage that [pipeline] stages "
                               "does not list")
     config = CampaignConfig(path=path, bench=bench,
                             grid=parse_section(data["trials"], TrialGrid, str(path), "trials"),
@@ -450,7 +345,7 @@ def _simulated_drive(tables, bench: BenchSettings, path: Path) -> MotorModel:
         raise ConfigError(f"{path}: [simulator] must hold the tables [simulator.NAME]")
     unknown = sorted(set(tables) - set(SIMULATOR_SECTIONS))
     if unknown:
-        raise ConfigError(f"{path}: unknown table [simulator.{_name(unknown[0])}] "
+        raise ConfigError(f"{path}: unknown table [simulator.{toml_name(unknown[0])}] "
                           f"(known: {', '.join(SIMULATOR_SECTIONS)})")
     for key, value in (("backemf", bench.backemf), ("calibration", bench.calibration),
                        ("inertia_kgm2", bench.inertia_kgm2)):
@@ -498,13 +393,6 @@ def check_config(config: CampaignConfig) -> None:
     problem = problem or _run_problem(config)
     if problem is not None:
         raise ConfigError(f"{config.path}: {problem}")
-    from ilcpmac.stages.registry import check_builtin_options  # the stages import this module
-
-    for name, options in config.stage_options.items():
-        try:
-            check_builtin_options(name, options)
-        except ConfigError as e:
-            raise ConfigError(f"{config.path}: {e}") from None
 
 
 def _run_problem(config: CampaignConfig) -> str | None:
@@ -570,42 +458,3 @@ def _trial_problem(config: CampaignConfig, speed_key: str, speeds_hz: tuple[floa
                 f"[simulator.controller] control_rate_hz {rate:g} counts per second (each count needs two control "
                 "periods)")
     return None
-
-
-def check_bench(config: CampaignConfig, description) -> None:
-    """Raise `ConfigError` naming the key if the bench a backend describes (`BenchDescription`) is not the one
-    [bench] describes: pole pairs, slots and counts per revolution, and the inertia, back-EMF and
-    calibration where [bench] gives them."""
-    bench, motor = config.bench, description.motor
-    for key in ("pole_pairs", "slots", "counts_per_rev"):
-        if getattr(bench, key) != getattr(motor, key):
-            raise ConfigError(f"{config.path}: [bench] {key} {getattr(bench, key)} differs from the bench's "
-                              f"{getattr(motor, key)}")
-    if bench.inertia_kgm2 is not None and not math.isclose(bench.inertia_kgm2, motor.inertia_kgm2, rel_tol=1e-9):
-        raise ConfigError(f"{config.path}: [bench] inertia_kgm2 {bench.inertia_kgm2:g} differs from the bench's "
-                          f"{motor.inertia_kgm2:g}")
-    if bench.backemf is not None:
-        ours = backemf_table(motor, bench.backemf, motor.counts_per_rev)
-        error = np.abs(ours - description.backemf_nm_per_a)
-        count, phase = np.unravel_index(np.argmax(error), error.shape)
-        if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
-            raise ConfigError(f"{config.path}: [bench.backemf] differs from the bench's back-EMF table by "
-                              f"{error[count, phase]:.3g} N m / A at count {count}, phase {'abc'[phase]}")
-    if bench.backemf_file is not None:
-        from ilcpmac.bench.format import read_backemf_csv  # the bench format reads its own files
-
-        ours = read_backemf_csv(config.path.parent / bench.backemf_file, motor)
-        error = np.abs(ours - description.backemf_nm_per_a)
-        count, phase = np.unravel_index(np.argmax(error), error.shape)
-        if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
-            raise ConfigError(f"{config.path}: [bench] backemf_file {bench.backemf_file} differs from the bench's "
-                              f"back-EMF table by {error[count, phase]:.3g} N m / A at count {count}, "
-                              f"phase {'abc'[phase]}")
-    if bench.calibration is not None:
-        ours, theirs = bench.calibration.calibration(), description.calibration
-        for key, a, b in (("current_scale_counts_per_a", ours.current_scale, theirs.current_scale),
-                          ("current_offset_counts", ours.current_offset, theirs.current_offset),
-                          ("torque_gain_v_per_nm", ours.torque_gain, theirs.torque_gain)):
-            if not np.allclose(a, b, rtol=1e-9, atol=1e-12):
-                raise ConfigError(f"{config.path}: [bench.calibration] {key} {shown(np.atleast_1d(a).tolist())} "
-                                  f"differs from the bench's {shown(np.atleast_1d(b).tolist())}")

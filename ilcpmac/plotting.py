@@ -18,7 +18,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from PIL import Image
 
-from ilcpmac.errors import IlcpmacError
+from ilcpmac.core.errors import IlcpmacError
 
 __all__ = ["ANGLE_LABEL", "FORMATS", "PlotError", "angle_axis", "check_format", "figure", "group_colours", "legend",
            "mechanical_degrees", "plot_groups", "save"]

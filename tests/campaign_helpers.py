@@ -12,7 +12,7 @@ from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import CampaignConfig
-from ilcpmac.records import BenchLimits, IdentificationResult, TrialData, TrialRequest
+from ilcpmac.core.records import BenchLimits, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.sim.grid import truth_dict
 
 #: a small campaign: 1024 counts, a 2 x 2 grid, two learned points at one speed, one validation point, few trials

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import settings
 
 from ilcpmac.config import CampaignConfig, load_config
+from ilcpmac.core.records import SensorCalibration, TrialRequest
 from ilcpmac.model.motor import MotorModel
-from ilcpmac.records import SensorCalibration, TrialRequest
 from ilcpmac.sim.simulator import Simulator
 
 #: every property test draws the same examples on every run, seeded like every other random draw here

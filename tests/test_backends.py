@@ -15,14 +15,14 @@ from click.testing import CliRunner
 from conftest import REAL_BENCH_CONFIG
 
 from ilcpmac.backends.base import Backend, ProgressThrottle, report_progress_to
+from ilcpmac.backends.guard import LimitGuard
 from ilcpmac.backends.registry import BackendSetup, build_backend, installed_backends
 from ilcpmac.backends.remote import RemoteBackend
 from ilcpmac.bench.format import read_bench, write_backemf_csv
 from ilcpmac.campaign.runner import CampaignPlan
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.errors import BackendError, ConfigError
-from ilcpmac.pipeline.safety import LimitGuard
+from ilcpmac.core.errors import BackendError, ConfigError
 
 #: trials run by every `CountingBackend`, and whether it was closed
 RUNS: dict[str, int] = {}

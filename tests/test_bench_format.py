@@ -15,9 +15,9 @@ from hypothesis import strategies as st
 
 from ilcpmac.bench import fastcsv, parquet
 from ilcpmac.bench.fastcsv import format_rows, parse_rows
-from ilcpmac.bench.format import Bench, MotorInfo, as_written, check_trial, convert_bench, read_bench, write_bench
-from ilcpmac.errors import BenchFormatError
-from ilcpmac.records import SensorCalibration, TrialData
+from ilcpmac.bench.format import Bench, as_written, check_trial, convert_bench, read_bench, write_bench
+from ilcpmac.core.errors import BenchFormatError
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData
 
 BENCH_TOML = """\
 [motor]

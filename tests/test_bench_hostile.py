@@ -26,7 +26,6 @@ from identify_helpers import other_bench
 
 from ilcpmac.bench.format import (
     Bench,
-    MotorInfo,
     convert_bench,
     read_bench,
     read_trial,
@@ -37,9 +36,9 @@ from ilcpmac.bench.format import (
     write_trial_csv,
 )
 from ilcpmac.cli import main
-from ilcpmac.errors import BenchFormatError, IdentificationError
+from ilcpmac.core.errors import BenchFormatError, IdentificationError
+from ilcpmac.core.records import MotorInfo, SensorCalibration
 from ilcpmac.identify import identify_bench
-from ilcpmac.records import SensorCalibration
 
 #: what a file outside the bench folder holds: no message may ever show it
 SECRET = "daemon:*:19000:0:secret-hash-7f3a"

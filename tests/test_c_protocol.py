@@ -57,11 +57,9 @@ from ilcpmac.backends.protocol import (
     encode_trial,
     target_bounds,
 )
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.errors import BackendError
-from ilcpmac.model.motor import MOTOR_RANGES
+from ilcpmac.core.errors import BackendError
+from ilcpmac.core.records import MOTOR_RANGES, MotorInfo, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.pipeline.safety import form_violation
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
 #: the warnings issue 13 asks the codec to compile without

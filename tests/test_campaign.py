@@ -19,7 +19,7 @@ from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import read_bench
 from ilcpmac.campaign.rundir import RunDir, RunDirError, trial_file
 from ilcpmac.config import load_config
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.core.records import TrialData, TrialRequest
 
 SUMMARY_KEYS = {"index", "phase", "torque_setpoint", "speed_setpoint", "ripple_pp_measured",
                 "ripple_rms_measured", "ripple_pp_true", "ripple_rms_true"}
@@ -186,8 +186,8 @@ def test_a_campaign_stops_with_a_clear_error_when_the_identification_lacks_an_es
     from campaign_helpers import truth_json
 
     from ilcpmac.campaign.runner import CampaignRunner
-    from ilcpmac.errors import IdentificationError
-    from ilcpmac.records import IdentificationResult
+    from ilcpmac.core.errors import IdentificationError
+    from ilcpmac.core.records import IdentificationResult
 
     sim = simulator_backend(campaign_config)
     answer = truth_json(sim)
@@ -234,7 +234,7 @@ def test_a_plan_beyond_the_limits_fails_before_any_trial(campaign_config, tmp_pa
 
     from ilcpmac.backends.base import BenchLimits
     from ilcpmac.campaign.runner import CampaignRunner
-    from ilcpmac.errors import ConfigError
+    from ilcpmac.core.errors import ConfigError
 
     cfg = dataclasses.replace(campaign_config, **{table: dataclasses.replace(getattr(campaign_config, table), **values)
                                                   for table, values in changes.items()})

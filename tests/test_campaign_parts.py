@@ -15,15 +15,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ilcpmac.backends.base import Backend
+from ilcpmac.backends.guard import LimitGuard
 from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import FadeOut
+from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.pipeline.safety import LimitGuard
-from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import RippleFigures
 from ilcpmac.stages.base import Identified
 
@@ -308,7 +308,7 @@ def test_the_limit_guard_is_a_whole_backend():
 
 
 @pytest.mark.parametrize("module, absent", [
-    ("ilcpmac.records", "ilcpmac.backends"),
+    ("ilcpmac.core.records", "ilcpmac.backends"),
     ("ilcpmac.stages.base", "ilcpmac.backends"),
     ("ilcpmac.sim.grid", "ilcpmac.backends"),
 ])

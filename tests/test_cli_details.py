@@ -20,8 +20,8 @@ from rich.console import Console
 from ilcpmac.bench.format import write_bench
 from ilcpmac.cli import main
 from ilcpmac.cli.identify import estimates_table
-from ilcpmac.model.current_loop import CurrentLoop
-from ilcpmac.records import IdentificationResult, MethodEstimates
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.records import IdentificationResult, MethodEstimates
 from ilcpmac.stages.registry import installed_stages
 
 WIDTH = 80
@@ -183,7 +183,7 @@ def test_the_cli_offers_the_plot_formats_without_importing_matplotlib():
 FAULTS_PROBE = """
 import resource, sys
 import numpy as np
-from ilcpmac.runtime import keep_freed_memory
+from ilcpmac.core.runtime import keep_freed_memory
 if sys.argv[1] == "kept":
     keep_freed_memory()
 x, s = np.ones(2**18), np.ones((2, 1))

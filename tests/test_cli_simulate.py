@@ -14,9 +14,10 @@ import pytest
 from click.testing import CliRunner, Result
 from conftest import COUNTS_PER_REV
 
-from ilcpmac.bench.format import MotorInfo, read_bench
+from ilcpmac.bench.format import read_bench
 from ilcpmac.cli import main
-from ilcpmac.errors import BenchFormatError
+from ilcpmac.core.errors import BenchFormatError
+from ilcpmac.core.records import MotorInfo
 
 #: two trials of two revolutions at 1024 counts per revolution
 SMALL = {"bench": {"counts_per_rev": COUNTS_PER_REV},

@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 from ilcpmac.backends.base import BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.compensation import MAX_TABLE_VALUES, Compensation, FadeOut
-from ilcpmac.errors import BenchFormatError, ConfigError
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.records import SensorCalibration, TrialRequest
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
-from ilcpmac.records import SensorCalibration, TrialRequest
 from ilcpmac.sim.grid import truth_dict
 from ilcpmac.stages.base import Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, installed_stages

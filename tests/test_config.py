@@ -10,7 +10,7 @@ import pytest
 from conftest import SEED_CONFIG
 
 from ilcpmac.config import CampaignSettings, LimitSettings, PipelineSettings, load_config
-from ilcpmac.errors import ConfigError
+from ilcpmac.core.errors import ConfigError
 
 
 def test_seed_config_values(seed_config):

@@ -20,8 +20,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ilcpmac.bench.format import read_bench
-from ilcpmac.config import MAX_TOML_BYTES, load_config, read_toml
-from ilcpmac.errors import BenchFormatError, ConfigError
+from ilcpmac.campaign.service import load_campaign_config
+from ilcpmac.config import load_config
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.schema import MAX_TOML_BYTES, read_toml
 
 
 def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
@@ -140,7 +142,7 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
 def test_values_without_physical_sense_are_one_line_naming_the_key(write_config, changes, pattern):
     path = write_config(changes)
     with pytest.raises(ConfigError) as caught:
-        load_config(path)
+        load_campaign_config(path)
     assert_one_line(caught.value, path, pattern)
 
 

@@ -16,10 +16,10 @@ from scipy.interpolate import CubicSpline
 
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.errors import ConfigError, SimulationError
+from ilcpmac.core.errors import ConfigError, SimulationError
+from ilcpmac.core.records import TrialData
 from ilcpmac.model.encoder import line_errors_counts, line_errors_problem
 from ilcpmac.model.motor import MotorModel
-from ilcpmac.records import TrialData
 from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.sim.simulator import Simulator
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
     count_speeds,

@@ -15,8 +15,8 @@ from click.testing import CliRunner
 
 from ilcpmac.cli import main
 from ilcpmac.compensation import Compensation, FadeOut
+from ilcpmac.core.records import SensorCalibration
 from ilcpmac.export import INT16_FULL_SCALE, Int16Tables, export, feedforward_column, write_json
-from ilcpmac.records import SensorCalibration
 
 CALIBRATION = SensorCalibration([14.0, 14.2, 13.9], [1.5, -2.0, 0.25], 0.908)
 #: C compiler flags: strict C99, every warning an error

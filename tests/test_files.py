@@ -6,9 +6,9 @@ import os
 
 import pytest
 
-import ilcpmac.files
-from ilcpmac.errors import ConfigError
-from ilcpmac.files import read_bounded
+import ilcpmac.core.files
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.files import read_bounded
 
 
 def test_a_regular_file_within_the_limit_is_read_whole(tmp_path):
@@ -26,7 +26,7 @@ def test_a_file_beyond_the_limit_is_refused_before_a_byte_is_read(tmp_path, monk
     def no_read(*args, **kwargs):
         raise AssertionError("read a file refused on its size")
 
-    monkeypatch.setattr(ilcpmac.files, "open", no_read, raising=False)
+    monkeypatch.setattr(ilcpmac.core.files, "open", no_read, raising=False)
     with pytest.raises(ConfigError, match=rf"^{path}: more than {1 << 20} bytes \(refused\)$"):
         read_bounded(path, 1 << 20, ConfigError)
 

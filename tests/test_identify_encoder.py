@@ -25,7 +25,9 @@ from ilcpmac.bench.format import Bench, convert_bench, read_bench
 from ilcpmac.cli import main
 from ilcpmac.cli.identify import estimates_table
 from ilcpmac.config import load_config
-from ilcpmac.errors import BenchFormatError, IdentificationError
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.errors import BenchFormatError, IdentificationError
+from ilcpmac.core.records import IdentificationResult
 from ilcpmac.identify import DEFAULT_LOOP, identify_bench
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.identify.joint import (
@@ -39,8 +41,6 @@ from ilcpmac.identify.joint import (
     harmonic_sets,
 )
 from ilcpmac.identify.reduction import BenchTables
-from ilcpmac.model.current_loop import CurrentLoop
-from ilcpmac.records import IdentificationResult
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
     encoder_error_summary,

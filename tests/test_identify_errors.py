@@ -12,7 +12,7 @@ from identify_helpers import OTHER_MOTOR, OTHER_SENSORS, other_bench, other_camp
 
 from ilcpmac.bench.format import write_bench
 from ilcpmac.cli import main
-from ilcpmac.errors import IdentificationError
+from ilcpmac.core.errors import IdentificationError
 from ilcpmac.identify import identify_bench
 from ilcpmac.sim.reduced import ReducedCampaign, reduced_bench
 

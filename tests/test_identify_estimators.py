@@ -7,16 +7,15 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ilcpmac.bench.format import MotorInfo
+from ilcpmac.core.current_loop import CurrentLoop, lagged
+from ilcpmac.core.records import MotorInfo, SensorCalibration
 from ilcpmac.identify import corrected_calibration
 from ilcpmac.identify.decoupling import cogging_band, decouple
 from ilcpmac.identify.joint import time_shifted
 from ilcpmac.identify.reduction import BenchTables, TrialTables, trial_amplitudes
 from ilcpmac.identify.sensor_gain import TrialResponse, fit_inertia
 from ilcpmac.identify.system_gain import excluded_harmonics
-from ilcpmac.model.current_loop import CurrentLoop, lagged
 from ilcpmac.pipeline.analysis import TorqueSpectrum
-from ilcpmac.records import SensorCalibration
 from ilcpmac.signals.harmonics import (
     harmonic_amplitudes,
     linear_trend,

@@ -14,8 +14,8 @@ from identify_helpers import identified
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import load_config
-from ilcpmac.errors import IdentificationError
-from ilcpmac.records import IdentificationResult, SensorCalibration
+from ilcpmac.core.errors import IdentificationError
+from ilcpmac.core.records import IdentificationResult, SensorCalibration
 from ilcpmac.stages.base import Identified
 from ilcpmac.stages.registry import stage_needs
 

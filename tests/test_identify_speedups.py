@@ -13,12 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ilcpmac.bench.format import MotorInfo
+from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
+from ilcpmac.core.records import MotorInfo
 from ilcpmac.identify.joint import _JointProblem, _lag_derivatives, _tall_product, harmonic_sets, time_shifted
 from ilcpmac.identify.reduction import BenchTables, TrialTables, revolution_averages, trial_amplitudes
 from ilcpmac.identify.sensor_gain import trial_response
 from ilcpmac.identify.system_gain import chi2_quantile
-from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
 from ilcpmac.signals.harmonics import not_a_knot_spline, uniform_time_resample
 
 CPR = 256

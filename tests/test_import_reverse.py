@@ -25,25 +25,16 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 import ilcpmac.cli.import_  # noqa: F401  (registers the command on main)
-from ilcpmac.bench.format import (
-    BENCH_FILE,
-    Bench,
-    MotorInfo,
-    convert_bench,
-    mirrored_table,
-    read_bench,
-    write_backemf_csv,
-    write_bench,
-)
+from ilcpmac.bench.format import BENCH_FILE, Bench, convert_bench, read_bench, write_backemf_csv, write_bench
 from ilcpmac.bench.importer import import_laps, import_log, import_logs, read_mapping, reverse_folder
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.errors import BenchFormatError
+from ilcpmac.core.errors import BenchFormatError
+from ilcpmac.core.records import IdentificationResult, MethodEstimates, MotorInfo, TrialData, mirrored_table
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.mirror import MIRRORED_MESSAGE, in_mirror_coordinates, in_motor_coordinates
 from ilcpmac.model.encoder import line_errors_counts
 from ilcpmac.model.tables import backemf_table, cogging_table
-from ilcpmac.records import IdentificationResult, MethodEstimates, TrialData
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.grid import grid_requests, truth_dict

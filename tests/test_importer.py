@@ -28,9 +28,9 @@ from ilcpmac.bench.importer import (
 )
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.errors import BenchFormatError, ConfigError
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.records import IdentificationResult, TrialData
 from ilcpmac.identify import identify_bench
-from ilcpmac.records import IdentificationResult, TrialData
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.grid import simulate_bench
 from ilcpmac.sim.simulator import Simulator

@@ -12,11 +12,12 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from ilcpmac.backends.base import BenchLimits
+from ilcpmac.backends.guard import LimitGuard
 from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.core.records import SensorCalibration, TrialRequest
 from ilcpmac.model.tables import current_references
 from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.pipeline.safety import LimitGuard, SafetyError, SafetyLimits, identified_truth
-from ilcpmac.records import SensorCalibration, TrialRequest
+from ilcpmac.pipeline.safety import SafetyError, SafetyLimits, identified_truth
 from ilcpmac.sim.grid import truth_dict
 from ilcpmac.stages.base import Identified
 

@@ -54,9 +54,8 @@ from ilcpmac.backends.protocol import (
     encode_trial,
     target_bounds,
 )
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.errors import BackendError
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.errors import BackendError
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
 
 CAL = SensorCalibration([14.0, 14.0, 14.0], [0.0, 0.0, 0.0], 0.908)
 #: sample bounds no toy trial reaches

@@ -42,10 +42,9 @@ from ilcpmac.backends.protocol import (
     target_bounds,
 )
 from ilcpmac.backends.remote import RemoteBackend
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.errors import BackendError, SimulationError
+from ilcpmac.core.errors import BackendError, SimulationError
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.model.tables import current_references
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 
 HOST = "127.0.0.1"
 ROOT = Path(__file__).resolve().parents[1]

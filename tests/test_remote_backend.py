@@ -41,8 +41,8 @@ from ilcpmac.backends.remote import RemoteBackend, parse_address
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.errors import BackendError
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.core.errors import BackendError
+from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.sim.grid import grid_requests
 
 ROOT = Path(__file__).resolve().parents[1]

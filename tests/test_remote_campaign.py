@@ -22,7 +22,7 @@ from ilcpmac.backends.remote import RemoteBackend
 from ilcpmac.bench.format import read_bench
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.errors import BackendError
+from ilcpmac.core.errors import BackendError
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """The torque sensor's high-pass in time with the speed rippling (`ilcpmac.identify.joint._ripple_highpass`,
-`ilcpmac.model.current_loop.periodic_lag`; docs/identification.md, "Uncertainty on mismatched data")."""
+`ilcpmac.core.current_loop.periodic_lag`; docs/identification.md, "Uncertainty on mismatched data")."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 from identify_helpers import identified, slow_grid_bench
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.core.current_loop import periodic_lag
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify import joint as joint_module
-from ilcpmac.model.current_loop import periodic_lag
 
 
 def _brute_force_lag(x: np.ndarray, count_period_s: np.ndarray, tau_s: float, revolutions: int) -> np.ndarray:

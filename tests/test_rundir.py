@@ -24,7 +24,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
-from ilcpmac.bench.format import MotorInfo, as_written, read_bench, write_trial_csv
+from ilcpmac.bench.format import as_written, read_bench, write_trial_csv
 from ilcpmac.campaign import rundir
 from ilcpmac.campaign.rundir import (
     HOLDER_FILE,
@@ -39,8 +39,8 @@ from ilcpmac.campaign.rundir import (
     trial_file,
 )
 from ilcpmac.cli import main
-from ilcpmac.errors import ConfigError
-from ilcpmac.records import SensorCalibration, TrialData
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData
 
 CPR = 64
 _ANGLE = 4 * 2 * np.pi * np.arange(CPR)[:, None] / CPR - 2 * np.pi / 3 * np.arange(3)

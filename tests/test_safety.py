@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from ilcpmac.config import load_config
+from ilcpmac.core.records import SensorCalibration, TrialRequest
 from ilcpmac.model.tables import backemf_table
 from ilcpmac.pipeline.safety import (
     FlowingCurrent,
@@ -24,7 +25,6 @@ from ilcpmac.pipeline.safety import (
     enforce_limits,
     torque_interval_nm,
 )
-from ilcpmac.records import SensorCalibration, TrialRequest
 
 N = 32  # counts per revolution of the generated tables
 TOL = 1e-9
@@ -345,7 +345,7 @@ def test_the_pipeline_rejects_a_stage_s_invalid_output_naming_the_stage(bench, c
 
 
 def test_the_guard_refuses_before_the_backend_sees_anything(bench):
-    from ilcpmac.pipeline.safety import LimitGuard
+    from ilcpmac.backends.guard import LimitGuard
 
     _, description, _, limits, base = bench
     seen = []

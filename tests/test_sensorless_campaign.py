@@ -19,11 +19,11 @@ from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner, torque_source
 from ilcpmac.config import load_config
-from ilcpmac.errors import ConfigError, IlcpmacError
-from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.errors import ConfigError, IlcpmacError
+from ilcpmac.core.records import BenchLimits, IdentificationResult, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis, fused
 from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.records import BenchLimits, IdentificationResult, TrialRequest
 from ilcpmac.signals.encoder_torque import brake_viscous_nm_s
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.grid import truth_dict

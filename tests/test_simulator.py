@@ -13,10 +13,10 @@ from conftest import COUNTS_PER_REV, REVOLUTIONS, SEED_CONFIG
 from scipy.integrate import quad
 from scipy.interpolate import CubicSpline
 
-from ilcpmac.errors import SimulationError
+from ilcpmac.core.errors import SimulationError
+from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import backemf_table, cogging_table, disturbance_table
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.sim.grid import grid_requests, truth_dict
 from ilcpmac.sim.kernel import GAUSS_BITS, simulate_trial
 from ilcpmac.sim.simulator import MAX_COUNTS_PER_REV, MAX_SAMPLES, SensorTruth, Simulator

@@ -18,14 +18,13 @@ import pytest
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.errors import ConfigError
-from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 from ilcpmac.sim.grid import truth_dict

@@ -22,11 +22,11 @@ from hypothesis import strategies as st
 
 import ilcpmac.cli.identify  # noqa: F401  (registers the commands on main)
 import ilcpmac.cli.import_  # noqa: F401
-from ilcpmac.bench.format import MotorInfo, write_backemf_csv
+from ilcpmac.bench.format import write_backemf_csv
 from ilcpmac.bench.standstill import ScanData, SensorErrors, read_scan, reduce_scan, write_scan
 from ilcpmac.cli import main
-from ilcpmac.errors import BenchFormatError, ConfigError
-from ilcpmac.records import BenchLimits
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.records import BenchLimits, MotorInfo
 from ilcpmac.sim.grid import simulated_description
 from ilcpmac.sim.simulator import Simulator
 from ilcpmac.sim.standstill import ScanPlan, write_scan_log

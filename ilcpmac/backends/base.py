@@ -5,9 +5,9 @@ from __future__ import annotations
 import time
 from typing import Callable, Protocol, runtime_checkable
 
-from ilcpmac.records import BenchDescription, BenchLimits, TrialData, TrialRequest
+from ilcpmac.core.records import BenchDescription, BenchLimits, TrialData, TrialRequest
 
-#: `BenchDescription` and `BenchLimits` live in `ilcpmac.records`; plugins may import them from here
+#: `BenchDescription` and `BenchLimits` live in `ilcpmac.core.records`; plugins may import them from here
 __all__ = ["Backend", "BenchDescription", "BenchLimits", "ProgressCallback", "ProgressThrottle",
            "report_progress_to"]
 

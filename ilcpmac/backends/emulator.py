@@ -53,8 +53,8 @@ from ilcpmac.backends.protocol import (
     target_bounds,
 )
 from ilcpmac.bench.format import MAX_TRIAL_ROWS
-from ilcpmac.errors import BackendError, IlcpmacError
-from ilcpmac.records import TrialRequest
+from ilcpmac.core.errors import BackendError, IlcpmacError
+from ilcpmac.core.records import TrialRequest
 
 log = logging.getLogger(__name__)
 

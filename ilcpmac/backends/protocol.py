@@ -23,10 +23,8 @@ from typing import Iterator, Mapping, Sequence
 import numpy as np
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
-from ilcpmac.bench.format import MotorInfo
-from ilcpmac.errors import BackendError
-from ilcpmac.model.motor import MOTOR_RANGES
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.errors import BackendError
+from ilcpmac.core.records import MOTOR_RANGES, MotorInfo, SensorCalibration, TrialData, TrialRequest
 
 #: Protocol version carried in every frame header; both ends must speak the same.
 PROTOCOL_VERSION = 1

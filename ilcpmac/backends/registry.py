@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.config import CampaignConfig
-from ilcpmac.errors import ConfigError
-from ilcpmac.plugins import PluginEntry, installed
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.plugins import PluginEntry, installed
 
 GROUP = "ilcpmac.backends"
 

@@ -40,8 +40,8 @@ from ilcpmac.backends.protocol import (
     decode_heartbeat,
     encode_request,
 )
-from ilcpmac.errors import BackendError
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.core.errors import BackendError
+from ilcpmac.core.records import TrialData, TrialRequest
 
 if TYPE_CHECKING:
     from ilcpmac.backends.registry import BackendSetup

@@ -6,8 +6,8 @@ import os
 from typing import TYPE_CHECKING
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
+from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.model.motor import MotorModel
-from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.sim.grid import simulated_description
 from ilcpmac.sim.simulator import Simulator
 

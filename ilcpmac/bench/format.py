@@ -20,10 +20,21 @@ import numpy as np
 
 from ilcpmac.bench import parquet
 from ilcpmac.bench.fastcsv import format_rows, parse_rows
-from ilcpmac.config import read_toml
-from ilcpmac.errors import BenchFormatError
-from ilcpmac.model.motor import MOTOR_RANGES
-from ilcpmac.records import SensorCalibration, TrialData
+from ilcpmac.config import BACKEMF_TOLERANCE, CampaignConfig
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.files import atomic_write
+from ilcpmac.core.records import (
+    MAX_CALIBRATION,
+    MAX_CURRENT_A,
+    MAX_SPEED_HZ,
+    MAX_TORQUE_NM,
+    MOTOR_RANGES,
+    MotorInfo,
+    SensorCalibration,
+    TrialData,
+)
+from ilcpmac.core.schema import read_toml, shown, toml_value
+from ilcpmac.model.tables import backemf_table
 
 BENCH_FILE = "bench.toml"
 TRIAL_COLUMNS = ("count", "time", "i_ref_a", "i_ref_b", "i_ref_c", "torque")
@@ -67,63 +78,12 @@ MAX_COUNT = 2**53
 SPEED_TOLERANCE = 1.5
 #: largest timer resolution of the time stamps, s
 MAX_TIMER_RESOLUTION_S = 1e-3
-#: largest magnitudes of a bench's quantities, beyond any motor a bench drives: phase current, A;
-#: torque, N m; mechanical speed, Hz; and of a calibration's numbers (counts per ampere, counts, V / N m)
-MAX_CURRENT_A = 1e4
-MAX_TORQUE_NM = 1e5
-MAX_SPEED_HZ = 1e3
-MAX_CALIBRATION = 1e9
 _MOTOR_KEYS = {"pole_pairs": int, "slots": int, "counts_per_rev": int, "inertia": float, "backemf_file": str}
 #: optional [motor] keys: whether the trials carry a torque column, the time stamps' resolution, s, and whether
 #: the trials are reverse laps mirrored
 _MOTOR_OPTIONAL_KEYS = {"torque_sensor": bool, "timer_resolution_s": float, "mirrored": bool}
 _SENSOR_KEYS = {"current_scale": list, "current_offset": list, "torque_gain": float}
 _TRIAL_KEYS = {"file": str, "torque_setpoint": float, "speed_setpoint": float}
-
-
-@dataclass(frozen=True)
-class MotorInfo:
-    """The [motor] table of bench.toml.
-
-    Attributes
-    ----------
-    pole_pairs, slots, counts_per_rev : int
-    inertia_kgm2 : float
-        J, kg m^2.
-    torque_sensor : bool
-        Whether the trials carry the torque sensor's column (docs/bench-format.md).
-    timer_resolution_s : float or None
-        The time stamps' resolution, s (None: not stated; `ilcpmac.identify.encoder.timer_resolution_s`
-        then reads it off the stamps).
-    mirrored : bool
-        The trials are reverse laps of the motor stored as forward laps of its mirror image (phi = -theta;
-        backemf.csv the mirror's table, `mirrored_table`); the identification reports in the motor's own
-        coordinates (docs/bench-format.md, "Reverse laps").
-    """
-
-    pole_pairs: int
-    slots: int
-    counts_per_rev: int
-    inertia_kgm2: float
-    torque_sensor: bool = True
-    timer_resolution_s: float | None = None
-    mirrored: bool = False
-
-    @property
-    def cogging_order(self) -> int:
-        """lcm(slots, 2 pole_pairs): cogging periods per mechanical revolution."""
-        return math.lcm(self.slots, 2 * self.pole_pairs)
-
-
-def mirrored_table(table: np.ndarray) -> np.ndarray:
-    """The mirror image of a per-count table (axis 0, one row per count of a revolution): -t((N - c) mod N).
-
-    A reverse lap of a motor is a forward lap of its mirror in phi = -theta, with the back-EMF K'_p(phi) =
-    -K_p(-phi), the cogging -tau_c(-phi) and the encoder's line errors -e(-phi) (docs/bench-format.md,
-    "Reverse laps"); mirroring twice gives the table back.
-    """
-    table = np.asarray(table)
-    return -table[-np.arange(table.shape[0]) % table.shape[0]]
 
 
 @dataclass(frozen=True)
@@ -657,49 +617,25 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
 # ---------------------------------------------------------------- writing
 
 
-def atomic_write(path: Path, data: bytes | str, durable: bool = True) -> None:
-    """Write via a temporary file and rename, so a reader never sees half a file.
-
-    ``durable`` also fsyncs before the rename, so the file survives a power cut.
-    """
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data.encode() if isinstance(data, str) else data)
-        if durable:
-            f.flush()
-            os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def _toml_value(value) -> str:
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
-        return str(int(value))
-    return repr(float(value))
-
-
 def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
                     trials: list[tuple[str, float, float]], backemf_file: str = "backemf.csv") -> str:
     """bench.toml text; ``trials`` lists (file, torque set point N m, speed set point Hz)."""
     m = motor
     lines = ["[motor]",
              f"pole_pairs = {m.pole_pairs}", f"slots = {m.slots}", f"counts_per_rev = {m.counts_per_rev}",
-             f"inertia = {_toml_value(m.inertia_kgm2)}", f"backemf_file = {_toml_value(backemf_file)}"]
+             f"inertia = {toml_value(m.inertia_kgm2)}", f"backemf_file = {toml_value(backemf_file)}"]
     if not m.torque_sensor:
         lines.append("torque_sensor = false")
     if m.timer_resolution_s is not None:
-        lines.append(f"timer_resolution_s = {_toml_value(m.timer_resolution_s)}")
+        lines.append(f"timer_resolution_s = {toml_value(m.timer_resolution_s)}")
     if m.mirrored:
         lines.append("mirrored = true  # reverse laps, stored as forward laps of the motor's mirror image")
     lines.append("")
     if sensors is not None:
-        lines += ["[sensors]", *(f"{key} = {_toml_value(value)}" for key, value in sensors.to_json().items()), ""]
+        lines += ["[sensors]", *(f"{key} = {toml_value(value)}" for key, value in sensors.to_json().items()), ""]
     for name, torque, speed in trials:
-        lines += ["[[trials]]", f"file = {_toml_value(name)}",
-                  f"torque_setpoint = {_toml_value(torque)}", f"speed_setpoint = {_toml_value(speed)}", ""]
+        lines += ["[[trials]]", f"file = {toml_value(name)}",
+                  f"torque_setpoint = {toml_value(torque)}", f"speed_setpoint = {toml_value(speed)}", ""]
     return "\n".join(lines)
 
 
@@ -803,3 +739,40 @@ def convert_bench(folder: str | Path, out: str | Path, suffix: str = ".csv") -> 
     bench = replace(bench, trial_files=names)
     write_bench(out, bench)
     return bench
+
+
+def check_bench(config: CampaignConfig, description) -> None:
+    """Raise `ConfigError` naming the key if the bench a backend describes (`BenchDescription`) is not the one
+    [bench] describes: pole pairs, slots and counts per revolution, and the inertia, back-EMF and
+    calibration where [bench] gives them."""
+    bench, motor = config.bench, description.motor
+    for key in ("pole_pairs", "slots", "counts_per_rev"):
+        if getattr(bench, key) != getattr(motor, key):
+            raise ConfigError(f"{config.path}: [bench] {key} {getattr(bench, key)} differs from the bench's "
+                              f"{getattr(motor, key)}")
+    if bench.inertia_kgm2 is not None and not math.isclose(bench.inertia_kgm2, motor.inertia_kgm2, rel_tol=1e-9):
+        raise ConfigError(f"{config.path}: [bench] inertia_kgm2 {bench.inertia_kgm2:g} differs from the bench's "
+                          f"{motor.inertia_kgm2:g}")
+    if bench.backemf is not None:
+        ours = backemf_table(motor, bench.backemf, motor.counts_per_rev)
+        error = np.abs(ours - description.backemf_nm_per_a)
+        count, phase = np.unravel_index(np.argmax(error), error.shape)
+        if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
+            raise ConfigError(f"{config.path}: [bench.backemf] differs from the bench's back-EMF table by "
+                              f"{error[count, phase]:.3g} N m / A at count {count}, phase {'abc'[phase]}")
+    if bench.backemf_file is not None:
+        ours = read_backemf_csv(config.path.parent / bench.backemf_file, motor)
+        error = np.abs(ours - description.backemf_nm_per_a)
+        count, phase = np.unravel_index(np.argmax(error), error.shape)
+        if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
+            raise ConfigError(f"{config.path}: [bench] backemf_file {bench.backemf_file} differs from the bench's "
+                              f"back-EMF table by {error[count, phase]:.3g} N m / A at count {count}, "
+                              f"phase {'abc'[phase]}")
+    if bench.calibration is not None:
+        ours, theirs = bench.calibration.calibration(), description.calibration
+        for key, a, b in (("current_scale_counts_per_a", ours.current_scale, theirs.current_scale),
+                          ("current_offset_counts", ours.current_offset, theirs.current_offset),
+                          ("torque_gain_v_per_nm", ours.torque_gain, theirs.torque_gain)):
+            if not np.allclose(a, b, rtol=1e-9, atol=1e-12):
+                raise ConfigError(f"{config.path}: [bench.calibration] {key} {shown(np.atleast_1d(a).tolist())} "
+                                  f"differs from the bench's {shown(np.atleast_1d(b).tolist())}")

@@ -23,7 +23,6 @@ Every problem raises `ConfigError` (the mapping, naming its key) or
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
 import os
 from collections.abc import Sequence
@@ -32,106 +31,40 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.bench.fastcsv import parse_rows
 from ilcpmac.bench.format import (
     BENCH_FILE,
     MAX_COUNT,
-    MAX_HEADER_BYTES,
     MAX_REVOLUTIONS,
-    MAX_SPEED_HZ,
     MAX_TIMER_RESOLUTION_S,
     MAX_TRIAL_ROWS,
     Bench,
-    MotorInfo,
     as_written,
     check_backemf,
     check_trial,
-    mirrored_table,
     read_backemf_csv,
     write_bench,
 )
+from ilcpmac.bench.logs import LogLayout, current_columns, named_columns, read_log
 from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan, write_scan
-from ilcpmac.config import BenchSettings, model_key, parse_section, read_toml, setting
-from ilcpmac.errors import BenchFormatError, ConfigError
-from ilcpmac.files import read_bounded
-from ilcpmac.model.motor import backemf_problem, in_range, shown
+from ilcpmac.config import BenchSettings, model_key
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.records import MAX_SPEED_HZ, MotorInfo, SensorCalibration, TrialData, mirrored_table
+from ilcpmac.core.schema import in_range, parse_section, read_toml, setting, shown
+from ilcpmac.model.motor import backemf_problem
 from ilcpmac.model.tables import backemf_table
-from ilcpmac.records import SensorCalibration, TrialData
 
-__all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogLayout", "LogPoint",
-           "MAX_LOG_ROWS", "MAX_SCALE", "MAX_TIME_S", "MIN_SCALE", "bench_motor", "import_laps", "import_log",
-           "import_logs", "import_scan", "read_log", "read_mapping", "resample_to_counts", "reverse_folder",
-           "stamp_resolution_s", "write_scan_folder"]
+__all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogPoint", "MAX_TIME_S",
+           "bench_motor", "import_laps", "import_log", "import_logs", "import_scan", "read_mapping",
+           "resample_to_counts", "reverse_folder", "stamp_resolution_s", "write_scan_folder"]
 
-#: most data rows of one log (20 kHz for 200 s) ...
-MAX_LOG_ROWS = 2**22
-#: ... and bytes per row on average: a larger file is refused before it is parsed
-MAX_LOG_ROW_BYTES = 128
 #: finest resolution of the time stamps written (the trial files' 0.1 us)
 MIN_STAMP_RESOLUTION_S = 1e-7
 #: largest |time| of a log once scaled, s: the trial files' 0.1 us stamps are exact in a double up to 2^53 of
 #: them (about 28.5 years)
 MAX_TIME_S = 2.0**53 * MIN_STAMP_RESOLUTION_S
-#: range of |current_a_per_unit| and |torque_nm_per_unit|: a scale beyond it is a wrong unit, never a sensor's
-MIN_SCALE, MAX_SCALE = 1e-12, 1e12
 #: a change of the row interval or of the position step below this fraction of it is rounding, not a quantum
 _ROUNDING = 1e-6
 _PHASE_SHIFTS_RAD = 2.0 * np.pi * np.arange(3) / 3.0
-
-
-def _one_of(*choices: str):
-    return lambda x: x in choices
-
-
-def _scale(x: float) -> bool:
-    return MIN_SCALE <= abs(x) <= MAX_SCALE
-
-
-@dataclass(frozen=True)
-class LogLayout:
-    """[log] of a mapping file: the columns of a drive log, their units and scales.
-
-    Column keys name a column of the log's last header line; a value in the
-    log times its ``*_per_unit`` scale is in the unit the key names.
-    """
-
-    time: str = setting(None, "column of the time stamps", dataclasses.MISSING)
-    position: str = setting(None, "column of the mechanical position (multi-turn or wrapping once per revolution)",
-                           dataclasses.MISSING)
-    position_unit: str = setting(_one_of("rad", "counts"), 'unit of the position: "rad" or "counts"',
-                                dataclasses.MISSING)
-    delimiter: str = setting(lambda x: len(x) == 1 and x not in "0123456789.+-eE\r\n\"",
-                            "the one character between fields", ",")
-    header_lines: int = setting(in_range(1, 1000), "lines before the first row, 1..1000; the last names the columns",
-                               1)
-    time_s_per_unit: float = setting(in_range(0.0, 1e6, low_open=True), "seconds per unit of the time column", 1.0)
-    timer_resolution_s: float | None = setting(
-        in_range(0.0, MAX_TIMER_RESOLUTION_S, low_open=True), "the time stamps' quantum, s, within (0, 1e-3] "
-        "(for a log without torque; without it, read off the rows)", None)
-    position_counts_per_rev: int | None = setting(
-        in_range(1, 2**40), 'counts per revolution of the position, when position_unit = "counts"', None)
-    phase_currents: tuple[str, ...] | None = setting(
-        lambda x: len(x) == 3, "columns of the phase currents a, b, c (three names); or i_q", None)
-    i_q: str | None = setting(None, "column of the q-axis current (amplitude-invariant Park, i_d = 0); or "
-                             "phase_currents", None)
-    angle_offset_rad: float = setting(
-        in_range(-2 * math.pi, 2 * math.pi), "theta_e = pole_pairs * theta + angle_offset_rad in the inverse Park "
-        "transform of i_q, within [-2 pi, 2 pi]", 0.0)
-    current: str = setting(_one_of("commanded", "measured"),
-                          'the currents logged: "commanded" (references) or "measured" (by the controller)',
-                          "commanded")
-    current_a_per_unit: float = setting(_scale, "amperes per unit of the current columns, of magnitude within "
-                                       "[1e-12, 1e12]", 1.0)
-    torque: str | None = setting(None, "column of the torque-sensor output; without it, a bench without a torque "
-                                "sensor", None)
-    torque_nm_per_unit: float = setting(_scale, "N m per unit of the torque column, of magnitude within "
-                                       "[1e-12, 1e12]", 1.0)
-    highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
-                                   "(two rows per period or more)", 150)
-    kind: str = setting(_one_of("run", "scan"), '"run" (turning laps, resampled onto counts) or "scan" (a standstill '
-                       "position scan, forward and back)", "run")
-    direction: str | None = setting(None, "column of the direction of motion of a scan (> 0 forward, < 0 reverse); "
-                                   "without it, the sign of the position's last change", None)
 
 
 @dataclass(frozen=True)
@@ -314,7 +247,7 @@ def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
         raise ConfigError(f"{path}: [log] position_counts_per_rev: give it when, and only when, "
                           'position_unit = "counts"')
     keys: dict[str, str] = {}
-    for key, column in _named_columns(layout):
+    for key, column in named_columns(layout):
         if column in keys:
             raise ConfigError(f"{path}: [log] {key}: column {shown(column)} is [log] {keys[column]} already (each "
                               "quantity needs a column of its own)")
@@ -338,91 +271,11 @@ def _backemf(bench: BenchSettings, motor: MotorInfo, path: Path) -> np.ndarray:
     return table
 
 
-def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
-    """The columns of a drive log that ``layout`` names, as floats, by column name.
-
-    The file is at most `MAX_LOG_ROWS` rows of `MAX_LOG_ROW_BYTES` on average
-    (read bounded); every named column must be in the header and every value
-    finite, or `BenchFormatError` names the file, line and column.
-    """
-    raw = read_bounded(path, layout.header_lines * MAX_HEADER_BYTES + MAX_LOG_ROWS * MAX_LOG_ROW_BYTES,
-                       BenchFormatError)
-    start = 0
-    for line in range(1, layout.header_lines + 1):
-        end = raw.find(b"\n", start, start + MAX_HEADER_BYTES)
-        if end < 0:
-            raise BenchFormatError(f"{path}: line {line}: no end of the header line in {MAX_HEADER_BYTES} bytes "
-                                   f"([log] header_lines = {layout.header_lines})")
-        header, start = raw[start:end], end + 1
-    try:
-        names = [n.strip().strip('"') for n in header.decode("utf-8").strip().split(layout.delimiter)]
-    except UnicodeDecodeError:
-        raise BenchFormatError(f"{path}: line {layout.header_lines}: the column names are not UTF-8 text") from None
-    wanted = _columns(layout)
-    missing = [w for w in wanted if w not in names]
-    if missing:
-        raise BenchFormatError(f"{path}: line {layout.header_lines}: no column {shown(missing[0])} (the header "
-                               f"has {shown(names)})")
-    rows = _rows(path, raw[start:], len(names), layout)
-    columns = {}
-    for name in wanted:
-        values = rows[:, names.index(name)]
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            raise BenchFormatError(f"{path}: line {layout.header_lines + 1 + bad[0]}: {name} is not a finite number")
-        columns[name] = values
-    return columns
-
-
-def _named_columns(layout: LogLayout) -> list[tuple[str, str]]:
-    """(key, column) of each log column ``layout`` names: time, position, currents, torque, direction."""
-    currents = [(f"phase_currents[{p}]", c) for p, c in enumerate(layout.phase_currents or ())] + (
-        [] if layout.i_q is None else [("i_q", layout.i_q)])
-    return [("time", layout.time), ("position", layout.position), *currents] + [
-        (key, c) for key, c in (("torque", layout.torque), ("direction", layout.direction)) if c is not None]
-
-
-def _columns(layout: LogLayout) -> list[str]:
-    """The log columns ``layout`` names: time, position, currents, torque, direction."""
-    return [c for _, c in _named_columns(layout)]
-
-
-def _current_columns(layout: LogLayout) -> list[str]:
-    """The current columns ``layout`` names: three phases, the q axis, or none."""
-    if layout.phase_currents is not None:
-        return list(layout.phase_currents)
-    return [] if layout.i_q is None else [layout.i_q]
-
-
 def _inverse_park(i_q: np.ndarray, position_counts: np.ndarray, motor: MotorInfo, offset_rad: float) -> np.ndarray:
     """Phase currents i_p = i_q sin(theta_e - 2 pi p / 3), theta_e = pole_pairs 2 pi position / counts_per_rev
     + offset_rad, shape (n, 3)."""
     theta_e = motor.pole_pairs * 2.0 * np.pi * position_counts / motor.counts_per_rev + offset_rad
     return i_q[:, None] * np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD)
-
-
-def _rows(path: Path, body: bytes, width: int, layout: LogLayout) -> np.ndarray:
-    """The data rows: plain decimals by the compiled parser, anything else by numpy."""
-    delimiter = layout.delimiter.encode()
-    rows = None
-    if delimiter == b"," or b"," not in body:
-        rows = parse_rows(body.replace(delimiter, b","), width, MAX_LOG_ROWS)
-    if rows is None:
-        try:
-            rows = np.loadtxt(io.BytesIO(body), delimiter=layout.delimiter, ndmin=2, dtype=float,
-                              max_rows=MAX_LOG_ROWS + 1)
-        except ValueError as e:
-            text = str(e)
-            raise BenchFormatError(f"{path}: after line {layout.header_lines}: not rows of {width} numbers "
-                                   f"separated by {layout.delimiter!r} ({text[:160]})") from None
-    if rows.shape[0] > MAX_LOG_ROWS:
-        raise BenchFormatError(f"{path}: more than {MAX_LOG_ROWS} rows (refused)")
-    if rows.shape[0] < 3:
-        raise BenchFormatError(f"{path}: {rows.shape[0]} rows after the header; a log needs 3 or more")
-    if rows.shape[1] != width:
-        raise BenchFormatError(f"{path}: line {layout.header_lines + 1} has {rows.shape[1]} fields, the header "
-                               f"has {width}")
-    return rows
 
 
 def _interval_error(values: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -569,7 +422,7 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
         raise BenchFormatError(f"{where}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
                                f"{MAX_TIMER_RESOLUTION_S:g} s: too coarse for the torque of the encoder's time stamps "
                                f"(a log without torque; a finer position or time column is needed)")
-    current_names = _current_columns(layout)
+    current_names = current_columns(layout)
     torque_names = [] if layout.torque is None else [layout.torque]
     values = np.column_stack([columns[n][rows] for n in current_names + torque_names])
     values *= np.array([layout.current_a_per_unit] * len(current_names) + [sign * layout.torque_nm_per_unit] * len(

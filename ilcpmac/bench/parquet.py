@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ilcpmac.errors import BenchFormatError
+from ilcpmac.core.errors import BenchFormatError
 
 SUFFIX = ".parquet"
 #: decimal digits of a stored decimal (its 64-bit integer holds any value the CSV writer accepts up to 9e17)

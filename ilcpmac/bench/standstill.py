@@ -27,22 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
-from ilcpmac.bench.format import (
-    BENCH_FILE,
-    MAX_CURRENT_A,
-    MAX_HEADER_BYTES,
-    MAX_TORQUE_NM,
-    MotorInfo,
-    atomic_write,
-    bench_toml_text,
-    read_bench_head,
-    write_backemf_csv,
-)
-from ilcpmac.config import parse_section, read_toml, setting
-from ilcpmac.errors import BenchFormatError, ConfigError
-from ilcpmac.files import read_bounded
-from ilcpmac.model.motor import all_of, in_range, length_in, shown
-from ilcpmac.records import SensorCalibration, finite_json
+from ilcpmac.bench.format import BENCH_FILE, MAX_HEADER_BYTES, bench_toml_text, read_bench_head, write_backemf_csv
+from ilcpmac.bench.logs import LogLayout, read_log
+from ilcpmac.core.errors import BenchFormatError, ConfigError
+from ilcpmac.core.files import atomic_write, read_bounded
+from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, MotorInfo, SensorCalibration
+from ilcpmac.core.schema import all_of, finite_json, in_range, length_in, parse_section, read_toml, setting, shown
 from ilcpmac.signals.harmonics import filtered, harmonic_amplitudes, harmonic_band
 
 __all__ = ["CURRENT_COLUMNS", "SCAN_DATA_FILE", "SCAN_FILE", "ScanData", "ScanResult", "SensorErrors",
@@ -199,7 +189,6 @@ class ScanResult:
 def read_scan(folder: str | Path) -> Scan:
     """Read a scan folder: bench.toml (no [[trials]]) and backemf.csv as `read_bench_head` checks them,
     scan.toml and its samples."""
-    from ilcpmac.bench.importer import LogLayout, read_log  # the importer writes scan folders
 
     folder = Path(folder)
     head = read_bench_head(folder)

@@ -11,11 +11,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ilcpmac.bench.format import check_bench
 from ilcpmac.campaign.record import Point, TrialRecord
-from ilcpmac.config import CampaignConfig, check_bench
-from ilcpmac.errors import ConfigError
+from ilcpmac.config import CampaignConfig
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import BenchDescription, TrialRequest
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan, torque_violation, trust_edges
-from ilcpmac.records import BenchDescription, TrialRequest
 from ilcpmac.sim.grid import grid_plan, grid_requests
 from ilcpmac.sim.simulator import trial_seed
 

@@ -63,18 +63,12 @@ from pathlib import Path
 import numpy as np
 from filelock import FileLock, Timeout
 
-from ilcpmac.bench.format import (
-    BENCH_FILE,
-    atomic_write,
-    bench_toml_text,
-    read_trial,
-    write_backemf_csv,
-    write_trial,
-)
+from ilcpmac.bench.format import BENCH_FILE, bench_toml_text, read_trial, write_backemf_csv, write_trial
 from ilcpmac.compensation import COMPENSATION_FILE
-from ilcpmac.config import read_toml
-from ilcpmac.errors import BenchFormatError, IlcpmacError
-from ilcpmac.records import BenchDescription, TrialData
+from ilcpmac.core.errors import BenchFormatError, IlcpmacError
+from ilcpmac.core.files import atomic_write
+from ilcpmac.core.records import BenchDescription, TrialData
+from ilcpmac.core.schema import read_toml
 
 CONFIG_FILE = "campaign.toml"
 STATES = "states"

@@ -38,6 +38,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from ilcpmac.backends.base import Backend, report_progress_to
+from ilcpmac.backends.guard import LimitGuard
 from ilcpmac.bench.format import Bench, as_written
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
 from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
@@ -45,12 +46,12 @@ from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
-from ilcpmac.errors import ConfigError, IdentificationError, IlcpmacError
+from ilcpmac.core.errors import ConfigError, IdentificationError, IlcpmacError
+from ilcpmac.core.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.pipeline.safety import LimitGuard, identified_truth
-from ilcpmac.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
+from ilcpmac.pipeline.safety import identified_truth
 from ilcpmac.signals.harmonics import RippleFigures
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs

@@ -13,8 +13,8 @@ import click
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ilcpmac.errors import IlcpmacError
-from ilcpmac.runtime import tune_process
+from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.core.runtime import tune_process
 
 #: progress and messages go to stderr; results (tables) may go to stdout
 console = Console(stderr=True)

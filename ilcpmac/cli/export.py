@@ -35,7 +35,7 @@ def export(run_dir: Path, fmt: str, out_dir: Path, c_type: str) -> None:
     """
     from ilcpmac.campaign.rundir import RunFiles
     from ilcpmac.compensation import Compensation
-    from ilcpmac.errors import BenchFormatError
+    from ilcpmac.core.errors import BenchFormatError
     from ilcpmac.export import export as write
 
     path = RunFiles(run_dir).compensation

@@ -92,7 +92,7 @@ def _rows(result, columns: list[str]) -> list[tuple[str, object, str, list]]:
 def read_truth(bench_dir: Path):
     """The bench folder's truth.json (a simulated bench's) as an `IdentificationResult`, or None without one."""
     from ilcpmac.bench.format import BenchFormatError
-    from ilcpmac.records import IdentificationResult
+    from ilcpmac.core.records import IdentificationResult
 
     path = bench_dir / TRUTH_FILE
     if not path.is_file():

@@ -193,8 +193,9 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     from ilcpmac.campaign.record import records_of
     from ilcpmac.campaign.rundir import RunDir, RunFiles
     from ilcpmac.campaign.runner import CampaignRunner, torque_source
-    from ilcpmac.config import check_config, load_config, packaged_config
-    from ilcpmac.errors import ConfigError
+    from ilcpmac.campaign.service import check_campaign_config, load_campaign_config
+    from ilcpmac.config import packaged_config
+    from ilcpmac.core.errors import ConfigError
     from ilcpmac.identify import identify_bench
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
@@ -211,12 +212,12 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
             seed, trials = settings.get("seed"), settings.get("trials")
         else:
             config_path = config or packaged_config(DEFAULT_CONFIG)
-        cfg = load_config(config_path)
+        cfg = load_campaign_config(config_path)
         if trials is not None:
             cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, learn_trials=trials))
         if seed is not None:
             cfg = dataclasses.replace(cfg, grid=dataclasses.replace(cfg.grid, seed=seed))
-        check_config(cfg)  # the overrides obey the same ranges as the file
+        check_campaign_config(cfg)  # the overrides obey the same ranges as the file
         seed = cfg.grid.seed
         if lock is None:
             out_dir = out_dir or Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"

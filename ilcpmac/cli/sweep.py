@@ -63,7 +63,7 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
     """
     from rich.table import Table
 
-    from ilcpmac.errors import ConfigError
+    from ilcpmac.core.errors import ConfigError
     from ilcpmac.sweep.plots import write_plots
     from ilcpmac.sweep.results import SUMMARY_FILE, combine, read_results, summarize
     from ilcpmac.sweep.runner import SweepRunner, check_local_workers, local_client, remote_client

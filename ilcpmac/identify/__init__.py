@@ -31,7 +31,9 @@ from typing import Callable
 import numpy as np
 
 from ilcpmac.bench.format import Bench
-from ilcpmac.errors import IdentificationError
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.errors import IdentificationError
+from ilcpmac.core.records import IdentificationResult, MethodEstimates, SensorCalibration
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.encoder import EncoderIdentification, identify_on_encoder
 from ilcpmac.identify.joint import JointEstimate, fit_joint
@@ -39,8 +41,6 @@ from ilcpmac.identify.mirror import in_motor_coordinates
 from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
-from ilcpmac.model.current_loop import CurrentLoop
-from ilcpmac.records import IdentificationResult, MethodEstimates, SensorCalibration
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
 __all__ = ["IdentificationDetails", "IdentificationResult", "MethodEstimates", "corrected_calibration",

@@ -55,11 +55,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ilcpmac.bench.format import Bench
-from ilcpmac.errors import IdentificationError
+from ilcpmac.core.errors import IdentificationError
+from ilcpmac.core.records import TrialData
 from ilcpmac.identify.joint import JointEstimate, fitted_columns_nm
 from ilcpmac.identify.reduction import BenchTables, TrialTables, reduce_bench, revolution_averages
 from ilcpmac.model.encoder import line_errors_problem
-from ilcpmac.records import TrialData
 from ilcpmac.signals.encoder_torque import (
     FALSE_ALARM,
     EncoderSeparation,

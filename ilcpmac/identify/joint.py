@@ -10,7 +10,7 @@ harmonics are fitted at once, in the harmonics domain (sec. 2.3), by
 for harmonic h of trial k at mean speed f_k, where
 
 - A_kp = DFT(K_p (G_p I*_p)): the per-phase theoretical torque (K . I*_i of
-  eq. 1.3) through the current loop G_p (`ilcpmac.model.current_loop`, applied in
+  eq. 1.3) through the current loop G_p (`ilcpmac.core.current_loop`, applied in
   time count by count), with theta_p = delta eps alpha_p: their mean is the
   total system gain delta*eps, so it no longer rests on the frequency
   response alone;
@@ -67,11 +67,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ilcpmac.errors import IdentificationError
+from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
+from ilcpmac.core.errors import IdentificationError
+from ilcpmac.core.lag_kernel import _advance, warm_up_start
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
 from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
-from ilcpmac.model.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
-from ilcpmac.model.lag_kernel import _advance, warm_up_start
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
@@ -784,7 +784,7 @@ def _lag_derivatives(x, dt, tau, delay, decay, sample_decay, continuous, d_tau, 
     """The derivatives of `lagged_phase`'s output (n_trials, cpr) with respect to tau and T_d; fills ``d_tau``
     and ``d_delay``.
 
-    The count recursion of `ilcpmac.model.lag_kernel` (the same warm-up and
+    The count recursion of `ilcpmac.core.lag_kernel` (the same warm-up and
     steps, through its `_advance`) carried with its derivative in tau
     (forward mode, a = exp(-dt / tau), da / dtau = a dt / tau^2); the sampled
     staircase and, with ``continuous``, the linear interpolation between

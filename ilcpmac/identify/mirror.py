@@ -16,8 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ilcpmac.bench.format import mirrored_table
-from ilcpmac.records import IdentificationResult, MethodEstimates
+from ilcpmac.core.records import IdentificationResult, MethodEstimates, mirrored_table
 
 __all__ = ["MIRRORED_MESSAGE", "in_motor_coordinates", "in_mirror_coordinates"]
 

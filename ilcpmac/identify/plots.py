@@ -17,10 +17,10 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ilcpmac import plotting
+from ilcpmac.core.records import IdentificationResult
 from ilcpmac.identify import sensor_gain
 from ilcpmac.identify.mirror import in_mirror_coordinates
 from ilcpmac.identify.system_gain import excluded_harmonics, theoretical_torque_tables
-from ilcpmac.records import IdentificationResult
 
 __all__ = ["IDENTIFICATION_FIGURES", "SIGNAL_FIGURES", "build_figures", "write_plots"]
 

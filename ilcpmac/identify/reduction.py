@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo, check_backemf, check_trial
-from ilcpmac.errors import BenchFormatError, IdentificationError
-from ilcpmac.records import TrialData
+from ilcpmac.bench.format import Bench, check_backemf, check_trial
+from ilcpmac.core.errors import BenchFormatError, IdentificationError
+from ilcpmac.core.records import MotorInfo, TrialData
 from ilcpmac.signals.harmonics import (
     every_count,
     harmonic_amplitudes,

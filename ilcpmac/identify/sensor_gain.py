@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.errors import IdentificationError
+from ilcpmac.core.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables
 from ilcpmac.identify.system_gain import structure_variance
 from ilcpmac.signals.encoder_torque import EncoderTorqueSpectrum

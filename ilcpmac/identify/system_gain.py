@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.errors import IdentificationError
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.errors import IdentificationError
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
-from ilcpmac.model.current_loop import CurrentLoop
 from ilcpmac.signals.harmonics import revolution_harmonics
 
 #: relative amplitude (of the largest harmonic) that counts as excited

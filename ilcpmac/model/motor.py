@@ -8,72 +8,17 @@ Each dataclass is one TOML section of a campaign config (see
 from __future__ import annotations
 
 import math
-import reprlib
-from dataclasses import Field, dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Callable
 
 import numpy as np
 
+from ilcpmac.core.records import MAX_GRID_SETPOINTS, MOTOR_RANGES, SensorCalibration
+from ilcpmac.core.schema import all_of, config_key, in_range, length_in, param, section_problem
 from ilcpmac.model.encoder import MAX_LINE_ERROR_COUNTS, line_errors_counts, line_errors_problem
-from ilcpmac.records import SensorCalibration
 
 #: Most terms of one sum of sines (back-EMF, cogging, disturbance).
 MAX_TERMS = 64
-#: Most torque (and most speed) set points of an identification grid.
-MAX_GRID_SETPOINTS = 100
-
-_SHORT = reprlib.Repr()
-_SHORT.maxstring = _SHORT.maxother = 60
-_SHORT.maxlist = _SHORT.maxtuple = 8
-
-
-def shown(value) -> str:
-    """``repr(value)`` cut short, a tuple shown as the TOML list it was read from, for one-line errors."""
-    return _SHORT.repr(list(value) if isinstance(value, tuple) else value)
-
-
-def finite_number(x) -> bool:
-    """A real number (not a bool), finite and within the range of a float (a larger integer is not)."""
-    if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
-        return False
-    try:
-        return math.isfinite(x)
-    except OverflowError:
-        return False
-
-
-#: The range of each [motor] quantity of a bench, one for configs, bench folders and the protocol's
-#: DESCRIBE: pole pairs up to the few hundred of the most multipolar machines; three phases need three
-#: slots; encoders up to 20 bits (log a finer one at 2^20 counts); inertia from a micro-motor's rotor to
-#: a flywheel of tonnes, kg m^2.
-MOTOR_RANGES = {"pole_pairs": (1, 256), "slots": (3, 2048), "counts_per_rev": (4, 2**20), "inertia": (1e-8, 1e4)}
-
-
-def in_range(low: float, high: float, *, low_open: bool = False, high_open: bool = False):
-    """A check: the value (or every value of a list) lies in [low, high], without an end that is open.
-
-    NaN fails every comparison, so it is out of every range.
-    """
-    def check(x) -> bool:
-        values = tuple(x) if isinstance(x, (tuple, list, np.ndarray)) else (x,)
-        return all((low < v if low_open else low <= v) and (v < high if high_open else v <= high)
-                   for v in values)
-
-    return check
-
-
-def length_in(low: int, high: int):
-    """A check: a list of ``low`` to ``high`` values."""
-    return lambda x: low <= len(x) <= high
-
-
-def all_of(*checks):
-    """A check that passes when every one of ``checks`` does (in order, so a length check guards the rest)."""
-    return lambda x: all(check(x) for check in checks)
-
-
-def _param(check=None, doc: str = "", **kw):
-    return field(metadata={"check": check, "doc": doc}, **kw)
 
 
 _THREE = length_in(3, 3)
@@ -82,7 +27,7 @@ _TERMS = length_in(0, MAX_TERMS)
 
 def _terms(low: float, high: float, doc: str):
     """A list of a sum of sines' terms (at most MAX_TERMS), each within [low, high]."""
-    return _param(all_of(_TERMS, in_range(low, high)), f"{doc}, at most {MAX_TERMS} terms")
+    return param(all_of(_TERMS, in_range(low, high)), f"{doc}, at most {MAX_TERMS} terms", parallel=True)
 
 
 def _phases():
@@ -90,20 +35,20 @@ def _phases():
 
 
 def _per_phase(low: float, high: float, doc: str, *, low_open: bool = False):
-    return _param(all_of(_THREE, in_range(low, high, low_open=low_open)), f"{doc}, three values")
+    return param(all_of(_THREE, in_range(low, high, low_open=low_open)), f"{doc}, three values")
 
 
 @dataclass(frozen=True)
 class Winding:
     """Motor geometry and per-phase electrical parameters."""
 
-    pole_pairs: int = _param(in_range(*MOTOR_RANGES["pole_pairs"]),
+    pole_pairs: int = param(in_range(*MOTOR_RANGES["pole_pairs"]),
                              "electrical revolutions per mechanical revolution, 1..256")
-    slots: int = _param(in_range(*MOTOR_RANGES["slots"]), "stator slots, 3..2048")
-    phase_resistance_ohm: float = _param(in_range(1e-6, 1e3), "R per phase, ohm, within [1e-6, 1e3] "
+    slots: int = param(in_range(*MOTOR_RANGES["slots"]), "stator slots, 3..2048")
+    phase_resistance_ohm: float = param(in_range(1e-6, 1e3), "R per phase, ohm, within [1e-6, 1e3] "
                                          "(the winding's exact step divides by R)")
-    phase_inductance_h: float = _param(in_range(1e-9, 10.0), "L per phase, H, within [1e-9, 10]")
-    backemf_scale: float = _param(in_range(0.0, 10.0, low_open=True),
+    phase_inductance_h: float = param(in_range(1e-9, 10.0), "L per phase, H, within [1e-9, 10]")
+    backemf_scale: float = param(in_range(0.0, 10.0, low_open=True),
                                   "true back-EMF over [bench.backemf], the controller's (the magnets' strength, "
                                   "e.g. at their temperature), within (0, 10]", default=1.0)
 
@@ -121,9 +66,9 @@ class BackEmf:
     with theta_e = pole_pairs * theta the electrical angle.
     """
 
-    harmonics: tuple[int, ...] = _param(all_of(length_in(1, MAX_TERMS), in_range(1, 4096)),
-                                        f"harmonic orders n of the electrical angle, 1..4096, "
-                                        f"1 to {MAX_TERMS} terms")
+    harmonics: tuple[int, ...] = param(all_of(length_in(1, MAX_TERMS), in_range(1, 4096)),
+                                       f"harmonic orders n of the electrical angle, 1..4096, "
+                                       f"1 to {MAX_TERMS} terms", parallel=True)
     amplitudes_nm_per_a: tuple[float, ...] = _terms(-100.0, 100.0, "k_n, N m / A, each within [-100, 100]")
     phases_rad: tuple[float, ...] = _phases()
     asymmetry: tuple[float, ...] = _per_phase(-1.0, 1.0, "relative amplitude deviation per phase, within "
@@ -148,7 +93,7 @@ class Unexplained:
     at orders that are not multiples of the cogging order.
     """
 
-    saturation_per_a2: float = _param(in_range(0.0, 1.0), "relative torque-constant drop per A^2, within [0, 1]")
+    saturation_per_a2: float = param(in_range(0.0, 1.0), "relative torque-constant drop per A^2, within [0, 1]")
     orders: tuple[int, ...] = _terms(1, 2**23, "disturbance orders per mechanical revolution, 1..2^23")
     amplitudes_nm: tuple[float, ...] = _terms(-1e3, 1e3, "d_k, N m, each within [-1e3, 1e3]")
     phases_rad: tuple[float, ...] = _phases()
@@ -161,9 +106,9 @@ class Mechanics:
     ``inertia_kgm2`` is what the controller knows; the rotor's J is ``true_inertia_kgm2``.
     """
 
-    inertia_kgm2: float = _param(in_range(*MOTOR_RANGES["inertia"]), "J, kg m^2, within [1e-8, 1e4]")
-    coulomb_friction_nm: float = _param(in_range(0.0, 1e4), "Coulomb friction, N m, within [0, 1e4]")
-    inertia_scale: float = _param(in_range(0.01, 100.0), "true inertia over [bench] inertia_kgm2, the "
+    inertia_kgm2: float = param(in_range(*MOTOR_RANGES["inertia"]), "J, kg m^2, within [1e-8, 1e4]")
+    coulomb_friction_nm: float = param(in_range(0.0, 1e4), "Coulomb friction, N m, within [0, 1e4]")
+    inertia_scale: float = param(in_range(0.01, 100.0), "true inertia over [bench] inertia_kgm2, the "
                                   "controller's, within [0.01, 100]", default=1.0)
 
     @property
@@ -185,16 +130,16 @@ class Controller:
     ``bandwidth_hz`` on the current at which the measured current equals the reference.
     """
 
-    control_rate_hz: float = _param(in_range(1e3, 1e6), "control (and simulation) rate, Hz, within [1e3, 1e6] "
+    control_rate_hz: float = param(in_range(1e3, 1e6), "control (and simulation) rate, Hz, within [1e3, 1e6] "
                                     "(digital current loops run at kHz to hundreds of kHz)")
-    bandwidth_hz: float = _param(in_range(0.0, 1e5, low_open=True),
+    bandwidth_hz: float = param(in_range(0.0, 1e5, low_open=True),
                                  "closed-loop current bandwidth, Hz, positive, at most control_rate_hz / 10")
-    voltage_limit_v: float = _param(in_range(0.0, 1e4, low_open=True), "phase voltage limit, V, within (0, 1e4]")
+    voltage_limit_v: float = param(in_range(0.0, 1e4, low_open=True), "phase voltage limit, V, within (0, 1e4]")
     current_scale_counts_per_a: tuple[float, ...] = _per_phase(0.0, 1e9, "(G*_s)^-1 per phase, counts / A, "
                                                                "within (0, 1e9]", low_open=True)
     current_offset_counts: tuple[float, ...] = _per_phase(-1e9, 1e9, "o*_s per phase, counts, within [-1e9, 1e9]")
-    torque_gain_v_per_nm: float = _param(in_range(0.0, 1e3, low_open=True), "g*_t, V / N m, within (0, 1e3]")
-    loop: str = _param(lambda x: x in CURRENT_LOOPS, '"pi" (a PI loop on the measured current and the winding) '
+    torque_gain_v_per_nm: float = param(in_range(0.0, 1e3, low_open=True), "g*_t, V / N m, within (0, 1e3]")
+    loop: str = param(lambda x: x in CURRENT_LOOPS, '"pi" (a PI loop on the measured current and the winding) '
                        'or "lag" (a first-order lag on the reference)', default="pi")
 
     def calibration(self) -> SensorCalibration:
@@ -210,10 +155,10 @@ class CurrentSensors:
     epsilon, alpha and beta follow eqs. (1.5)-(1.7); alpha is normalised to mean 1.
     """
 
-    epsilon: float = _param(in_range(0.0, 10.0, low_open=True), "mean current-sensor gain error, within (0, 10]")
+    epsilon: float = param(in_range(0.0, 10.0, low_open=True), "mean current-sensor gain error, within (0, 10]")
     alpha: tuple[float, ...] = _per_phase(0.0, 10.0, "scale imbalance per phase, within (0, 10]", low_open=True)
     beta_a: tuple[float, ...] = _per_phase(-1e3, 1e3, "offset error per phase, A, within [-1e3, 1e3]")
-    noise_counts: float = _param(in_range(0.0, 1e6), "white reading noise, counts RMS, within [0, 1e6]")
+    noise_counts: float = param(in_range(0.0, 1e6), "white reading noise, counts RMS, within [0, 1e6]")
 
     def __post_init__(self) -> None:
         alpha = np.asarray(self.alpha, float)
@@ -232,13 +177,13 @@ class CurrentSensors:
 class TorqueSensor:
     """Piezo torque sensor: measured = delta * highpass(torque) + DC + drift t + noise."""
 
-    delta: float = _param(in_range(0.0, 10.0, low_open=True),
+    delta: float = param(in_range(0.0, 10.0, low_open=True),
                           "g_t / g*_t at the controller's starting calibration (eq. 1.4), within (0, 10]")
-    noise_nm: float = _param(in_range(0.0, 1e3), "white noise, N m RMS per sample, within [0, 1e3]")
-    highpass_hz: float = _param(in_range(0.0, 1e3), "first-order high-pass corner of the piezo, Hz, within [0, 1e3]")
-    dc_level_nm: float = _param(in_range(0.0, 1e4),
+    noise_nm: float = param(in_range(0.0, 1e3), "white noise, N m RMS per sample, within [0, 1e3]")
+    highpass_hz: float = param(in_range(0.0, 1e3), "first-order high-pass corner of the piezo, Hz, within [0, 1e3]")
+    dc_level_nm: float = param(in_range(0.0, 1e4),
                                 "bound of the unknown DC level (uniform, seeded), N m, within [0, 1e4]")
-    drift_nm_per_s: float = _param(in_range(0.0, 1e3), "bound of the unknown linear drift (uniform, seeded), "
+    drift_nm_per_s: float = param(in_range(0.0, 1e3), "bound of the unknown linear drift (uniform, seeded), "
                                    "N m / s, within [0, 1e3]")
 
     def true_gain_v_per_nm(self, starting_calibration: SensorCalibration) -> float:
@@ -258,17 +203,17 @@ class Encoder:
     simulator is built.
     """
 
-    counts_per_rev: int = _param(in_range(*MOTOR_RANGES["counts_per_rev"]),
+    counts_per_rev: int = param(in_range(*MOTOR_RANGES["counts_per_rev"]),
                                  "encoder counts per mechanical revolution, 4..2^20")
-    timer_resolution_s: float = _param(in_range(0.0, 1e-3, low_open=True), "time-stamp quantum, s, within (0, 1e-3]")
-    eccentricity_counts: float = _param(in_range(0.0, MAX_LINE_ERROR_COUNTS, high_open=True),
+    timer_resolution_s: float = param(in_range(0.0, 1e-3, low_open=True), "time-stamp quantum, s, within (0, 1e-3]")
+    eccentricity_counts: float = param(in_range(0.0, MAX_LINE_ERROR_COUNTS, high_open=True),
                                         "once-per-revolution line error amplitude, counts, within [0, 0.5)",
                                         default=0.0)
-    eccentricity_phase_rad: float = _param(in_range(-2 * math.pi, 2 * math.pi),
+    eccentricity_phase_rad: float = param(in_range(-2 * math.pi, 2 * math.pi),
                                            "the eccentricity's phase at line 0, rad, within [-2 pi, 2 pi]", default=0.0)
-    line_std_counts: float = _param(in_range(0.0, 0.25), "random error of each line, counts RMS, within [0, 0.25]",
+    line_std_counts: float = param(in_range(0.0, 0.25), "random error of each line, counts RMS, within [0, 0.25]",
                                     default=0.0)
-    line_seed: int = _param(in_range(0, 2**63 - 1), "seed of the lines' random errors, 0..2^63-1", default=0)
+    line_seed: int = param(in_range(0, 2**63 - 1), "seed of the lines' random errors, 0..2^63-1", default=0)
 
     def line_errors_counts(self) -> np.ndarray:
         """e_c of each line, counts, shape (counts_per_rev,): the same every trial."""
@@ -280,10 +225,10 @@ class Encoder:
 class Excitation:
     """Multisine added to the torque reference over mechanical harmonics 1..harmonics."""
 
-    harmonics: int = _param(in_range(1, 2**23), "highest excited harmonic of the mechanical revolution, "
+    harmonics: int = param(in_range(1, 2**23), "highest excited harmonic of the mechanical revolution, "
                             "below counts_per_rev / 2")
-    fraction: float = _param(in_range(0.0, 1.0), "multisine RMS as a fraction of the torque set point, within [0, 1]")
-    phases: str = _param(lambda x: x in ("random", "schroeder"), '"random" (seeded) or "schroeder"')
+    fraction: float = param(in_range(0.0, 1.0), "multisine RMS as a fraction of the torque set point, within [0, 1]")
+    phases: str = param(lambda x: x in ("random", "schroeder"), '"random" (seeded) or "schroeder"')
 
 
 @dataclass(frozen=True)
@@ -293,15 +238,15 @@ class TrialGrid:
     Ranges against [limits] (set points, trial duration, samples) are checked by ``ilcpmac.config``.
     """
 
-    torque_setpoints_nm: tuple[float, ...] = _param(
+    torque_setpoints_nm: tuple[float, ...] = param(
         all_of(length_in(1, MAX_GRID_SETPOINTS), in_range(0.0, 1e4, low_open=True)),
         f"torque set points, N m, positive, 1 to {MAX_GRID_SETPOINTS} of them")
-    speed_setpoints_hz: tuple[float, ...] = _param(
+    speed_setpoints_hz: tuple[float, ...] = param(
         all_of(length_in(1, MAX_GRID_SETPOINTS), in_range(0.0, 1e3, low_open=True)),
         f"mechanical speed set points, Hz, positive, 1 to {MAX_GRID_SETPOINTS} of them")
-    revolutions: int = _param(in_range(1, 2**24), "recorded revolutions per trial, at least 1")
-    warmup_revolutions: int = _param(in_range(1, 2**24), "revolutions simulated and dropped first, at least 1")
-    seed: int = _param(in_range(0, 2**63 - 1), "seed of every random generator, 0..2^63-1")
+    revolutions: int = param(in_range(1, 2**24), "recorded revolutions per trial, at least 1")
+    warmup_revolutions: int = param(in_range(1, 2**24), "revolutions simulated and dropped first, at least 1")
+    seed: int = param(in_range(0, 2**63 - 1), "seed of every random generator, 0..2^63-1")
 
 
 @dataclass(frozen=True)
@@ -317,54 +262,6 @@ class MotorModel:
     current_sensors: CurrentSensors
     torque_sensor: TorqueSensor
     encoder: Encoder
-
-
-#: fields that describe one sum of sines together: their lists must have equal lengths
-_PARALLEL_LISTS = ("harmonics", "multiples", "orders", "amplitudes_nm_per_a", "amplitudes_nm", "phases_rad")
-
-
-def field_like(cls: type, name: str, **kw) -> Field:
-    """A dataclass field checked and documented as field ``name`` of dataclass ``cls``."""
-    (like,) = [f for f in fields(cls) if f.name == name]
-    return field(metadata=like.metadata, **kw)
-
-
-def value_problem(f: Field, value) -> str | None:
-    """``"key: invalid value ... (doc)"`` if field ``f``'s check refuses ``value``, else None.
-
-    None is the value of an optional field left out.
-    """
-    check = f.metadata.get("check")
-    if check is None or (value is None and f.default is None) or check(value):
-        return None
-    return f"{f.name}: invalid value {shown(value)} ({f.metadata.get('doc', '')})"
-
-
-def lengths_problem(obj) -> str | None:
-    """``"a, b: must have equal lengths ..."`` if the parallel lists of dataclass ``obj`` differ, else None."""
-    lengths = {f.name: len(getattr(obj, f.name)) for f in fields(obj)
-               if f.name in _PARALLEL_LISTS and isinstance(getattr(obj, f.name), tuple)}
-    if len(set(lengths.values())) > 1:
-        return f"{', '.join(lengths)}: must have equal lengths, got {lengths}"
-    return None
-
-
-def config_key(table: str, key: str) -> str:
-    """``"[table] key"``: how a message names a key of the model (a campaign config may name it otherwise)."""
-    return f"[{table}] {key}"
-
-
-def section_problem(table: str, obj, name: Callable[[str, str], str] = config_key) -> str | None:
-    """The first field of dataclass ``obj`` out of its range, or its unequal parallel lists, as "[table] ...".
-
-    ``name(table, key)`` names a key in the message.
-    """
-    for f in fields(obj):
-        problem = value_problem(f, getattr(obj, f.name))
-        if problem is not None:
-            return f"{name(table, f.name)}{problem.removeprefix(f.name)}"
-    problem = lengths_problem(obj)
-    return None if problem is None else f"{name(table, '')}{problem}"
 
 
 def backemf_problem(backemf: BackEmf, pole_pairs: int, counts_per_rev: int,

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcpmac.config import TORQUE_SOURCES
-from ilcpmac.errors import IlcpmacError
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
     brake_viscous_nm_s,

@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from ilcpmac.core.records import BenchDescription, TrialData, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.regression import Regression
 from ilcpmac.pipeline.safety import (
@@ -34,7 +35,6 @@ from ilcpmac.pipeline.safety import (
     identified_truth,
     torque_violation,
 )
-from ilcpmac.records import BenchDescription, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.stages.base import Frame, Identified, Stage, StageSetup
 

@@ -13,18 +13,15 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable
+from typing import Iterable
 
 import numpy as np
 
 from ilcpmac.config import LimitSettings
-from ilcpmac.errors import ConfigError, IdentificationError, SafetyError
+from ilcpmac.core.errors import ConfigError, IdentificationError, SafetyError
+from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest
 from ilcpmac.model.tables import current_references, dead_counts
-from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.stages.base import Identified
-
-if TYPE_CHECKING:
-    from ilcpmac.backends.base import Backend, ProgressCallback
 
 #: relative slack of every comparison with a limit: what clipping to a bound may leave after rounding
 ROUNDING = 1e-9
@@ -363,50 +360,3 @@ def check_plan(plan: Iterable[tuple[str, TrialRequest]], description: BenchDescr
         violation = request_violation(request, description, limits)
         if violation is not None:
             raise ConfigError(f"{place}: {violation.message}")
-
-
-class LimitGuard:
-    """A backend (the whole `Backend` protocol) that passes on only the requests `request_violation` accepts.
-
-    The campaign wraps whatever backend it is given in one, so no phase can bypass the limits. It forwards
-    ``set_progress`` to the backend, which reports nothing if it cannot (`report_progress_to`).
-
-    Parameters
-    ----------
-    backend : the backend that runs the trials.
-    description : the bench.
-    limits : the limits.
-
-    Attributes
-    ----------
-    truth : SensorCalibration or None
-        The identified true sensors, once known (bounds the flowing current and centres the trust region).
-    """
-
-    def __init__(self, backend: Backend, description: BenchDescription, limits: SafetyLimits) -> None:
-        self.backend = backend
-        self.description = description
-        self.limits = limits
-        self.truth: SensorCalibration | None = None
-
-    @property
-    def max_parallel_trials(self) -> int:
-        return self.backend.max_parallel_trials
-
-    def describe(self) -> BenchDescription:
-        return self.description
-
-    def run_trial(self, request: TrialRequest) -> TrialData:
-        violation = request_violation(request, self.description, self.limits, self.truth)
-        if violation is not None:
-            raise SafetyError(f"trial at {request.torque_setpoint_nm!r} N m, {request.speed_setpoint_hz!r} Hz "
-                              f"refused before it reached the backend: {violation.message}")
-        return self.backend.run_trial(request)
-
-    def set_progress(self, callback: ProgressCallback | None) -> None:
-        from ilcpmac.backends.base import report_progress_to  # here: the pipeline layer sits below the backends
-
-        report_progress_to(self.backend, callback)
-
-    def close(self) -> None:
-        self.backend.close()

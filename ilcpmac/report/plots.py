@@ -28,9 +28,9 @@ from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import point_results
 from ilcpmac.config import CampaignConfig, load_config
-from ilcpmac.errors import ConfigError
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueSpectrum
-from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
 __all__ = ["LearnedFeedForward", "RunReport", "before_after", "build_figures", "learned_feedforward",

@@ -89,7 +89,7 @@ Staircase currents
 Step 1 takes the torque for band-limited: the rotor then integrates over each count the torque at the lines
 through the boxcar B_h = e^{j h Delta / 2} sinc(h Delta / 2). The torque the currents make is not band-limited:
 the controller updates each phase's reference x_c once per count, at the line's crossing, and the current loop
-(`ilcpmac.model.current_loop`: a first-order lag tau per phase, a delay T_d within one count) moves within count c
+(`ilcpmac.core.current_loop`: a first-order lag tau per phase, a delay T_d within one count) moves within count c
 along x_c + (s_c - x_c) e^{-t / tau}, s_c the current at the count's start. A torque sensor, and the simulator's
 true torque, sample it at the lines: S_h x_h (`CurrentLoop.response`). The rotor integrates it over the count,
 the mean over [t_c - T_d, t_(c+1) - T_d] of the recursion: with dt = 1 / (N_c f), a = e^{-dt / tau},
@@ -174,7 +174,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.signals.harmonics import (
     filtered,
     harmonic_amplitudes,

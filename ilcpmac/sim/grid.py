@@ -9,10 +9,10 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench, MotorInfo, write_bench
+from ilcpmac.bench.format import Bench, write_bench
 from ilcpmac.config import CampaignConfig
+from ilcpmac.core.records import BenchDescription, BenchLimits, MotorInfo, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-from ilcpmac.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad

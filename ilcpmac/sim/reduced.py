@@ -21,10 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ilcpmac.bench.format import Bench, MotorInfo
+from ilcpmac.bench.format import Bench
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData
 from ilcpmac.model.motor import BackEmf, Cogging, CurrentSensors, Encoder, Excitation, TorqueSensor, TrialGrid, Winding
 from ilcpmac.model.tables import backemf_table, cogging_table, current_references
-from ilcpmac.records import SensorCalibration, TrialData
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
 
 

@@ -16,11 +16,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from ilcpmac.errors import SimulationError
+from ilcpmac.core.errors import SimulationError
+from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.schema import finite_number, shown
 from ilcpmac.model.encoder import line_errors_problem
-from ilcpmac.model.motor import MotorModel, finite_number, model_problem, shown
+from ilcpmac.model.motor import MotorModel, model_problem
 from ilcpmac.model.tables import backemf_table, cogging_table, current_references, disturbance_table
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.sim.kernel import GAUSS_BITS, simulate_trial
 
 #: Physics tables hold this many points per encoder count (linear interpolation in between).

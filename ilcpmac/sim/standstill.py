@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
-from ilcpmac.errors import SimulationError
-from ilcpmac.model.motor import in_range, shown
+from ilcpmac.core.errors import SimulationError
+from ilcpmac.core.schema import in_range, shown
 from ilcpmac.model.tables import current_references
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator, airgap_torque_nm
 

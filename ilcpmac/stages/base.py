@@ -9,7 +9,7 @@ A stage whose memory is per set point may add the optional ``revert(state, key)`
 (`Stage`); the campaign's guard then reverts that set point only (`Pipeline.revert`).
 
 A factory declares in its attribute ``needs`` (a tuple of
-`ilcpmac.records.IdentificationResult` field names, e.g. ``("cogging_nm",)``)
+`ilcpmac.core.records.IdentificationResult` field names, e.g. ``("cogging_nm",)``)
 what it needs from the identification beyond `PIPELINE_NEEDS`; the campaign
 refuses to start the stages when the identification could not estimate one.
 """
@@ -17,12 +17,14 @@ refuses to start the stages when the identification could not estimate one.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from ilcpmac.model.current_loop import CurrentLoop
-from ilcpmac.records import BenchDescription, IdentificationResult, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import BenchDescription, IdentificationResult, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.schema import shown
 
 #: the identification's estimates the pipeline itself needs (the trial's delta, the identified sensors
 #: bounding the flowing current); a stage declares what more it needs in its ``needs``
@@ -35,7 +37,7 @@ SENSORLESS_PIPELINE_NEEDS = ("epsilon", "alpha", "beta")
 class Identified:
     """What the identification phase found, at the calibration its data were recorded with.
 
-    Attributes follow `ilcpmac.records.IdentificationResult` (eqs. 1.4-1.7); ``cogging_nm`` is None
+    Attributes follow `ilcpmac.core.records.IdentificationResult` (eqs. 1.4-1.7); ``cogging_nm`` is None
     and ``current_loop`` the ideal loop where the identification gave none; ``delta`` is 1 where it had no
     torque sensor (the encoder-derived torque is true torque, and the torque gain stays the bench's).
     ``sensor_highpass_hz`` and
@@ -234,8 +236,6 @@ class Stage(Protocol):
 
 def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[str, Any]:
     """A stage's options over its defaults; unknown keys and wrong types raise `ConfigError`."""
-    from ilcpmac.errors import ConfigError
-
     unknown = sorted(set(options) - set(defaults))
     if unknown:
         raise ConfigError(f"[stages.{stage}] unknown key {unknown[0]!r} (known: {', '.join(defaults)})")
@@ -247,4 +247,18 @@ def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[st
         if type(value) is not kind:
             raise ConfigError(f"[stages.{stage}] {key}: expected {kind.__name__}, got {value!r}")
         values[key] = value
+    return values
+
+
+def check_options(options: dict, defaults: dict[str, Any], ranges: dict[str, tuple[Callable, str]],
+                  stage: str) -> dict[str, Any]:
+    """A stage's options over its defaults (`read_options`), each within its range.
+
+    ``ranges`` maps a key to ``(check, doc)``; a value its check refuses raises
+    `ConfigError` naming ``[stages.NAME] key``.
+    """
+    values = read_options(options, defaults, stage)
+    for key, (check, doc) in ranges.items():
+        if not check(values[key]):
+            raise ConfigError(f"[stages.{stage}] {key}: invalid value {shown(values[key])} ({doc})")
     return values

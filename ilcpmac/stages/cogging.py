@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.errors import ConfigError
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.files import read_bounded
+from ilcpmac.core.records import TrialData, TrialRequest
+from ilcpmac.core.schema import in_range
 from ilcpmac.estimators.kalman import KalmanEstimator
-from ilcpmac.model.motor import in_range
-from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, harmonic_columns
-from ilcpmac.stages.base import Frame, StageSetup
-from ilcpmac.stages.registry import check_options
+from ilcpmac.stages.base import Frame, StageSetup, check_options
 
 DEFAULTS = {"prior_std_nm": 0.01, "process_noise_nm": 1e-4, "start_from": ""}
 #: each option's range
@@ -105,8 +105,6 @@ class CoggingFeedForward:
 def scan_prior(path: Path, orders: np.ndarray, cogging_order: int) -> tuple[np.ndarray, np.ndarray]:
     """The cos and sin coefficients at ``orders`` of a scan result JSON's ``cogging_harmonics``, and their
     standard errors, each shape (2 len(orders),); `ConfigError` naming [stages.cogging] start_from."""
-    from ilcpmac.files import read_bounded
-
     where = f"[stages.cogging] start_from: {path}"
     try:
         data = json.loads(read_bounded(path, MAX_SCAN_RESULT_BYTES, ConfigError))

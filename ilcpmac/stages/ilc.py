@@ -9,7 +9,7 @@ harmonics in true units:
 
 G^(h) = the phases' mean of epsilon alpha_p at the trial's calibration times
 the identified current loop's response to the per-count reference staircase
-(`StageSetup.torque_response`, `ilcpmac.model.current_loop`); Q is a zero-phase (real) low-pass over
+(`StageSetup.torque_response`, `ilcpmac.core.current_loop`); Q is a zero-phase (real) low-pass over
 harmonics (1 up to the cut-off harmonic, 0 above). Harmonic 0 is
 never touched: the mean torque stays the set point's. Because u is the total
 feed-forward, the stage stays consistent when earlier stages change theirs.
@@ -42,12 +42,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ilcpmac.errors import ConfigError
-from ilcpmac.model.motor import in_range
-from ilcpmac.records import TrialData, TrialRequest
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import TrialData, TrialRequest
+from ilcpmac.core.schema import in_range
 from ilcpmac.signals.harmonics import harmonic_amplitudes, table_from_amplitudes
-from ilcpmac.stages.base import Frame, StageSetup
-from ilcpmac.stages.registry import check_options
+from ilcpmac.stages.base import Frame, StageSetup, check_options
 
 DEFAULTS = {
     "learning_gain": 1.0,

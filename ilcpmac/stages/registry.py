@@ -6,12 +6,13 @@ a third-party stage exactly as it names a built-in one.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Callable
 
-from ilcpmac.errors import ConfigError
-from ilcpmac.model.motor import shown
-from ilcpmac.plugins import PluginEntry, installed
-from ilcpmac.stages.base import Stage, StageSetup, read_options
+from ilcpmac.config import CampaignConfig
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.plugins import PluginEntry, installed
+from ilcpmac.stages import cogging, ilc, replay, sensor
+from ilcpmac.stages.base import Stage, StageSetup, check_options
 
 GROUP = "ilcpmac.stages"
 
@@ -57,18 +58,8 @@ def build_stages(names: list[str], setups: dict[str, StageSetup],
     return stages
 
 
-def check_options(options: dict, defaults: dict[str, Any], ranges: dict[str, tuple[Callable, str]],
-                  stage: str) -> dict[str, Any]:
-    """A stage's options over its defaults (`read_options`), each within its range.
-
-    ``ranges`` maps a key to ``(check, doc)``; a value its check refuses raises
-    `ConfigError` naming ``[stages.NAME] key``.
-    """
-    values = read_options(options, defaults, stage)
-    for key, (check, doc) in ranges.items():
-        if not check(values[key]):
-            raise ConfigError(f"[stages.{stage}] {key}: invalid value {shown(values[key])} ({doc})")
-    return values
+#: the built-in stages' modules, whose options are declared (DEFAULTS, RANGES) apart from their classes
+_BUILTIN = {"ilc": ilc, "cogging": cogging, "current-sensor": sensor, "replay": replay}
 
 
 def check_builtin_options(name: str, options: dict) -> None:
@@ -77,8 +68,14 @@ def check_builtin_options(name: str, options: dict) -> None:
     A campaign config is checked when it is read, not after the identification;
     other stages check their options when they are built.
     """
-    from ilcpmac.stages import cogging, ilc, replay, sensor  # they import this module
+    if name in _BUILTIN:
+        check_options(options, _BUILTIN[name].DEFAULTS, _BUILTIN[name].RANGES, name)
 
-    builtin = {"ilc": ilc, "cogging": cogging, "current-sensor": sensor, "replay": replay}
-    if name in builtin:
-        check_options(options, builtin[name].DEFAULTS, builtin[name].RANGES, name)
+
+def check_stage_options(config: CampaignConfig) -> None:
+    """`check_builtin_options` for every ``[stages.NAME]`` table of ``config``; `ConfigError` names the file."""
+    for name, options in config.stage_options.items():
+        try:
+            check_builtin_options(name, options)
+        except ConfigError as e:
+            raise ConfigError(f"{config.path}: {e}") from None

@@ -11,10 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from ilcpmac.compensation import Compensation
-from ilcpmac.errors import ConfigError
-from ilcpmac.records import TrialData, TrialRequest
-from ilcpmac.stages.base import Frame, StageSetup
-from ilcpmac.stages.registry import check_options
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import TrialData, TrialRequest
+from ilcpmac.stages.base import Frame, StageSetup, check_options
 
 DEFAULTS = {"file": ""}
 #: each option's range

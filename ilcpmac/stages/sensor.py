@@ -29,14 +29,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.schema import in_range
 from ilcpmac.estimators.kalman import KalmanEstimator
-from ilcpmac.model.current_loop import CurrentLoop
-from ilcpmac.model.motor import in_range
 from ilcpmac.model.tables import current_references
-from ilcpmac.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.signals.harmonics import filtered, synchronous_average
-from ilcpmac.stages.base import Frame, StageSetup
-from ilcpmac.stages.registry import check_options
+from ilcpmac.stages.base import Frame, StageSetup, check_options
 
 DEFAULTS = {"process_noise_rel": 1e-6, "prior_std_rel": 0.02}
 #: each option's range

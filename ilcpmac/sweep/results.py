@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from ilcpmac.errors import IlcpmacError
+from ilcpmac.core.errors import IlcpmacError
 from ilcpmac.sweep.task import TaskResult
 
 __all__ = ["RESULTS_DIR", "RESULT_COLUMNS", "SUMMARY_FILE", "TABLE_FORMATS", "Percentiles", "SweepResultsError",

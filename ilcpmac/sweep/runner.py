@@ -19,8 +19,8 @@ from typing import Protocol
 from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 from filelock import FileLock
 
-from ilcpmac.errors import IlcpmacError
-from ilcpmac.runtime import tune_process
+from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.core.runtime import tune_process
 from ilcpmac.sweep.results import finished_tasks, read_results, write_result
 from ilcpmac.sweep.spec import SweepSpec, SweepSpecError, TaskDraw, toml_text
 from ilcpmac.sweep.task import SweepTask, TaskResult, run_task
@@ -65,7 +65,8 @@ def numba_lock() -> FileLock:
 def warm_kernels(kind: str) -> None:
     """Run a small task of ``kind`` under `numba_lock`, so that every kernel it uses is compiled (or loaded
     from the cache) before the real tasks run."""
-    from ilcpmac.config import packaged_config, read_toml
+    from ilcpmac.config import packaged_config
+    from ilcpmac.core.schema import read_toml
 
     data = read_toml(packaged_config("seed-bench.toml"))
     for table, values in WARMUP_CHANGES.items():

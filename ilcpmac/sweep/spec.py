@@ -27,13 +27,12 @@ from ilcpmac.config import (
     BenchCalibration,
     BenchSettings,
     CampaignConfig,
-    coerce_value,
     load_config,
     model_key,
-    read_toml,
 )
-from ilcpmac.errors import ConfigError
-from ilcpmac.model.motor import BackEmf, Excitation, TrialGrid, finite_number, shown, value_problem
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.schema import coerce_value, finite_number, read_toml, shown, value_problem
+from ilcpmac.model.motor import BackEmf, Excitation, TrialGrid
 from ilcpmac.sim.simulator import trial_seed
 
 __all__ = ["KINDS", "Draw", "MagnetTemperature", "SweepSpec", "SweepSpecError", "TaskDraw", "load_spec",

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.errors import IlcpmacError
+from ilcpmac.core.errors import IlcpmacError
 
 __all__ = ["CampaignFigures", "IdentificationErrors", "SweepTask", "TaskResult", "run_task"]
 
@@ -166,7 +166,7 @@ def _one_line(error: Exception) -> str:
 
 
 def _truth(simulator, calibration):
-    from ilcpmac.records import IdentificationResult, TrialRequest
+    from ilcpmac.core.records import IdentificationResult, TrialRequest
     from ilcpmac.sim.grid import truth_dict
 
     cpr = simulator.model.encoder.counts_per_rev
@@ -178,9 +178,9 @@ def _identification(config_path: Path, seed: int) -> IdentificationErrors:
     """``ilcpmac simulate`` then ``ilcpmac identify``, in memory: the grid's trials as written, identified."""
     from ilcpmac.bench.format import Bench, as_written
     from ilcpmac.config import load_config
+    from ilcpmac.core.records import BenchLimits
     from ilcpmac.identify import identify_bench
     from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-    from ilcpmac.records import BenchLimits
     from ilcpmac.sim.grid import grid_plan, grid_requests, simulated_description
     from ilcpmac.sim.simulator import Simulator
 
@@ -222,8 +222,8 @@ def _campaign(config_path: Path, seed: int, run_path: Path) -> tuple[Identificat
     from ilcpmac.campaign.runner import CampaignRunner
     from ilcpmac.campaign.validation import point_results
     from ilcpmac.config import load_config
+    from ilcpmac.core.records import IdentificationResult
     from ilcpmac.identify import identify_bench
-    from ilcpmac.records import IdentificationResult
 
     config = load_config(config_path)
     backend = build_backend("sim", BackendSetup(config, None))

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ilcpmac.errors import ConfigError
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.estimators import KalmanEstimator
-from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.stages import Frame, StageSetup
 from ilcpmac.stages.base import read_options
 

@@ -18,10 +18,10 @@ import pytest
 from ilcpmac.backends.base import BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.config import load_config
-from ilcpmac.errors import ConfigError
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
-from ilcpmac.records import TrialData, TrialRequest
 from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.sim.grid import truth_dict
 from ilcpmac.sim.simulator import trial_seed

@@ -1,4 +1,4 @@
-"""The numba kernel of `ilcpmac.model.current_loop`: the count recursion of a first-order lag.
+"""The numba kernel of `ilcpmac.core.current_loop`: the count recursion of a first-order lag.
 
 Apart from the loop's model so that importing `CurrentLoop` (records, stages, the CLI) does not import numba.
 """
@@ -28,7 +28,7 @@ def warm_up_start(decay):
 
 @njit(cache=True)
 def lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
-    """The count recursion (`ilcpmac.model.current_loop`) for one phase, x of shape (n_trials, cpr); fills ``out``.
+    """The count recursion (`ilcpmac.core.current_loop`) for one phase, x of shape (n_trials, cpr); fills ``out``.
 
     ``decay`` = exp(-dt / tau) per count; ``delayed``: T_d >= 0, the sample
     lies between the previous count and this one, and ``sample_decay`` =

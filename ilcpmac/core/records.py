@@ -13,13 +13,69 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:  # records are the bottom layer: ilcpmac.model and ilcpmac.bench import them
-    from ilcpmac.bench.format import MotorInfo
-    from ilcpmac.model.current_loop import CurrentLoop
+from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.schema import finite_json
+
+#: The range of each [motor] quantity of a bench, one for configs, bench folders and the protocol's
+#: DESCRIBE: pole pairs up to the few hundred of the most multipolar machines; three phases need three
+#: slots; encoders up to 20 bits (log a finer one at 2^20 counts); inertia from a micro-motor's rotor to
+#: a flywheel of tonnes, kg m^2.
+MOTOR_RANGES = {"pole_pairs": (1, 256), "slots": (3, 2048), "counts_per_rev": (4, 2**20), "inertia": (1e-8, 1e4)}
+#: Most torque (and most speed) set points of an identification grid.
+MAX_GRID_SETPOINTS = 100
+#: largest magnitudes of a bench's quantities, beyond any motor a bench drives: phase current, A;
+#: torque, N m; mechanical speed, Hz; and of a calibration's numbers (counts per ampere, counts, V / N m)
+MAX_CURRENT_A = 1e4
+MAX_TORQUE_NM = 1e5
+MAX_SPEED_HZ = 1e3
+MAX_CALIBRATION = 1e9
+
+@dataclass(frozen=True)
+class MotorInfo:
+    """The [motor] table of bench.toml.
+
+    Attributes
+    ----------
+    pole_pairs, slots, counts_per_rev : int
+    inertia_kgm2 : float
+        J, kg m^2.
+    torque_sensor : bool
+        Whether the trials carry the torque sensor's column (docs/bench-format.md).
+    timer_resolution_s : float or None
+        The time stamps' resolution, s (None: not stated; `ilcpmac.identify.encoder.timer_resolution_s`
+        then reads it off the stamps).
+    mirrored : bool
+        The trials are reverse laps of the motor stored as forward laps of its mirror image (phi = -theta;
+        backemf.csv the mirror's table, `mirrored_table`); the identification reports in the motor's own
+        coordinates (docs/bench-format.md, "Reverse laps").
+    """
+
+    pole_pairs: int
+    slots: int
+    counts_per_rev: int
+    inertia_kgm2: float
+    torque_sensor: bool = True
+    timer_resolution_s: float | None = None
+    mirrored: bool = False
+
+    @property
+    def cogging_order(self) -> int:
+        """lcm(slots, 2 pole_pairs): cogging periods per mechanical revolution."""
+        return math.lcm(self.slots, 2 * self.pole_pairs)
+
+
+def mirrored_table(table: np.ndarray) -> np.ndarray:
+    """The mirror image of a per-count table (axis 0, one row per count of a revolution): -t((N - c) mod N).
+
+    A reverse lap of a motor is a forward lap of its mirror in phi = -theta, with the back-EMF K'_p(phi) =
+    -K_p(-phi), the cogging -tau_c(-phi) and the encoder's line errors -e(-phi) (docs/bench-format.md,
+    "Reverse laps"); mirroring twice gives the table back.
+    """
+    table = np.asarray(table)
+    return -table[-np.arange(table.shape[0]) % table.shape[0]]
 
 
 @dataclass(frozen=True)
@@ -192,17 +248,6 @@ ENCODER_ERROR_KEYS = (("error_counts", "encoder_error_counts"), ("error_std_coun
                       ("eccentricity_std_counts", "encoder_eccentricity_std_counts"),
                       ("eccentricity_phase_rad", "encoder_eccentricity_phase_rad"),
                       ("line_rms_counts", "encoder_line_rms_counts"))
-
-
-def finite_json(value):
-    """``value`` (dicts, lists and numbers) with every NaN and infinity made None: JSON has no such numbers."""
-    if isinstance(value, dict):
-        return {k: finite_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite_json(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _json_value(value):
@@ -379,8 +424,6 @@ class IdentificationResult(MethodEstimates):
         bandwidth = data.get("current_loop_bandwidth_per_phase_hz") or data.get("current_loop_bandwidth_hz")
         if tau is None and bandwidth is not None:
             tau = 1.0 / (2.0 * np.pi * np.broadcast_to(np.asarray(bandwidth, float), (3,)))
-        from ilcpmac.model.current_loop import CurrentLoop
-
         loop = None if tau is None else CurrentLoop(tau, data.get("current_loop_delay_s") or 0.0)
         calibration = data.get("calibration")
         encoder = data.get("encoder_error") or {}

@@ -132,7 +132,7 @@ def lagged_phase(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: flo
     if decays is None:
         decay = count_decay(count_period_s, tau)
         decays = (decay, decay if continuous else sample_decay(count_period_s, tau, delay_s))
-    from ilcpmac.model.lag_kernel import lag_kernel  # numba, only when a loop is applied
+    from ilcpmac.core.lag_kernel import lag_kernel  # numba, only when a loop is applied
 
     out = np.empty(x.shape)
     lag_kernel(np.ascontiguousarray(x, float), count_period_s, tau, *decays, delay_s >= 0.0, continuous, out)

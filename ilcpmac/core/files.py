@@ -6,7 +6,7 @@ import os
 import stat
 from pathlib import Path
 
-from ilcpmac.errors import IlcpmacError
+from ilcpmac.core.errors import IlcpmacError
 
 __all__ = ["read_bounded"]
 
@@ -39,3 +39,17 @@ def read_bounded(path: Path, max_bytes: int, error: type[IlcpmacError]) -> bytes
     if len(raw) > max_bytes:
         raise error(f"{path}: more than {max_bytes} bytes (refused)")
     return raw
+
+
+def atomic_write(path: Path, data: bytes | str, durable: bool = True) -> None:
+    """Write via a temporary file and rename, so a reader never sees half a file.
+
+    ``durable`` also fsyncs before the rename, so the file survives a power cut.
+    """
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(data.encode() if isinstance(data, str) else data)
+        if durable:
+            f.flush()
+            os.fsync(f.fileno())
+    os.replace(tmp, path)

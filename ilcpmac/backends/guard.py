@@ -1,0 +1,55 @@
+"""`LimitGuard`: the one safety gate every trial of a campaign passes, whatever the backend (docs/safety.md)."""
+
+from __future__ import annotations
+
+from ilcpmac.backends.base import Backend, ProgressCallback, report_progress_to
+from ilcpmac.core.errors import SafetyError
+from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.pipeline.safety import SafetyLimits, request_violation
+
+__all__ = ["LimitGuard"]
+
+
+class LimitGuard:
+    """A backend (the whole `Backend` protocol) that passes on only the requests `request_violation` accepts.
+
+    The campaign wraps whatever backend it is given in one, so no phase can bypass the limits. It forwards
+    ``set_progress`` to the backend, which reports nothing if it cannot (`report_progress_to`).
+
+    Parameters
+    ----------
+    backend : the backend that runs the trials.
+    description : the bench.
+    limits : the limits.
+
+    Attributes
+    ----------
+    truth : SensorCalibration or None
+        The identified true sensors, once known (bounds the flowing current and centres the trust region).
+    """
+
+    def __init__(self, backend: Backend, description: BenchDescription, limits: SafetyLimits) -> None:
+        self.backend = backend
+        self.description = description
+        self.limits = limits
+        self.truth: SensorCalibration | None = None
+
+    @property
+    def max_parallel_trials(self) -> int:
+        return self.backend.max_parallel_trials
+
+    def describe(self) -> BenchDescription:
+        return self.description
+
+    def run_trial(self, request: TrialRequest) -> TrialData:
+        violation = request_violation(request, self.description, self.limits, self.truth)
+        if violation is not None:
+            raise SafetyError(f"trial at {request.torque_setpoint_nm!r} N m, {request.speed_setpoint_hz!r} Hz "
+                              f"refused before it reached the backend: {violation.message}")
+        return self.backend.run_trial(request)
+
+    def set_progress(self, callback: ProgressCallback | None) -> None:
+        report_progress_to(self.backend, callback)
+
+    def close(self) -> None:
+        self.backend.close()
