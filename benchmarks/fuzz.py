@@ -902,7 +902,7 @@ class EmulatorCampaign:
         for t in threads:
             t.join()
         runs = []
-        for i, a in enumerate(attacks):
+        for i in range(len(attacks)):
             accepted, note = results[i]
             if accepted:
                 note += f" (must be closed within {ft.IDLE_CLOSE_S:g} s)"

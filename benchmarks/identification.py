@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.format import Bench, convert_bench, read_bench
+from ilcpmac.campaign.service import simulate_bench, simulated_bench
 from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
-from ilcpmac.sim.grid import simulate_bench, simulated_bench
 from ilcpmac.sim.reduced import ReducedCampaign, ReducedMotor, ReducedSensors, reduced_bench
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"

@@ -24,12 +24,12 @@ from matplotlib.figure import Figure
 
 from ilcpmac import plotting
 from ilcpmac.bench.format import read_bench
+from ilcpmac.campaign.service import simulate_bench
 from ilcpmac.config import load_config
 from ilcpmac.core.records import IdentificationResult
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.plots import IDENTIFICATION_FIGURES, SIGNAL_FIGURES, build_figures
 from ilcpmac.model.motor import MotorModel
-from ilcpmac.sim.grid import simulate_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "seed-bench.toml"

@@ -43,6 +43,7 @@ from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import load_config
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import identify_bench
 from ilcpmac.signals.encoder_torque import brake_viscous_nm_s, quantisation_variance_nm2
 
@@ -64,14 +65,14 @@ class Quiet:
         pass
 
 
-def identify(bench, torque_source: str | None = None):
+def identify(bench, torque_source: TorqueSource | None = None):
     """`identify_bench` on ``torque_source`` where it takes one, else on the sensor."""
     if IDENTIFY_TAKES_SOURCE:
         return identify_bench(bench, torque_source=torque_source)
     return identify_bench(bench)
 
 
-def identify_on_sensor(bench, torque_source: str | None = None):
+def identify_on_sensor(bench, torque_source: TorqueSource | None = None):
     """`identify_bench` on the sensor, whatever the campaign's source."""
     return identify_bench(bench)
 

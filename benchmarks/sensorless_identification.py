@@ -25,11 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.config import load_config
 from ilcpmac.core.records import BenchLimits
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import identify_bench
 from ilcpmac.signals.encoder_torque import encoder_error_torque_nm
-from ilcpmac.sim.grid import encoder_error_json, grid_requests, simulated_description, truth_dict
+from ilcpmac.sim.bench import encoder_error_json, simulated_description, truth_dict
 from ilcpmac.sim.simulator import Simulator
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
@@ -52,7 +54,7 @@ def simulated(eccentricity_counts: float, line_std_counts: float) -> tuple[Bench
     bench = Bench(replace(description.motor, timer_resolution_s=model.encoder.timer_resolution_s),
                   simulator.backemf_counts, requests[0].calibration, tuple(trials),
                   tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))))
-    truth = truth_dict(simulator, requests[0])
+    truth = truth_dict(simulator, requests[0].calibration)
     truth["encoder_error"] = encoder_error_json(model.encoder.line_errors_counts())
     return bench, truth
 
@@ -122,7 +124,7 @@ def identification_report(eccentricity_counts: float, line_std_counts: float) ->
                          trials=tuple(replace(t, torque_nm=None) for t in bench.trials))
     identify_bench(bench)  # JIT warm-up (numba caches compiled code on disk)
     table, seconds, results = {}, {}, {}
-    for label, folder, source in (("sensor", bench, "sensor"), ("encoder (no sensor)", sensorless, None)):
+    for label, folder, source in (("sensor", bench, TorqueSource.SENSOR), ("encoder (no sensor)", sensorless, None)):
         start = time.perf_counter()
         results[label] = identify_bench(folder, torque_source=source)
         seconds[label] = time.perf_counter() - start

@@ -58,6 +58,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from multiprocessing import get_context
 from operator import truediv
 from pathlib import Path
@@ -68,11 +69,11 @@ import scipy
 from scipy.integrate import solve_ivp
 
 import ilcpmac.sim.simulator as simulator_module
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.config import CampaignConfig, load_config
 from ilcpmac.core.records import TrialRequest
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import backemf_table, current_references
-from ilcpmac.sim.grid import grid_requests
 from ilcpmac.sim.simulator import Simulator
 
 CONFIG_PATH = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
@@ -417,7 +418,7 @@ def time_batches(simulator: Simulator, requests: list[TrialRequest], repeats: in
             for label, workers in (("1 thread", 1), ("2 threads", 2)):
                 with kernel_clock() as durations:
                     start = minor_page_faults()
-                    walls[label].append(wall_time(lambda: simulator.run_trials(requests, workers=workers)))
+                    walls[label].append(wall_time(partial(simulator.run_trials, requests, workers=workers)))
                     faults[label].append(minor_page_faults() - start)
                 kernel[label].append(sum(durations))
             walls["2 processes"].append(wall_time(lambda: list(pool.map(_samples_in_worker, requests))))

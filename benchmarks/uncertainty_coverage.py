@@ -19,11 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.config import load_config
 from ilcpmac.core.records import MotorInfo
 from ilcpmac.identify import identify_bench
 from ilcpmac.model.motor import MotorModel
-from ilcpmac.sim.grid import grid_requests, truth_dict
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.sim.simulator import Simulator
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml"
@@ -55,7 +56,7 @@ def simulated(model: MotorModel, seed: int) -> tuple[Bench, dict]:
                             model.mechanics.inertia_kgm2),
                   simulator.backemf_counts, requests[0].calibration, tuple(simulator.run_trials(requests)),
                   tuple(f"trial_{i + 1:02d}.csv" for i in range(len(requests))))
-    return bench, truth_dict(simulator, requests[0])
+    return bench, truth_dict(simulator, requests[0].calibration)
 
 
 def ratio(method, field: str, truth: dict, key: str) -> float:

@@ -17,6 +17,7 @@ import numpy as np
 from ilcpmac.backends.base import BenchLimits
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import read_bench
+from ilcpmac.campaign.events import CampaignMessage
 from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
@@ -64,8 +65,8 @@ class Printer:
             print(f"trial {record.index:2d} {record.phase:10s} {record.torque_setpoint_nm:g} N m: "
                   f"true ripple {100 * record.true.pp:7.3f} % pp")
 
-    def message(self, text: str) -> None:
-        print(text)
+    def message(self, message: CampaignMessage) -> None:
+        print(message.text)
 
     def progress(self, fraction: float) -> None:
         pass

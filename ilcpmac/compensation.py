@@ -26,6 +26,7 @@ harmonic's frequency f = h S.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -33,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ilcpmac.bench.format import SensorTable
 from ilcpmac.core.errors import BenchFormatError
 from ilcpmac.core.files import read_bounded
 from ilcpmac.core.records import (
-    MAX_CALIBRATION,
     MAX_GRID_SETPOINTS,
     MAX_SPEED_HZ,
     MAX_TORQUE_NM,
@@ -44,7 +45,7 @@ from ilcpmac.core.records import (
     SensorCalibration,
     TrialRequest,
 )
-from ilcpmac.core.schema import finite_number, shown
+from ilcpmac.core.schema import coerce_value, section_problem, shown, unique_keys
 
 __all__ = ["COMPENSATION_FILE", "FORMAT", "MAX_FILE_BYTES", "MAX_TABLE_VALUES", "UNITS", "Compensation", "FadeOut"]
 
@@ -62,7 +63,7 @@ UNITS = {"torques_nm": "N m", "speeds_hz": "Hz", "tables_nm": "N m per encoder c
          "calibration.torque_gain": "V per N m", "fade.full_hz": "Hz (null: never fades)",
          "fade.zero_hz": "Hz (null: never fades)"}
 _KEYS = ("format", "units", "counts_per_rev", "calibration", "torques_nm", "speeds_hz", "fade", "tables_nm")
-_CALIBRATION_KEYS = ("current_scale", "current_offset", "torque_gain")
+_CALIBRATION_KEYS = tuple(f.name for f in dataclasses.fields(SensorTable))
 _FADE_KEYS = ("full_hz", "zero_hz")
 
 
@@ -124,7 +125,7 @@ def _shown(value, limit: int = 100) -> str:
 def _is_counts_per_rev(value) -> bool:
     """An integer (not a bool) within the bench format's range of counts_per_rev."""
     low, high = MOTOR_RANGES["counts_per_rev"]
-    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and low <= value <= high
+    return not isinstance(value, bool) and isinstance(value, (int, np.integer)) and bool(low <= value <= high)
 
 
 def _bracket(grid: np.ndarray, x: float) -> tuple[int, int, float]:
@@ -196,19 +197,13 @@ class Compensation:
         object.__setattr__(self, "tables_nm", tables)
 
     def _check_calibration(self) -> None:
-        """The bench format's ranges on a calibration (docs/bench-format.md)."""
+        """The bench format's ranges on a calibration (bench.toml's [sensors], `SensorTable`)."""
         cal = self.calibration
         if not isinstance(cal, SensorCalibration):
             raise ValueError(f"key 'calibration': must be a SensorCalibration, got {type(cal).__name__}")
-        if not np.all((cal.current_scale > 0) & (cal.current_scale <= MAX_CALIBRATION)):
-            raise ValueError(f"key 'calibration.current_scale': must lie in (0, {MAX_CALIBRATION:g}], "
-                             f"got {cal.current_scale.tolist()}")
-        if not np.all(np.abs(cal.current_offset) <= MAX_CALIBRATION):
-            raise ValueError(f"key 'calibration.current_offset': must lie in [-{MAX_CALIBRATION:g}, "
-                             f"{MAX_CALIBRATION:g}], got {cal.current_offset.tolist()}")
-        if not 0 < cal.torque_gain <= MAX_CALIBRATION:
-            raise ValueError(f"key 'calibration.torque_gain': must lie in (0, {MAX_CALIBRATION:g}], "
-                             f"got {cal.torque_gain!r}")
+        problem = section_problem("calibration", SensorTable(**cal.to_json()), _json_key)
+        if problem is not None:
+            raise ValueError(problem)
 
     def feedforward_nm(self, torque_nm: float, speed_hz: float) -> np.ndarray:
         """The feed-forward per count at a torque and a speed set point, shape (counts_per_rev,), N m."""
@@ -281,7 +276,7 @@ class Compensation:
         `BenchFormatError` naming the file (and the key)."""
         raw = read_bounded(path, MAX_FILE_BYTES, BenchFormatError)
         try:
-            data = json.loads(raw.decode("utf-8"), parse_constant=_no_constant)
+            data = json.loads(raw.decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=unique_keys)
         except UnicodeDecodeError as e:
             raise BenchFormatError(f"{path}: not UTF-8 text (byte {e.start})") from None
         except ValueError as e:
@@ -309,10 +304,13 @@ def _keys(data, keys: tuple[str, ...], source: str, prefix: str) -> dict:
     return data
 
 
+def _json_key(table: str, key: str) -> str:
+    """How a message names key ``key`` of object ``table``: ``"key 'table.key'"``."""
+    return f"key '{table}.{key}'"
+
+
 def _number(value, source: str, key: str) -> float:
-    if not finite_number(value):
-        raise BenchFormatError(f"{source}: key {key!r}: must be a finite number, got {_shown(value)}")
-    return float(value)
+    return coerce_value(value, float, f"{source}: key {key!r}", BenchFormatError)
 
 
 def _array(value, ndim: int, source: str, key: str) -> np.ndarray:

@@ -19,10 +19,12 @@ from importlib import resources
 from pathlib import Path
 
 from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import SensorCalibration
 from ilcpmac.core.schema import (
     all_of,
     field_like,
     in_range,
+    key_table,
     length_in,
     parse_section,
     read_toml,
@@ -30,6 +32,7 @@ from ilcpmac.core.schema import (
     setting,
     toml_name,
 )
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.model.motor import (
     BackEmf,
     Cogging,
@@ -49,8 +52,6 @@ from ilcpmac.model.motor import (
 
 #: Most learned or validated torques, and speeds, of [campaign].
 MAX_OPERATING_POINTS = 32
-#: [campaign] torque_source: what the campaign measures the torque ripple with (docs/sensorless.md).
-TORQUE_SOURCES = ("sensor", "encoder", "both")
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
 
@@ -110,9 +111,9 @@ class CampaignSettings:
         in_range(1, 2**24), "recorded revolutions per validation trial at the slowest learned speed (more at a "
         "faster speed)", 32)
     torque_source: str | None = setting(
-        lambda x: x in TORQUE_SOURCES, '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s '
-        'time stamps, docs/sensorless.md) or "both" (the two fused); left out: "sensor" where the bench has a torque '
-        'sensor, else "encoder"', None)
+        lambda x: x in [source.value for source in TorqueSource],
+        '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md) '
+        'or "both" (the two fused); left out: "sensor" where the bench has a torque sensor, else "encoder"', None)
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,10 @@ class BenchCalibration:
     current_offset_counts: tuple[float, ...] = field_like(Controller, "current_offset_counts")
     torque_gain_v_per_nm: float = field_like(Controller, "torque_gain_v_per_nm")
 
-    calibration = Controller.calibration
+    def calibration(self) -> SensorCalibration:
+        """The calibration the controller starts with."""
+        return SensorCalibration(self.current_scale_counts_per_a, self.current_offset_counts,
+                                 self.torque_gain_v_per_nm)
 
 
 def _table(cls: type):
@@ -300,6 +304,20 @@ RUN_SECTIONS: dict[str, type] = {"campaign": CampaignSettings, "limits": LimitSe
                                  "pipeline": PipelineSettings}
 
 
+def config_reference() -> str:
+    """docs/config-reference.md: every table and key of a campaign config, from the fields' declarations."""
+    tables = {"bench": BenchSettings, "bench.backemf": BackEmf, "bench.calibration": BenchCalibration,
+              "trials": TrialGrid, "excitation": Excitation, **RUN_SECTIONS}
+    parts = ["# Campaign config reference", "",
+             "Every table and key of a campaign config (configs/seed-bench.toml is a complete one), generated from "
+             "the declarations in ilcpmac/config.py and ilcpmac/model/motor.py by "
+             "`ilcpmac.config.config_reference()`; tests/test_config.py checks that this file is up to date. "
+             "Options of a stage go in `[stages.NAME]` (docs/writing-a-stage.md).", ""]
+    parts += [key_table(cls, name) for name, cls in tables.items()]
+    parts += [key_table(cls, f"simulator.{name}", BENCH_KEYS.get(name, {})) for name, cls in SIMULATOR_SECTIONS.items()]
+    return "\n".join(parts)
+
+
 def packaged_config(name: str) -> Path:
     """The path of config ``name`` shipped with the package (``ilcpmac/configs``), e.g. "seed-bench.toml"."""
     return Path(str(resources.files("ilcpmac") / "configs" / name))
@@ -339,7 +357,7 @@ def load_config(path: str | Path) -> CampaignConfig:
     return config
 
 
-def _simulated_drive(tables, bench: BenchSettings, path: Path) -> MotorModel:
+def _simulated_drive(tables: object, bench: BenchSettings, path: Path) -> MotorModel:
     """The simulated drive from the [simulator.*] tables and what [bench] holds of it."""
     if not isinstance(tables, dict):
         raise ConfigError(f"{path}: [simulator] must hold the tables [simulator.NAME]")
@@ -355,7 +373,7 @@ def _simulated_drive(tables, bench: BenchSettings, path: Path) -> MotorModel:
     known = {"pole_pairs": bench.pole_pairs, "slots": bench.slots, "counts_per_rev": bench.counts_per_rev,
              "inertia_kgm2": bench.inertia_kgm2,
              **{f.name: getattr(bench.calibration, f.name) for f in dataclasses.fields(BenchCalibration)}}
-    parts = {"backemf": bench.backemf}
+    parts: dict[str, typing.Any] = {"backemf": bench.backemf}
     for name, cls in SIMULATOR_SECTIONS.items():
         if name not in tables:
             raise ConfigError(f"{path}: missing table [simulator.{name}]")

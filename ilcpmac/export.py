@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from string import Template
@@ -35,6 +36,8 @@ C_HEADER, C_SOURCE = "ilcpmac_compensation.h", "ilcpmac_compensation.c"
 _PHASES = ("a", "b", "c")
 #: table values per line of the C source
 _C_PER_LINE = 12
+#: a CSV row: text as it is, numbers as their shortest exact decimals
+_Row = list[str | float]
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,7 @@ def feedforward_column(torque_nm: float, speed_hz: float) -> str:
     return f"feedforward_nm_at_{float(torque_nm)!r}_nm_{float(speed_hz)!r}_hz"
 
 
-def _text(rows: list[list]) -> str:
+def _text(rows: list[_Row]) -> str:
     """CSV lines, floats as their shortest exact decimals."""
     return "".join(",".join(v if isinstance(v, str) else repr(v) for v in row) + "\n" for row in rows)
 
@@ -100,19 +103,20 @@ def write_csv(compensation: Compensation, out_dir: Path) -> Exported:
     """calibration.csv, torque_gain.csv, feedforward.csv and map.csv (module docstring)."""
     c = compensation
     cal = c.calibration
-    calibration = [["phase", "current_scale_counts_per_a", "current_offset_counts"]]
+    calibration: list[_Row] = [["phase", "current_scale_counts_per_a", "current_offset_counts"]]
     calibration += [[phase, float(cal.current_scale[p]), float(cal.current_offset[p])]
                     for p, phase in enumerate(_PHASES)]
     points = [(float(t), float(s)) for t in c.torques_nm for s in c.speeds_hz]
     columns = c.tables_nm.reshape(len(points), c.counts_per_rev).T
-    feedforward = [["count", *(feedforward_column(t, s) for t, s in points)]]
+    feedforward: list[_Row] = [["count", *(feedforward_column(t, s) for t, s in points)]]
     feedforward += [[str(count), *row] for count, row in enumerate(columns.tolist())]
-    grid = [["name", "index", "value"], ["counts_per_rev", "0", str(c.counts_per_rev)]]
+    grid: list[_Row] = [["name", "index", "value"], ["counts_per_rev", "0", str(c.counts_per_rev)]]
     grid += [["torques_nm", str(i), float(t)] for i, t in enumerate(c.torques_nm)]
     grid += [["speeds_hz", str(i), float(s)] for i, s in enumerate(c.speeds_hz)]
     grid += [["fade_full_hz", "0", c.fade.full_hz], ["fade_zero_hz", "0", c.fade.zero_hz]]
-    files = {"calibration.csv": calibration, "torque_gain.csv": [["torque_gain_v_per_nm"], [cal.torque_gain]],
-             "feedforward.csv": feedforward, "map.csv": grid}
+    files: dict[str, list[_Row]] = {
+        "calibration.csv": calibration, "torque_gain.csv": [["torque_gain_v_per_nm"], [cal.torque_gain]],
+        "feedforward.csv": feedforward, "map.csv": grid}
     for name, rows in files.items():
         (out_dir / name).write_text(_text(rows))
     return Exported(tuple(out_dir / name for name in files))
@@ -123,7 +127,7 @@ def _c_float(x: float) -> str:
     return str(np.float32(x)) + "f"
 
 
-def _c_list(values, indent: str = "", literal=_c_float) -> str:
+def _c_list(values: Iterable[float], indent: str = "", literal: Callable[[float], str] = _c_float) -> str:
     """Values of a C initialiser; with an ``indent``, `_C_PER_LINE` to a line, else on one line."""
     items = [literal(v) for v in values]
     if not indent:
@@ -244,7 +248,7 @@ _FADE_BODY = """\
 """
 
 
-def _c_tables(compensation: Compensation, values: np.ndarray, literal) -> str:
+def _c_tables(compensation: Compensation, values: np.ndarray, literal: Callable[[float], str]) -> str:
     """The initialiser of the tables, a block per grid point."""
     blocks = []
     for i, t in enumerate(compensation.torques_nm):
@@ -260,6 +264,7 @@ def write_c(compensation: Compensation, out_dir: Path, c_type: str = "int16", so
     cal = c.calibration
     fade = c.fade
     fades = not math.isinf(fade.full_hz)
+    literal: Callable[[float], str]
     if c_type == "int16":
         quantised = Int16Tables.of(c.tables_nm)
         element, values, literal, nm_per_lsb = "int16_t", quantised.values, str, _c_float(quantised.nm_per_lsb)

@@ -11,11 +11,13 @@ from __future__ import annotations
 import io
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.legend import Legend
 from PIL import Image
 
 from ilcpmac.core.errors import IlcpmacError
@@ -57,9 +59,9 @@ def figure(rows: int = 1, height_in: float = 3.0, sharex: bool = True) -> tuple[
     return fig, list(axes)
 
 
-def legend(axis: Axes, ncol: int = 1, **options) -> None:
+def legend(axis: Axes, ncol: int = 1, **options: Any) -> Legend:
     """The legend of ``axis`` in the common style."""
-    axis.legend(fontsize=LEGEND_FONT_SIZE, ncol=ncol, **options)
+    return axis.legend(fontsize=LEGEND_FONT_SIZE, ncol=ncol, **options)
 
 
 def save(fig: Figure, path: str | Path, fmt: str = "png", compact: bool = False) -> Path:
@@ -115,8 +117,8 @@ def group_colours(keys: Sequence[float]) -> dict[float, tuple]:
     return {key: cmap(0.85 * i / max(len(distinct) - 1, 1)) for i, key in enumerate(distinct)}
 
 
-def plot_groups(axis: Axes, x, ys: Sequence[np.ndarray], keys: Sequence[float], label: Callable[[float, int], str],
-                method: str = "plot", **style) -> dict[float, tuple]:
+def plot_groups(axis: Axes, x: np.ndarray | Sequence[np.ndarray], ys: Sequence[np.ndarray], keys: Sequence[float],
+                label: Callable[[float, int], str | None], method: str = "plot", **style: Any) -> dict[float, tuple]:
     """Many lines coloured by group, one legend entry per group; returns the colours.
 
     Parameters
@@ -125,7 +127,7 @@ def plot_groups(axis: Axes, x, ys: Sequence[np.ndarray], keys: Sequence[float], 
     x : one array for every line, or a sequence of arrays, one per line.
     ys : the lines.
     keys : the group of each line (e.g. its torque set point).
-    label : ``label(key, n)``, the legend entry of a group of ``n`` lines.
+    label : ``label(key, n)``, the legend entry of a group of ``n`` lines (None: none).
     method : the Axes method that draws a line ("plot", "semilogx", ...).
     style : passed to it.
     """

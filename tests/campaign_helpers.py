@@ -4,16 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from ilcpmac.backends.base import Backend
 from ilcpmac.backends.simulated import SimulatorBackend
-from ilcpmac.campaign.record import TrialRecord
+from ilcpmac.campaign.events import CampaignMessage, NoEvents
 from ilcpmac.campaign.rundir import RunDir
 from ilcpmac.campaign.runner import CampaignRunner
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.records import BenchLimits, IdentificationResult, TrialData, TrialRequest
-from ilcpmac.sim.grid import truth_dict
+from ilcpmac.sim.bench import truth_dict
 
 #: a small campaign: 1024 counts, a 2 x 2 grid, two learned points at one speed, one validation point, few trials
 SMALL_CAMPAIGN = {
@@ -30,8 +28,7 @@ SMALL_CAMPAIGN = {
 def truth_json(backend: SimulatorBackend) -> dict:
     """The simulator's truth under the result keys, at the controller's calibration."""
     sim = backend.simulator
-    cpr = sim.model.encoder.counts_per_rev
-    return truth_dict(sim, TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), sim.model.controller.calibration()))
+    return truth_dict(sim, sim.model.controller.calibration())
 
 
 class TruthIdentification:
@@ -49,20 +46,14 @@ class TruthIdentification:
         return self.result.to_json()
 
 
-class Quiet:
+class Quiet(NoEvents):
     """Campaign events that only collect the messages."""
 
     def __init__(self) -> None:
-        self.messages: list[str] = []
+        self.messages: list[CampaignMessage] = []
 
-    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        self.messages.append(text)
-
-    def progress(self, fraction: float) -> None:
-        pass
+    def message(self, message: CampaignMessage) -> None:
+        self.messages.append(message)
 
 
 def simulator_backend(cfg: CampaignConfig) -> SimulatorBackend:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import tomllib
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -14,6 +13,7 @@ from hypothesis import settings
 
 from ilcpmac.config import CampaignConfig, load_config
 from ilcpmac.core.records import SensorCalibration, TrialRequest
+from ilcpmac.core.schema import toml_text
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.sim.simulator import Simulator
 
@@ -46,27 +46,6 @@ torque = "tq"
 """
 #: recorded revolutions of a test trial
 REVOLUTIONS = 2
-
-
-def _toml_value(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, list):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    return repr(value)
-
-
-def toml_text(data: dict[str, dict], prefix: str = "") -> str:
-    """TOML text of a campaign: tables (nested ones too) of scalars and lists."""
-    lines = []
-    for table, values in data.items():
-        lines.append(f"[{prefix}{table}]")
-        lines += [f"{key} = {_toml_value(value)}" for key, value in values.items() if not isinstance(value, dict)]
-        lines.append("")
-        lines.append(toml_text({k: v for k, v in values.items() if isinstance(v, dict)}, f"{prefix}{table}."))
-    return "\n".join(lines)
 
 
 def _table(data: dict, dotted: str, create: bool = False) -> dict:

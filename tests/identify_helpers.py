@@ -12,12 +12,13 @@ from pathlib import Path
 from tempfile import TemporaryDirectory
 
 import numpy as np
-from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
+from conftest import COUNTS_PER_REV, SEED_CONFIG
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.campaign.service import simulated_bench
 from ilcpmac.config import load_config
+from ilcpmac.core.schema import toml_text
 from ilcpmac.identify import IdentificationResult, identify_bench
-from ilcpmac.sim.grid import simulated_bench
 from ilcpmac.sim.reduced import ReducedCampaign, ReducedMotor, ReducedSensors, reduced_bench
 
 

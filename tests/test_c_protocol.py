@@ -652,7 +652,7 @@ def test_data_of_any_columns_round_trips(driver, flags):
     commands = [f"data {p.hex()}" for p in frames] + [data_command(0, 9, flags, first, min(4, n - first), columns)
                                                       for first in (0, 4)]
     out = driver.run(commands)
-    for line, first, payload in zip(out, (0, 4), frames):
+    for line, first in zip(out, (0, 4)):
         m = min(4, n - first)
         expected = data_command(0, 9, flags, first, m, columns).split()[2:]
         assert line.split() == ["OK", *expected[:4], *(str(int(c)) for c in count[first:first + m]), *expected[4 + m:]]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from campaign_helpers import SMALL_CAMPAIGN, Quiet, run_campaign, simulator_back
 
 from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.bench.format import read_bench
+from ilcpmac.campaign.events import CompensationWorse, GuardEvent
 from ilcpmac.campaign.rundir import RunDir, RunDirError, trial_file
 from ilcpmac.config import load_config
 from ilcpmac.core.records import TrialData, TrialRequest
@@ -95,6 +97,13 @@ def test_resume_after_a_crash_ends_as_an_uninterruptedrun_campaign(campaign_conf
     assert sorted(p.name for p in crashed.glob("trial_*")) == [trial_file(i) for i in range(1, fail_on_call)]
     resumed = run_campaign(campaign_config, crashed, resume=True)
     assert resumed == reference
+    assert_same_learning(crashed, tmp_path / "reference")
+
+
+def assert_same_learning(run: Path, reference: Path) -> None:
+    """What ``run`` learned, and what the report draws of it, is byte for byte ``reference``'s."""
+    for name in ("compensation.json", "states/learned.json"):
+        assert (run / name).read_bytes() == (reference / name).read_bytes(), name
 
 
 def test_leftovers_of_an_uncommitted_trial_are_removed_on_resume(campaign_config, tmp_path):
@@ -143,11 +152,11 @@ def test_guard_reverts_and_halves_the_gain_when_the_ripple_grows_twice(campaign_
     cfg = dataclasses.replace(campaign_config, campaign=dataclasses.replace(
         campaign_config.campaign, learn_torques_nm=(2.0,), learn_trials=4, patience=4, validate_torques_nm=()))
     summary = run_campaign(cfg, tmp_path / "run", GrowingRipple(simulator_backend(cfg)), events=events)
-    guard = [m for m in events.messages if m.startswith("guard:")]
-    assert guard and "halved the learning gain to 0.5" in guard[0]
+    guard = [m for m in events.messages if isinstance(m, GuardEvent)]
+    assert guard and guard[0].text.startswith("guard: ") and "halved the learning gain to 0.5" in guard[0].text
     states = [json.loads(p.read_text()) for p in sorted((tmp_path / "run" / "states").glob("trial_*.json"))]
     events_saved = [s["guard"] for s in states if s["guard"]]
-    assert events_saved[0]["learning_gain"] == 0.5
+    assert events_saved[0] == guard[0].to_json() and events_saved[0]["learning_gain"] == 0.5
     best = events_saved[0]["reverted_to_trial"]
     reverted = next(s for s in states if s["guard"])
     assert reverted["pipeline"] == states[best - 1]["pipeline"]
@@ -284,7 +293,8 @@ def test_every_request_of_a_campaign_obeys_the_limits_whatever_a_stage_asks(writ
     sim = simulator_backend(cfg)
     recording, events = Recording(sim), Quiet()
     summary = run_campaign(cfg, tmp_path / "run", recording, events=events, extra_stages={"tenfold": TenfoldScale})
-    clipped = [m for m in events.messages if m.startswith("limits: stage 'tenfold' set a calibration outside")]
+    clipped = [m.text for m in events.messages
+               if m.text.startswith("limits: stage 'tenfold' set a calibration outside")]
     learning = sum(r["role"] in ("compensate", "learn") for r in summary["trials"])
     assert learning > 0 and len(clipped) == learning + 2  # and once per learned point for the compensation
     assert "current scale of phase a deviates +900 % from the identified sensors" in clipped[0]
@@ -326,8 +336,8 @@ def test_the_exported_compensation_replayed_gives_the_campaigns_validation_figur
     from ilcpmac.bench.format import as_written
     from ilcpmac.campaign.plan import CampaignPlan
     from ilcpmac.cli import main
+    from ilcpmac.core.seeds import trial_seed
     from ilcpmac.pipeline.analysis import TrialAnalysis
-    from ilcpmac.sim.simulator import trial_seed
     from ilcpmac.stages.base import Identified, StageSetup
     from ilcpmac.stages.registry import build_stages
 
@@ -365,6 +375,7 @@ def test_resume_after_a_crash_in_the_parallel_validation_ends_as_an_uninterrupte
         run_campaign(campaign_config, crashed, CrashingBackend(simulator_backend(campaign_config), total))
     assert len(read_bench(crashed).trials) in (total - 2, total - 1)
     assert run_campaign(campaign_config, crashed, resume=True) == reference
+    assert_same_learning(crashed, tmp_path / "reference")
 
 
 class WorseWhenFast:
@@ -400,5 +411,5 @@ def test_where_the_compensation_is_worse_than_none_it_fades_out_and_the_campaign
     assert summary["compensation"] == {"file": "compensation.json", "fade_full_hz": 0.6, "fade_zero_hz": 0.9}
     fade = Compensation.read(tmp_path / "run" / "compensation.json").fade
     assert (fade.factor(0.6), fade.factor(0.75), fade.factor(0.9)) == (1.0, 0.5, 0.0)
-    (said,) = [m for m in events.messages if m.startswith("validate:")]
+    (said,) = [m.text for m in events.messages if isinstance(m, CompensationWorse)]
     assert "WORSE than none at 3 N m at 0.9 Hz" in said and "fades it out from 0.6 Hz to 0.9 Hz" in said

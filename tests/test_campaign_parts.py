@@ -310,7 +310,7 @@ def test_the_limit_guard_is_a_whole_backend():
 @pytest.mark.parametrize("module, absent", [
     ("ilcpmac.core.records", "ilcpmac.backends"),
     ("ilcpmac.stages.base", "ilcpmac.backends"),
-    ("ilcpmac.sim.grid", "ilcpmac.backends"),
+    ("ilcpmac.sim.bench", "ilcpmac.backends"),
 ])
 def test_lower_layers_do_not_import_upper_ones(module, absent):
     code = (f"import sys, {module}; bad = [m for m in sys.modules if m.startswith({absent!r})]; "

@@ -180,6 +180,14 @@ def test_the_cli_offers_the_plot_formats_without_importing_matplotlib():
     assert done.stdout.strip() == "[]", done.stdout + done.stderr
 
 
+def test_starting_the_cli_leaves_numpy_to_be_imported_after_tune_process():
+    """numpy reads OPENBLAS_NUM_THREADS when first imported: the CLI's modules import it only inside the
+    commands, after `main` has run `tune_process` (ilcpmac.core's package once imported every record)."""
+    code = "import sys, ilcpmac.cli; print('numpy' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == "False", done.stdout + done.stderr
+
+
 FAULTS_PROBE = """
 import resource, sys
 import numpy as np

@@ -18,7 +18,7 @@ from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.records import SensorCalibration, TrialRequest
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
-from ilcpmac.sim.grid import truth_dict
+from ilcpmac.sim.bench import true_result
 from ilcpmac.stages.base import Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, installed_stages
 from ilcpmac.stages.replay import Replay
@@ -271,6 +271,23 @@ def test_a_file_that_is_not_a_record_is_one_line(tmp_path, content, match):
     assert match in str(e.value) and "\n" not in str(e.value)
 
 
+@pytest.mark.parametrize("path", ["counts_per_rev", "calibration.torque_gain", "fade.zero_hz"])
+def test_a_key_given_twice_is_refused_not_the_last_kept(tmp_path, path):
+    """json.loads keeps the last of two equal keys; compensation.json refuses the file instead."""
+    text = json.dumps(valid())
+    key = path.rsplit(".", 1)[-1]
+    first = text.index(f'"{key}": ')
+    path_file = tmp_path / "compensation.json"
+    path_file.write_text(text[:first] + f'"{key}": 1, ' + text[first:])
+    with pytest.raises(BenchFormatError, match=rf"^{path_file}: not valid JSON \(key '{key}' given twice\)$"):
+        Compensation.read(path_file)
+
+
+@pytest.mark.parametrize("path", ["calibration.torque_gain", "fade.full_hz", "counts_per_rev"])
+def test_json_true_is_not_the_number_one(path):
+    one_line_error(changed(path, True), f"key '{path}'")
+
+
 def test_read_refuses_a_folder_a_fifo_a_missing_and_a_too_large_file(tmp_path, monkeypatch):
     with pytest.raises(BenchFormatError, match="not a regular file"):
         Compensation.read(tmp_path)
@@ -298,9 +315,8 @@ def fast(small_model) -> SimulatorBackend:
 
 def setup_of(backend: SimulatorBackend, options: dict) -> StageSetup:
     d = backend.describe()
-    cpr = d.motor.counts_per_rev
-    request = TrialRequest(3.0, 0.75, 2, np.zeros(cpr), np.zeros(cpr), d.calibration)
-    return StageSetup(d, Identified.from_result(truth_dict(backend.simulator, request), d.calibration), H, options)
+    truth = true_result(backend.simulator, d.calibration)
+    return StageSetup(d, Identified.from_result(truth, d.calibration), H, options)
 
 
 def bench_compensation(backend: SimulatorBackend) -> Compensation:

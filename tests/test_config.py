@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import math
 import re
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import SEED_CONFIG
 
-from ilcpmac.config import CampaignSettings, LimitSettings, PipelineSettings, load_config
+from ilcpmac.config import CampaignSettings, LimitSettings, PipelineSettings, config_reference, load_config
 from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.schema import toml_text
 
 
 def test_seed_config_values(seed_config):
@@ -165,3 +168,30 @@ def test_a_config_without_the_simulated_truth_needs_only_bench_and_run_tables(wr
         load_config(write_config({"bench.backemf": {"harmonics": [1, 300], "amplitudes_nm_per_a": [0.2, 0.01],
                                                     "phases_rad": [0.0, 0.0], "asymmetry": [0.0, 0.0, 0.0]}},
                                  drop=("simulator",)))
+
+
+@pytest.mark.parametrize("text", ["/runs/a\nb/backemf.csv", 'quote " and back\\slash', "tab\tdel\x7f é"])
+def test_toml_text_writes_any_string_as_tomllib_reads_it(text):
+    """A sweep's task config holds the base config's folder, which may be named with a newline: its TOML
+    writer once wrote that as a raw newline, which is not TOML."""
+    data = {"bench": {"backemf_file": text, "pole_pairs": 8, "backemf": {"harmonics": [1, 3]}}}
+    assert tomllib.loads(toml_text(data)) == data
+
+
+def test_the_config_reference_is_generated_from_the_declarations():
+    """docs/config-reference.md is what `config_reference` writes: regenerate it with
+    ``python -c "from ilcpmac.config import config_reference; print(config_reference(), end='')"
+    > docs/config-reference.md`` after changing a key."""
+    assert (Path(__file__).resolve().parents[1] / "docs" / "config-reference.md").read_text() == config_reference()
+
+
+def test_the_config_reference_names_every_key_a_config_may_hold():
+    reference = config_reference()
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    tables = {f"[{name}]": keys for name, keys in data.items() if name not in ("simulator", "stages")}
+    tables |= {f"[simulator.{name}]": keys for name, keys in data["simulator"].items()}
+    for table, keys in tables.items():
+        section = reference.split(f"### {table}\n", 1)[1].split("###", 1)[0]
+        for key, value in keys.items():
+            if not isinstance(value, dict):
+                assert f"| `{key}` |" in section, (table, key)

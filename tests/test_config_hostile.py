@@ -15,7 +15,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from conftest import SEED_CONFIG, toml_text
+from conftest import SEED_CONFIG
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -23,7 +23,7 @@ from ilcpmac.bench.format import read_bench
 from ilcpmac.campaign.service import load_campaign_config
 from ilcpmac.config import load_config
 from ilcpmac.core.errors import BenchFormatError, ConfigError
-from ilcpmac.core.schema import MAX_TOML_BYTES, read_toml
+from ilcpmac.core.schema import MAX_TOML_BYTES, read_toml, toml_text
 
 
 def assert_one_line(error: Exception, path: Path, pattern: str) -> None:

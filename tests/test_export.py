@@ -21,9 +21,11 @@ from ilcpmac.export import INT16_FULL_SCALE, Int16Tables, export, feedforward_co
 CALIBRATION = SensorCalibration([14.0, 14.2, 13.9], [1.5, -2.0, 0.25], 0.908)
 #: C compiler flags: strict C99, every warning an error
 C_FLAGS = ["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Wconversion", "-Werror", "-O2"]
+#: the fade-out of compensation() by default
+FADE = FadeOut(3.0, 5.0)
 
 
-def compensation(n_torques: int = 2, n_speeds: int = 2, fade: FadeOut = FadeOut(3.0, 5.0), cpr: int = 64,
+def compensation(n_torques: int = 2, n_speeds: int = 2, fade: FadeOut = FADE, cpr: int = 64,
                  seed: int = 1) -> Compensation:
     """Tables of 10 mN m scale with a 60 mN m peak, torques from 1 N m, speeds from 0.5 Hz (a third apart:
     not float32 numbers)."""

@@ -16,12 +16,13 @@ import pytest
 from conftest import COUNTS_PER_REV, SEED_CONFIG, toml_text
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.campaign.service import simulated_bench
 from ilcpmac.config import load_config
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.decoupling import _standard_error
 from ilcpmac.identify.sensor_gain import PositionResponse, fit_pooled, harmonic_structure
 from ilcpmac.identify.system_gain import structure_variance
-from ilcpmac.sim.grid import simulated_bench
 
 #: 3 torques x 2 speeds of 4 revolutions on the 1024-count seed bench
 SMALL_GRID = {"torque_setpoints_nm": [1.0, 3.0, 5.0], "speed_setpoints_hz": [0.5, 1.0], "revolutions": 4}
@@ -139,7 +140,7 @@ def test_the_encoder_paths_gain_and_scale_errors_cover_the_truth():
     """eps and alpha on the encoder-derived torque; beta stays about 4 standard errors off on this bench (a bias
     common to every block of harmonics and every set point, which no residual test sees: docs/identification.md)."""
     bench, truth = small_bench("matched")
-    result = identify_bench(bench, torque_source="encoder")
+    result = identify_bench(bench, torque_source=TorqueSource.ENCODER)
     ratios = error_over_std(result.methods["joint"], truth)
     assert max(ratios["epsilon"], ratios["alpha"]) <= 3.0, ratios
     structure = result.details.joint.gain_structure

@@ -22,12 +22,14 @@ from conftest import SEED_CONFIG, toml_text
 from rich.console import Console
 
 from ilcpmac.bench.format import Bench, convert_bench, read_bench
+from ilcpmac.campaign.service import simulate_bench
 from ilcpmac.cli import main
 from ilcpmac.cli.identify import estimates_table
 from ilcpmac.config import load_config
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import BenchFormatError, IdentificationError
 from ilcpmac.core.records import IdentificationResult
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import DEFAULT_LOOP, identify_bench
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.identify.joint import (
@@ -51,7 +53,6 @@ from ilcpmac.signals.encoder_torque import (
     with_viscous,
 )
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.sim.grid import simulate_bench
 
 #: the encoder error of the test benches: 0.05 counts once per revolution, 0.01 counts RMS per line
 ECCENTRICITY_COUNTS = 0.05
@@ -148,9 +149,9 @@ def _edited(folder: Path, tmp_path: Path, old: str, new: str) -> Path:
 @pytest.mark.parametrize(("old", "new", "message"), [
     ("torque_sensor = false\n", "", r"trial_01\.csv: line 1: missing column 'torque' \(a bench without a torque "
                                     r"sensor says \[motor\] torque_sensor = false\)$"),
-    ("torque_sensor = false", "torque_sensor = 0", r"\[motor\]: key 'torque_sensor' must be true or false, got 0$"),
+    ("torque_sensor = false", "torque_sensor = 0", r"\[motor\] torque_sensor: expected true or false, got 0$"),
     ("timer_resolution_s = 1e-06", "timer_resolution_s = 0.5",
-     r"\[motor\]: key 'timer_resolution_s' must lie in \(0, 0.001\], got 0.5$"),
+     r"\[motor\] timer_resolution_s: invalid value 0\.5 \(time-stamp quantum, s, within \(0, 1e-3\]\)$"),
 ])
 def test_a_declaration_at_odds_with_the_files_is_one_line(two_speeds, tmp_path, old, new, message):
     with pytest.raises(BenchFormatError, match=message):
@@ -169,7 +170,7 @@ def test_a_torque_column_on_a_bench_without_sensor_is_one_line(tmp_path):
     trials = tuple(dataclasses.replace(t, torque_nm=None) for t in bench.trials)
     with pytest.raises(IdentificationError, match="missing column 'torque'"):
         identify_bench(dataclasses.replace(bench, trials=trials))
-    assert identify_bench(bench, torque_source="encoder").torque_source == "encoder"
+    assert identify_bench(bench, torque_source=TorqueSource.ENCODER).torque_source is TorqueSource.ENCODER
 
 
 def test_the_timer_resolution_is_read_off_the_stamps_when_not_stated(two_speeds):
@@ -184,7 +185,7 @@ def test_the_timer_resolution_is_read_off_the_stamps_when_not_stated(two_speeds)
 
 def test_the_encoder_derived_torque_recovers_the_sensors_and_the_cogging(identified):
     result, truth = identified
-    assert result.torque_source == "encoder"
+    assert result.torque_source is TorqueSource.ENCODER
     assert abs(result.epsilon / truth["epsilon"] - 1.0) < 0.02
     assert np.abs(result.alpha - truth["alpha"]).max() < 0.005
     assert np.abs(result.beta - truth["beta"]).max() < 0.03
@@ -250,7 +251,7 @@ def test_the_encoder_error_applied_keeps_a_real_error(identified):
     assert _left_pp_nm(result.encoder_error_counts - true_error, 1.0, 1.5) < 0.1 * _left_pp_nm(true_error, 1.0, 1.5)
 
 
-@pytest.mark.parametrize("source", ["encoder", "sensor"])
+@pytest.mark.parametrize("source", [TorqueSource.ENCODER, TorqueSource.SENSOR])
 def test_a_pure_sine_backemf_leaves_the_common_offset_not_identified(pure_sine, source):
     """sum_p K_p = 0: an offset common to the phases makes no torque. Both paths say so and fit the
     differential offsets (within 0.03 A), eps (2 %) and alpha (0.005); beta's mean is 0 by constraint."""
@@ -332,12 +333,12 @@ def test_the_result_json_holds_the_encoder_error(identified):
     back = IdentificationResult.from_json(data)
     np.testing.assert_allclose(back.encoder_error_counts, result.encoder_error_counts)
     assert back.encoder_eccentricity_counts == result.encoder_eccentricity_counts
-    assert back.torque_source == "encoder"
+    assert back.torque_source is TorqueSource.ENCODER
 
 
 def test_a_sensor_source_on_a_bench_without_one_is_refused(two_speeds):
     with pytest.raises(IdentificationError, match="torque source 'sensor': the bench has no torque sensor"):
-        identify_bench(read_bench(two_speeds[0]), torque_source="sensor")
+        identify_bench(read_bench(two_speeds[0]), torque_source=TorqueSource.SENSOR)
 
 
 # ---------------------------------------------------------------- the estimator's helpers

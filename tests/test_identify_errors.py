@@ -104,9 +104,9 @@ def test_trials_of_two_revolutions_keep_the_reports_sensor_gain(write_config):
     """The corrected ch. 3 fit needs two whole revolutions of count intervals, which two revolutions of samples
     are not; delta then comes from the report's fit (a sweep's warm-up campaign has such trials), and the
     messages say why."""
+    from ilcpmac.campaign.service import simulated_bench
     from ilcpmac.config import load_config
     from ilcpmac.identify import identify_bench
-    from ilcpmac.sim.grid import simulated_bench
 
     config = load_config(write_config({"bench": {"counts_per_rev": 1024},
                                        "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.8, 1.0],

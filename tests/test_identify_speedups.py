@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, sample_decay
 from ilcpmac.core.records import MotorInfo
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify.joint import _JointProblem, _lag_derivatives, _tall_product, harmonic_sets, time_shifted
 from ilcpmac.identify.reduction import BenchTables, TrialTables, revolution_averages, trial_amplitudes
 from ilcpmac.identify.sensor_gain import trial_response
@@ -88,7 +89,7 @@ def _tables(rng: np.random.Generator, source: str, symmetric: bool = False) -> B
         trials.append(TrialTables(1.0 + k, 2.0, 1.0 / dt.sum(), 2, np.arange(2), np.arange(2.0), np.zeros(2), torque,
                                   i_ref, dt, 1e-4, 1e-6, **extra))
     return BenchTables(MotorInfo(2, 12, CPR, 0.01, source == "sensor"), backemf, tuple(trials), ("a", "b", "c"), (),
-                       source)
+                       TorqueSource(source))
 
 
 @pytest.mark.parametrize("source, symmetric", [("sensor", False), ("encoder", False), ("sensor", True)])

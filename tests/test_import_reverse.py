@@ -27,17 +27,19 @@ from hypothesis.extra.numpy import arrays
 import ilcpmac.cli.import_  # noqa: F401  (registers the command on main)
 from ilcpmac.bench.format import BENCH_FILE, Bench, convert_bench, read_bench, write_backemf_csv, write_bench
 from ilcpmac.bench.importer import import_laps, import_log, import_logs, read_mapping, reverse_folder
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.core.errors import BenchFormatError
 from ilcpmac.core.records import IdentificationResult, MethodEstimates, MotorInfo, TrialData, mirrored_table
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.mirror import MIRRORED_MESSAGE, in_mirror_coordinates, in_motor_coordinates
 from ilcpmac.model.encoder import line_errors_counts
 from ilcpmac.model.tables import backemf_table, cogging_table
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.sim.grid import grid_requests, truth_dict
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.sim.simulator import Simulator
 
 HEADER = "t,theta,ia,ib,ic,tq"
@@ -178,7 +180,7 @@ def test_reverse_laps_identify_the_motor_as_forward_laps_do(tmp_path, motors):
     0.0015, 15.7 mA, 0.54 % (M' is another motor: other noise, and the current loop's lag and the sensor's
     dynamics meet mirrored tables, so the model's misfit differs)."""
     simulator, mirror, requests = motors
-    truth = truth_dict(simulator, requests[0])
+    truth = truth_dict(simulator, requests[0].calibration)
     mapping = mapping_file(tmp_path, simulator.backemf_counts)
     found = {}
     for name, sim, reverse in (("forward", simulator, False), ("reverse", mirror, True)):
@@ -245,7 +247,7 @@ def test_the_mirrored_bench_round_trips_through_bench_toml(tmp_path, small_simul
     assert read_bench(tmp_path / "b").motor.mirrored
     toml = tmp_path / "b" / BENCH_FILE
     toml.write_text(toml.read_text().replace("mirrored = true", "mirrored = 1"))
-    with pytest.raises(BenchFormatError, match=r"bench.toml: \[motor\]: key 'mirrored' must be true or false, got 1$"):
+    with pytest.raises(BenchFormatError, match=r"bench.toml: \[motor\] mirrored: expected true or false, got 1$"):
         read_bench(tmp_path / "b")
 
 
@@ -303,8 +305,8 @@ def test_a_mirrored_bench_without_torque_sensor_gives_the_motors_encoder_error(t
     motor = MotorInfo(8, 48, COUNTS_PER_REV, 0.01056, torque_sensor=False, timer_resolution_s=1e-6, mirrored=True)
     result = identify_bench(Bench(motor, mirror.backemf_counts, requests[0].calibration, trials,
                                   tuple(f"trial_{i:02d}.csv" for i in range(1, 5))))
-    truth = truth_dict(simulator, requests[0])
-    assert result.torque_source == "encoder" and MIRRORED_MESSAGE in result.messages
+    truth = truth_dict(simulator, requests[0].calibration)
+    assert result.torque_source is TorqueSource.ENCODER and MIRRORED_MESSAGE in result.messages
     assert abs(result.epsilon / truth["epsilon"] - 1) < 0.012
     assert np.abs(result.alpha - truth["alpha"]).max() < 0.002
     assert np.abs(result.beta - truth["beta"]).max() < 0.012

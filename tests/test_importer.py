@@ -26,13 +26,14 @@ from ilcpmac.bench.importer import (
     resample_to_counts,
     stamp_resolution_s,
 )
+from ilcpmac.campaign.service import simulate_bench
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.records import IdentificationResult, TrialData
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import identify_bench
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.sim.grid import simulate_bench
 from ilcpmac.sim.simulator import Simulator
 
 #: counts per revolution of the logs' 16-bit single-turn position (q-axis layout)
@@ -464,7 +465,7 @@ def test_q_axis_logs_without_torque_identify_on_the_encoder(tmp_path, sensorless
                          rf"no torque: encoder torque at harmonic 150 {100 * loss:.2g} % low", output), output
 
     result = identify_bench(imported)
-    assert result.torque_source == "encoder" and result.delta is None
+    assert result.torque_source is TorqueSource.ENCODER and result.delta is None
     assert abs(result.epsilon / truth["epsilon"] - 1) < 0.012
     assert np.abs(result.alpha - truth["alpha"]).max() < 0.002
     assert np.abs(result.beta - truth["beta"]).max() < 0.012

@@ -18,7 +18,7 @@ from ilcpmac.core.records import SensorCalibration, TrialRequest
 from ilcpmac.model.tables import current_references
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyError, SafetyLimits, identified_truth
-from ilcpmac.sim.grid import truth_dict
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.stages.base import Identified
 
 CPR = 256  # counts per revolution of the test drive: short, fast trials
@@ -45,7 +45,7 @@ def drive(small_model):
     model = dataclasses.replace(small_model, encoder=dataclasses.replace(small_model.encoder, counts_per_rev=CPR))
     backend = SimulatorBackend(model, BenchLimits(LIMITS.max_current_a, LIMITS.max_torque_nm, LIMITS.max_speed_hz))
     description = backend.describe()
-    truth = truth_dict(backend.simulator, base_request(description.calibration))
+    truth = truth_dict(backend.simulator, description.calibration)
     return backend, description, Identified.from_result(truth, description.calibration)
 
 

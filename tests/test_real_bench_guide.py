@@ -47,10 +47,10 @@ from conftest import COUNTS_PER_REV, REAL_BENCH_CONFIG, SEED_CONFIG, toml_text
 from ilcpmac.bench.format import write_backemf_csv
 from ilcpmac.bench.importer import read_mapping
 from ilcpmac.bench.standstill import SensorErrors
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.cli import entry_point, main
 from ilcpmac.config import load_config
 from ilcpmac.model.tables import backemf_table
-from ilcpmac.sim.grid import grid_requests
 from ilcpmac.sim.simulator import Simulator
 from ilcpmac.sim.standstill import ScanPlan, scan_log
 

@@ -39,11 +39,11 @@ from ilcpmac.backends.protocol import (
 )
 from ilcpmac.backends.remote import RemoteBackend, parse_address
 from ilcpmac.backends.simulated import SimulatorBackend
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.core.errors import BackendError
 from ilcpmac.core.records import TrialData, TrialRequest
-from ilcpmac.sim.grid import grid_requests
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED_CONFIG = ROOT / "configs" / "seed-bench.toml"

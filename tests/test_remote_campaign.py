@@ -24,6 +24,9 @@ from ilcpmac.cli import main
 from ilcpmac.config import load_config
 from ilcpmac.core.errors import BackendError
 
+#: the emulator's default: no faults
+NO_FAULTS = FaultPlan()
+
 
 @pytest.fixture(scope="module")
 def config(tmp_path_factory):
@@ -41,7 +44,7 @@ def emulator(config, quick_emulator_stop):
     """Start emulators of ``config``'s drive with a fault plan; all are stopped at the end."""
     started: list[BenchEmulator] = []
 
-    def start(faults: FaultPlan = FaultPlan()) -> BenchEmulator:
+    def start(faults: FaultPlan = NO_FAULTS) -> BenchEmulator:
         emu = BenchEmulator(simulator_backend(config), faults=faults, heartbeat_s=0.2, restart_delay_s=0.1)
         started.append(emu.start())
         return emu

@@ -26,6 +26,8 @@ from hypothesis import strategies as st
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.bench.format import as_written, read_bench, write_trial_csv
 from ilcpmac.campaign import rundir
+from ilcpmac.campaign.events import GuardEvent
+from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.rundir import (
     HOLDER_FILE,
     LOCK_FILE,
@@ -38,9 +40,11 @@ from ilcpmac.campaign.rundir import (
     _unpacked,
     trial_file,
 )
+from ilcpmac.campaign.state import TrialState
 from ilcpmac.cli import main
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData
+from ilcpmac.signals.harmonics import RippleFigures
 
 CPR = 64
 _ANGLE = 4 * 2 * np.pi * np.arange(CPR)[:, None] / CPR - 2 * np.pi / 3 * np.arange(3)
@@ -54,8 +58,16 @@ def trial(torque_nm: float = 1.0) -> TrialData:
                      torque_nm + 0.01 * np.sin(_ANGLE[:, 0]))
 
 
-def add(run: RunDir, torque_nm: float = 1.0, state: dict | None = None) -> int:
-    return run.add_trial(trial(torque_nm), state or {"torque": torque_nm}, {"trials": run.completed})
+def state_of(torque_nm: float = 1.0, feedforward_nm=None, pipeline: dict | None = None,
+             record: TrialRecord | None = None) -> TrialState:
+    """A trial's state: no feed-forward, pipeline or guard unless given."""
+    return TrialState(record or TrialRecord(1, "identify", "grid", torque_nm, 0.5), pipeline, {}, None,
+                      DESCRIPTION.calibration, np.zeros(CPR) if feedforward_nm is None else np.asarray(feedforward_nm),
+                      3, 0)
+
+
+def add(run: RunDir, torque_nm: float = 1.0, state: TrialState | None = None) -> int:
+    return run.add_trial(trial(torque_nm), state or state_of(torque_nm), {"trials": run.completed})
 
 
 def new_run(path: Path, trials: int = 0) -> Path:
@@ -359,7 +371,7 @@ def test_json_of_a_run_never_holds_a_non_finite_number(tmp_path):
     run = RunDir.resume(path, DESCRIPTION)
     with pytest.raises(RunDirError, match=r"identification.json: result.cogging.1 is nan, not a finite number"):
         run.write_identification({"result": {"cogging": [1.0, float("nan")]}})
-    add(run, 2.0, {"record": {"reduction_factor": float("inf")}})
+    add(run, 2.0, state_of(record=TrialRecord(2, "identify", "grid", 2.0, 0.5, reduction_factor=float("inf"))))
     with pytest.raises(RunDirError, match=r"trial_002.json: record.reduction_factor is inf, not a finite number"):
         run.close()
     assert not (path / "states" / "identification.json").exists()
@@ -367,7 +379,7 @@ def test_json_of_a_run_never_holds_a_non_finite_number(tmp_path):
     assert resumed.completed == 1
     resumed.close()
     for f in path.rglob("*.json"):
-        json.loads(f.read_text(), parse_constant=lambda c: pytest.fail(f"{f} holds {c}"))
+        json.loads(f.read_text(), parse_constant=lambda c, f=f: pytest.fail(f"{f} holds {c}"))
 
 
 # ---------------------------------------------------------------- the live table and errors
@@ -398,7 +410,7 @@ def test_trials_are_parquet_and_hold_what_the_campaign_reads_back(tmp_path):
     path = new_run(tmp_path / "run")
     run = RunDir.resume(path, DESCRIPTION)
     measured = dataclasses.replace(trial(2.0), i_meas_a=np.ones((CPR, 3)), torque_true_nm=np.full(CPR, 2.5))
-    run.add_trial(measured, {}, {})
+    run.add_trial(measured, state_of(2.0), {})
     [back] = run.read_trials([1])
     run.close()
     assert sorted(p.name for p in path.glob("trial_*")) == ["trial_001.parquet"]
@@ -432,24 +444,58 @@ def bits(values) -> np.ndarray:
 
 def test_a_state_reads_back_to_the_bit_with_its_long_float_lists_packed(tmp_path):
     table = [0.1 + 0.2, -0.0, 5e-324, -1.7976931348623157e308, *np.random.default_rng(5).normal(size=40).tolist()]
-    state = {"request": {"feedforward_nm": table, "revolutions": 8}, "short": table[:PACKED_MIN_LENGTH - 1],
-             "P": [None, *table], "ints": list(range(40)), "zeros": [0.0] * 40, "nested": [table, table[:3]],
-             "empty": []}
+    stages = {"short": table[:PACKED_MIN_LENGTH - 1], "P": [None, *table], "ints": list(range(40)),
+              "zeros": [0.0] * 40, "nested": [table, table[:3]], "empty": []}
+    state = state_of(feedforward_nm=table, pipeline={"stage": stages})
     path = new_run(tmp_path / "run")
     run = RunDir.resume(path, DESCRIPTION)
     run.add_trial(trial(), state, {})
     run.close()
     raw = json.loads((path / "states" / "trial_001.json").read_text())
-    assert set(raw["request"]["feedforward_nm"]) == {PACKED_KEY} and set(raw["nested"][0]) == {PACKED_KEY}
+    saved = raw["pipeline"]["stage"]
+    assert set(raw["request"]["feedforward_nm"]) == {PACKED_KEY} and set(saved["nested"][0]) == {PACKED_KEY}
     for key in ("short", "P", "ints", "zeros", "empty"):
-        assert raw[key] == state[key], key
-    assert raw["nested"][1] == table[:3]
+        assert saved[key] == stages[key], key
+    assert saved["nested"][1] == table[:3]
     back = RunFiles(path).read_state(1)
-    assert back == state
-    np.testing.assert_array_equal(bits(back["request"]["feedforward_nm"]), bits(table))
-    assert RunDir.resume(path, DESCRIPTION).state(1) == state  # as a resume reads it
-    (path / "states" / "trial_001.json").write_text(json.dumps(state))  # a run written before packing
-    assert RunFiles(path).read_state(1) == state
+    assert back.to_json() == state.to_json()
+    np.testing.assert_array_equal(bits(back.feedforward_nm), bits(table))
+    assert RunDir.resume(path, DESCRIPTION).state(1).to_json() == state.to_json()  # as a resume reads it
+    (path / "states" / "trial_001.json").write_text(json.dumps(state.to_json()))  # a run written before packing
+    assert RunFiles(path).read_state(1).to_json() == state.to_json()
+
+
+def test_a_typed_state_writes_the_same_bytes_it_reads(tmp_path):
+    """Read back and written again, a state file is byte for byte the one the run wrote: the typed record
+    keeps every key, its order and every number."""
+    ripple = RippleFigures(0.012, 0.004, 0.001, 0.0035, 1e-3, 2e-4, 3e-4, 1e-5)
+    record = TrialRecord(1, "ilc", "learn", 2.0, 0.9, ripple, ripple, 3.25, 4.5)
+    table = np.random.default_rng(3).normal(size=CPR) * 1e-3
+    state = TrialState(record, {"ilc": {"2@0.9": {"u": table.tolist(), "trials": 2}}, "current-sensor": {}},
+                       {"2@0.9": 0.5}, GuardEvent("2@0.9", 1, 0.5), DESCRIPTION.calibration, table, 6, 12345)
+    path = new_run(tmp_path / "run")
+    run = RunDir.resume(path, DESCRIPTION)
+    run.add_trial(trial(2.0), state, {})
+    run.close()
+    written = (path / "states" / "trial_001.json").read_bytes()
+    assert list(json.loads(written)) == ["record", "pipeline", "gains", "guard", "request"]
+    again = new_run(tmp_path / "again")
+    run = RunDir.resume(again, DESCRIPTION)
+    run.add_trial(trial(2.0), RunFiles(path).read_state(1), {})
+    run.close()
+    assert (again / "states" / "trial_001.json").read_bytes() == written
+
+
+@pytest.mark.parametrize("damage", [{"record": None}, {"guard": {"set_point": "1@0.5"}}, {"pipeline": [1]},
+                                    {"gains": []}, {"request": {"seed": 0}}, {"record": {"index": 1}}])
+def test_a_malformed_state_is_one_line_naming_the_state_file(tmp_path, damage):
+    path = new_run(tmp_path / "run", trials=1)
+    state_file = path / "states" / "trial_001.json"
+    state_file.write_text(json.dumps(state_of().to_json() | damage))
+    with pytest.raises(RunDirError) as error:
+        RunFiles(path).read_state(1)
+    assert str(error.value).startswith(f"{state_file}: unreadable (")
+    assert "\n" not in str(error.value)
 
 
 @settings(max_examples=60, deadline=None)
@@ -466,7 +512,7 @@ def test_a_non_finite_number_in_a_packed_list_is_named_and_not_written(tmp_path)
     table[7] = float("-inf")
     path = new_run(tmp_path / "run", trials=1)
     run = RunDir.resume(path, DESCRIPTION)
-    add(run, 2.0, {"request": {"feedforward_nm": table}})
+    add(run, 2.0, state_of(feedforward_nm=table))
     with pytest.raises(RunDirError, match=r"trial_002\.json: request\.feedforward_nm\.7 is -inf, not a finite "
                                           r"number; not written$"):
         run.close()

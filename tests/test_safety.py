@@ -260,14 +260,14 @@ def bench(small_model):
     from ilcpmac.backends.base import BenchLimits
     from ilcpmac.backends.simulated import SimulatorBackend
     from ilcpmac.config import LimitSettings
-    from ilcpmac.sim.grid import truth_dict
+    from ilcpmac.sim.bench import truth_dict
     from ilcpmac.stages.base import Identified
 
     backend = SimulatorBackend(small_model, BenchLimits(30.0, 8.0, 1.5))
     description = backend.describe()
     cpr = description.motor.counts_per_rev
     base = TrialRequest(3.0, 0.75, 2, np.zeros(cpr), np.zeros(cpr), description.calibration, seed=3)
-    identified = Identified.from_result(truth_dict(backend.simulator, base), description.calibration)
+    identified = Identified.from_result(truth_dict(backend.simulator, base.calibration), description.calibration)
     limits = SafetyLimits.of_campaign(LimitSettings(), description.limits, 1)
     return backend, description, identified, limits, base
 

@@ -22,11 +22,12 @@ from ilcpmac.config import load_config
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import ConfigError, IlcpmacError
 from ilcpmac.core.records import BenchLimits, IdentificationResult, TrialRequest
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis, fused
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.signals.encoder_torque import brake_viscous_nm_s
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.sim.grid import truth_dict
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.stages.base import Identified
 
 H = 100
@@ -48,8 +49,8 @@ def test_a_wrong_torque_source_is_one_line_naming_the_key(write_config, value, w
 def test_the_default_source_follows_the_bench(seed_config):
     with_sensor, without = (SimpleNamespace(motor=SimpleNamespace(torque_sensor=has)) for has in (True, False))
     assert seed_config.campaign.torque_source is None
-    assert torque_source(seed_config, with_sensor) == "sensor"
-    assert torque_source(seed_config, without) == "encoder"
+    assert torque_source(seed_config, with_sensor) is TorqueSource.SENSOR
+    assert torque_source(seed_config, without) is TorqueSource.ENCODER
     for chosen in ("sensor", "both"):
         config = dataclasses.replace(seed_config, campaign=dataclasses.replace(seed_config.campaign,
                                                                                torque_source=chosen))
@@ -66,7 +67,7 @@ def bench(small_model):
     description = backend.describe()
     cpr = description.motor.counts_per_rev
     request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), description.calibration)
-    truth = IdentificationResult.from_json(truth_dict(backend.simulator, request))
+    truth = IdentificationResult.from_json(truth_dict(backend.simulator, request.calibration))
     return backend, description, Identified.from_result(truth, description.calibration)
 
 
@@ -86,7 +87,7 @@ def test_the_encoder_analysis_gives_the_true_ripple_within_its_noise(bench, torq
     backend, description, identified = bench
     trial = simulated(backend, description, torque_nm, speed_hz)
     J = description.motor.inertia_kgm2
-    right = TorqueMeasurement(identified, "encoder", J, Q_S)
+    right = TorqueMeasurement(identified, TorqueSource.ENCODER, J, Q_S)
     no_brake = dataclasses.replace(right, friction_nm=right.mean_torque_nm(trial.request))
     for measurement, holds in ((right, True), (no_brake, False)):
         analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, measurement)
@@ -114,13 +115,13 @@ def test_with_the_cogging_cancelled_the_encoder_sees_the_torque_at_the_lines_at_
     trial = as_written(dataclasses.replace(backend.run_trial(request), request=request))
     cancelled = harmonic_amplitudes(cogging, H)[[48, 96]]
     for loop, holds in ((identified.current_loop, True), (CurrentLoop(), False)):
-        measurement = TorqueMeasurement(dataclasses.replace(identified, current_loop=loop), "encoder",
+        measurement = TorqueMeasurement(dataclasses.replace(identified, current_loop=loop), TorqueSource.ENCODER,
                                         description.motor.inertia_kgm2, Q_S)
         analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, measurement)
         error = np.abs(analysis.measured.harmonics_nm - analysis.true.harmonics_nm)[[48, 96]]
         std = np.sqrt(analysis.measured.variance_nm2 + analysis.true.variance_nm2)[[48, 96]]
         assert np.all(error < 5 * std + 0.01 * np.abs(cancelled)) == holds
-    both = TorqueMeasurement(identified, "both", description.motor.inertia_kgm2, Q_S)
+    both = TorqueMeasurement(identified, TorqueSource.BOTH, description.motor.inertia_kgm2, Q_S)
     analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, both)
     error = np.abs(analysis.measured.harmonics_nm - analysis.true.harmonics_nm)[[48, 96]]
     assert np.all(error < 4 * np.sqrt(analysis.measured.variance_nm2 + analysis.true.variance_nm2)[[48, 96]])
@@ -135,7 +136,8 @@ def test_the_measurement_response_is_delta_and_the_high_pass_for_the_sensor_and_
     w = 2 * np.pi * h[1:] * 0.5
     np.testing.assert_allclose(sensor[1:], piezo.delta_at(cal) * 1j * w / (1j * w + 2 * np.pi * 0.05))
     assert sensor[0] == pytest.approx(piezo.delta_at(cal))
-    np.testing.assert_array_equal(TorqueMeasurement(piezo, "encoder", 0.01).response(h, 0.5, cal), np.ones(4))
+    encoder = TorqueMeasurement(piezo, TorqueSource.ENCODER, 0.01)
+    np.testing.assert_array_equal(encoder.response(h, 0.5, cal), np.ones(4))
     spectrum = TorqueSpectrum(sensor.astype(complex), np.full(4, 4.0), 1.0, COUNTS_PER_REV)
     true = TorqueMeasurement(piezo).in_true_units(spectrum, 0.5, cal)
     np.testing.assert_allclose(true.harmonics_nm, np.ones(4))
@@ -145,7 +147,7 @@ def test_the_measurement_response_is_delta_and_the_high_pass_for_the_sensor_and_
 def test_the_stages_see_the_encoder_torque_in_newton_metres(bench):
     backend, description, identified = bench
     trial = simulated(backend, description, 2.0, 0.9, revolutions=3)
-    measurement = TorqueMeasurement(identified, "encoder", description.motor.inertia_kgm2, Q_S)
+    measurement = TorqueMeasurement(identified, TorqueSource.ENCODER, description.motor.inertia_kgm2, Q_S)
     pipeline = Pipeline([], description, identified, None, H, measurement=measurement)
     analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, measurement)
     frame = pipeline.frame(trial, spectrum=analysis.measured)
@@ -160,8 +162,9 @@ def test_a_sensor_source_on_a_trial_without_a_torque_column_is_one_clear_error(b
     backend, description, identified = bench
     trial = dataclasses.replace(simulated(backend, description, 2.0, 0.9, revolutions=3), torque_nm=None)
     with pytest.raises(IlcpmacError, match='no torque column .*use "encoder"'):
-        TrialAnalysis.of(trial, COUNTS_PER_REV, H, TorqueMeasurement(identified, "both", 0.01))
-    analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, TorqueMeasurement(identified, "encoder", 0.01, Q_S))
+        TrialAnalysis.of(trial, COUNTS_PER_REV, H, TorqueMeasurement(identified, TorqueSource.BOTH, 0.01))
+    encoder = TorqueMeasurement(identified, TorqueSource.ENCODER, 0.01, Q_S)
+    analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, encoder)
     assert analysis.measured is not None and analysis.true is not None
     assert TrialAnalysis.of(trial, COUNTS_PER_REV, H).measured is None
 
@@ -226,13 +229,13 @@ def test_both_fuses_the_sensor_brought_to_true_torque_by_its_response_with_the_e
     backend, description, identified = bench
     piezo = dataclasses.replace(identified, sensor_highpass_hz=0.05)
     trial = simulated(backend, description, 2.0, 0.6, revolutions=4)
-    both = TorqueMeasurement(piezo, "both", description.motor.inertia_kgm2, Q_S)
+    both = TorqueMeasurement(piezo, TorqueSource.BOTH, description.motor.inertia_kgm2, Q_S)
     analysis = TrialAnalysis.of(trial, COUNTS_PER_REV, H, both)
     h = np.arange(H + 1)
     w = 2 * np.pi * h * trial.mean_speed_hz(COUNTS_PER_REV)
     response = piezo.delta_at(description.calibration) * np.where(h > 0, 1j * w / (1j * w + 2 * np.pi * 0.05), 1)
     sensor = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, COUNTS_PER_REV, H).divided_by(response)
-    encoder = dataclasses.replace(both, source="encoder").encoder_spectrum(trial, COUNTS_PER_REV, H)
+    encoder = dataclasses.replace(both, source=TorqueSource.ENCODER).encoder_spectrum(trial, COUNTS_PER_REV, H)
     np.testing.assert_allclose(analysis.measured.harmonics_nm, fused(sensor, encoder).harmonics_nm, rtol=1e-9)
     assert np.all(analysis.measured.variance_nm2[1:] < np.minimum(sensor.variance_nm2, encoder.variance_nm2)[1:])
     assert abs(analysis.measured.harmonics_nm[48] - analysis.true.harmonics_nm[48]) < 0.01 * 0.5
@@ -260,11 +263,11 @@ class SourceTruth(TruthIdentification):
 
     def __init__(self, backend) -> None:
         super().__init__(backend)
-        self.asked: list[str | None] = []
+        self.asked: list[TorqueSource | None] = []
 
     def __call__(self, bench, torque_source=None):
         self.asked.append(torque_source)
-        if torque_source == "encoder":
+        if torque_source is TorqueSource.ENCODER:
             return dataclasses.replace(self.result, delta=None, delta_std=None, delta_epsilon=None,
                                        delta_epsilon_std=None, encoder_error_counts=np.zeros(COUNTS_PER_REV))
         return self.result
@@ -296,7 +299,7 @@ def test_a_small_campaign_without_a_torque_sensor_reduces_the_true_ripple(tmp_pa
     run_dir = RunDir.create(tmp_path / "run", description, cfg.path.read_text())
     runner = CampaignRunner(cfg, NoSensor(), run_dir, 7, identify, Quiet())
     summary = runner.run()
-    assert identify.asked == ["encoder"] and runner.measurement.source == "encoder"
+    assert identify.asked == [TorqueSource.ENCODER] and runner.measurement.source is TorqueSource.ENCODER
     resumed = CampaignRunner(cfg, NoSensor(), RunDir.resume(tmp_path / "run", description), 7, identify, Quiet())
     assert resumed.run() == summary  # the trials without a torque column read back
     assert runner.identified.delta == 1.0  # not identified: the encoder's torque is true torque
@@ -307,7 +310,8 @@ def test_a_small_campaign_without_a_torque_sensor_reduces_the_true_ripple(tmp_pa
         assert last.measured.pp < 0.01
 
 
-@pytest.mark.parametrize("source, asked", [("encoder", ["encoder"]), ("both", [None, "encoder"])])
+@pytest.mark.parametrize("source, asked", [("encoder", [TorqueSource.ENCODER]),
+                                           ("both", [None, TorqueSource.ENCODER])])
 def test_a_resumed_campaign_measures_as_it_did(tmp_path: Path, source, asked):
     """"both" identifies on the sensor and takes the encoder's graduation error from the encoder's."""
     cfg = small_config(tmp_path, torque_source=source, learn_trials=1, validate_torques_nm=[])
@@ -318,7 +322,7 @@ def test_a_resumed_campaign_measures_as_it_did(tmp_path: Path, source, asked):
     summary = runner.run()
     resumed = CampaignRunner(cfg, sim, RunDir.resume(tmp_path / "run", sim.describe()), 7, identify, Quiet())
     assert resumed.run() == summary
-    assert identify.asked == asked and resumed.measurement.source == source
+    assert identify.asked == asked and resumed.measurement.source is TorqueSource(source)
     np.testing.assert_array_equal(resumed.measurement.line_errors_counts, np.zeros(COUNTS_PER_REV))
     assert resumed.measurement.timer_resolution_s == runner.measurement.timer_resolution_s > 0
     assert resumed.pipeline.measurement is resumed.measurement

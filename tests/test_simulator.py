@@ -13,11 +13,12 @@ from conftest import COUNTS_PER_REV, REVOLUTIONS, SEED_CONFIG
 from scipy.integrate import quad
 from scipy.interpolate import CubicSpline
 
+from ilcpmac.campaign.grid import grid_requests
 from ilcpmac.core.errors import SimulationError
 from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import backemf_table, cogging_table, disturbance_table
-from ilcpmac.sim.grid import grid_requests, truth_dict
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.sim.kernel import GAUSS_BITS, simulate_trial
 from ilcpmac.sim.simulator import MAX_COUNTS_PER_REV, MAX_SAMPLES, SensorTruth, Simulator
 
@@ -392,7 +393,7 @@ def test_lag_bench_ignores_the_winding_and_states_its_bandwidth(small_model, see
     assert not np.array_equal(trial.i_true_a, pi.i_true_a)
     assert_trials_identical(pi, Simulator(_with(small_model, "controller", loop="pi")).run_trial(seed_request))
     calibration = small_model.controller.calibration()
-    truth = truth_dict(Simulator(lag), seed_request)
+    truth = truth_dict(Simulator(lag), seed_request.calibration)
     np.testing.assert_array_equal(truth["current_loop_bandwidth_per_phase_hz"], [140.0] * 3)
     pi_truth = Simulator(small_model).truth(calibration)
     np.testing.assert_allclose(pi_truth.loop_bandwidth_hz, 140.0 / (pi_truth.epsilon * pi_truth.alpha), rtol=1e-12)

@@ -21,14 +21,14 @@ from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.seeds import trial_seed
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
 from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.signals.multisine import multisine, multisine_phases_rad
-from ilcpmac.sim.grid import truth_dict
-from ilcpmac.sim.simulator import trial_seed
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.stages import Stage
 from ilcpmac.stages.base import Identified, StageSetup, read_options
 from ilcpmac.stages.cogging import CoggingFeedForward
@@ -81,7 +81,7 @@ def true_calibration(backend: SimulatorBackend) -> SensorCalibration:
 def identified(backend: SimulatorBackend, *, alpha_error=0.0, beta_error_a=0.0, epsilon_factor: float = 1.0,
                cogging_nm: np.ndarray | None = None) -> Identified:
     """The identification the stages start from: the simulator's truth, with the given errors."""
-    truth = truth_dict(backend.simulator, base_request(backend))
+    truth = truth_dict(backend.simulator, base_request(backend).calibration)
     truth["alpha"] = list(np.asarray(truth["alpha"]) + alpha_error)
     truth["beta"] = list(np.asarray(truth["beta"]) + beta_error_a)
     truth["epsilon"] *= epsilon_factor

@@ -27,7 +27,7 @@ from ilcpmac.bench.standstill import ScanData, SensorErrors, read_scan, reduce_s
 from ilcpmac.cli import main
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.records import BenchLimits, MotorInfo
-from ilcpmac.sim.grid import simulated_description
+from ilcpmac.sim.bench import simulated_description
 from ilcpmac.sim.simulator import Simulator
 from ilcpmac.sim.standstill import ScanPlan, write_scan_log
 from ilcpmac.stages.base import Identified, StageSetup

@@ -15,8 +15,9 @@ from click.testing import CliRunner
 
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
-from ilcpmac.sim.grid import simulated_description
-from ilcpmac.sim.simulator import Simulator, trial_seed
+from ilcpmac.core.seeds import trial_seed
+from ilcpmac.sim.bench import simulated_description
+from ilcpmac.sim.simulator import Simulator
 from ilcpmac.sweep.results import SweepResultsError, read_results, result_file
 from ilcpmac.sweep.runner import SweepRunError, SweepRunner, local_client
 from ilcpmac.sweep.spec import SweepSpecError, load_spec
@@ -84,7 +85,10 @@ def test_draws_are_seeded_per_task_and_land_in_each_config(spec_file, small_conf
 
 @pytest.mark.parametrize("table, expected", [
     ('[sweep]\nkinds = "identify"', 'spec.toml: [sweep] unknown key'),
-    ('[sweep]\nkind = "fit"', "[sweep] kind: 'fit' is not one of identify, campaign"),
+    ('[sweep]\nkind = "fit"',
+     "[sweep] kind: invalid value 'fit' (what a task runs: \"identify\" (the grid and identify_bench) or \"campaign\""),
+    ('[sweep]\ntasks = 0', "[sweep] tasks: invalid value 0 (tasks per point of the grid draws, 1..100000)"),
+    ('[sweep]\nseed = 1.5', "[sweep] seed: expected an integer, got 1.5"),
     ('[draw."simulator.mechanics.mass"]\ndistribution = "normal"\nstd = 1.0',
      '[draw."simulator.mechanics.mass"]: [simulator.mechanics] has no key \'mass\''),
     ('[draw."simulator.mechanics.inertia_kgm2"]\ndistribution = "normal"\nstd = 1.0',

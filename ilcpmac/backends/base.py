@@ -30,7 +30,8 @@ class Backend(Protocol):
         How many `run_trial` calls may run at once, in threads (1: one at a time).
     """
 
-    max_parallel_trials: int
+    @property
+    def max_parallel_trials(self) -> int: ...
 
     def describe(self) -> BenchDescription:
         """The motor, its back-EMF table, today's calibration and the limits."""

@@ -383,6 +383,7 @@ class BenchEmulator:
         version = PROTOCOL_VERSION + 1 if "wrong_version" in faults else PROTOCOL_VERSION
         accept = encode_accept(Accept(trial_id, max_samples))
         started = time.monotonic()
+        assert self._pool is not None, "start() made the pool before any connection"
         future = self._pool.submit(self._run, trial_id, request, max_samples)
         # ACCEPT waits one heartbeat interval: a request the backend refuses at once gets an ERROR alone
         accepted = False

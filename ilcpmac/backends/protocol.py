@@ -25,6 +25,7 @@ import numpy as np
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.core.errors import BackendError
 from ilcpmac.core.records import MOTOR_RANGES, MotorInfo, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.pipeline.safety import SafetyLimits, request_violation
 
 #: Protocol version carried in every frame header; both ends must speak the same.
 PROTOCOL_VERSION = 1
@@ -575,9 +576,11 @@ def encode_trial(trial_id: int, trial: TrialData, chunk_samples: int) -> Iterato
     frames = 0
     for start in range(0, trial.n_samples, chunk_samples):
         stop = min(start + chunk_samples, trial.n_samples)
-        parts = [_DATA_HEAD.pack(trial_id, flags, start, stop - start, 0), *(c[start:stop] for c in columns)]
+        parts: list[bytes | np.ndarray] = [_DATA_HEAD.pack(trial_id, flags, start, stop - start, 0),
+                                           *(c[start:stop] for c in columns)]
         for p in parts:
-            crc = zlib.crc32(p, crc)
+            # an ndarray is a buffer; numpy's stubs say so (__buffer__) only for Python >= 3.12
+            crc = zlib.crc32(p, crc)  # type: ignore[arg-type]
         frames += 1
         yield FrameType.DATA, parts
     yield FrameType.END_OF_TRIAL, encode_end(EndOfTrial(trial_id, frames, trial.n_samples, crc))
@@ -748,8 +751,6 @@ def check_request(request: TrialRequest, description: BenchDescription) -> tuple
     current reference i*_p = tau_ref K_p / sum_q K_q^2 (the minimum-copper-loss references from the
     described back-EMF table) above max_current_a.
     """
-    from ilcpmac.pipeline.safety import SafetyLimits, request_violation
-
     violation = request_violation(request, description, SafetyLimits.of_bench(description.limits))
     if violation is None:
         return None

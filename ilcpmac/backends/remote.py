@@ -210,6 +210,7 @@ class RemoteBackend:
         """The target's motor, back-EMF table, calibration and limits (from the handshake)."""
         if self._description is None:
             self._with_retries("handshake with the bench target", self._connect)
+        assert self._description is not None, "a successful handshake records the description"
         return self._description
 
     def set_progress(self, callback: ProgressCallback | None) -> None:
@@ -240,7 +241,8 @@ class RemoteBackend:
 
     def _attempt(self, request: TrialRequest) -> TrialData:
         channel = self._connect()
-        bounds = SampleBounds.of(request, self._description)
+        description = self.describe()
+        bounds = SampleBounds.of(request, description)
         recording_s = request.revolutions / request.speed_setpoint_hz
         budget_s = TRIAL_TIME_FACTOR * recording_s + self.trial_margin_s
         trial_id = self._next_trial_id
@@ -270,11 +272,11 @@ class RemoteBackend:
         if frame.type is not FrameType.END_OF_TRIAL:
             raise ProtocolError(f"unexpected {frame.type.name} frame during trial data")
         columns = assembler.finish(frame.payload)
-        if not self._description.motor.torque_sensor:
-            columns["torque_nm"] = None  # what a bench without a torque sensor sends there means nothing
+        torque = columns.pop("torque_nm")  # meaningless from a bench without a torque sensor
         self._report(1.0)
         return TrialData(torque_setpoint_nm=request.torque_setpoint_nm,
-                         speed_setpoint_hz=request.speed_setpoint_hz, request=request, **columns)
+                         speed_setpoint_hz=request.speed_setpoint_hz, request=request,
+                         torque_nm=torque if description.motor.torque_sensor else None, **columns)
 
     def _report(self, fraction: float) -> None:
         if self._progress is not None:

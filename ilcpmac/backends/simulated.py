@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.model.motor import MotorModel
-from ilcpmac.sim.grid import simulated_description
+from ilcpmac.sim.bench import simulated_description
 from ilcpmac.sim.simulator import Simulator
 
 if TYPE_CHECKING:

@@ -13,7 +13,7 @@ import os
 import re
 import stat
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import astuple, dataclass, replace
 from pathlib import Path, PurePosixPath
 
 import numpy as np
@@ -28,12 +28,22 @@ from ilcpmac.core.records import (
     MAX_CURRENT_A,
     MAX_SPEED_HZ,
     MAX_TORQUE_NM,
-    MOTOR_RANGES,
     MotorInfo,
     SensorCalibration,
     TrialData,
 )
-from ilcpmac.core.schema import read_toml, shown, toml_value
+from ilcpmac.core.schema import (
+    field_like,
+    in_range,
+    param,
+    parse_section,
+    read_toml,
+    section_toml,
+    setting,
+    shown,
+    unknown_key,
+)
+from ilcpmac.model.motor import Controller, Encoder, Mechanics, Winding
 from ilcpmac.model.tables import backemf_table
 
 BENCH_FILE = "bench.toml"
@@ -78,12 +88,69 @@ MAX_COUNT = 2**53
 SPEED_TOLERANCE = 1.5
 #: largest timer resolution of the time stamps, s
 MAX_TIMER_RESOLUTION_S = 1e-3
-_MOTOR_KEYS = {"pole_pairs": int, "slots": int, "counts_per_rev": int, "inertia": float, "backemf_file": str}
-#: optional [motor] keys: whether the trials carry a torque column, the time stamps' resolution, s, and whether
-#: the trials are reverse laps mirrored
-_MOTOR_OPTIONAL_KEYS = {"torque_sensor": bool, "timer_resolution_s": float, "mirrored": bool}
-_SENSOR_KEYS = {"current_scale": list, "current_offset": list, "torque_gain": float}
-_TRIAL_KEYS = {"file": str, "torque_setpoint": float, "speed_setpoint": float}
+#: the tables of bench.toml
+_TABLES = ("motor", "sensors", "trials")
+
+
+def _inside_folder(name: str) -> bool:
+    """A relative path without "..", so that nothing outside the bench folder is ever opened."""
+    path = PurePosixPath(name)
+    return bool(name) and "\\" not in name and "\0" not in name and not path.is_absolute() and ".." not in path.parts
+
+
+def _file(what: str):
+    return param(_inside_folder, f"{what}, a relative path inside the bench folder (no leading '/', no '..')")
+
+
+@dataclass(frozen=True)
+class MotorTable:
+    """bench.toml's [motor] table: `MotorInfo` and the back-EMF table's file (docs/bench-format.md)."""
+
+    pole_pairs: int = field_like(Winding, "pole_pairs")
+    slots: int = field_like(Winding, "slots")
+    counts_per_rev: int = field_like(Encoder, "counts_per_rev")
+    inertia: float = field_like(Mechanics, "inertia_kgm2")
+    backemf_file: str = _file("the back-EMF table (backemf.csv)")
+    torque_sensor: bool = setting(None, "whether the trials carry the torque sensor's column", True)
+    timer_resolution_s: float | None = field_like(Encoder, "timer_resolution_s", default=None)
+    mirrored: bool = setting(None, "reverse laps, stored as forward laps of the motor's mirror image", False,
+                             commented=True)
+
+    @classmethod
+    def of(cls, motor: MotorInfo, backemf_file: str) -> MotorTable:
+        """The table of ``motor`` and its back-EMF table's file."""
+        return cls(motor.pole_pairs, motor.slots, motor.counts_per_rev, motor.inertia_kgm2, backemf_file,
+                   motor.torque_sensor, motor.timer_resolution_s, motor.mirrored)
+
+    def info(self) -> MotorInfo:
+        """The motor this table describes."""
+        return MotorInfo(self.pole_pairs, self.slots, self.counts_per_rev, self.inertia, self.torque_sensor,
+                         self.timer_resolution_s, self.mirrored)
+
+
+@dataclass(frozen=True)
+class SensorTable:
+    """bench.toml's [sensors] table, and compensation.json's "calibration": a `SensorCalibration`."""
+
+    current_scale: tuple[float, ...] = field_like(Controller, "current_scale_counts_per_a")
+    current_offset: tuple[float, ...] = field_like(Controller, "current_offset_counts")
+    torque_gain: float = param(in_range(0.0, MAX_CALIBRATION, low_open=True),
+                               f"g*_t, V / N m, within (0, {MAX_CALIBRATION:g}]")
+
+    def calibration(self) -> SensorCalibration:
+        """The calibration this table holds."""
+        return SensorCalibration(*astuple(self))
+
+
+@dataclass(frozen=True)
+class TrialEntry:
+    """One [[trials]] entry of bench.toml."""
+
+    file: str = _file("the trial's file")
+    torque_setpoint: float = param(in_range(0.0, MAX_TORQUE_NM, low_open=True),
+                                   f"the torque set point, N m, within (0, {MAX_TORQUE_NM:g}]")
+    speed_setpoint: float = param(in_range(0.0, MAX_SPEED_HZ, low_open=True),
+                                  f"the speed set point, Hz, within (0, {MAX_SPEED_HZ:g}]")
 
 
 @dataclass(frozen=True)
@@ -110,60 +177,6 @@ class Bench:
 
 
 # ---------------------------------------------------------------- reading
-
-
-def _table_value(table: dict, key: str, kind: type, where: str):
-    if key not in table:
-        raise BenchFormatError(f"{where}: missing key {key!r}")
-    value = table[key]
-    if kind is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise BenchFormatError(f"{where}: key {key!r} must be a finite number, got {value!r}")
-        return float(value)
-    if kind is int:
-        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise BenchFormatError(f"{where}: key {key!r} must be a positive integer, got {value!r}")
-        return value
-    if not isinstance(value, kind):
-        article = "true or false" if kind is bool else f"a {kind.__name__}"
-        raise BenchFormatError(f"{where}: key {key!r} must be {article}, got {value!r}")
-    return value
-
-
-def _positive(table: dict, key: str, where: str, high: float) -> float:
-    value = _table_value(table, key, float, where)
-    if not 0 < value <= high:
-        raise BenchFormatError(f"{where}: key {key!r} must lie in (0, {high:g}], got {value!r}")
-    return value
-
-
-def _check_keys(table, allowed: dict, where: str) -> None:
-    if not isinstance(table, dict):
-        raise BenchFormatError(f"{where}: must be a table")
-    unknown = sorted(set(table) - set(allowed))
-    if unknown:
-        raise BenchFormatError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
-
-
-def _three_numbers(table: dict, key: str, where: str) -> np.ndarray:
-    value = _table_value(table, key, list, where)
-    if len(value) != 3 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                                  for v in value):
-        raise BenchFormatError(f"{where}: key {key!r} must be a list of 3 finite numbers, got {value!r}")
-    return np.array(value, float)
-
-
-def _relative_name(table: dict, key: str, where: str) -> str:
-    """The file named by ``key``, normalised ("./a.csv" is "a.csv"); it must be a relative path without "..".
-
-    Nothing outside the bench folder is ever opened.
-    """
-    value = _table_value(table, key, str, where)
-    path = PurePosixPath(value)
-    if not value or "\\" in value or "\0" in value or path.is_absolute() or ".." in path.parts:
-        raise BenchFormatError(f"{where}: key {key!r} must be a relative path inside the bench folder "
-                               f"(no leading '/', no '..'), got {value!r}")
-    return str(path)
 
 
 def _inside(path: Path, root: Path) -> Path:
@@ -229,7 +242,7 @@ def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
             body = f.tell()
             data = parse_rows(_rest(f), len(header), max_rows)
             parsed = data is not None
-            if not parsed:
+            if data is None:
                 f.seek(body)
                 try:
                     data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float, max_rows=max_rows + 1)
@@ -409,7 +422,9 @@ def _trial(path: Path, header: list[str], columns: list[np.ndarray], blocks: dic
     kept = {attr: blocks[attr] if width == 3 else col[prefix] for prefix, (attr, width) in EXTRA_COLUMNS.items()
             if extras and (attr in blocks if width == 3 else prefix in col)}
     return TrialData(torque_setpoint_nm=torque_setpoint_nm, speed_setpoint_hz=speed_setpoint_hz, count=counts,
-                     time_s=col["time"], i_ref_a=blocks["i_ref_a"], torque_nm=col.get(TORQUE_COLUMN), **kept)
+                     time_s=col["time"], i_ref_a=blocks["i_ref_a"], torque_nm=col.get(TORQUE_COLUMN),
+                     i_meas_a=kept.get("i_meas_a"), torque_true_nm=kept.get("torque_true_nm"),
+                     i_true_a=kept.get("i_true_a"), speed_true_rad_s=kept.get("speed_true_rad_s"))
 
 
 def _range(values: np.ndarray) -> tuple[float, float]:
@@ -478,37 +493,13 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
             f"[motor] pole_pairs = {motor.pole_pairs} (wrong pole_pairs or counts_per_rev?)")
 
 
-def _motor(table, where: str) -> tuple[MotorInfo, str]:
-    """The [motor] table: each value within MOTOR_RANGES; and the back-EMF file's name."""
-    _check_keys(table, _MOTOR_KEYS | _MOTOR_OPTIONAL_KEYS, where)
-    values = {k: _table_value(table, k, kind, where) for k, kind in _MOTOR_KEYS.items() if kind is not str}
-    for key, (low, high) in MOTOR_RANGES.items():
-        if not low <= values[key] <= high:
-            raise BenchFormatError(f"{where}: key {key!r} must lie in [{low}, {high}], got {values[key]!r}")
-    if values["counts_per_rev"] < 4 * values["pole_pairs"]:
-        raise BenchFormatError(f"{where}: key 'counts_per_rev' must be at least 4 per electrical period "
-                               f"(4 x pole_pairs = {4 * values['pole_pairs']}), got {values['counts_per_rev']}")
-    torque_sensor = _table_value(table, "torque_sensor", bool, where) if "torque_sensor" in table else True
-    timer = _positive(table, "timer_resolution_s", where, MAX_TIMER_RESOLUTION_S) \
-        if "timer_resolution_s" in table else None
-    mirrored = _table_value(table, "mirrored", bool, where) if "mirrored" in table else False
-    motor = MotorInfo(values["pole_pairs"], values["slots"], values["counts_per_rev"], values["inertia"],
-                      torque_sensor, timer, mirrored)
-    return motor, _relative_name(table, "backemf_file", where)
-
-
-def _sensors(table, where: str) -> SensorCalibration:
-    """The [sensors] table: finite values, positive scales and gain."""
-    _check_keys(table, _SENSOR_KEYS, where)
-    scale = _three_numbers(table, "current_scale", where)
-    if not np.all((scale > 0) & (scale <= MAX_CALIBRATION)):
-        raise BenchFormatError(f"{where}: key 'current_scale' must lie in (0, {MAX_CALIBRATION:g}], "
-                               f"got {scale.tolist()}")
-    offset = _three_numbers(table, "current_offset", where)
-    if not np.all(np.abs(offset) <= MAX_CALIBRATION):
-        raise BenchFormatError(f"{where}: key 'current_offset' must lie in [-{MAX_CALIBRATION:g}, "
-                               f"{MAX_CALIBRATION:g}], got {offset.tolist()}")
-    return SensorCalibration(scale, offset, _positive(table, "torque_gain", where, MAX_CALIBRATION))
+def _motor(table, source: str) -> tuple[MotorInfo, str]:
+    """The [motor] table, with at least 4 counts per electrical period; and the back-EMF file's name."""
+    motor = parse_section(table, MotorTable, source, "motor", error=BenchFormatError)
+    if motor.counts_per_rev < 4 * motor.pole_pairs:
+        raise BenchFormatError(f"{source}: [motor] counts_per_rev: must be at least 4 per electrical period "
+                               f"(4 x pole_pairs = {4 * motor.pole_pairs}), got {motor.counts_per_rev}")
+    return motor.info(), str(PurePosixPath(motor.backemf_file))
 
 
 @dataclass(frozen=True)
@@ -547,13 +538,16 @@ def _bench_toml(folder: str | Path) -> tuple[MotorInfo, Path, SensorCalibration 
         raise BenchFormatError(f"{toml_path}: no such file (a bench folder needs {BENCH_FILE})")
     _regular_file(_inside(toml_path, root), None)
     data = read_toml(toml_path, BenchFormatError)
-    _check_keys(data, {"motor": 0, "sensors": 0, "trials": 0}, str(toml_path))
+    problem = unknown_key(data, _TABLES)
+    if problem is not None:
+        raise BenchFormatError(f"{toml_path}: {problem}")
     if "motor" not in data:
         raise BenchFormatError(f"{toml_path}: missing table [motor]")
-    motor, backemf_file = _motor(data["motor"], f"{toml_path}: [motor]")
+    motor, backemf_file = _motor(data["motor"], str(toml_path))
     backemf_path = folder / backemf_file
     _inside(backemf_path, root)
-    sensors = _sensors(data["sensors"], f"{toml_path}: [sensors]") if "sensors" in data else None
+    sensors = parse_section(data["sensors"], SensorTable, str(toml_path), "sensors",
+                            error=BenchFormatError).calibration() if "sensors" in data else None
     return motor, backemf_path, sensors, data.get("trials")
 
 
@@ -574,26 +568,28 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
     motor, backemf_path, sensors, entries = _bench_toml(folder)
     root = folder.resolve()
     toml_path = folder / BENCH_FILE
-    jobs, files, seen, refusal = [], [], {}, None
+    jobs: list[tuple[Path, float, float]] = []
+    files: list[str] = []
+    seen: dict[Path, int] = {}
+    refusal: BenchFormatError | None = None
     if not isinstance(entries, list) or not entries:
         entries, refusal = [], BenchFormatError(f"{toml_path}: needs at least one [[trials]] entry")
     max_rows = min(MAX_REVOLUTIONS * motor.counts_per_rev, MAX_TRIAL_ROWS)
     for i, entry in enumerate(entries, start=1):
-        where = f"{toml_path}: [[trials]] #{i}"
+        label = f"[[trials]] #{i}"
         try:
-            _check_keys(entry, _TRIAL_KEYS, where)
-            name = _relative_name(entry, "file", where)
-            torque = _positive(entry, "torque_setpoint", where, MAX_TORQUE_NM)
-            speed = _positive(entry, "speed_setpoint", where, MAX_SPEED_HZ)
+            trial = parse_section(entry, TrialEntry, str(toml_path), "trials", error=BenchFormatError, label=label)
+            name = str(PurePosixPath(trial.file))
             path = folder / name
             real = _inside(path, root)
             if real in seen:
-                raise BenchFormatError(f"{where}: file {name!r} is listed twice (also [[trials]] #{seen[real]})")
+                raise BenchFormatError(f"{toml_path}: {label}: file {name!r} is listed twice "
+                                       f"(also [[trials]] #{seen[real]})")
         except BenchFormatError as e:
             refusal = e
             break
         seen[real] = i
-        jobs.append((path, torque, speed))
+        jobs.append((path, trial.torque_setpoint, trial.speed_setpoint))
         files.append(name)
 
     def read(job: tuple[Path, float, float]) -> TrialData:
@@ -620,23 +616,11 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
 def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
                     trials: list[tuple[str, float, float]], backemf_file: str = "backemf.csv") -> str:
     """bench.toml text; ``trials`` lists (file, torque set point N m, speed set point Hz)."""
-    m = motor
-    lines = ["[motor]",
-             f"pole_pairs = {m.pole_pairs}", f"slots = {m.slots}", f"counts_per_rev = {m.counts_per_rev}",
-             f"inertia = {toml_value(m.inertia_kgm2)}", f"backemf_file = {toml_value(backemf_file)}"]
-    if not m.torque_sensor:
-        lines.append("torque_sensor = false")
-    if m.timer_resolution_s is not None:
-        lines.append(f"timer_resolution_s = {toml_value(m.timer_resolution_s)}")
-    if m.mirrored:
-        lines.append("mirrored = true  # reverse laps, stored as forward laps of the motor's mirror image")
-    lines.append("")
+    tables: list[tuple[str, object]] = [("[motor]", MotorTable.of(motor, backemf_file))]
     if sensors is not None:
-        lines += ["[sensors]", *(f"{key} = {toml_value(value)}" for key, value in sensors.to_json().items()), ""]
-    for name, torque, speed in trials:
-        lines += ["[[trials]]", f"file = {toml_value(name)}",
-                  f"torque_setpoint = {toml_value(torque)}", f"speed_setpoint = {toml_value(speed)}", ""]
-    return "\n".join(lines)
+        tables.append(("[sensors]", SensorTable(**sensors.to_json())))
+    tables += [("[[trials]]", TrialEntry(*trial)) for trial in trials]
+    return "\n".join(f"{header}\n{section_toml(table)}" for header, table in tables)
 
 
 def _write_csv(path: Path, header: list[str], columns: list[np.ndarray], decimals: list[int]) -> None:
@@ -769,10 +753,10 @@ def check_bench(config: CampaignConfig, description) -> None:
                               f"back-EMF table by {error[count, phase]:.3g} N m / A at count {count}, "
                               f"phase {'abc'[phase]}")
     if bench.calibration is not None:
-        ours, theirs = bench.calibration.calibration(), description.calibration
-        for key, a, b in (("current_scale_counts_per_a", ours.current_scale, theirs.current_scale),
-                          ("current_offset_counts", ours.current_offset, theirs.current_offset),
-                          ("torque_gain_v_per_nm", ours.torque_gain, theirs.torque_gain)):
+        mine, theirs = bench.calibration.calibration(), description.calibration
+        for key, a, b in (("current_scale_counts_per_a", mine.current_scale, theirs.current_scale),
+                          ("current_offset_counts", mine.current_offset, theirs.current_offset),
+                          ("torque_gain_v_per_nm", mine.torque_gain, theirs.torque_gain)):
             if not np.allclose(a, b, rtol=1e-9, atol=1e-12):
                 raise ConfigError(f"{config.path}: [bench.calibration] {key} {shown(np.atleast_1d(a).tolist())} "
                                   f"differs from the bench's {shown(np.atleast_1d(b).tolist())}")

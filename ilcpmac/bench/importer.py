@@ -256,13 +256,13 @@ def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
 
 def _backemf(bench: BenchSettings, motor: MotorInfo, path: Path) -> np.ndarray:
     """The back-EMF table of [bench]: backemf_file (relative to the mapping) or [bench.backemf]."""
-    if (bench.backemf_file is None) == (bench.backemf is None):
-        raise ConfigError(f"{path}: [bench] backemf_file, [bench.backemf]: give exactly one")
-    if bench.backemf_file is not None:
+    if bench.backemf_file is not None and bench.backemf is None:
         try:
             return read_backemf_csv(path.parent / bench.backemf_file, motor)
         except BenchFormatError as e:
             raise ConfigError(f"{path}: [bench] backemf_file: {e}") from None
+    if bench.backemf_file is not None or bench.backemf is None:
+        raise ConfigError(f"{path}: [bench] backemf_file, [bench.backemf]: give exactly one")
     problem = backemf_problem(bench.backemf, motor.pole_pairs, motor.counts_per_rev, model_key)
     if problem is not None:
         raise ConfigError(f"{path}: {problem}")
@@ -400,7 +400,7 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
     cpr = motor.counts_per_rev
     first, last, reverse = lap
     lines = (_line(layout, first), _line(layout, last)) if part else None
-    where = f"{log}: lines {lines[0]}-{lines[1]}" if part else str(log)
+    where = str(log) if lines is None else f"{log}: lines {lines[0]}-{lines[1]}"
     rows = slice(first, last + 1)
     sign = -1.0 if reverse else 1.0
     time_s, position = time_s[rows], sign * position[rows]
@@ -502,6 +502,8 @@ def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.
     if back.size:
         raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.time} does not increase")
     per_rev = 2.0 * np.pi if layout.position_unit == "rad" else layout.position_counts_per_rev
+    if per_rev is None:
+        raise ConfigError(f'{log}: [log] position_counts_per_rev: missing (position_unit = "counts" needs it)')
     position = columns[layout.position] * (cpr / per_rev)
     for name, values, bound, unit in ((layout.time, time_s, MAX_TIME_S, "s"),
                                       (layout.position, position, MAX_COUNT, "counts")):
@@ -557,9 +559,11 @@ def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> Sc
     _check_new(out)
     _check_logs(logs, mapping)
     scans = [import_scan(log, mapping) for log in logs]
-    names = [f.name for f in dataclasses.fields(ScanData)]
-    joined = ScanData(*(None if getattr(scans[0], name) is None else np.concatenate([getattr(s, name) for s in scans])
-                        for name in names))
+    currents = [s.currents_a for s in scans if s.currents_a is not None]
+    torques = [s.torque_nm for s in scans if s.torque_nm is not None]
+    joined = ScanData(np.concatenate([s.time_s for s in scans]), np.concatenate([s.position_counts for s in scans]),
+                      np.concatenate([s.direction for s in scans]), np.concatenate(currents) if currents else None,
+                      np.concatenate(torques) if torques else None)
     check_scan(joined, str(out))
     write_scan(out, mapping.motor, mapping.backemf_nm_per_a, mapping.sensors, mapping.scan_errors, joined)
     return joined

@@ -106,7 +106,8 @@ def _decode(path: Path, name: str, column: pa.ChunkedArray, integral: bool, out:
             part[:] = chunk.to_numpy()
             continue
         words = max(kind.bit_width // 64, 1)
-        values = np.frombuffer(chunk.buffers()[1], np.int64 if kind.bit_width >= 64 else np.int32).reshape(
+        word: type[np.signedinteger] = np.int64 if kind.bit_width >= 64 else np.int32
+        values = np.frombuffer(chunk.buffers()[1], word).reshape(
             -1, words)[chunk.offset: chunk.offset + len(chunk)]
         if words > 1 and not integral:
             wide = np.flatnonzero((values[:, 1:] != (values[:, :1] >> 63)).any(axis=1))

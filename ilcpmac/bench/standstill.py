@@ -380,10 +380,15 @@ def write_scan(folder: str | Path, motor: MotorInfo, backemf_nm_per_a: np.ndarra
                sensors: SensorCalibration | None, errors: SensorErrors, scan: ScanData) -> None:
     """Write a scan folder: backemf.csv, scan.csv, scan.toml, then bench.toml last."""
     folder = Path(folder)
+    names: tuple[str, ...]
+    if scan.currents_a is not None:
+        values, names = scan.currents_a, CURRENT_COLUMNS
+    elif scan.torque_nm is not None:
+        values, names = scan.torque_nm[:, None], (TORQUE_COLUMN,)
+    else:
+        raise BenchFormatError(f"{folder}: a scan needs its phase currents or its torque")
     folder.mkdir(parents=True, exist_ok=True)
     write_backemf_csv(folder / "backemf.csv", backemf_nm_per_a)
-    values = scan.currents_a if scan.currents_a is not None else scan.torque_nm[:, None]
-    names = CURRENT_COLUMNS if scan.currents_a is not None else (TORQUE_COLUMN,)
     body = format_rows(np.column_stack([scan.time_s, scan.position_counts, scan.direction, values]),
                        np.array([7, 6, 0] + [6] * len(names)))
     atomic_write(folder / SCAN_DATA_FILE, ",".join(BASE_COLUMNS + names).encode() + b"\n" + body)

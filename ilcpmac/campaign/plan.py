@@ -12,13 +12,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ilcpmac.bench.format import check_bench
+from ilcpmac.campaign.grid import grid_plan, grid_requests
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import BenchDescription, TrialRequest
+from ilcpmac.core.seeds import trial_seed
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan, torque_violation, trust_edges
-from ilcpmac.sim.grid import grid_plan, grid_requests
-from ilcpmac.sim.simulator import trial_seed
 
 __all__ = ["INDEPENDENT_ROLES", "CampaignPlan", "Step", "learning_phase", "records_at"]
 
@@ -110,7 +110,7 @@ class CampaignPlan:
         if len(records_at(records, point, ("learn",))) >= c.learn_trials:
             return True
         # judged on the repeatable part: at low torque the noise left in the average hides progress
-        history = [r.measured.rms_repeatable for r in records_at(records, point, ("compensate", "learn"))]
+        history = [r.measured_ripple.rms_repeatable for r in records_at(records, point, ("compensate", "learn"))]
         if len(history) <= c.patience:
             return False
         best_before = min(history[: -c.patience])
@@ -134,7 +134,8 @@ class CampaignPlan:
         and validation trials (`INDEPENDENT_ROLES`), which may run at once; their requests and seeds are those
         `next_step` gives one by one. The grid's steps come alone: what follows them waits for the
         identification, which also bounds the current that flows (`LimitGuard`)."""
-        steps, done = [], list(records)
+        steps: list[Step] = []
+        done = list(records)
         while (step := self.next_step(done)) is not None and step.role in INDEPENDENT_ROLES:
             if steps and (step.role == "grid") != (steps[0].role == "grid"):
                 break
@@ -186,7 +187,7 @@ class CampaignPlan:
         learning = {p: len(records_at(records, p, ("learn",))) for p in self.learned
                     if not self.learn_finished(records, p)}
         if learning:
-            point = min(learning, key=learning.get)  # the first of the fewest: dicts keep the plan's order
+            point = min(learning, key=learning.__getitem__)  # the first of the fewest: dicts keep the plan's order
             return Step(self.learning_phase, "learn", self.base_request(point, seed))
         for point in self.validated:
             for role in ("baseline", "validate"):

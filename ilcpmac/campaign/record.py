@@ -71,6 +71,13 @@ class TrialRecord:
         """Its operating point, (torque set point N m, speed set point Hz)."""
         return (self.torque_setpoint_nm, self.speed_setpoint_hz)
 
+    @property
+    def measured_ripple(self) -> RippleFigures:
+        """`measured`, which every trial has from the identification on; `ValueError` for one before it."""
+        if self.measured is None:
+            raise ValueError(f"trial {self.index} has no measured ripple: it ran before the identification")
+        return self.measured
+
     def figures(self, kind: str) -> RippleFigures | None:
         """`measured` or `true` by name."""
         return {"measured": self.measured, "true": self.true}[kind]

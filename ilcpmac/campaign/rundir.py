@@ -13,8 +13,11 @@ Layout::
                            the campaign's own state and the trial's ripple figures
                            (a list of 32 or more floats, not all whole, as {"float64_base64": ...})
       states/identification.json
-      compensation.json    what the drive applies (ilcpmac.compensation; written when learning ends, again
-                           with its fade-out once validation ends; ilcpmac export reads it)
+      states/learned.json  when learning ends: what each stage feeds forward at each learned point
+                           (`LearnedPoint`; ilcpmac report draws it)
+      compensation.json    what the drive applies (ilcpmac.compensation; written when learning ends, after
+                           states/learned.json, again with its fade-out once validation ends; ilcpmac export
+                           reads it)
       summary.json
       .lock, .lock.holder  the run's lock, and which process holds it
 
@@ -41,7 +44,9 @@ holds it. The operating system releases the lock when its process dies, kill
 -9 included. JSON files never hold a non-finite number.
 
 `RunFiles` is the one place that knows this layout: `RunDir` writes through
-it, ``ilcpmac report`` reads through it (no lock needed).
+it, ``ilcpmac report`` reads through it (no lock needed). The states are typed
+records (`ilcpmac.campaign.state`); one that cannot be read is a `RunDirError`
+naming its file.
 """
 
 from __future__ import annotations
@@ -64,6 +69,7 @@ import numpy as np
 from filelock import FileLock, Timeout
 
 from ilcpmac.bench.format import BENCH_FILE, bench_toml_text, read_trial, write_backemf_csv, write_trial
+from ilcpmac.campaign.state import LearnedPoint, TrialState, learned_from_json, learned_json
 from ilcpmac.compensation import COMPENSATION_FILE
 from ilcpmac.core.errors import BenchFormatError, IlcpmacError
 from ilcpmac.core.files import atomic_write
@@ -76,6 +82,7 @@ RUN_FILE = "run.json"
 BACKEMF_FILE = "backemf.csv"
 SUMMARY_FILE = "summary.json"
 IDENTIFICATION_FILE = "identification.json"
+LEARNED_FILE = "learned.json"
 PLOTS = "plots"
 LOCK_FILE = ".lock"
 HOLDER_FILE = ".lock.holder"
@@ -121,6 +128,7 @@ class RunFiles:
         self.states = self.path / STATES
         self.settings = self.states / RUN_FILE
         self.identification = self.states / IDENTIFICATION_FILE
+        self.learned = self.states / LEARNED_FILE
         self.compensation = self.path / COMPENSATION_FILE
         self.plots = self.path / PLOTS
 
@@ -151,13 +159,27 @@ class RunFiles:
         except (OSError, ValueError) as e:
             raise RunDirError(f"{path}: unreadable ({e})") from None
 
-    def read_state(self, index: int) -> dict:
-        """The state saved with trial ``index`` (as it was given to `RunDir.add_trial`: packed lists
-        unpacked); `RunDirError` when it is missing or unreadable."""
-        state = self.read_json(self.state(index), packed=True)
-        if state is None:
-            raise RunDirError(f"{self.state(index)}: missing (trial {index} is not complete)")
-        return state
+    def read_state(self, index: int) -> TrialState:
+        """The state saved with trial ``index``; `RunDirError` when it is missing or unreadable."""
+        path = self.state(index)
+        data = self.read_json(path, packed=True)
+        if data is None:
+            raise RunDirError(f"{path}: missing (trial {index} is not complete)")
+        try:
+            return TrialState.from_json(data)
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise RunDirError(f"{path}: unreadable ({e!r})") from None
+
+    def read_learned(self) -> list[LearnedPoint] | None:
+        """states/learned.json, None when it does not exist (learning has not ended, or the run was made
+        before it was written); `RunDirError` when it is unreadable."""
+        data = self.read_json(self.learned, packed=True)
+        if data is None:
+            return None
+        try:
+            return learned_from_json(data)
+        except (KeyError, TypeError, ValueError, AttributeError) as e:
+            raise RunDirError(f"{self.learned}: unreadable ({e!r})") from None
 
     def read_summary(self) -> dict:
         """summary.json; `RunDirError` when there is none or it is unreadable."""
@@ -345,7 +367,7 @@ class RunDir:
         self.files = RunFiles(path)
         self.description = description
         self._entries = entries
-        self._states: dict[int, dict] = {}
+        self._states: dict[int, TrialState] = {}
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rundir")
         self._pending: list[Future] = []
         self._failed = False
@@ -487,7 +509,7 @@ class RunDir:
         """The file names of trials 1..``count``, as bench.toml lists them."""
         return tuple(name for name, _, _ in self._entries[:count])
 
-    def add_trial(self, trial: TrialData, state: dict, summary: dict) -> int:
+    def add_trial(self, trial: TrialData, state: TrialState, summary: dict) -> int:
         """Queue the next trial, its state and the summary for commit, in order; return its index."""
         for future in [f for f in self._pending if f.done()]:
             future.result()  # re-raise a failed write early
@@ -498,7 +520,7 @@ class RunDir:
         self._pending.append(self._writer.submit(self._commit, index, trial, state, summary, list(self._entries)))
         return index
 
-    def _commit(self, index: int, trial: TrialData, state: dict, summary: dict,
+    def _commit(self, index: int, trial: TrialData, state: TrialState, summary: dict,
                 entries: list[tuple[str, float, float]]) -> None:
         if self._failed:  # a later trial must not be listed in bench.toml before the one that failed
             return
@@ -510,7 +532,7 @@ class RunDir:
             with _writing(data, self._resumable):
                 write_trial(data, replace(trial, i_meas_a=None, i_true_a=None, speed_true_rad_s=None))
             with _writing(state_file, self._resumable):
-                atomic_write(state_file, _json_text(_packed(state, state_file), state_file))
+                atomic_write(state_file, _json_text(_packed(state.to_json(), state_file), state_file))
             with _writing(self.files.bench, self._resumable):
                 self._write_bench_toml(entries)
             if time.monotonic() - self._summary_written_s < SUMMARY_INTERVAL_S:
@@ -521,7 +543,7 @@ class RunDir:
             self._failed = True
             raise
 
-    def state(self, index: int) -> dict:
+    def state(self, index: int) -> TrialState:
         """The state saved with trial ``index``."""
         if index not in self._states:
             self._states[index] = self.files.read_state(index)
@@ -536,6 +558,12 @@ class RunDir:
     def read_identification(self) -> dict | None:
         """states/identification.json, or None when it does not exist."""
         return self.files.read_json(self.files.identification)
+
+    def write_learned(self, points: list[LearnedPoint]) -> None:
+        """Write states/learned.json atomically (its long float lists packed, as in a trial's state)."""
+        target = self.files.learned
+        with _writing(target, self._resumable):
+            atomic_write(target, _json_text(_packed(learned_json(points), target), target))
 
     def write_compensation(self, data: dict) -> None:
         """Write compensation.json atomically."""

@@ -33,30 +33,44 @@ import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import Callable, Protocol
+from typing import Callable
 
 import numpy as np
 
 from ilcpmac.backends.base import Backend, report_progress_to
 from ilcpmac.backends.guard import LimitGuard
 from ilcpmac.bench.format import Bench, as_written
+from ilcpmac.campaign.events import (
+    CampaignEvents,
+    CompensationBeatsNone,
+    CompensationWorse,
+    CompensationWritten,
+    GridStarted,
+    GuardEvent,
+    Identifying,
+    PipelineNote,
+    Resumed,
+)
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
 from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir
+from ilcpmac.campaign.state import LearnedPoint, TrialState
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import ConfigError, IdentificationError, IlcpmacError
 from ilcpmac.core.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
+from ilcpmac.core.torque_source import TorqueSource
+from ilcpmac.identify import Identifier
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import identified_truth
 from ilcpmac.signals.harmonics import RippleFigures
-from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, StageSetup
+from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs
 
-__all__ = ["SUMMARY_UNITS", "CampaignEvents", "CampaignPlan", "CampaignRunner", "torque_source"]
+__all__ = ["SUMMARY_UNITS", "CampaignRunner", "torque_source"]
 
 #: summary.json's "units": the unit of each number of its trials and of "final"
 SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
@@ -70,33 +84,27 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                  "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
 
 
-def torque_source(config: CampaignConfig, description: BenchDescription) -> str:
-    """[campaign] torque_source, or its default: "sensor" unless the bench's description says it has no torque
-    sensor (``motor.torque_sensor`` False), then "encoder".
+def torque_source(config: CampaignConfig, description: BenchDescription) -> TorqueSource:
+    """[campaign] torque_source, or its default (`TorqueSource.default`): the sensor unless the bench's
+    description says it has no torque sensor (``motor.torque_sensor`` False), then the encoder.
 
     Raises `ConfigError` for a source that reads a torque sensor the bench does not have.
     """
     has_sensor = description.motor.torque_sensor
-    chosen = config.campaign.torque_source
-    if chosen is None:
-        return "sensor" if has_sensor else "encoder"
-    if chosen != "encoder" and not has_sensor:
-        raise ConfigError(f"{config.path}: [campaign] torque_source = {chosen!r}: the bench has no torque sensor "
-                          '(use "encoder")')
+    if config.campaign.torque_source is None:
+        return TorqueSource.default(has_sensor)
+    chosen = TorqueSource(config.campaign.torque_source)
+    if chosen.reads_sensor and not has_sensor:
+        raise ConfigError(f"{config.path}: [campaign] torque_source = {chosen.value!r}: the bench has no torque "
+                          f'sensor (use "{TorqueSource.ENCODER.value}")')
     return chosen
 
 
-class CampaignEvents(Protocol):
-    """What the campaign tells its user interface."""
-
-    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
-        """A trial finished (``records`` holds every trial so far, updated)."""
-
-    def message(self, text: str) -> None:
-        """Something worth saying (phase changes, the guard acting)."""
-
-    def progress(self, fraction: float) -> None:
-        """The running trial is ``fraction`` (0..1) done, where the backend reports it; called from any thread."""
+def _reduction(before: RippleFigures | None, after: RippleFigures | None) -> float | None:
+    """The reduction factor, peak-to-peak ripple ``before`` over ``after``; None without either."""
+    if before is not None and after is not None and after.pp > 0:  # a flat trace has no factor
+        return before.pp / after.pp
+    return None
 
 
 class CampaignRunner:
@@ -108,16 +116,16 @@ class CampaignRunner:
     backend : where trials run; every request reaches it through a `LimitGuard`.
     run_dir : where they are persisted.
     seed : seeds every trial (trial k uses ``trial_seed(seed, k)``).
-    identify : the identification, ``identify(bench) -> result``.
-    events : the user interface.
+    identify : the identification, ``identify(bench, torque_source=...) -> result`` (`Identifier`).
+    events : the user interface (`CampaignEvents.start` and ``end`` are the caller's to send).
     extra_stages : stage factories by name, for stages a script defines without packaging them.
     plan : the campaign's plan, when the caller has built it (`CampaignPlan.build` of the same config, bench and
         seed); built here otherwise.
     """
 
     def __init__(self, config: CampaignConfig, backend: Backend, run_dir: RunDir, seed: int,
-                 identify: Callable[[Bench], IdentificationResult], events: CampaignEvents,
-                 extra_stages: dict[str, Callable[[StageSetup], object]] | None = None,
+                 identify: Identifier, events: CampaignEvents,
+                 extra_stages: dict[str, Callable[[StageSetup], Stage]] | None = None,
                  plan: CampaignPlan | None = None) -> None:
         self.extra_stages = extra_stages
         self.config = config
@@ -135,7 +143,7 @@ class CampaignRunner:
         #: what measures the torque ripple, from the identification on
         self.measurement: TorqueMeasurement | None = None
         self.identification_json: dict | None = None
-        self.pipeline: Pipeline | None = None
+        self._pipeline: Pipeline | None = None
         #: what the drive applies, built from the pipeline when learning ends
         self.compensation: Compensation | None = None
         self.gains: dict[str, float] = {}
@@ -147,6 +155,13 @@ class CampaignRunner:
     def grid(self) -> list[TrialRequest]:
         """The identification grid's requests."""
         return self.plan.grid
+
+    @property
+    def pipeline(self) -> Pipeline:
+        """The pipeline, started by the first trial after the grid; `RuntimeError` before it."""
+        if self._pipeline is None:
+            raise RuntimeError("the pipeline starts after the identification grid")
+        return self._pipeline
 
     def next_step(self) -> Step | None:
         """The next trial to run, from the trials done so far; None when the campaign is over."""
@@ -170,8 +185,8 @@ class CampaignRunner:
     def _loop(self) -> None:
         while (step := self.next_step()) is not None:
             if step.role == "grid":
-                self.events.message(f"identify: {len(self.grid)} multisine trials over the set-point grid")
-            elif self.pipeline is None:
+                self.events.message(GridStarted(len(self.grid)))
+            elif self._pipeline is None:
                 self._start_pipeline()
             if step.role in ("compensate", "learn"):
                 self._run_round(*self.plan.learning_round(self.records))
@@ -194,9 +209,9 @@ class CampaignRunner:
         if begun == len(self.records):
             self._run_at_once(steps, [self.pipeline.shape(s.request) for s in steps])
             return
-        self.pipeline.restore(self.run_dir.state(begun)["pipeline"])
+        self.pipeline.restore(self.run_dir.state(begun).stages)
         requests = [self.pipeline.shape(s.request) for s in steps]
-        self.pipeline.restore(self.run_dir.state(len(self.records))["pipeline"])
+        self.pipeline.restore(self.run_dir.state(len(self.records)).stages)
         self._run_at_once(steps, requests)
 
     def _run_at_once(self, steps: list[Step], requests: list[TrialRequest]) -> None:
@@ -206,12 +221,13 @@ class CampaignRunner:
         workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1, len(steps))
         measurement = self.measurement  # fixed until the grid's last trial is finished
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
-            for step, (trial, analysis) in zip(steps, pool.map(self._run, requests, [measurement] * len(steps))):
-                self._finish(step, trial, analysis)
+            for step, ran, (trial, analysis) in zip(steps, requests,
+                                                    pool.map(self._run, requests, [measurement] * len(steps))):
+                self._finish(step, ran, trial, analysis)
 
-    def _finish(self, step: Step, trial: TrialData, analysis: TrialAnalysis) -> None:
-        """Teach the pipeline from a finished trial and its analysis, record its ripple, persist it, tell the
-        user."""
+    def _finish(self, step: Step, ran: TrialRequest, trial: TrialData, analysis: TrialAnalysis) -> None:
+        """Teach the pipeline from a finished trial (which ran ``ran``, the step's request as shaped) and its
+        analysis, record its ripple, persist it, tell the user."""
         request = step.request
         key = request.setpoint_key
         record = TrialRecord(len(self.records) + 1, step.phase, step.role, request.torque_setpoint_nm,
@@ -219,16 +235,13 @@ class CampaignRunner:
         if record.learns:
             self.pipeline.learn(trial, self.gains.get(key, 1.0), analysis.measured)
         if self.identified is not None:
-            record = replace(record, measured=self._measured_figures(trial.request, analysis.measured))
+            record = replace(record, measured=self._measured_figures(ran, analysis.measured))
         if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)
         guard = self._guard(record.point, key) if step.role == "learn" else None
-        state = {"record": record.to_json(), "pipeline": self.pipeline.state() if self.pipeline else None,
-                 "gains": dict(self.gains), "guard": guard,
-                 "request": {"calibration": trial.request.calibration.to_json(),
-                             "feedforward_nm": trial.request.feedforward_nm.tolist(),
-                             "revolutions": request.revolutions, "seed": request.seed}}
+        state = TrialState(record, None if self._pipeline is None else self._pipeline.state(), dict(self.gains),
+                           guard, ran.calibration, ran.feedforward_nm, request.revolutions, request.seed)
         self.run_dir.add_trial(trial, state, self.summary())
         if step.role == "grid":
             self._grid_data[record.index] = trial
@@ -242,12 +255,8 @@ class CampaignRunner:
         baseline = records_at(self.records, record.point, ("baseline",))
         if not baseline:
             return record
-        factors = {}
-        for kind, name in (("measured", "reduction_factor"), ("true", "reduction_factor_true")):
-            before, after = baseline[0].figures(kind), record.figures(kind)
-            if before is not None and after is not None and after.pp > 0:  # a flat trace has no factor
-                factors[name] = before.pp / after.pp
-        return replace(record, **factors)
+        return replace(record, reduction_factor=_reduction(baseline[0].measured, record.measured),
+                       reduction_factor_true=_reduction(baseline[0].true, record.true))
 
     def _grid_trials(self) -> list[TrialData]:
         """The grid trials: from memory, or read back from the run directory after a resume
@@ -258,33 +267,37 @@ class CampaignRunner:
 
     def _true_figures(self, analysis: TrialAnalysis) -> RippleFigures | None:
         """True ripple, as a fraction of the true torque's mean."""
-        if analysis.true is None:
+        if analysis.true is None or analysis.true_mean_nm is None:
             return None
         m = self.description.motor
         return analysis.true.figures(analysis.true_mean_nm, m.pole_pairs, m.cogging_order)
 
-    def _measured_figures(self, request: TrialRequest, spectrum: TorqueSpectrum) -> RippleFigures:
+    def _measured_figures(self, request: TrialRequest, spectrum: TorqueSpectrum | None) -> RippleFigures:
         """Measured ripple, as a fraction of the mean torque the measurement would show: its gain (delta for
-        the sensor, 1 in N m) times epsilon alpha-mean times the set point."""
+        the sensor, 1 in N m) times epsilon alpha-mean times the set point. From the identification on, which
+        gives the measurement (every trial measured by it has a measured spectrum); `RuntimeError` before."""
+        measurement = self.measurement
+        if measurement is None or spectrum is None:
+            raise RuntimeError("the measured ripple is known from the identification on")
         m = self.description.motor
-        mean = self.measurement.gain(request.calibration) * self.measurement.mean_torque_nm(request)
+        mean = measurement.gain(request.calibration) * measurement.mean_torque_nm(request)
         return spectrum.figures(mean, m.pole_pairs, m.cogging_order)
 
     def _identify(self, grid_trials: list[TrialData]) -> None:
         """Identify from the grid; measured ripple of the grid trials follows from it."""
-        self.events.message("identify: estimating delta*epsilon, delta, alpha, beta and cogging")
+        self.events.message(Identifying())
         n = len(grid_trials)
         bench = self._grid_bench(grid_trials)
-        result = (self.identify(bench) if self.torque_source != "encoder"
-                  else self.identify(bench, torque_source="encoder"))
-        if self.torque_source == "both":  # the sensor's estimates, and the encoder's graduation error
-            encoder = self.identify(bench, torque_source="encoder")
+        result = (self.identify(bench) if self.torque_source.reads_sensor
+                  else self.identify(bench, torque_source=TorqueSource.ENCODER))
+        if self.torque_source.fuses:  # the sensor's estimates, and the encoder's graduation error
+            encoder = self.identify(bench, torque_source=TorqueSource.ENCODER)
             result = replace(result, **{name: getattr(encoder, name) for _, name in ENCODER_ERROR_KEYS})
         self.identification_json = result.to_json()
         self._set_identified(result)
         cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
         # the sensor's spectrum is its torque column's, before the identification as after it
-        spectra = [self._grid_spectra[i] if self.torque_source == "sensor" and i in self._grid_spectra else
+        spectra = [self._grid_spectra[i] if not self.torque_source.reads_encoder and i in self._grid_spectra else
                    TrialAnalysis.of(replace(trial, request=request), cpr, H, self.measurement).measured
                    for i, trial, request in zip(range(1, n + 1), grid_trials, self.grid)]
         self.records[:n] = [replace(r, measured=self._measured_figures(request, spectrum))
@@ -305,7 +318,7 @@ class CampaignRunner:
         Raises `IdentificationError` when it lacks an estimate the pipeline (`PIPELINE_NEEDS`, or
         `SENSORLESS_PIPELINE_NEEDS` on the encoder) or a configured stage (its factory's ``needs``) needs.
         """
-        pipeline = SENSORLESS_PIPELINE_NEEDS if self.torque_source == "encoder" else PIPELINE_NEEDS
+        pipeline = PIPELINE_NEEDS if self.torque_source.reads_sensor else SENSORLESS_PIPELINE_NEEDS
         needs = {"the pipeline": pipeline, **{f"stage {name!r}": needed for name, needed in stage_needs(
             list(self.config.pipeline.stages), self.extra_stages).items()}}
         missing = {who: result.missing(needed) for who, needed in needs.items()}
@@ -316,7 +329,7 @@ class CampaignRunner:
             raise IdentificationError(f"{wanted}, which the identification could not estimate ({why})")
         self.identified = Identified.from_result(result, self.description.calibration)
         self.backend.truth = identified_truth(self.identified)
-        if self.torque_source == "sensor":
+        if not self.torque_source.reads_encoder:
             self.measurement = TorqueMeasurement(self.identified)
             return
         self.measurement = TorqueMeasurement(
@@ -324,26 +337,32 @@ class CampaignRunner:
             timer_resolution_s(self._grid_bench(self._grid_trials())), result.encoder_error_counts)
 
     def _start_pipeline(self) -> None:
+        """Build the stages from the identification; `RuntimeError` before it."""
+        identified = self.identified
+        if identified is None:
+            raise RuntimeError("the pipeline starts from the identification")
         names = list(self.config.pipeline.stages)
-        setups = {name: StageSetup(self.description, self.identified, self.config.campaign.ripple_harmonics,
+        setups = {name: StageSetup(self.description, identified, self.config.campaign.ripple_harmonics,
                                    self.config.stage_options.get(name, {})) for name in names}
         stages = build_stages(names, setups, self.extra_stages)
-        self.pipeline = Pipeline(stages, self.description, self.identified, self.plan.limits,
-                                 self.config.campaign.ripple_harmonics, self.events.message, self.measurement)
+        self._pipeline = Pipeline(stages, self.description, identified, self.plan.limits,
+                                  self.config.campaign.ripple_harmonics, self._pipeline_note, self.measurement)
 
-    def _guard(self, point: Point, key: str) -> dict | None:
+    def _pipeline_note(self, text: str) -> None:
+        self.events.message(PipelineNote(text))
+
+    def _guard(self, point: Point, key: str) -> GuardEvent | None:
         """Revert this point's correction to its best and halve its learning gain when the ripple grew twice in
         a row (`Pipeline.revert`: what the stages learned at other points stays)."""
         history = records_at(self.records, point, ("compensate", "learn"))
-        pp = [r.measured.pp for r in history]
+        pp = [r.measured_ripple.pp for r in history]
         if len(pp) < 3 or not (pp[-1] > pp[-2] > pp[-3]):
             return None
-        best = min(history, key=lambda r: r.measured.pp)
-        self.pipeline.revert(self.run_dir.state(best.index)["pipeline"], key)
+        best = min(history, key=lambda r: r.measured_ripple.pp)
+        self.pipeline.revert(self.run_dir.state(best.index).stages, key)
         self.gains[key] = self.gains.get(key, 1.0) * 0.5
-        event = {"set_point": key, "reverted_to_trial": best.index, "learning_gain": self.gains[key]}
-        self.events.message(f"guard: measured ripple at {key} grew twice in a row; reverted to the correction "
-                            f"of trial {best.index} and halved the learning gain to {self.gains[key]:g}")
+        event = GuardEvent(key, best.index, self.gains[key])
+        self.events.message(event)
         return event
 
     # ---------------------------------------------------------------- the compensation
@@ -362,11 +381,28 @@ class CampaignRunner:
             self.compensation = Compensation(self.description.motor.counts_per_rev, calibration,
                                              np.array(torques), np.array(speeds), tables,
                                              fade_out(self._results()))
+            self.run_dir.write_learned(self._learned_points())
             self.run_dir.write_compensation(self.compensation.to_json())
-            self.events.message(f"{self.plan.learning_phase}: the compensation over the learned points "
-                                f"({len(torques)} torques x {len(speeds)} speeds) is in "
-                                f"{self.run_dir.files.compensation.name}")
+            self.events.message(CompensationWritten(self.plan.learning_phase, len(torques), len(speeds),
+                                                    self.run_dir.files.compensation.name))
         return self.compensation
+
+    def _learned_points(self) -> list[LearnedPoint]:
+        """What each stage feeds forward at each learned point as the point's last trial left the stages
+        (states/learned.json, which ``ilcpmac report`` draws): the stages, restored from that trial's state, shape
+        in turn a one-revolution request at the point with the calibration that trial ran with
+        (`LearnedPoint.of`); then they are put back as they were."""
+        cpr = self.description.motor.counts_per_rev
+        now = self.pipeline.state()
+        points = []
+        for point in self.plan.learned:
+            last = records_at(self.records, point, ("compensate", "learn"))[-1]
+            saved = self.run_dir.state(last.index)
+            self.pipeline.restore(saved.stages)
+            request = TrialRequest(point[0], point[1], 1, np.zeros(cpr), np.zeros(cpr), saved.calibration)
+            points.append(LearnedPoint.of(last.index, self.pipeline.stages, request))
+        self.pipeline.restore(now)
+        return points
 
     def _results(self) -> list[PointResult]:
         """Each learned and validation point whose trials are done (`point_results`)."""
@@ -374,7 +410,7 @@ class CampaignRunner:
 
     def _conclude(self) -> None:
         """After the last trial: the compensation's fade-out from every point's result, and what it means."""
-        if self.pipeline is None:
+        if self._pipeline is None:
             return
         compensation = self._compensation()
         results = self._results()
@@ -384,15 +420,10 @@ class CampaignRunner:
             self.run_dir.write_compensation(self.compensation.to_json())
         worse = [r for r in results if r.worse]
         if worse:
-            where = ", ".join(f"{r.point[0]:g} N m at {r.point[1]:g} Hz" for r in worse)
-            applies = ("never applies" if fade.zero_hz == 0 else
-                       f"fades it out from {fade.full_hz:g} Hz to {fade.zero_hz:g} Hz")
-            self.events.message(f"validate: the compensation is WORSE than none at {where}; compensation.json "
-                                f"{applies} (docs/export.md)")
+            self.events.message(CompensationWorse(tuple(r.point for r in worse), fade))
         elif results:
             validated = sum(not r.learned for r in results)
-            self.events.message(f"validate: the compensation beats none at every point ({len(results) - validated} "
-                                f"learned, {validated} validated)")
+            self.events.message(CompensationBeatsNone(len(results) - validated, validated))
 
     # ---------------------------------------------------------------- resume and summary
 
@@ -401,7 +432,7 @@ class CampaignRunner:
         done = self.run_dir.completed
         if done == 0:
             return
-        self.records = [TrialRecord.from_json(self.run_dir.state(i)["record"]) for i in range(1, done + 1)]
+        self.records = [self.run_dir.state(i).record for i in range(1, done + 1)]
         saved = self.run_dir.read_identification()
         if len(self.records) >= len(self.grid):
             if saved is None:
@@ -411,11 +442,11 @@ class CampaignRunner:
                 self._set_identified(IdentificationResult.from_json(saved["result"]))
                 self.records[: len(self.grid)] = [TrialRecord.from_json(r) for r in saved["grid_records"]]
         last = self.run_dir.state(done)
-        self.gains = dict(last.get("gains", {}))
-        if last["pipeline"] is not None:
+        self.gains = dict(last.gains)
+        if last.pipeline is not None:
             self._start_pipeline()
-            self.pipeline.restore(last["pipeline"])
-        self.events.message(f"resume: {done} trials already complete in {self.run_dir.path}")
+            self.pipeline.restore(last.pipeline)
+        self.events.message(Resumed(done, self.run_dir.path))
 
     def summary(self) -> dict:
         """summary.json: the units of its figures, every trial, the identification, the final figures of the

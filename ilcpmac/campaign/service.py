@@ -1,13 +1,71 @@
-"""The campaign as a service: what the CLI, the sweep and a user's script call to run one."""
+"""The campaign as a service: what the CLI, the sweep and a user's script call to run one (`run`), or to simulate
+the identification grid into a bench folder (`simulated_bench`, `simulate_bench`).
+
+From a script or a notebook::
+
+    import ilcpmac.campaign
+    result = ilcpmac.campaign.run("my-bench.toml", out="runs/first", seed=3)
+    print(result.path, result.summary["final"])
+"""
 
 from __future__ import annotations
 
+import json
+import shutil
+import time
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
-from ilcpmac.config import CampaignConfig, check_config, load_config
+from ilcpmac.backends.base import Backend
+from ilcpmac.backends.registry import BackendSetup, build_backend
+from ilcpmac.bench.format import Bench, write_bench
+from ilcpmac.campaign.events import CampaignEvents, CampaignStart, NoEvents
+from ilcpmac.campaign.grid import grid_plan, grid_requests
+from ilcpmac.campaign.plan import CampaignPlan
+from ilcpmac.campaign.record import TrialRecord, records_of
+from ilcpmac.campaign.rundir import RunDir, RunFiles, RunLock
+from ilcpmac.campaign.validation import PointResult, point_results
+from ilcpmac.config import CampaignConfig, check_config, load_config, packaged_config
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.records import BenchLimits, IdentificationResult, TrialData
+from ilcpmac.pipeline.safety import SafetyLimits, check_plan
 from ilcpmac.stages.registry import check_stage_options
 
-__all__ = ["load_campaign_config", "check_campaign_config"]
+if TYPE_CHECKING:
+    from ilcpmac.identify import Identifier
+    from ilcpmac.stages.base import Stage, StageSetup
+
+__all__ = ["DEFAULT_CONFIG", "CampaignResult", "check_campaign_config", "load_campaign_config", "run",
+           "simulate_bench", "simulated_bench"]
+
+#: the packaged config `run` runs with no config
+DEFAULT_CONFIG = "seed-bench.toml"
+
+
+@dataclass(frozen=True)
+class CampaignResult:
+    """What a campaign ended with.
+
+    Attributes
+    ----------
+    path : its run directory (a bench folder, docs/campaign.md).
+    plan : its plan (limits, grid, learned and validated points).
+    summary : summary.json as written.
+    records : every trial, in the order they ran.
+    identification : the grid's identification (None if the campaign ran no grid).
+    """
+
+    path: Path
+    plan: CampaignPlan
+    summary: dict
+    records: list[TrialRecord]
+    identification: IdentificationResult | None
+
+    @property
+    def points(self) -> list[PointResult]:
+        """Each learned, then validated, operating point's result (`point_results`)."""
+        return point_results(self.records, self.plan.learned, self.plan.validated)
 
 
 def check_campaign_config(config: CampaignConfig) -> None:
@@ -22,3 +80,161 @@ def load_campaign_config(path: str | Path) -> CampaignConfig:
     config = load_config(path)
     check_stage_options(config)
     return config
+
+
+def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | None = None,
+        backend: str | Backend = "sim", address: str | None = None, trials: int | None = None,
+        seed: int | None = None, resume: str | Path | None = None, events: CampaignEvents | None = None,
+        identify: Identifier | None = None,
+        extra_stages: dict[str, Callable[[StageSetup], Stage]] | None = None) -> CampaignResult:
+    """Run a campaign (``ilcpmac run``): identify, learn, validate a compensation, every trial persisted in its
+    run directory as it finishes.
+
+    Parameters
+    ----------
+    config : the campaign's config file, or a loaded config (its file's text is what the run directory keeps);
+        None: the packaged seed-bench.toml (`DEFAULT_CONFIG`).
+    out : the run directory to create (default runs/<config name>-<date>-<time>).
+    backend : where trials run: an installed backend's name (``ilcpmac backends``), built here and closed at the
+        end, or a `Backend`, which stays the caller's to close.
+    address : where the bench is, for backends built by name that need it.
+    trials : most learning trials per learned point (overrides [campaign] learn_trials).
+    seed : overrides [trials] seed.
+    resume : continue the run in this directory from its last complete trial (no ``config`` or ``out`` then:
+        the run's own settings hold).
+    events : told what happens (`CampaignEvents`); default nothing.
+    identify : the identification, ``identify(bench, torque_source=...) -> result`` (`Identifier`; default
+        `ilcpmac.identify.identify_bench`).
+    extra_stages : stage factories by name, for stages a script defines without packaging them.
+
+    Raises `ConfigError` before anything runs for a config, a plan or an override that cannot run; a run
+    directory that exists (or, with ``resume``, is locked) is left untouched.
+    """
+    events = events or NoEvents()
+    if resume is not None and (config is not None or out is not None):
+        raise ConfigError("--resume continues a run with its own config: give no CONFIG or --out")
+    resume_dir = None if resume is None else Path(resume)
+    out_dir = None if out is None else Path(out)
+    # the run directory is locked before the backend is built: a second run on it, or one that cannot
+    # write there, stops before the bench moves
+    lock = RunDir.lock(resume_dir, new=False) if resume_dir is not None else None
+    made: Path | None = None  # the directory made for the run, removed if the run never starts
+    run_dir = None
+    try:
+        if resume_dir is not None:
+            settings = RunDir.read_settings(resume_dir)
+            cfg = load_campaign_config(RunFiles(resume_dir).config)
+            seed, trials = settings.get("seed"), settings.get("trials")
+        elif isinstance(config, CampaignConfig):
+            cfg = config
+        else:
+            cfg = load_campaign_config(config or packaged_config(DEFAULT_CONFIG))
+        if trials is not None:
+            cfg = replace(cfg, campaign=replace(cfg.campaign, learn_trials=trials))
+        if seed is not None:
+            cfg = replace(cfg, grid=replace(cfg.grid, seed=seed))
+        check_campaign_config(cfg)  # the overrides obey the same ranges as the file
+        seed = cfg.grid.seed
+        path = resume_dir or out_dir or Path("runs") / f"{cfg.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+        if lock is None:
+            made = None if path.exists() else path
+            lock = RunDir.lock(path, new=True)
+        bench = build_backend(backend, BackendSetup(cfg, address)) if isinstance(backend, str) else backend
+        try:
+            run_dir, plan, summary = _run(cfg, bench, seed, trials, path, resume_dir is not None, lock, events,
+                                          identify, extra_stages)
+        finally:
+            if isinstance(backend, str):
+                bench.close()
+    finally:
+        if lock is not None:
+            lock.release()
+        if made is not None and run_dir is None:  # nothing was created: leave no empty directory behind
+            shutil.rmtree(made, ignore_errors=True)
+    identification = summary["identification"]
+    return CampaignResult(run_dir.path, plan, summary, records_of(summary),
+                          None if identification is None else IdentificationResult.from_json(identification))
+
+
+def _run(cfg: CampaignConfig, backend: Backend, seed: int, trials: int | None, path: Path, resume: bool,
+         lock: RunLock, events: CampaignEvents,
+         identify: Identifier | None,
+         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> tuple[RunDir, CampaignPlan, dict]:
+    """`run` on a built backend in the locked run directory ``path`` (to create, or to ``resume``): the run
+    directory, the plan, the summary."""
+    # the runner's estimators import numba: deferred so that importing ilcpmac.campaign stays light
+    from ilcpmac.campaign.runner import CampaignRunner, torque_source
+    from ilcpmac.identify import identify_bench
+
+    description = backend.describe()
+    plan = CampaignPlan.build(cfg, description, seed)  # before anything is written
+    if resume:
+        run_dir = RunDir.resume(path, description, lock)
+    else:
+        run_dir = RunDir.create(path, description, cfg.path.read_text(),
+                                {"seed": seed, "trials": trials, "config": str(cfg.path)}, lock)
+    events.start(CampaignStart(plan, run_dir.path, resume, torque_source(cfg, description)))
+    try:
+        summary = CampaignRunner(cfg, backend, run_dir, seed, identify or identify_bench, events, extra_stages,
+                                 plan).run()
+    except BaseException:
+        events.end("stopped")
+        raise
+    events.end("done")
+    return run_dir, plan, summary
+
+
+def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions: int | None = None,
+                    on_done: Callable[[int, TrialData], None] | None = None,
+                    torque_sensor: bool = True, workers: int | None = None) -> tuple[Bench, dict]:
+    """Run the set-point grid on the simulator, in memory: the bench folder's contents and its truth
+    (`ilcpmac.sim.bench.truth_dict`).
+
+    Parameters
+    ----------
+    config : the campaign.
+    seed, revolutions : override the config's ``[trials]`` values.
+    on_done : called with (index, trial) as each trial finishes.
+    torque_sensor : False: a bench without a torque sensor (no torque column, [motor] torque_sensor =
+        false, with the encoder's timer_resolution_s); the simulator's torque sensor still runs, unrecorded.
+    workers : trials simulated at once in threads (default one per core).
+
+    Raises `ConfigError` before any trial runs when a grid request breaks the config's [limits].
+    """
+    # the simulator's kernel imports numba: deferred so that importing ilcpmac.campaign stays light
+    from ilcpmac.sim.bench import simulated_description, truth_dict
+    from ilcpmac.sim.simulator import Simulator
+
+    seed = config.grid.seed if seed is None else seed
+    revolutions = config.grid.revolutions if revolutions is None else revolutions
+    lim = config.limits
+    simulator = Simulator(config.simulated_model(), config.grid.warmup_revolutions)
+    bench_limits = BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz)
+    description = simulated_description(simulator, bench_limits)
+    requests = grid_requests(config, description.calibration, seed, revolutions)
+    check_plan(grid_plan(config, requests), description,
+               SafetyLimits.of_campaign(lim, bench_limits, config.grid.warmup_revolutions))
+    trials = simulator.run_trials(requests, workers, on_done)
+    if not torque_sensor:
+        trials = [replace(trial, torque_nm=None) for trial in trials]
+    bench = Bench(
+        motor=description.motor if torque_sensor else replace(
+            description.motor, torque_sensor=False, timer_resolution_s=simulator.model.encoder.timer_resolution_s),
+        backemf_nm_per_a=simulator.backemf_counts,
+        sensors=requests[0].calibration,
+        trials=tuple(trials),
+        trial_files=tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))),
+    )
+    return bench, truth_dict(simulator, requests[0].calibration)
+
+
+def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None = None,
+                   revolutions: int | None = None,
+                   on_done: Callable[[int, TrialData], None] | None = None, torque_sensor: bool = True) -> Bench:
+    """`simulated_bench`, written as a bench folder plus ``truth.json`` in ``out_dir`` (created if needed):
+    ``ilcpmac simulate``."""
+    bench, truth = simulated_bench(config, seed, revolutions, on_done, torque_sensor)
+    out_dir = Path(out_dir)
+    write_bench(out_dir, bench)
+    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1))
+    return bench

@@ -39,7 +39,7 @@ class PointResult:
     @property
     def worse(self) -> bool:
         """Whether the compensation leaves at least as much measured peak-to-peak ripple as none."""
-        return self.after.measured.pp >= self.before.measured.pp
+        return self.after.measured_ripple.pp >= self.before.measured_ripple.pp
 
     def to_json(self) -> dict:
         """Its object in summary.json's ``validation`` list (ripple as fractions of the mean torque)."""

@@ -1,4 +1,9 @@
-"""The ``ilcpmac`` command line: one module per command, registered here."""
+"""The ``ilcpmac`` command line: one module per command, registered here.
+
+A command imports what it runs inside its function, not at the top of its module: numpy reads its thread
+count when first imported, after `tune_process` has set it, and listing or starting one command does not
+import the numba kernels, scipy, pyarrow, matplotlib or dask that another needs.
+"""
 
 from __future__ import annotations
 
@@ -74,12 +79,12 @@ def entry_point() -> NoReturn:
     """
     try:
         main(prog_name="ilcpmac")
-        status = 0
+        status: int | None = 0
     except SystemExit as e:
-        status = e.code
-        if not (status is None or isinstance(status, int)) or any(
+        if not (e.code is None or isinstance(e.code, int)) or any(
                 not t.daemon for t in threading.enumerate() if t is not threading.main_thread()):
             raise
+        status = e.code
     try:
         sys.stdout.flush()
         sys.stderr.flush()

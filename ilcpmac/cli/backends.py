@@ -13,6 +13,7 @@ def backends() -> None:
 
     They are registered in the entry-point group ilcpmac.backends.
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.console import Console
     from rich.markup import escape
 

@@ -69,6 +69,7 @@ def emulate(port: int, host: str, config: Path | None, max_current: float, max_t
     runs until Ctrl-C or SIGTERM. One client controls it at a time: another
     gets ERROR BUSY.
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.logging import RichHandler
 
     from ilcpmac.backends.base import BenchLimits

@@ -17,9 +17,13 @@ def _size(n_bytes: int) -> str:
     return f"{n_bytes / 1e3:.1f} kB" if n_bytes < 1e6 else f"{n_bytes / 1e6:.1f} MB"
 
 
+#: ilcpmac.export.FORMATS, named here so that starting the CLI does not import numpy
+FORMATS = ("json", "csv", "c")
+
+
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--format", "fmt", type=click.Choice(("json", "csv", "c")), default="json", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="json", show_default=True,
               help="json: the record with its units; csv: calibration, torque gain, feed-forward and map tables; "
                    "c: a C99 header and source with the lookup function (docs/export.md).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
@@ -33,6 +37,7 @@ def export(run_dir: Path, fmt: str, out_dir: Path, c_type: str) -> None:
     gain and the torque feed-forward per encoder count over the learned torque x speed points; writes them
     as JSON, CSV or C99 into --out (docs/export.md).
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.campaign.rundir import RunFiles
     from ilcpmac.compensation import Compensation
     from ilcpmac.core.errors import BenchFormatError

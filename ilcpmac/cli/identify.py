@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 from rich.table import Table
 
 from ilcpmac.cli import FIGURE_FORMATS, console, main, progress_bar
+
+if TYPE_CHECKING:
+    import numpy as np  # imported where used: the command's startup does without
 
 #: the true values a simulated bench folder holds (``ilcpmac simulate``), under the result keys
 TRUTH_FILE = "truth.json"
@@ -37,6 +41,7 @@ def _cell(value, std) -> str:
 
 
 def _rms(values) -> float:
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     import numpy as np
 
     return float(np.sqrt(np.mean(np.square(values))))
@@ -54,7 +59,7 @@ def _error(estimate, truth, kind: str) -> str:
     return f"{100 * (estimate / truth - 1):+.2g} %"
 
 
-def _rows(result, columns: list[str]) -> list[tuple[str, object, str, list]]:
+def _rows(result, columns: list[str]) -> list[tuple[str, float | np.ndarray | None, str, list]]:
     """Per line of the table: its label, the result's value, how it is compared with the truth ("rel",
     "abs" or "rms") and per column (value, std, what equals the result's value when the result took it)."""
     estimates = [result.methods.get(name, result) for name in columns]
@@ -81,7 +86,7 @@ def _rows(result, columns: list[str]) -> list[tuple[str, object, str, list]]:
         rows += [(f"loop {phase} (Hz)", loop[p], "rel",
                   [(loop[p], None, loop[p]) if name in ("joint", "result") else (None, None, None)
                    for name in columns]) for p, phase in enumerate("abc")]
-    if result.torque_source == "encoder" or result.encoder_error_counts is not None:
+    if result.torque_source.reads_encoder or result.encoder_error_counts is not None:
         for label, name, std_name, kind in ENCODER_LINES:  # the joint fit's residual gives it
             value, std = getattr(result, name), None if std_name is None else getattr(result, std_name)
             rows.append((label, value, kind, [(value, std, value) if column in ("joint", "result")
@@ -91,6 +96,7 @@ def _rows(result, columns: list[str]) -> list[tuple[str, object, str, list]]:
 
 def read_truth(bench_dir: Path):
     """The bench folder's truth.json (a simulated bench's) as an `IdentificationResult`, or None without one."""
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import BenchFormatError
     from ilcpmac.core.records import IdentificationResult
 
@@ -113,10 +119,11 @@ def estimates_table(result, truth=None) -> Table:
     encoder-derived torque, the encoder error's once-per-revolution amplitude and phase and its line-to-line
     RMS follow, and what needs a torque sensor reads "not identified", the reasons in the caption.
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     import numpy as np
 
     columns = list(result.methods) or ["result"]
-    encoder = result.torque_source == "encoder"
+    encoder = result.torque_source.reads_encoder
     caption = None
     if encoder:
         caption = (f"torque from the encoder's time stamps, J given; {NOT_IDENTIFIED}: "
@@ -163,8 +170,10 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     result to --output and prints it; with a truth.json in BENCH_DIR (a simulated bench), also each
     estimate's error.
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import read_bench
     from ilcpmac.bench.standstill import SCAN_FILE, identify_scan
+    from ilcpmac.core.torque_source import TorqueSource
     from ilcpmac.identify import STEPS, identify_bench
 
     if (bench_dir / SCAN_FILE).exists():  # a standstill scan folder (docs/standstill.md)
@@ -179,7 +188,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
         def advance(step: str, index: int, total: int) -> None:
             progress.update(task, description=step, completed=index + 1)
 
-        result = identify_bench(bench, advance, torque_source)
+        result = identify_bench(bench, advance, None if torque_source is None else TorqueSource(torque_source))
         progress.update(task, description="done", completed=len(STEPS) + 1)
     for message in result.messages:
         console.print(f"[yellow]warning:[/yellow] {message}")

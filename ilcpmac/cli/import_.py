@@ -26,6 +26,7 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
     OUT_DIR-reverse ([motor] mirrored = true). Logs without a torque column make a bench without a torque
     sensor. Logs of a standstill scan ([log] kind = "scan") become one scan folder (docs/standstill.md).
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.markup import escape
 
     from ilcpmac.bench.importer import import_logs, read_mapping, write_scan_folder

@@ -21,6 +21,7 @@ def report(run_dir: Path, out_dir: Path | None, fmt: str) -> None:
     Ripple per trial; per set point, the torque before and after compensation with its spectrum, and
     what each stage learned.
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.markup import escape
 
     from ilcpmac.campaign.rundir import RunDirError

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import shlex
-import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,11 +18,10 @@ from rich.text import Text
 from ilcpmac.cli import console, main
 
 if TYPE_CHECKING:
+    from ilcpmac.campaign.events import CampaignMessage, CampaignStart
     from ilcpmac.campaign.plan import CampaignPlan
     from ilcpmac.campaign.record import TrialRecord
 
-#: the packaged config ``ilcpmac run`` runs with no CONFIG
-DEFAULT_CONFIG = "seed-bench.toml"
 #: the live display's refreshes per second (one spinner frame each)
 REFRESH_HZ = 4
 _SPINNER = "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
@@ -81,9 +79,9 @@ class CampaignView:
         if 0.0 <= fraction <= 1.0:
             self.fraction = fraction
 
-    def message(self, text: str) -> None:
-        """Say ``text`` above the display."""
-        self.console.print(Text(text, style="bold"))
+    def message(self, message: CampaignMessage) -> None:
+        """Say ``message`` above the display."""
+        self.console.print(Text(message.text, style="bold"))
 
     def end(self, how: str) -> None:
         """The campaign is over ("done", "stopped"): the status line says so from now on."""
@@ -142,6 +140,7 @@ class CampaignView:
         return next((line for line in lines if len(line) <= width), lines[-1])
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        # imported when the command runs (ilcpmac.cli's docstring says why)
         from ilcpmac.report.table import trials_table
 
         yield trials_table(self.records or [], options.max_width, self.title, self.source)
@@ -165,6 +164,43 @@ class LiveTable(Live):
             self.console.line()
 
 
+class LiveCampaign:
+    """The campaign's events (`CampaignEvents`) as ``ilcpmac run`` shows them: from its start, a `CampaignView`
+    in a `LiveTable`, until its end.
+
+    Parameters
+    ----------
+    console : where the live table and the messages go.
+    """
+
+    #: the view and its live table, from the start
+    view: CampaignView
+    live: LiveTable
+
+    def __init__(self, console: Console) -> None:
+        self.console = console
+
+    def start(self, start: CampaignStart) -> None:
+        self.view = CampaignView(self.console, start.plan, f"ilcpmac run  {start.path}",
+                                 None if start.resumed else [], source=start.torque_source.value)
+        self.live = LiveTable(self.view, console=self.console, refresh_per_second=REFRESH_HZ,
+                              vertical_overflow="visible")
+        self.live.start(refresh=True)
+
+    def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
+        self.view.trial(record, records)
+
+    def message(self, message: CampaignMessage) -> None:
+        self.view.message(message)
+
+    def progress(self, fraction: float) -> None:
+        self.view.progress(fraction)
+
+    def end(self, how: str) -> None:
+        self.view.end(how)
+        self.live.stop()
+
+
 @main.command()
 @click.argument("config", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
@@ -186,75 +222,18 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     persisted as it finishes in the run directory (a bench folder); see
     docs/campaign.md.
     """
-    import dataclasses
-
-    from ilcpmac.backends.registry import BackendSetup, build_backend
-    from ilcpmac.campaign.plan import CampaignPlan
-    from ilcpmac.campaign.record import records_of
-    from ilcpmac.campaign.rundir import RunDir, RunFiles
-    from ilcpmac.campaign.runner import CampaignRunner, torque_source
-    from ilcpmac.campaign.service import check_campaign_config, load_campaign_config
-    from ilcpmac.config import packaged_config
-    from ilcpmac.core.errors import ConfigError
-    from ilcpmac.identify import identify_bench
+    # imported when the command runs (ilcpmac.cli's docstring says why)
+    import ilcpmac.campaign
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
-    if resume_dir is not None and (config is not None or out_dir is not None):
-        raise ConfigError("--resume continues a run with its own config: give no CONFIG or --out")
-    # the run directory is locked before the backend is built: a second run on it, or one that cannot
-    # write there, stops before the bench moves
-    lock = RunDir.lock(resume_dir, new=False) if resume_dir is not None else None
-    made_out_dir, run_dir = False, None
-    try:
-        if resume_dir is not None:
-            settings = RunDir.read_settings(resume_dir)
-            config_path = RunFiles(resume_dir).config
-            seed, trials = settings.get("seed"), settings.get("trials")
-        else:
-            config_path = config or packaged_config(DEFAULT_CONFIG)
-        cfg = load_campaign_config(config_path)
-        if trials is not None:
-            cfg = dataclasses.replace(cfg, campaign=dataclasses.replace(cfg.campaign, learn_trials=trials))
-        if seed is not None:
-            cfg = dataclasses.replace(cfg, grid=dataclasses.replace(cfg.grid, seed=seed))
-        check_campaign_config(cfg)  # the overrides obey the same ranges as the file
-        seed = cfg.grid.seed
-        if lock is None:
-            out_dir = out_dir or Path("runs") / f"{config_path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-            made_out_dir = not out_dir.exists()
-            lock = RunDir.lock(out_dir, new=True)
-        backend = build_backend(backend_kind, BackendSetup(cfg, address))
-        try:
-            description = backend.describe()
-            plan = CampaignPlan.build(cfg, description, seed)  # before anything is written
-            if resume_dir is not None:
-                run_dir = RunDir.resume(resume_dir, description, lock)
-            else:
-                run_dir = RunDir.create(out_dir, description, config_path.read_text(),
-                                        {"seed": seed, "trials": trials, "config": str(config_path)}, lock)
-            view = CampaignView(console, plan, f"ilcpmac run  {run_dir.path}",
-                                None if resume_dir is not None else [],
-                                source=torque_source(cfg, description))
-            with LiveTable(view, console=console, refresh_per_second=REFRESH_HZ, vertical_overflow="visible"):
-                try:
-                    summary = CampaignRunner(cfg, backend, run_dir, seed, identify_bench, view, plan=plan).run()
-                except BaseException:
-                    view.end("stopped")
-                    raise
-                view.end("done")
-        finally:
-            backend.close()
-    finally:
-        if lock is not None:
-            lock.release()
-        if made_out_dir and run_dir is None:  # nothing was created: leave no empty directory behind
-            shutil.rmtree(out_dir, ignore_errors=True)
+    result = ilcpmac.campaign.run(config, out=out_dir, backend=backend_kind, address=address, trials=trials,
+                                  seed=seed, resume=resume_dir, events=LiveCampaign(console))
     console.print(Text(SUMMARY_TITLE))
-    console.print(summary_table(records_of(summary), plan.learned, plan.validated))
-    lines = final_lines(summary)
+    console.print(summary_table(result.records, result.plan.learned, result.plan.validated))
+    lines = final_lines(result.summary)
     if lines:
         console.print(Text("\n  ".join([FINAL_TITLE, *lines])))
-    count, size = files_written(run_dir.path)
+    count, size = files_written(result.path)
     # not wrapped: the path and the command stay whole, to copy
-    console.print(Text(f"wrote {count} files, {size / 1e6:.1f} MB, in {run_dir.path}\n"
-                       f"next: ilcpmac report {shlex.quote(str(run_dir.path))}"), soft_wrap=True)
+    console.print(Text(f"wrote {count} files, {size / 1e6:.1f} MB, in {result.path}\n"
+                       f"next: ilcpmac report {shlex.quote(str(result.path))}"), soft_wrap=True)

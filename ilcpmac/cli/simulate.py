@@ -24,15 +24,18 @@ def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | N
     The folder also gets truth.json: the simulator's true values under the result keys (the encoder's
     line errors included).
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     import dataclasses
 
+    from ilcpmac.campaign import simulate_bench
     from ilcpmac.config import check_config, load_config
-    from ilcpmac.sim.grid import simulate_bench
 
     cfg = load_config(config)
-    overrides = {key: value for key, value in (("seed", seed), ("revolutions", revolutions)) if value is not None}
-    if overrides:
-        cfg = dataclasses.replace(cfg, grid=dataclasses.replace(cfg.grid, **overrides))
+    if seed is not None or revolutions is not None:
+        grid = cfg.grid
+        cfg = dataclasses.replace(cfg, grid=dataclasses.replace(
+            grid, seed=grid.seed if seed is None else seed,
+            revolutions=grid.revolutions if revolutions is None else revolutions))
         check_config(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the trials run
     n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)

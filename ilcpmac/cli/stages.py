@@ -15,6 +15,7 @@ def stages() -> None:
 
     With what each does and where it comes from (entry-point group ilcpmac.stages).
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.console import Console
 
     from ilcpmac.stages.registry import GROUP, installed_stages

@@ -61,6 +61,7 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
     percentiles (summary.json), the failures and the worst tasks with the command that reruns each alone, and
     plots (docs/sweep.md).
     """
+    # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.table import Table
 
     from ilcpmac.core.errors import ConfigError
@@ -100,9 +101,10 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
         console.print(f"task {task.task} (seed {task.seed}) failed: {task.detail}\n  rerun: {task.rerun}",
                       soft_wrap=True)
     column = summary.main_figure
-    for task in summary.worst:
-        console.print(f"worst {column} {_percent(column, task.detail)}: task {task.task} (seed {task.seed})\n"
-                      f"  rerun: {task.rerun}", soft_wrap=True)
+    if column is not None:  # else no task has a main figure, nor is the worst
+        for case in summary.worst:
+            console.print(f"worst {column} {_percent(column, case.detail)}: task {case.task} (seed {case.seed})\n"
+                          f"  rerun: {case.rerun}", soft_wrap=True)
     (out_dir / SUMMARY_FILE).write_text(json.dumps(summary.to_json(), indent=1))
     plots = write_plots(table, column, out_dir / "plots", plot_format) if column is not None else []
     console.print(f"wrote {table_path}, {out_dir / SUMMARY_FILE} and {len(plots)} plots in {out_dir / 'plots'}",

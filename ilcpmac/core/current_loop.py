@@ -68,7 +68,7 @@ class CurrentLoop:
         with np.errstate(divide="ignore"):
             return 1.0 / (2.0 * np.pi * self.time_constant_s)
 
-    def scaled(self, factor: np.ndarray) -> "CurrentLoop":
+    def scaled(self, factor: np.ndarray | float) -> CurrentLoop:
         """The loop with each phase's time constant times ``factor`` (the delay kept)."""
         return CurrentLoop(self.time_constant_s * factor, self.delay_s)
 
@@ -81,14 +81,26 @@ class CurrentLoop:
         """
         z_inv = np.exp(-2j * np.pi * np.asarray(harmonics, float)[:, None] / counts_per_rev)
         dt = 1.0 / (counts_per_rev * np.asarray(speed_hz, float)[..., None, None])
-        tau = np.maximum(self.time_constant_s, 1e-300)
-        a = np.exp(-dt / tau)
+        a, b = self.count_decays(dt)
         state = (1.0 - a) * z_inv / (1.0 - a * z_inv)  # s_c / x_c
         if self.delay_s >= 0.0:
-            b = np.exp(-(dt - self.delay_s) / tau)
             return z_inv * (1.0 - b) + b * z_inv * state
-        b = np.exp(self.delay_s / tau)
         return 1.0 - b + b * state
+
+    @property
+    def lag_time_constant_s(self) -> np.ndarray:
+        """tau_p per phase, s, kept above zero (1e-300 s) so that the decays below divide by it."""
+        return np.maximum(self.time_constant_s, 1e-300)
+
+    def count_decays(self, count_period_s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """The recursion's decays per phase over equal count intervals dt = ``count_period_s`` (module docstring):
+        a = exp(-dt / tau_p) over a count, and b, what is left at the sample: exp(-(dt - T_d) / tau_p) for
+        T_d >= 0 (the sample within the count before), else exp(T_d / tau_p)."""
+        tau = self.lag_time_constant_s
+        a = np.exp(-count_period_s / tau)
+        if self.delay_s >= 0.0:
+            return a, np.exp(-(count_period_s - self.delay_s) / tau)
+        return a, np.exp(self.delay_s / tau)
 
 
 def lagged(x: np.ndarray, count_period_s: np.ndarray, loop: CurrentLoop, continuous: bool = False) -> np.ndarray:

@@ -15,9 +15,11 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.schema import finite_json
+from ilcpmac.core.torque_source import TorqueSource
 
 #: The range of each [motor] quantity of a bench, one for configs, bench folders and the protocol's
 #: DESCRIBE: pole pairs up to the few hundred of the most multipolar machines; three phases need three
@@ -98,10 +100,10 @@ class SensorCalibration:
     current_offset: np.ndarray
     torque_gain: float
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "current_scale", np.asarray(self.current_scale, float).reshape(3))
-        object.__setattr__(self, "current_offset", np.asarray(self.current_offset, float).reshape(3))
-        object.__setattr__(self, "torque_gain", float(self.torque_gain))
+    def __init__(self, current_scale: ArrayLike, current_offset: ArrayLike, torque_gain: float) -> None:
+        object.__setattr__(self, "current_scale", np.asarray(current_scale, float).reshape(3))
+        object.__setattr__(self, "current_offset", np.asarray(current_offset, float).reshape(3))
+        object.__setattr__(self, "torque_gain", float(torque_gain))
 
     def to_json(self) -> dict:
         """``{"current_scale": [3], "current_offset": [3], "torque_gain": float}`` (bench.toml's [sensors] keys)."""
@@ -210,7 +212,7 @@ class TrialData:
         Simulator only: true air-gap plus cogging torque, true phase currents
         and true mechanical speed.
     request : TrialRequest, optional
-        The request this trial answers, when known.
+        The request this trial answers, when known (`requested` where it must be).
     """
 
     torque_setpoint_nm: float
@@ -229,6 +231,20 @@ class TrialData:
     def n_samples(self) -> int:
         """Number of recorded encoder counts."""
         return int(self.count.size)
+
+    def requested(self) -> TrialRequest:
+        """The request this trial answers.
+
+        Raises
+        ------
+        ValueError
+            When the trial has none: one read from a bench folder, before the campaign attached its request.
+        """
+        if self.request is None:
+            raise ValueError(f"trial at {self.torque_setpoint_nm:g} N m, {self.speed_setpoint_hz:g} Hz has no "
+                             "request (read from a bench folder?): the pipeline and its stages need the one it "
+                             "answers")
+        return self.request
 
     def mean_speed_hz(self, counts_per_rev: int) -> float:
         """Mean mechanical speed over the trial, Hz."""
@@ -347,8 +363,12 @@ class IdentificationResult(MethodEstimates):
         JSON-able details: residue, reduced chi-square, identified sensor and loop dynamics.
     details : object
         The intermediate estimates (reduction, ch. 2, ch. 3, ch. 4, joint fit), for plots; not in the JSON.
-    torque_source : str
-        "sensor" (the torque sensor's column) or "encoder" (the torque from the encoder's time stamps).
+    torque_source : TorqueSource
+        SENSOR (the torque sensor's column) or ENCODER (the torque from the encoder's time stamps).
+    torque_sensor_highpass_hz, torque_sensor_delay_s : float or None
+        The torque sensor's identified high-pass corner f_hp, Hz, and delay D, s (`ilcpmac.core.torque_sensor`,
+        the joint fit); None where not identified (no joint fit, or no sensor read). In the JSON they stay in
+        ``diagnostics["joint"]``.
     encoder_error_counts, encoder_error_std_counts : ndarray, shape (counts_per_rev,), or None
         The encoder's graduation error e_c per line (line c truly at (c + e_c) 2 pi / counts_per_rev,
         mean zero) and its standard error, counts; None when not identified (the reason in ``messages``).
@@ -360,12 +380,14 @@ class IdentificationResult(MethodEstimates):
     """
 
     current_loop: CurrentLoop | None = None
-    methods: dict = field(default_factory=dict)
+    methods: dict[str, MethodEstimates] = field(default_factory=dict)
     calibration: SensorCalibration | None = None
     messages: tuple = ()
     diagnostics: dict = field(default_factory=dict)
     details: object = field(default=None, compare=False, repr=False)
-    torque_source: str = "sensor"
+    torque_source: TorqueSource = TorqueSource.SENSOR
+    torque_sensor_highpass_hz: float | None = None
+    torque_sensor_delay_s: float | None = None
     encoder_error_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_error_std_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_eccentricity_counts: float | None = None
@@ -404,7 +426,7 @@ class IdentificationResult(MethodEstimates):
         out["current_loop_delay_s"] = None if loop is None else loop.delay_s
         out["methods"] = {name: {k: v for k, v in estimates.to_json().items() if k != "cogging"}
                           for name, estimates in self.methods.items()}
-        out["torque_source"] = self.torque_source
+        out["torque_source"] = self.torque_source.value
         out["encoder_error"] = None if self.encoder_error_counts is None else {
             "count": list(range(self.encoder_error_counts.size)),
             **{key: _json_value(getattr(self, name)) for key, name in ENCODER_ERROR_KEYS}}
@@ -418,7 +440,8 @@ class IdentificationResult(MethodEstimates):
 
         The current loop is ``current_loop_time_constant_s``, else 1 / (2 pi corner) with the corner
         ``current_loop_bandwidth_per_phase_hz`` (or the mean ``current_loop_bandwidth_hz`` in every
-        phase), with ``current_loop_delay_s`` (0 when absent).
+        phase), with ``current_loop_delay_s`` (0 when absent). The torque sensor's high-pass and delay are
+        ``diagnostics["joint"]``'s.
         """
         tau = data.get("current_loop_time_constant_s")
         bandwidth = data.get("current_loop_bandwidth_per_phase_hz") or data.get("current_loop_bandwidth_hz")
@@ -427,10 +450,14 @@ class IdentificationResult(MethodEstimates):
         loop = None if tau is None else CurrentLoop(tau, data.get("current_loop_delay_s") or 0.0)
         calibration = data.get("calibration")
         encoder = data.get("encoder_error") or {}
+        diagnostics = data.get("diagnostics") or {}
+        joint = diagnostics.get("joint") or {}
         return cls(**cls.fields_from_json(data), current_loop=loop,
                    methods={name: MethodEstimates.from_json(m) for name, m in (data.get("methods") or {}).items()},
                    calibration=None if calibration is None else SensorCalibration.from_json(calibration),
-                   messages=tuple(data.get("messages") or ()), diagnostics=data.get("diagnostics") or {},
-                   torque_source=data.get("torque_source") or "sensor",
+                   messages=tuple(data.get("messages") or ()), diagnostics=diagnostics,
+                   torque_source=TorqueSource(data.get("torque_source") or TorqueSource.SENSOR.value),
+                   torque_sensor_highpass_hz=joint.get("torque_sensor_highpass_hz"),
+                   torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
                    **{name: _from_json_value(encoder.get(key), key.startswith("error"))
                       for key, name in ENCODER_ERROR_KEYS})

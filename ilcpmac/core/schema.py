@@ -7,7 +7,9 @@ sum of sines' parallel lists) or `setting` (the same with a default). From that 
   (`coerce_value`) and refusing unknown, missing, mistyped and out-of-range keys with one line naming the
   file, table and key (the field's doc quoted);
 - checking: `section_problem` (and `value_problem`, `lengths_problem`) check an object built in code;
-- writing: `toml_text` and `finite_json` write values TOML and JSON read back as they were.
+- writing: `section_toml` writes a dataclass as the TOML table it was read from, `toml_text` a dict of
+  tables, both through `toml_value`; `finite_json` makes values JSON, and `unique_keys` refuses a JSON
+  object that gives a key twice.
 
 Why our own kit and not pydantic, msgspec or cattrs: benchmarks/schema_kits.py measures it.
 """
@@ -32,8 +34,9 @@ from ilcpmac.core.errors import ConfigError, IlcpmacError
 from ilcpmac.core.files import read_bounded
 
 __all__ = ["MAX_TOML_BYTES", "all_of", "coerce_value", "config_key", "field_like", "finite_json", "finite_number",
-           "in_range", "length_in", "lengths_problem", "param", "parse_section", "read_toml", "section_problem",
-           "setting", "shown", "toml_name", "toml_text", "toml_value", "value_problem"]
+           "in_range", "key_table", "length_in", "lengths_problem", "param", "parse_section", "read_toml",
+           "section_problem", "section_toml", "setting", "shown", "toml_name", "toml_text", "toml_value", "unique_keys",
+           "unknown_key", "value_problem"]
 
 #: Largest TOML file read (a campaign config, bench.toml, scan.toml, a mapping or a sweep spec), bytes.
 MAX_TOML_BYTES = 2**20
@@ -84,18 +87,20 @@ def all_of(*checks: Check) -> Check:
     return lambda x: all(check(x) for check in checks)
 
 
-def param(check: Check | None = None, doc: str = "", *, parallel: bool = False, **kw) -> typing.Any:
+def param(check: Check | None = None, doc: str = "", *, parallel: bool = False, commented: bool = False,
+          **kw) -> typing.Any:
     """A dataclass field with its ``check`` and one-line ``doc`` (quoted by every error about it).
 
     ``parallel``: one of the lists that describe a sum of sines together (orders, amplitudes, phases): the
-    parallel lists of one object must have equal lengths (`lengths_problem`). ``kw`` go to `dataclasses.field`.
+    parallel lists of one object must have equal lengths (`lengths_problem`). ``commented``: `section_toml`
+    writes the doc after the value, as a comment. ``kw`` go to `dataclasses.field`.
     """
-    return field(metadata={"check": check, "doc": doc, "parallel": parallel}, **kw)
+    return field(metadata={"check": check, "doc": doc, "parallel": parallel, "commented": commented}, **kw)
 
 
-def setting(check: Check | None, doc: str, default) -> typing.Any:
+def setting(check: Check | None, doc: str, default, *, commented: bool = False) -> typing.Any:
     """A field of an optional config key: `param` with its ``default``."""
-    return param(check, doc, default=default)
+    return param(check, doc, default=default, commented=commented)
 
 
 def field_like(cls: type, name: str, **kw) -> typing.Any:
@@ -176,32 +181,40 @@ def coerce_value(value, annotation, where: str, error: type[IlcpmacError] = Conf
     raise TypeError(f"unsupported config type {annotation}")  # a programming error, not user input
 
 
+def unknown_key(table: dict, known) -> str | None:
+    """``"unknown key 'k' (known: a, b)"`` for the first key of ``table`` (sorted) not in ``known``, else None."""
+    unknown = sorted(set(table) - set(known))
+    return f"unknown key {shown(unknown[0])} (known: {', '.join(known)})" if unknown else None
+
+
 def toml_name(key: str) -> str:
     """A table or key name as a message shows it: bare if TOML allows, else quoted and cut short."""
     return key if re.fullmatch(r"[A-Za-z0-9_-]{1,60}", key) else shown(key)
 
 
 def parse_section(table: object, cls: type, source: str, section: str, given: dict | None = None,
-                  error: type[IlcpmacError] = ConfigError):
+                  error: type[IlcpmacError] = ConfigError, label: str | None = None):
     """Build dataclass ``cls`` from TOML ``table``; every error (an ``error``) names ``source`` and the key.
 
     A field whose metadata names a ``"table"`` class is the optional sub-table
     ``[section.field]``; the fields in ``given`` take its values and are not read.
+    ``label`` names the table in messages (default ``"[section]"``; e.g. ``"[[trials]] #2"``).
     """
+    label = label or f"[{section}]"
     if not isinstance(table, dict):
-        raise error(f"{source}: [{section}] must be a table")
+        raise error(f"{source}: {label} must be a table")
     given = given or {}
     hints = typing.get_type_hints(cls)
     known = {f.name: f for f in fields(cls) if f.name not in given and f.init}
     unknown = sorted(set(table) - set(known))
     renamed = getattr(cls, "RENAMED", {})
     if unknown and unknown[0] in renamed:
-        raise error(f"{source}: [{section}] {unknown[0]} is now {renamed[unknown[0]]}")
+        raise error(f"{source}: {label} {unknown[0]} is now {renamed[unknown[0]]}")
     if unknown:
-        raise error(f"{source}: [{section}] unknown key {shown(unknown[0])} (known: {', '.join(known)})")
+        raise error(f"{source}: {label} {unknown_key(table, known)}")
     values = dict(given)
     for name, f in known.items():
-        where = f"{source}: [{section}] {name}"
+        where = f"{source}: {label} {name}"
         if "table" in f.metadata:
             values[name] = (parse_section(table[name], f.metadata["table"], source, f"{section}.{name}",
                                           error=error) if name in table else None)
@@ -214,11 +227,11 @@ def parse_section(table: object, cls: type, source: str, section: str, given: di
         values[name] = coerce_value(table[name], hints[name], where, error)
         problem = value_problem(f, values[name])
         if problem is not None:
-            raise error(f"{source}: [{section}] {problem}")
+            raise error(f"{source}: {label} {problem}")
     obj = cls(**values)
     problem = lengths_problem(obj)
     if problem is not None:
-        raise error(f"{source}: [{section}] {problem}")
+        raise error(f"{source}: {label} {problem}")
     return obj
 
 
@@ -275,6 +288,58 @@ def toml_text(data: dict, prefix: str = "") -> str:
             name = f"{prefix}{toml_key(k)}"
             lines += ["", f"[{name}]", toml_text(v, f"{name}.")]
     return "\n".join(line for line in lines if line) + "\n"
+
+
+def section_toml(obj) -> str:
+    """The lines of dataclass ``obj`` as the TOML table `parse_section` reads it from: every field without a
+    default, and every other one whose value is not its default; a ``commented`` field's doc follows its
+    value as a comment."""
+    lines = []
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if f.default is dataclasses.MISSING or value != f.default:
+            comment = f"  # {f.metadata['doc']}" if f.metadata.get("commented") else ""
+            lines.append(f"{toml_key(f.name)} = {toml_value(value)}{comment}\n")
+    return "".join(lines)
+
+
+def _type_name(annotation) -> str:
+    """A field's type as a config's reader knows it: number, integer, string, true/false, a list of one."""
+    origin = typing.get_origin(annotation)
+    if origin in (typing.Union, types.UnionType):
+        (inner,) = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return _type_name(inner)
+    if origin is tuple:
+        (item,) = {a for a in typing.get_args(annotation) if a is not Ellipsis}
+        return f"list of {_type_name(item)}s"
+    return {int: "integer", float: "number", str: "string", bool: "true/false"}.get(annotation, str(annotation))
+
+
+def key_table(cls: type, table: str, given: typing.Iterable[str] = ()) -> str:
+    """A Markdown table of the keys of TOML table ``[table]`` that dataclass ``cls`` declares: key, type,
+    default ("required" where there is none) and the field's doc; the fields in ``given`` are left out
+    (another table gives them), and so is a sub-table field."""
+    hints = typing.get_type_hints(cls)
+    rows = [f"### [{table}]", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+    for f in fields(cls):
+        if f.name in given or "table" in f.metadata or not f.init:
+            continue
+        default = ("required" if f.default is dataclasses.MISSING
+                   else "left out" if f.default is None else f"`{toml_value(f.default)}`")
+        doc = f.metadata.get("doc", "").replace("|", "\\|")
+        rows.append(f"| `{f.name}` | {_type_name(hints[f.name])} | {default} | {doc} |")
+    return "\n".join(rows) + "\n"
+
+
+def unique_keys(pairs: list[tuple[str, typing.Any]]) -> dict:
+    """A JSON object from its ``pairs`` (``json.loads(..., object_pairs_hook=unique_keys)``); a key given twice
+    raises ValueError naming it, where `json.loads` would keep the last silently."""
+    data: dict = {}
+    for key, value in pairs:
+        if key in data:
+            raise ValueError(f"key {shown(key)} given twice")
+        data[key] = value
+    return data
 
 
 def finite_json(value):

@@ -26,7 +26,7 @@ reason in ``messages``.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from ilcpmac.bench.format import Bench
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.records import IdentificationResult, MethodEstimates, SensorCalibration
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.encoder import EncoderIdentification, identify_on_encoder
 from ilcpmac.identify.joint import JointEstimate, fit_joint
@@ -43,7 +44,7 @@ from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gai
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
-__all__ = ["IdentificationDetails", "IdentificationResult", "MethodEstimates", "corrected_calibration",
+__all__ = ["IdentificationDetails", "IdentificationResult", "Identifier", "MethodEstimates", "corrected_calibration",
            "identify_bench"]
 
 #: the steps reported to ``progress``
@@ -51,8 +52,6 @@ STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-se
          "decoupling (ch. 4)")
 #: the loop the joint fit starts from when ch. 2 gives none: a 200 Hz lag
 DEFAULT_LOOP = CurrentLoop(np.full(3, 1.0 / (2.0 * np.pi * 200.0)), 0.0)
-#: where the torque comes from (`identify_bench`)
-TORQUE_SOURCES = ("sensor", "encoder")
 #: what the encoder-derived torque cannot show, and why
 NOT_IDENTIFIED_WITHOUT_SENSOR = (
     "torque-sensor gain (ch. 3): not identified - the torque comes from the encoder (no sensor reading): delta, "
@@ -88,25 +87,31 @@ def _attempt(messages: list, step: str, compute: Callable):
     return None
 
 
-def _ratio(numerator: float | None, numerator_std: float | None, denominator: float | None,
-           denominator_std: float | None) -> tuple[float | None, float | None]:
+#: a (value, standard error) pair of a scalar, of a vector
+_Pair = tuple[float | None, float | None]
+_ArrayPair = tuple[np.ndarray | None, np.ndarray | None]
+
+
+def _ratio(numerator: _Pair, denominator: _Pair) -> _Pair:
     """A ratio and its standard error (relative errors added in quadrature)."""
-    if numerator is None or denominator is None:
+    (value_n, std_n), (value_d, std_d) = numerator, denominator
+    if value_n is None or std_n is None or value_d is None or std_d is None:
         return None, None
-    value = numerator / denominator
-    return value, abs(value) * float(np.hypot(numerator_std / numerator, denominator_std / denominator))
+    value = value_n / value_d
+    return value, abs(value) * float(np.hypot(std_n / value_n, std_d / value_d))
 
 
-def _method(gain: tuple, sensor_gain: tuple, alpha: tuple, beta_star: tuple, inertia: tuple,
+def _method(gain: _Pair, sensor_gain: _Pair, alpha: _ArrayPair, beta_star: _ArrayPair, inertia: _Pair,
             cogging_measured: np.ndarray | None) -> MethodEstimates:
     """One method's estimates from its (value, std) pairs of delta*eps, delta, alpha, delta beta and J*,
     and its cogging in measured units (eq. 1.11); (None, None) where the method gave none."""
     delta, delta_std = sensor_gain
-    epsilon, epsilon_std = _ratio(*gain, delta, delta_std)
+    epsilon, epsilon_std = _ratio(gain, sensor_gain)
+    beta_star_value, beta_star_std = beta_star
     beta = beta_std = cogging = None
-    if delta is not None and beta_star[0] is not None:
-        beta = beta_star[0] / delta
-        beta_std = np.hypot(beta_star[1] / delta, beta * delta_std / delta)
+    if delta is not None and delta_std is not None and beta_star_value is not None and beta_star_std is not None:
+        beta = beta_star_value / delta
+        beta_std = np.hypot(beta_star_std / delta, beta * delta_std / delta)
     if delta is not None and cogging_measured is not None:
         cogging = cogging_measured / delta
     return MethodEstimates(*gain, delta, delta_std, epsilon, epsilon_std, *alpha, beta, beta_std, *inertia, cogging)
@@ -116,7 +121,7 @@ def _method(gain: tuple, sensor_gain: tuple, alpha: tuple, beta_star: tuple, ine
 MISSING = (None, None)
 
 
-def _report_method(system: SystemGainEstimate | None, sensor: SensorGainEstimate | None,
+def _report_method(system: SystemGainEstimate | None, sensor: SensorGainEstimate | _UnitSensor | None,
                    decoupling: DecouplingEstimate | None) -> MethodEstimates:
     """The report's estimates: ch. 2 gain, ch. 3 mean J*, ch. 4 decoupling averaged over set points."""
     return _method(
@@ -128,21 +133,30 @@ def _report_method(system: SystemGainEstimate | None, sensor: SensorGainEstimate
         decoupling.mean_cogging_nm() if decoupling else None)
 
 
-def _joint_method(joint: JointEstimate | None, sensor: SensorGainEstimate | None,
+def _joint_method(joint: JointEstimate | None, sensor: SensorGainEstimate | _UnitSensor | None,
                   counts_per_rev: int) -> MethodEstimates:
     """The joint fit's estimates, with the pooled, sensor-corrected J* of ch. 3."""
-    corrected = sensor is not None and np.isfinite(sensor.corrected_delta)
+    corrected = sensor if sensor is not None and np.isfinite(sensor.corrected_delta) else None
     return _method(
         (joint.delta_epsilon, joint.delta_epsilon_std) if joint else MISSING,
-        (sensor.corrected_delta, sensor.corrected_delta_std) if corrected else MISSING,
+        (corrected.corrected_delta, corrected.corrected_delta_std) if corrected is not None else MISSING,
         (joint.alpha, joint.alpha_std) if joint else MISSING,
         (joint.beta_star_a, joint.beta_star_std) if joint else MISSING,
-        (sensor.corrected_inertia, sensor.corrected_inertia_std) if corrected else MISSING,
+        (corrected.corrected_inertia, corrected.corrected_inertia_std) if corrected is not None else MISSING,
         joint.cogging_table_nm(counts_per_rev) if joint else None)
 
 
+class Identifier(Protocol):
+    """What identifies a bench folder as `identify_bench` does (the campaign takes one, so that tests can inject
+    an answer)."""
+
+    def __call__(self, bench: Bench, *, torque_source: TorqueSource | None = None) -> IdentificationResult:
+        """The identification of ``bench`` on ``torque_source`` (None: its default, `identify_bench`)."""
+        ...
+
+
 def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | None = None,
-                   torque_source: str | None = None) -> IdentificationResult:
+                   torque_source: TorqueSource | None = None) -> IdentificationResult:
     """Identify delta*eps, delta, eps, alpha, beta, J* and the cogging torque of a bench folder.
 
     Parameters
@@ -151,29 +165,30 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         A bench folder in memory (`ilcpmac.bench.format.read_bench`).
     progress : callable, optional
         ``progress(step, index, total)`` before each step of STEPS.
-    torque_source : {"sensor", "encoder"}, optional
-        Where the torque comes from: the torque sensor's column, or the encoder's time stamps (also on a
-        bench with a sensor, to compare); None: "sensor" when the bench has a torque sensor, else "encoder".
+    torque_source : TorqueSource, optional
+        Where the torque comes from: SENSOR, the torque sensor's column, or ENCODER, the encoder's time stamps
+        (also on a bench with a sensor, to compare), not BOTH; None: `TorqueSource.default` of the bench.
 
     Raises
     ------
     IdentificationError
-        When no trial can be used or nothing at all can be estimated, or for a "sensor" source on a
-        bench without one. An estimate that is impossible on its own is reported in ``messages``.
+        When no trial can be used or nothing at all can be estimated, for BOTH, or for a source that reads
+        a torque sensor on a bench without one. An estimate that is impossible on its own is reported in ``messages``.
     """
     def step(index: int) -> None:
         if progress is not None:
             progress(STEPS[index], index, len(STEPS))
 
-    source = torque_source or ("sensor" if bench.motor.torque_sensor else "encoder")
-    if source not in TORQUE_SOURCES:
-        raise IdentificationError(f"torque source must be one of {', '.join(TORQUE_SOURCES)}, got {source!r}")
-    if source == "sensor" and not bench.motor.torque_sensor:
-        raise IdentificationError("torque source 'sensor': the bench has no torque sensor ([motor] torque_sensor "
-                                  "= false); use the encoder")
+    source = torque_source or TorqueSource.default(bench.motor.torque_sensor)
+    if source.fuses:
+        raise IdentificationError(f"torque source must be one of {TorqueSource.SENSOR.value}, "
+                                  f"{TorqueSource.ENCODER.value}, got {source.value!r}")
+    if source.reads_sensor and not bench.motor.torque_sensor:
+        raise IdentificationError(f"torque source {source.value!r}: the bench has no torque sensor ([motor] "
+                                  "torque_sensor = false); use the encoder")
     step(0)
     encoder = None
-    if source == "encoder":
+    if source.reads_encoder:
         encoder = _encoder_tables(bench)
         tables = encoder.tables
         messages = [*tables.messages, *encoder.messages]
@@ -234,7 +249,8 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
         messages=tuple(messages), diagnostics=diagnostics,
         details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
-        torque_source=source, **_encoder_error_fields(encoder))
+        torque_source=source, torque_sensor_highpass_hz=None if joint is None else joint.highpass_hz,
+        torque_sensor_delay_s=None if joint is None else joint.torque_delay_s, **_encoder_error_fields(encoder))
     return in_motor_coordinates(result) if bench.motor.mirrored else result
 
 
@@ -270,13 +286,16 @@ def _encoder_tables(bench: Bench) -> EncoderIdentification:
 def _encoder_error_fields(encoder: EncoderIdentification | None) -> dict:
     """The `IdentificationResult` fields of the encoder error (none without one): what is applied, its phase None
     where its once-per-revolution part is 0 (no phase to tell)."""
-    if encoder is None or encoder.line_errors_counts is None:
+    if encoder is None:
         return {}
-    variance = encoder.encoder_error_variance_counts2
-    amplitude, amplitude_std, phase, line_rms = encoder_error_summary(encoder.encoder_error_counts, variance)
+    applied, error, variance = (encoder.line_errors_counts, encoder.encoder_error_counts,
+                                encoder.encoder_error_variance_counts2)
+    if applied is None or error is None or variance is None:
+        return {}
+    amplitude, amplitude_std, phase, line_rms = encoder_error_summary(error, variance)
     std = float(np.sqrt(np.sum(variance[1:]) / 2.0))
-    return {"encoder_error_counts": encoder.line_errors_counts,
-            "encoder_error_std_counts": np.full(encoder.line_errors_counts.size, std),
+    return {"encoder_error_counts": applied,
+            "encoder_error_std_counts": np.full(applied.size, std),
             "encoder_eccentricity_counts": amplitude, "encoder_eccentricity_std_counts": amplitude_std,
             "encoder_eccentricity_phase_rad": phase if amplitude > 0.0 else None, "encoder_line_rms_counts": line_rms}
 
@@ -285,7 +304,7 @@ def _encoder_diagnostics(diagnostics: dict, bench: Bench, encoder: EncoderIdenti
     """``diagnostics`` with the encoder path's details."""
     return {**diagnostics, "encoder": {
         "inertia_given": bench.motor.inertia_kgm2, "timer_resolution_s": encoder.timer_resolution_s,
-        "harmonics": int(encoder.tables.trials[0].harmonic_variances_nm2.size - 1),
+        "harmonics": int(encoder.tables.trials[0].encoder_parts()[0].size - 1),
         "brake_per_trial": [{"torque_setpoint": t.torque_setpoint_nm, "speed_setpoint": t.speed_setpoint_hz,
                              "viscous_nm_s": float(b)} for t, b in zip(encoder.tables.trials, encoder.viscous_nm_s)]}}
 

@@ -57,6 +57,7 @@ import numpy as np
 from ilcpmac.bench.format import Bench
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.records import TrialData
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify.joint import JointEstimate, fitted_columns_nm
 from ilcpmac.identify.reduction import BenchTables, TrialTables, reduce_bench, revolution_averages
 from ilcpmac.model.encoder import line_errors_problem
@@ -205,7 +206,8 @@ def encoder_tables(bench: Bench, timer_s: float, band: int, model: MeanTorqueMod
     """Every usable trial of ``bench`` reduced on its encoder-derived torque (`reduce_bench`)."""
     backemf = np.asarray(bench.backemf_nm_per_a, float)
     return reduce_bench(bench, lambda trial, _: encoder_trial_tables(trial, bench.motor, backemf, timer_s, band,
-                                                                     model, line_errors_counts), "encoder")
+                                                                     model, line_errors_counts),
+                        TorqueSource.ENCODER)
 
 
 def identify_on_encoder(bench: Bench, fit: Callable[[BenchTables], JointEstimate | None]) -> EncoderIdentification:

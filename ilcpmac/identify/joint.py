@@ -67,6 +67,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ilcpmac.core import torque_sensor
 from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.lag_kernel import _advance, warm_up_start
@@ -326,8 +327,8 @@ class JointEstimate:
         """The torque sensor's identified response per harmonic at a speed: high-pass and delay (1 without a
         sensor)."""
         _, _, _, _, highpass_hz, _, delay_s = self.nonlinear
-        w = 2.0 * np.pi * np.asarray(harmonics, float) * speed_hz
-        return 1j * w / (1j * w + 2.0 * np.pi * highpass_hz) * np.exp(-1j * w * delay_s)
+        return torque_sensor.sensor_response(2.0 * np.pi * np.asarray(harmonics, float) * speed_hz, highpass_hz,
+                                             delay_s)
 
     def cogging_table_nm(self, counts_per_rev: int) -> np.ndarray:
         """delta tau_c per count, N m (measured units): T on the cogging harmonics."""
@@ -364,7 +365,7 @@ def harmonic_sets(tables: BenchTables) -> HarmonicSets:
     backemf = np.abs(trial_amplitudes(tables.backemf_nm_per_a[None], nyquist)[0])
     has_backemf = backemf[1:].max(axis=1) > SIGNIFICANT * backemf[1:].max()
     # the encoder-derived torque holds the fit's band only (its noise grows as h^2 to h^4 beyond)
-    top = nyquist if tables.torque_source == "sensor" else int(fit.max())
+    top = nyquist if tables.torque_source.reads_sensor else int(fit.max())
     cogging = np.arange(motor.cogging_order, top + 1, motor.cogging_order)
     table_free = ~has_backemf[fit - 1] | np.isin(fit, cogging)
     return HarmonicSets(fit=fit, table_free=table_free, cogging=cogging)
@@ -396,14 +397,16 @@ class _JointProblem:
         self._shifted: tuple = (None,)
         self._loop_derivatives: tuple = (None,)
         self.variance = np.array([t.harmonic_variance_nm2 for t in tables.trials])
-        self.sensor = tables.torque_source == "sensor"
+        self.sensor = tables.torque_source.reads_sensor
         #: the nonlinear parameters the data determine: without a sensor, not the sensor's, held at none
         self.identifiable = np.ones(len(NONLINEAR), bool) if self.sensor else ~SENSOR_PARAMETERS
-        self.variances = None if self.sensor else np.stack([t.harmonic_variances_nm2 for t in tables.trials])
+        self.variances: np.ndarray | None = None
         if not self.sensor:  # the brake's b omega leaves the data, and enters through the columns (`amplitudes`)
-            speed = np.stack([t.speed_table_rad_s for t in tables.trials])
+            parts = [t.encoder_parts() for t in tables.trials]
+            self.variances = np.stack([variances for variances, _, _ in parts])
+            speed = np.stack([table for _, table, _ in parts])
             mean = speed.mean(axis=1, keepdims=True)
-            self.torque = self.torque - np.array([[t.viscous_nm_s] for t in tables.trials]) * (speed - mean)
+            self.torque = self.torque - np.array([[viscous] for _, _, viscous in parts]) * (speed - mean)
             self.speed_ripple = trial_amplitudes(speed[:, :, None], self.max_fit)[:, sets.fit, 0] / mean
         backemf_cols = trial_amplitudes(self.backemf[None], self.max_fit)[0][sets.fit]
         self.backemf_design = np.broadcast_to(backemf_cols, (len(tables.trials),) + backemf_cols.shape)
@@ -450,7 +453,7 @@ class _JointProblem:
         omega = 2.0 * np.pi * self.speeds[:, None] * harmonics[None, :]
         if not self.sensor:
             return np.ones(omega.shape, complex)
-        return 1j * omega / (1j * omega + 2.0 * np.pi * phi[4])
+        return torque_sensor.highpass(omega, phi[4])
 
     def variance_at(self, harmonics: np.ndarray) -> np.ndarray:
         """Variance of the real (and imaginary) part of each trial's ``harmonics``, shape (n_trials, len(harmonics))."""
@@ -618,7 +621,6 @@ class _JointProblem:
         neither the data nor the weights.
         """
         design = self.design(phi, saturation)
-        loop = self.loop_derivatives(phi) if active[[0, 1, 2, 3, 5]].any() else None
         hp, weights = self.weights(phi)
         weights = weights[:, :, None]
         root = np.sqrt(weights)
@@ -626,20 +628,21 @@ class _JointProblem:
         n_rows = 2 * design.shape[0] * design.shape[1]
         indices = np.flatnonzero(active)
         residuals, products = np.empty((n_rows, indices.size)), np.empty((design.shape[2], indices.size))
-        for column, i in enumerate(indices):
+        for column, i in enumerate(indices.tolist()):
             d_y, d_columns = np.zeros(n_rows), np.zeros((n_rows, design.shape[2]))
             if i in LOOP_COLUMNS:
                 source, target = LOOP_COLUMNS[i]
-                d_columns[:, target] = _weighted_change(loop[:, :, source], weights, root, free)
+                loop = self.loop_derivatives(phi)[:, :, source]
+                d_columns[:, target] = _weighted_change(loop, weights, root, free)
             elif i == 4 and self.sensor:
                 omega = 2.0 * np.pi * self.speeds[:, None] * self.sets.fit[None, :]
                 corner = 2.0 * np.pi * phi[4]
                 data = self.data(phi)[:, self.sets.fit]
                 d_data = data * (2.0 * np.pi / (1j * omega))
                 d_log_weight = (-4.0 * np.pi * corner / (omega**2 + corner**2))[:, :, None]
-                d_y = _weighted_change(d_data[:, :, None], weights, root, free, (data / hp)[:, :, None],
-                                       d_log_weight)[:, 0]
-                d_columns = _weighted_change(None, weights, root, free, design, d_log_weight)
+                d_y = _weighted_change(d_data[:, :, None], weights, root, free,
+                                       ((data / hp)[:, :, None], d_log_weight))[:, 0]
+                d_columns = _weighted_change(None, weights, root, free, (design, d_log_weight))
             elif i == 6 and self.sensor:
                 d_data = self.data_slope(phi)[:, self.sets.fit] / self.highpass(phi, self.sets.fit)
                 d_y = _weighted_change(d_data[:, :, None], weights, root, free)[:, 0]
@@ -862,16 +865,18 @@ def _weighted_mean(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 
 def _weighted_change(change: np.ndarray | None, weights: np.ndarray, root: np.ndarray, free: np.ndarray,
-                     value: np.ndarray | None = None, d_log_weight: np.ndarray | None = None) -> np.ndarray:
+                     weight_change: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The derivative of `_JointProblem.weighted`'s output for the change ``change`` (n_trials, n_fit, m; None: 0)
-    of its input ``value`` and ``d_log_weight`` (None: 0) of the log of its ``weights`` (``root`` their square
-    root), stacked real, shape (2 n_trials n_fit, m) (`_JointProblem.sensitivities`)."""
+    of its input and, in ``weight_change`` (None: none), that input ``value`` and the change ``d_log_weight`` of
+    the log of its ``weights`` (``root`` their square root), stacked real, shape (2 n_trials n_fit, m)
+    (`_JointProblem.sensitivities`)."""
     derivative = 0.0 if change is None else change - free * _weighted_mean(change, weights)
-    if d_log_weight is not None:
+    if weight_change is not None:
+        value, d_log_weight = weight_change
         mean = _weighted_mean(value, weights)
         derivative = derivative + d_log_weight / 2.0 * (value - free * mean) - free * _weighted_mean(
             d_log_weight * (value - mean), weights)
-    derivative = (root * derivative).reshape(-1, derivative.shape[2])
+    derivative = (root * derivative).reshape(-1, np.shape(derivative)[2])
     return np.concatenate([derivative.real, derivative.imag])
 
 
@@ -952,7 +957,7 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
         return last["solution"][1]
 
     def jacobian(free: np.ndarray) -> np.ndarray:
-        known = last["solution"] if np.array_equal(free, last.get("free")) else None
+        known = last["solution"] if "free" in last and np.array_equal(free, last["free"]) else None
         return problem.jacobian(full(free), saturation, active, known)
 
     if active.any():
@@ -1093,14 +1098,14 @@ def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndar
 
     def structure(parts: list, size: int) -> tuple[float, np.ndarray]:
         """The largest chi2/dof over the tested quantities, and the structure's covariance (size x size)."""
-        shifts, noises = [], []
+        shift_rows, noise_rows = [], []
         constraint = problem.constraint(size) if size == 6 else np.eye(size)
         for d, r in parts:
             d = d @ constraint
             noise = np.linalg.pinv(d.T @ d)
-            shifts.append(constraint @ noise @ d.T @ r)
-            noises.append(constraint @ noise @ constraint.T)
-        shifts, noises = np.array(shifts), np.array(noises)
+            shift_rows.append(constraint @ noise @ d.T @ r)
+            noise_rows.append(constraint @ noise @ constraint.T)
+        shifts, noises = np.array(shift_rows), np.array(noise_rows)
         tests = [mean] + [np.eye(size)[3 + p] for p in range(size - 3)]
         expected_gain = np.einsum("i,bij,j->b", mean, noises[:, :3, :3], mean)
         if len(parts) < 2 or not np.all(expected_gain > 0.0):

@@ -18,11 +18,44 @@ from matplotlib.figure import Figure
 
 from ilcpmac import plotting
 from ilcpmac.core.records import IdentificationResult
-from ilcpmac.identify import sensor_gain
+from ilcpmac.identify import IdentificationDetails, sensor_gain
+from ilcpmac.identify.decoupling import DecouplingEstimate
 from ilcpmac.identify.mirror import in_mirror_coordinates
-from ilcpmac.identify.system_gain import excluded_harmonics, theoretical_torque_tables
+from ilcpmac.identify.reduction import BenchTables
+from ilcpmac.identify.sensor_gain import SensorGainEstimate
+from ilcpmac.identify.system_gain import SystemGainEstimate, excluded_harmonics, theoretical_torque_tables
 
 __all__ = ["IDENTIFICATION_FIGURES", "SIGNAL_FIGURES", "build_figures", "write_plots"]
+
+
+def _details(result: IdentificationResult) -> IdentificationDetails:
+    """The intermediate estimates `identify_bench` keeps in ``result`` (a result read from JSON has none)."""
+    assert isinstance(result.details, IdentificationDetails), "a result of identify_bench"
+    return result.details
+
+
+def _tables(result: IdentificationResult) -> BenchTables:
+    return _details(result).tables
+
+
+# A figure of these estimates is drawn only when the result has them (`build_figures`).
+
+def _system(result: IdentificationResult) -> SystemGainEstimate:
+    system = _details(result).system
+    assert system is not None, "a figure of the system gain needs its estimate"
+    return system
+
+
+def _sensor(result: IdentificationResult) -> SensorGainEstimate:
+    sensor = _details(result).sensor
+    assert sensor is not None, "a figure of the sensor gain needs its estimate"
+    return sensor
+
+
+def _decoupling(result: IdentificationResult) -> DecouplingEstimate:
+    estimate = _details(result).decoupling
+    assert estimate is not None, "a figure of the decoupling needs its estimate"
+    return estimate
 
 
 def _per_torque(torque: float, lines: int) -> str:
@@ -34,19 +67,19 @@ def _torque(torque: float, lines: int) -> str:
 
 
 def _torques(result: IdentificationResult) -> list[float]:
-    return [t.torque_setpoint_nm for t in result.details.tables.trials]
+    return [t.torque_setpoint_nm for t in _tables(result).trials]
 
 
 def _electrical_revolution(result: IdentificationResult) -> tuple[np.ndarray, np.ndarray, float]:
     """The counts of the first electrical revolution, their mechanical degrees, and its span in degrees."""
-    motor = result.details.tables.motor
+    motor = _tables(result).motor
     counts = np.arange(motor.counts_per_rev // motor.pole_pairs)
     return counts, plotting.mechanical_degrees(counts, motor.counts_per_rev), 360.0 / motor.pole_pairs
 
 
 def _slowest_per_torque(result: IdentificationResult) -> list[int]:
     """One trial per torque set point: the one at the lowest speed set point."""
-    trials = result.details.tables.trials
+    trials = _tables(result).trials
     slowest = min(t.speed_setpoint_hz for t in trials)
     return [i for i, t in enumerate(trials) if t.speed_setpoint_hz == slowest]
 
@@ -55,8 +88,8 @@ def torque_reference(result: IdentificationResult) -> Figure:
     """Fig. 2.1: the torque the current references ask for, sum_p K_p I*_p, over one electrical revolution."""
     counts, degrees, span = _electrical_revolution(result)
     pick = _slowest_per_torque(result)
-    theory = theoretical_torque_tables(result.details.tables)
-    speed = result.details.tables.trials[pick[0]].speed_setpoint_hz
+    theory = theoretical_torque_tables(_tables(result))
+    speed = _tables(result).trials[pick[0]].speed_setpoint_hz
     fig, (axis,) = plotting.figure(1, 3.5)
     plotting.plot_groups(axis, degrees, [theory[k, counts] for k in pick], [_torques(result)[k] for k in pick],
                          _torque, lw=0.8)
@@ -71,7 +104,7 @@ def current_reference(result: IdentificationResult) -> Figure:
     """Fig. 2.2: the current references I*_p of each phase over one electrical revolution."""
     counts, degrees, span = _electrical_revolution(result)
     pick = _slowest_per_torque(result)
-    trials = result.details.tables.trials
+    trials = _tables(result).trials
     fig, axes = plotting.figure(3, 2.2)
     for phase, axis in zip("abc", axes):
         column = "abc".index(phase)
@@ -87,7 +120,7 @@ def current_reference(result: IdentificationResult) -> Figure:
 def measured_ripple(result: IdentificationResult) -> Figure:
     """Fig. 2.3: the measured torque ripple (synchronous average less its mean) of every set point."""
     counts, degrees, span = _electrical_revolution(result)
-    tables = [t.torque_table_nm - t.torque_table_nm.mean() for t in result.details.tables.trials]
+    tables = [t.torque_table_nm - t.torque_table_nm.mean() for t in _tables(result).trials]
     fig, (axis,) = plotting.figure(1, 3.5)
     plotting.plot_groups(axis, degrees, [t[counts] for t in tables], _torques(result), _per_torque, lw=0.6)
     axis.set_title("measured torque ripple per set point (torque sensor's initial gain)")
@@ -99,8 +132,8 @@ def measured_ripple(result: IdentificationResult) -> Figure:
 
 def harmonic_response(result: IdentificationResult, kept_only: bool) -> Figure:
     """Figs. 2.4 (all harmonics) and 2.5 (``kept_only``: the fitted ones): |H| and coherence per set point."""
-    system = result.details.system
-    motor = result.details.tables.motor
+    system = _system(result)
+    motor = _tables(result).motor
     h = system.harmonics
     mask = ~excluded_harmonics(h, motor.pole_pairs, motor.cogging_order) if kept_only else np.ones(h.size, bool)
     torques = _torques(result)
@@ -128,7 +161,7 @@ def harmonic_response(result: IdentificationResult, kept_only: bool) -> Figure:
 
 def torque_speed_response(result: IdentificationResult) -> Figure:
     """Fig. 3.1: measured torque over angular velocity and its coherence, per set point."""
-    responses = result.details.sensor.responses
+    responses = _sensor(result).responses
     torques = _torques(result)
     frequencies = [r.frequency_hz for r in responses]
     fig, (top, bottom) = plotting.figure(2)
@@ -149,7 +182,7 @@ def torque_speed_response(result: IdentificationResult) -> Figure:
 
 def inertia_fit(result: IdentificationResult) -> Figure:
     """Fig. 3.2: the response per set point (dots) and its least-squares fit J* s + b* (lines)."""
-    sensor = result.details.sensor
+    sensor = _sensor(result)
     torques = _torques(result)
     frequencies = [r.frequency_hz for r in sensor.responses]
     models = [damping + 2j * np.pi * r.frequency_hz * inertia
@@ -172,8 +205,8 @@ def inertia_fit(result: IdentificationResult) -> Figure:
 
 def inertia_per_setpoint(result: IdentificationResult) -> Figure:
     """Fig. 3.3: J* per set point with its standard error, and their mean."""
-    sensor = result.details.sensor
-    trials = result.details.tables.trials
+    sensor = _sensor(result)
+    trials = _tables(result).trials
     fig, (axis,) = plotting.figure(1, 3.5)
     colours = plotting.group_colours(_torques(result))
     for torque, colour in colours.items():
@@ -191,15 +224,15 @@ def inertia_per_setpoint(result: IdentificationResult) -> Figure:
 
 def _representative(result: IdentificationResult) -> int:
     """The set point fig. 4.1 shows: the middle one of the list."""
-    return len(result.details.tables.trials) // 2
+    return len(_tables(result).trials) // 2
 
 
 def decoupling(result: IdentificationResult) -> Figure:
     """Fig. 4.1: the decoupling (eqs. 1.12, 1.13) of a representative set point, one electrical revolution."""
-    estimate = result.details.decoupling
+    estimate = _decoupling(result)
     counts, degrees, span = _electrical_revolution(result)
     k = _representative(result)
-    trial = result.details.tables.trials[k]
+    trial = _tables(result).trials[k]
     fig, axes = plotting.figure(3, 2.4)
     axes[0].plot(degrees, estimate.measured_nm[k, counts], lw=0.8, label="tau*_p less delta*eps sum_p K_p I*_p")
     axes[1].plot(degrees, estimate.explained_nm[k, counts], lw=0.8, label="X y (currents)")
@@ -217,7 +250,7 @@ def decoupling(result: IdentificationResult) -> Figure:
 
 def _cogging_per_setpoint(result: IdentificationResult) -> np.ndarray:
     """The cogging of each set point in true units (divided by delta), N m."""
-    return result.details.decoupling.cogging_nm / (result.delta or 1.0)
+    return _decoupling(result).cogging_nm / (result.delta or 1.0)
 
 
 def cogging_per_setpoint(result: IdentificationResult) -> Figure:

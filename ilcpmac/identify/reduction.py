@@ -20,6 +20,7 @@ import numpy as np
 from ilcpmac.bench.format import Bench, check_backemf, check_trial
 from ilcpmac.core.errors import BenchFormatError, IdentificationError
 from ilcpmac.core.records import MotorInfo, TrialData
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.signals.harmonics import (
     every_count,
     harmonic_amplitudes,
@@ -93,6 +94,20 @@ class TrialTables:
     speed_table_rad_s: np.ndarray | None = None
     viscous_nm_s: float | None = None
 
+    def encoder_parts(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """``harmonic_variances_nm2``, ``speed_table_rad_s`` and ``viscous_nm_s`` of a trial reduced on the
+        encoder-derived torque.
+
+        Raises
+        ------
+        IdentificationError
+            When it lacks one (a trial reduced on the sensor's torque).
+        """
+        if self.harmonic_variances_nm2 is None or self.speed_table_rad_s is None or self.viscous_nm_s is None:
+            raise IdentificationError(f"trial at {self.torque_setpoint_nm:g} N m, {self.speed_setpoint_hz:g} Hz: "
+                                      "not reduced on the encoder-derived torque")
+        return self.harmonic_variances_nm2, self.speed_table_rad_s, self.viscous_nm_s
+
 
 @dataclass(frozen=True)
 class BenchTables:
@@ -109,8 +124,8 @@ class BenchTables:
         Their file names.
     messages : tuple of str
         Why other trials were left out.
-    torque_source : str
-        "sensor": the torque sensor's, through its gain delta, high-pass and delay; "encoder": the true
+    torque_source : TorqueSource
+        SENSOR: the torque sensor's, through its gain delta, high-pass and delay; ENCODER: the true
         torque from the encoder's time stamps (`ilcpmac.identify.encoder`), through none of them.
     """
 
@@ -119,7 +134,7 @@ class BenchTables:
     trials: tuple[TrialTables, ...]
     trial_files: tuple[str, ...]
     messages: tuple[str, ...]
-    torque_source: str = "sensor"
+    torque_source: TorqueSource = TorqueSource.SENSOR
 
 
 def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
@@ -197,12 +212,12 @@ def revolution_averages(count: np.ndarray, time_s: np.ndarray, i_ref_a: np.ndarr
 
 
 def reduce_bench(bench: Bench, reduce: Callable[[TrialData, int], TrialTables] = reduce_trial,
-                 torque_source: str = "sensor") -> BenchTables:
+                 torque_source: TorqueSource = TorqueSource.SENSOR) -> BenchTables:
     """Reduce every trial of ``bench`` with ``reduce``; trials that cannot be reduced are left out with a message.
 
     The data are checked first (`ilcpmac.bench.format.check_trial` and
     `check_backemf`), so that a bench built in memory gets the reader's messages.
-    ``torque_source`` names where ``reduce`` takes the torque from (`BenchTables`).
+    ``torque_source`` says where ``reduce`` takes the torque from (`BenchTables`).
 
     Raises
     ------

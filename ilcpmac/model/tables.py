@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ilcpmac.core.records import MotorInfo
 from ilcpmac.model.motor import BackEmf, Cogging, Unexplained, Winding
 
 
@@ -16,8 +17,9 @@ def mechanical_angles_rad(n_points: int) -> np.ndarray:
     return 2.0 * np.pi * np.arange(n_points) / n_points
 
 
-def backemf_table(winding: Winding, backemf: BackEmf, n_points: int) -> np.ndarray:
-    """K_p(theta) per phase, N m / A, shape (n_points, 3) (the matrix K of eq. 1.1)."""
+def backemf_table(winding: Winding | MotorInfo, backemf: BackEmf, n_points: int) -> np.ndarray:
+    """K_p(theta) per phase, N m / A, shape (n_points, 3) (the matrix K of eq. 1.1), for a motor of
+    ``winding.pole_pairs`` (the simulated winding, or a bench's motor)."""
     theta_e = winding.pole_pairs * mechanical_angles_rad(n_points)
     table = np.zeros((n_points, 3))
     for p in range(3):

@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.config import TORQUE_SOURCES
 from ilcpmac.core.errors import IlcpmacError
 from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
     brake_viscous_nm_s,
@@ -162,10 +162,10 @@ class TorqueMeasurement:
     ----------
     identified : Identified
         The identification (delta, epsilon alpha for the brake, the sensor's high-pass).
-    source : str
-        "sensor", "encoder" or "both".
+    source : TorqueSource
+        What is read (`TorqueSource.reads_sensor`, `TorqueSource.reads_encoder`).
     inertia_kgm2 : float
-        J of eq. 3.1, kg m^2 (the bench's): "encoder" and "both" only.
+        J of eq. 3.1, kg m^2 (the bench's), needed where the encoder is read.
     timer_resolution_s : float
         The time stamps' quantum q, s (eq. 3; 0: the revolution scatter alone weights).
     line_errors_counts : ndarray, shape (counts_per_rev,), or None
@@ -175,32 +175,25 @@ class TorqueMeasurement:
     """
 
     identified: Identified
-    source: str = "sensor"
+    source: TorqueSource = TorqueSource.SENSOR
     inertia_kgm2: float = 0.0
     timer_resolution_s: float = 0.0
     line_errors_counts: np.ndarray | None = None
     friction_nm: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.source not in TORQUE_SOURCES:
-            raise ValueError(f"torque source must be one of {', '.join(TORQUE_SOURCES)}, got {self.source!r}")
-        if self.source != "sensor" and not (np.isfinite(self.inertia_kgm2) and self.inertia_kgm2 > 0):
+        if self.source.reads_encoder and not (np.isfinite(self.inertia_kgm2) and self.inertia_kgm2 > 0):
             raise ValueError(f"the encoder-derived torque needs the inertia, got {self.inertia_kgm2!r} kg m^2")
-
-    @property
-    def uses_sensor(self) -> bool:
-        """Whether the trials' torque column is read."""
-        return self.source != "encoder"
 
     def gain(self, calibration: SensorCalibration) -> float:
         """The response's scalar part while the controller uses ``calibration``: delta, or 1 in N m."""
-        return self.identified.delta_at(calibration) if self.source == "sensor" else 1.0
+        return 1.0 if self.source.reads_encoder else self.identified.delta_at(calibration)
 
     def response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration) -> np.ndarray:
         """Measured over true torque at each harmonic of a trial at ``speed_hz`` with ``calibration``."""
-        if self.source == "sensor":
-            return self.sensor_response(harmonics, speed_hz, calibration)
-        return np.ones(np.shape(harmonics))
+        if self.source.reads_encoder:
+            return np.ones(np.shape(harmonics))
+        return self.sensor_response(harmonics, speed_hz, calibration)
 
     def sensor_response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration
                         ) -> np.ndarray:
@@ -227,7 +220,7 @@ class TorqueMeasurement:
                                        ) -> tuple[TorqueSpectrum, np.ndarray]:
         """`encoder_spectrum`, and what eq. 5 took out of it per harmonic 0..H (complex, N m): the bound on its
         bias that "both" weights it with (`fused`)."""
-        request = trial.request
+        request = trial.requested()
         spectrum = EncoderTorqueSpectrum.of(trial.count, trial.time_s, counts_per_rev, max_harmonic,
                                             self.inertia_kgm2, self.timer_resolution_s, 0.0, self.line_errors_counts)
         spectrum = with_viscous(spectrum, brake_viscous_nm_s(self.mean_torque_nm(request),
@@ -273,20 +266,25 @@ class TrialAnalysis:
 
         Raises `IlcpmacError` when the measurement reads a torque column the trial does not have.
         """
-        sensor = measurement is None or measurement.uses_sensor
+        sensor = measurement is None or measurement.source.reads_sensor
         if sensor and trial.torque_nm is None and measurement is not None:
-            raise IlcpmacError(f"[campaign] torque_source = {measurement.source!r}: the trial at "
+            raise IlcpmacError(f"[campaign] torque_source = {measurement.source.value!r}: the trial at "
                                f"{trial.torque_setpoint_nm:g} N m, {trial.speed_setpoint_hz:g} Hz has no torque "
                                "column (no torque sensor): use \"encoder\"")
         torques = [t for t in (trial.torque_nm if sensor else None, trial.torque_true_nm) if t is not None]
         spectra = TorqueSpectrum.of_each(trial.count, trial.time_s, torques, counts_per_rev, max_harmonic) \
             if torques else []
         measured = spectra.pop(0) if sensor and trial.torque_nm is not None else None
-        if measurement is not None and measurement.source != "sensor":
+        if measurement is not None and measurement.source.reads_encoder:
             encoder, staircase = measurement.encoder_spectrum_and_staircase(trial, counts_per_rev, max_harmonic)
-            if measurement.source == "both":
+            if measurement.source.fuses:
+                if measured is None:
+                    raise IlcpmacError(f"torque source {measurement.source.value!r}: the trial at "
+                                       f"{trial.torque_setpoint_nm:g} N m, {trial.speed_setpoint_hz:g} Hz has no "
+                                       "sensor torque to fuse")
                 response = measurement.sensor_response(np.arange(max_harmonic + 1),
-                                                       trial.mean_speed_hz(counts_per_rev), trial.request.calibration)
+                                                       trial.mean_speed_hz(counts_per_rev),
+                                                       trial.requested().calibration)
                 encoder = fused(measured.divided_by(response), encoder, staircase)
             measured = encoder
         if trial.torque_true_nm is None:

@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from ilcpmac.core.errors import IlcpmacError
 from ilcpmac.core.records import BenchDescription, TrialData, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.regression import Regression
@@ -117,7 +118,10 @@ class Pipeline:
         cpr = self.description.motor.counts_per_rev
         if spectrum is None:
             spectrum = TrialAnalysis.of(trial, cpr, self.max_harmonic, self.measurement).measured
-        request = trial.request
+        if spectrum is None:
+            raise IlcpmacError(f"the trial at {trial.torque_setpoint_nm:g} N m, {trial.speed_setpoint_hz:g} Hz has "
+                               "no measured torque to fit")
+        request = trial.requested()
         speed_hz = trial.mean_speed_hz(cpr)
         gain = self.measurement.gain(request.calibration)
         true = self.measurement.in_true_units(spectrum, speed_hz, request.calibration)

@@ -218,7 +218,8 @@ def torque_interval_nm(backemf_nm_per_a: np.ndarray, limits: SafetyLimits,
 
 
 def _peak(values: np.ndarray) -> tuple[int, ...]:
-    return np.unravel_index(int(np.argmax(np.abs(values))), values.shape)
+    """The index of the largest magnitude in ``values``."""
+    return tuple(int(i) for i in np.unravel_index(int(np.argmax(np.abs(values))), values.shape))
 
 
 def torque_violation(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.ndarray, limits: SafetyLimits,

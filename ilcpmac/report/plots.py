@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.collections import Collection
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
@@ -28,8 +29,7 @@ from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import point_results
 from ilcpmac.config import CampaignConfig, load_config
-from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest
+from ilcpmac.core.records import BenchDescription, BenchLimits
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
@@ -109,8 +109,8 @@ def ripple_per_trial(records: list[TrialRecord]) -> Figure:
     """Peak-to-peak ripple per trial (log scale), measured and true, coloured by torque set point, with the
     campaign's phases as bands."""
     fig, (axis,) = plotting.figure(1, 4.0)
-    for i, (phase, run) in enumerate(groupby(records, key=lambda r: r.phase)):
-        run = list(run)
+    for i, (phase, group) in enumerate(groupby(records, key=lambda r: r.phase)):
+        run = list(group)
         axis.axvspan(run[0].index - 0.5, run[-1].index + 0.5, color=PHASE_SHADES.get(phase, "0.9"), alpha=0.15,
                      lw=0)
         # above the axes, every other name a line higher: a short phase's name would run into the next one's
@@ -119,8 +119,8 @@ def ripple_per_trial(records: list[TrialRecord]) -> Figure:
     colours = plotting.group_colours([r.torque_setpoint_nm for r in records])
     for torque, colour in colours.items():
         for kind, marker, fill in (("measured", "o", colour), ("true", "x", "none")):
-            points = [(r.index, 100 * r.figures(kind).pp) for r in records
-                      if r.torque_setpoint_nm == torque and r.figures(kind) is not None and r.figures(kind).pp > 0]
+            points = [(r.index, 100 * figures.pp) for r in records
+                      if r.torque_setpoint_nm == torque and (figures := r.figures(kind)) is not None and figures.pp > 0]
             if points:
                 axis.semilogy(*zip(*points), marker, color=colour, mfc=fill, ms=5, ls="none")
         _legend_proxy(axis, "s", f"{torque:g} N m set point", color=colour)
@@ -204,57 +204,21 @@ class LearnedFeedForward:
     tables_nm: dict[str, np.ndarray]
 
 
-def learned_feedforward(report: RunReport) -> list[LearnedFeedForward]:
-    """Per learned point, each stage's feed-forward rebuilt from the states of its last trial.
+def learned_feedforward(report: RunReport) -> list[LearnedFeedForward] | None:
+    """Per learned point, each stage's feed-forward as the run saved it when learning ended
+    (states/learned.json, `ilcpmac.campaign.state.LearnedPoint`); None when it has not (learning had not
+    ended, or the run was made before the file was written).
 
-    The stages of the config are built from the run's identification and restored from the state saved
-    with that trial; a request at that set point then passes through them in order, and what each adds
-    to the feed-forward is its own part. Empty before the identification.
-
-    Raises
-    ------
-    ConfigError
-        When a stage of the config is not installed or cannot be built.
-    RunDirError
-        When a state file lacks what it should hold.
+    Raises `RunDirError` when the file cannot be read or names a trial the summary lacks.
     """
-    from ilcpmac.stages.base import Identified, StageSetup
-    from ilcpmac.stages.registry import build_stages
-
-    files, cfg = report.files, report.config
-    identification = files.read_json(files.identification)
-    points = report.learned_points()
-    if identification is None or not points:
-        return []
-    description = report.description
-    names = list(cfg.pipeline.stages)
-    try:
-        identified = Identified.from_result(identification["result"], description.calibration)
-    except (KeyError, TypeError, ValueError) as e:
-        raise RunDirError(f"{files.identification}: unreadable ({e!r})") from None
-    setups = {name: StageSetup(description, identified, report.max_harmonic, cfg.stage_options.get(name, {}))
-              for name in names}
-    stages = build_stages(names, setups)
-    cpr = description.motor.counts_per_rev
-    learned = []
-    for point in points:
-        record = records_at(report.records, point, ("compensate", "learn"))[-1]
-        path = files.state(record.index)
-        state = files.read_state(record.index)
-        try:
-            for stage in stages:
-                stage.restore(state["pipeline"][stage.name])
-            calibration = SensorCalibration.from_json(state["request"]["calibration"])
-        except (KeyError, TypeError, ValueError) as e:
-            raise RunDirError(f"{path}: unreadable ({e!r})") from None
-        request = TrialRequest(point[0], point[1], 1, np.zeros(cpr), np.zeros(cpr), calibration)
-        tables = {}
-        for stage in stages:
-            shaped = stage.shape(request)
-            tables[stage.name] = shaped.feedforward_nm - request.feedforward_nm
-            request = shaped
-        learned.append(LearnedFeedForward(record, tables))
-    return learned
+    points = report.files.read_learned()
+    if points is None:
+        return None
+    records = {r.index: r for r in report.records}
+    missing = [p.trial for p in points if p.trial not in records]
+    if missing:
+        raise RunDirError(f"{report.files.learned}: trial {missing[0]} is not in {report.files.summary.name}")
+    return [LearnedFeedForward(records[p.trial], p.tables_nm) for p in points]
 
 
 def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
@@ -275,7 +239,8 @@ def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
     for name, table in feeding.items():
         bottom.plot(degrees[period], 1000 * table[period], lw=0.9, label=name)
     if len(feeding) > 1:
-        bottom.plot(degrees[period], 1000 * sum(feeding.values())[period], "k", lw=0.6, ls="--", label="sum")
+        total = sum(feeding.values(), np.zeros(motor.counts_per_rev))
+        bottom.plot(degrees[period], 1000 * total[period], "k", lw=0.6, ls="--", label="sum")
     bottom.set_title(f"over the first cogging period (1/{motor.cogging_order} revolution)", fontsize=9)
     bottom.set_ylabel(f"feed-forward {TORQUE_LABEL}")
     plotting.angle_axis(bottom, span)
@@ -293,7 +258,7 @@ def operating_range(records: list[TrialRecord], learned: list[Point], validated:
     kinds = [kind for kind in ("measured", "true") if all(r.after.figures(kind) is not None for r in results)]
     fig, axes = plotting.figure(len(kinds), 3.2, sharex=False)
     for axis, kind in zip(axes, kinds):
-        ripple = [100 * r.after.figures(kind).pp for r in results]
+        ripple = [100 * figures.pp for r in results if (figures := r.after.figures(kind)) is not None]  # all, by kinds
         positive = [p for p in ripple if p > 0]  # a flat trace has no place on a log scale
         norm = LogNorm(min(positive), max(positive)) if positive else None
         factor = "reduction_factor" if kind == "measured" else "reduction_factor_true"
@@ -321,26 +286,27 @@ def operating_range(records: list[TrialRecord], learned: list[Point], validated:
         axis.set_xlim(min(speeds) - 0.1 * (max(speeds) - min(speeds) + 0.1),
                       max(speeds) + 0.35 * (max(speeds) - min(speeds) + 0.1))
         axis.margins(y=0.15)
-        plotting.legend(axis, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=2, borderaxespad=0.0)
-        for handle in axis.get_legend().legend_handles:  # the shape tells the kind; a colour would read as a ripple
-            handle.set_array(None)
-            handle.set_facecolor("white")
+        legend = plotting.legend(axis, loc="lower left", bbox_to_anchor=(0.0, 1.01), ncol=2, borderaxespad=0.0)
+        for handle in legend.legend_handles:  # the shape tells the kind; a colour would read as a ripple
+            if isinstance(handle, Collection):
+                handle.set_array(None)
+                handle.set_facecolor("white")
     return fig
 
 
 def build_figures(report: RunReport) -> tuple[dict[str, Figure], str | None]:
-    """Every figure of the run by file name (without suffix), and why the learned feed-forward could not be
-    drawn (a stage of the config that is not installed or cannot be built), or None."""
+    """Every figure of the run by file name (without suffix), and why the learned feed-forward is not drawn
+    (the run directory has no states/learned.json), or None."""
     figures = {"ripple_per_trial": ripple_per_trial(report.records), **before_after(report)}
     learned = report.learned_points()
     validated = sorted({r.point for r in report.records if r.role == "validate"})
     if point_results(report.records, learned, validated):
         figures["operating_range"] = operating_range(report.records, learned, validated)
-    try:
-        learned = learned_feedforward(report)
-    except ConfigError as e:
-        return figures, str(e)
-    for item in learned:
+    feedforwards = learned_feedforward(report)
+    if feedforwards is None:
+        return figures, (f"no {report.files.learned.relative_to(report.files.path)} (learning had not ended, or "
+                         "the run was made before the campaign saved it)")
+    for item in feedforwards:
         figures[f"learned_{_point_name(item.record.point)}"] = learned_figure(item, report)
     return figures, None
 

@@ -11,6 +11,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from rich.console import JustifyMethod
 from rich.table import Table
 
 from ilcpmac.campaign.record import Point, TrialRecord
@@ -60,7 +61,7 @@ class _Column:
     header: str
     rank: int
     cell: Callable[[list[TrialRecord]], str]
-    justify: str = "right"
+    justify: JustifyMethod = "right"
 
 
 def _figure(header: str, rank: int, kind: str, name: str, scale: float) -> _Column:
@@ -110,8 +111,9 @@ def _fit(columns: list[tuple[_Column, list[str]]], width: int) -> list[tuple[_Co
     return [(c, cells) for c, cells in columns if c.rank <= kept]
 
 
-def _table(columns: list[tuple[str, str, list[str]]], **options) -> Table:
-    table = Table(header_style="bold", **options)
+def _table(columns: list[tuple[str, JustifyMethod, list[str]]], title: str | None = None,
+           caption: str | None = None) -> Table:
+    table = Table(header_style="bold", title=title, title_justify="left", caption=caption, caption_justify="left")
     for header, justify, _ in columns:
         table.add_column(header, justify=justify, no_wrap=True)
     for row in zip(*(cells for *_, cells in columns)):
@@ -136,8 +138,7 @@ def trials_table(records: list[TrialRecord], width: int, title: str | None = Non
     if any(r.role == "grid" for r in records):
         notes.append("grid row: the largest figure over its trials")
     caption = "\n".join(notes) or None
-    return _table([(c.header, c.justify, cells) for c, cells in columns], title=title, title_justify="left",
-                  caption=caption, caption_justify="left")
+    return _table([(c.header, c.justify, cells) for c, cells in columns], title=title, caption=caption)
 
 
 #: the summary's title, printed on a line of its own above `summary_table`

@@ -420,15 +420,13 @@ def staircase_bias(harmonics: np.ndarray, counts_per_rev: int, speed_hz: float, 
     nu = 2.0 * np.pi * h / counts_per_rev
     z = np.exp(1j * nu)[:, None]
     dt = 1.0 / (counts_per_rev * speed_hz)
-    tau = np.maximum(loop.time_constant_s, 1e-300)
-    a = np.exp(-dt / tau)
+    tau = loop.lag_time_constant_s
+    a, b = loop.count_decays(dt)
     state = (1.0 - a) / (z - a)
     delay = loop.delay_s
     if delay >= 0.0:
-        b = np.exp(-(dt - delay) / tau)
         mean = ((delay + (state - 1.0) * tau * (b - a)) / z + dt - delay + (state - 1.0) * tau * (1.0 - b)) / dt
     else:
-        b = np.exp(delay / tau)
         mean = (dt + delay + (state - 1.0) * tau * (b - a) + z * (-delay + (state - 1.0) * tau * (1.0 - b))) / dt
     boxcar = (np.exp(0.5j * nu) * np.sinc(h / counts_per_rev))[:, None]
     return mean / boxcar - loop.response(h, speed_hz, counts_per_rev)
@@ -607,7 +605,8 @@ def significant_encoder_error(error_counts: np.ndarray, variance_counts2: np.nda
         q = np.sort(np.abs(e[block]) ** 2 / variance[block])
         n = block.size
         k = (n + 1) // 2
-        median, threshold, typical = (q[k - 1], *-np.log1p(-betaincinv(k, n + 1 - k, [1.0 - false_alarm, 0.5])))
+        median = q[k - 1]
+        threshold, typical = -np.log1p(-betaincinv(k, n + 1 - k, [1.0 - false_alarm, 0.5]))
         if median > threshold:
             rho = median / typical - 1.0
             applied[block] = e[block] * rho / (1.0 + rho)

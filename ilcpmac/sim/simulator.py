@@ -43,11 +43,6 @@ def airgap_torque_nm(k_nm_per_a: np.ndarray, i_true_a: np.ndarray, saturation_pe
     return np.sum(k_nm_per_a * i_true_a * (1.0 - saturation_per_a2 * i_true_a**2), axis=-1)
 
 
-def trial_seed(seed: int, index: int) -> int:
-    """The 32-bit seed of trial ``index`` of a campaign seeded with ``seed``."""
-    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
-
-
 @dataclass(frozen=True)
 class SensorTruth:
     """The report's parameters of a trial, eqs. (1.4)-(1.7), for a given calibration.
@@ -234,7 +229,7 @@ class Simulator:
         Results are in request order and do not depend on ``workers``.
         """
         workers = workers or os.cpu_count() or 1
-        results: list[TrialData | None] = [None] * len(requests)
+        results: dict[int, TrialData] = {}
         with ThreadPoolExecutor(max_workers=workers) as pool:
             futures = {pool.submit(self.run_trial, req): i for i, req in enumerate(requests)}
             for future in as_completed(futures):
@@ -242,7 +237,7 @@ class Simulator:
                 results[i] = future.result()
                 if on_done is not None:
                     on_done(i, results[i])
-        return results  # type: ignore[return-value]
+        return [results[i] for i in range(len(requests))]
 
 
 def _integer(x) -> bool:

@@ -126,9 +126,9 @@ def scan_log(simulator: Simulator, plan: ScanPlan) -> tuple[dict[str, np.ndarray
     columns = {"time": np.arange(position.size) / plan.rate_hz, "position": position, "direction": direction}
     calibration = m.controller.calibration()
     if plan.holding == "torque":
-        truth = simulator.truth(calibration)
+        delta = simulator.truth(calibration).delta
         offset = rng.uniform(-1.0, 1.0) * m.torque_sensor.dc_level_nm
-        columns["torque"] = truth.delta * holding + offset + m.torque_sensor.noise_nm * rng.standard_normal(
+        columns["torque"] = delta * holding + offset + m.torque_sensor.noise_nm * rng.standard_normal(
             position.size)
     else:
         columns.update(_holding_currents(simulator, position, holding, rng))

@@ -16,15 +16,17 @@ refuses to start the stages when the identification could not estimate one.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
 from ilcpmac.core.current_loop import CurrentLoop
-from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.errors import ConfigError, IdentificationError
 from ilcpmac.core.records import BenchDescription, IdentificationResult, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.core.schema import shown
+from ilcpmac.core.torque_sensor import harmonic_response
 
 #: the identification's estimates the pipeline itself needs (the trial's delta, the identified sensors
 #: bounding the flowing current); a stage declares what more it needs in its ``needs``
@@ -40,9 +42,8 @@ class Identified:
     Attributes follow `ilcpmac.core.records.IdentificationResult` (eqs. 1.4-1.7); ``cogging_nm`` is None
     and ``current_loop`` the ideal loop where the identification gave none; ``delta`` is 1 where it had no
     torque sensor (the encoder-derived torque is true torque, and the torque gain stays the bench's).
-    ``sensor_highpass_hz`` and
-    ``sensor_delay_s`` are the torque sensor's high-pass corner (Hz) and delay (s) from the joint fit's
-    diagnostics (0: none identified).
+    ``sensor_highpass_hz`` and ``sensor_delay_s`` are the torque sensor's high-pass corner (Hz) and delay (s)
+    the identification found (0: none identified).
     """
 
     delta: float
@@ -62,14 +63,20 @@ class Identified:
     @classmethod
     def from_result(cls, result: IdentificationResult | dict, calibration: SensorCalibration) -> Identified:
         """From the identification (or its JSON, e.g. a simulator's truth), which must hold `PIPELINE_NEEDS`, or
-        `SENSORLESS_PIPELINE_NEEDS` on the encoder-derived torque."""
+        `SENSORLESS_PIPELINE_NEEDS` on the encoder-derived torque.
+
+        Raises
+        ------
+        IdentificationError
+            When the identification has no eps.
+        """
         if isinstance(result, dict):
             result = IdentificationResult.from_json(result)
+        if result.epsilon is None:
+            raise IdentificationError("the pipeline needs eps, which the identification could not estimate")
 
         def std(value, default):
             return np.asarray(default if value is None else value, float)
-
-        joint = result.diagnostics.get("joint") or {}
 
         return cls(
             delta=1.0 if result.delta is None else float(result.delta), epsilon=float(result.epsilon),
@@ -78,8 +85,8 @@ class Identified:
             delta_std=float(std(result.delta_std, 0.0)), epsilon_std=float(std(result.epsilon_std, 0.0)),
             alpha_std=std(result.alpha_std, np.zeros(3)), beta_std_a=std(result.beta_std, np.zeros(3)),
             current_loop=result.current_loop or CurrentLoop(),
-            sensor_highpass_hz=float(joint.get("torque_sensor_highpass_hz") or 0.0),
-            sensor_delay_s=float(joint.get("torque_sensor_delay_s") or 0.0))
+            sensor_highpass_hz=float(result.torque_sensor_highpass_hz or 0.0),
+            sensor_delay_s=float(result.torque_sensor_delay_s or 0.0))
 
     def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
         """The current loop while the controller uses ``calibration``.
@@ -104,13 +111,9 @@ class Identified:
         return self.torque_gain_v_per_nm / calibration.torque_gain
 
     def sensor_response(self, harmonics: np.ndarray, speed_hz: float) -> np.ndarray:
-        """The torque sensor's shape per harmonic at a speed, its gain delta aside: the identified first-order
-        high-pass j w / (j w + w_c) and delay e^{-j w D}, w = 2 pi h f; 1 at h = 0 (the mean is not measured)."""
-        w = 2.0 * np.pi * np.asarray(harmonics, float) * speed_hz
-        corner = 2.0 * np.pi * self.sensor_highpass_hz
-        with np.errstate(divide="ignore", invalid="ignore"):
-            highpass = np.where(w > 0, 1.0 / (1.0 - 1j * corner / w), 1.0)
-        return highpass * np.exp(-1j * w * self.sensor_delay_s)
+        """The torque sensor's shape per harmonic at a speed, its gain delta aside: the identified high-pass and
+        delay (`ilcpmac.core.torque_sensor.harmonic_response`); 1 at h = 0 (the mean is not measured)."""
+        return harmonic_response(harmonics, speed_hz, self.sensor_highpass_hz, self.sensor_delay_s)
 
     def epsilon_alpha_at(self, calibration: SensorCalibration) -> np.ndarray:
         """epsilon alpha_p = G*_s^-1 G_s per phase while the controller uses ``calibration``."""
@@ -250,7 +253,7 @@ def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[st
     return values
 
 
-def check_options(options: dict, defaults: dict[str, Any], ranges: dict[str, tuple[Callable, str]],
+def check_options(options: dict, defaults: dict[str, Any], ranges: Mapping[str, tuple[Callable, str]],
                   stage: str) -> dict[str, Any]:
     """A stage's options over its defaults (`read_options`), each within its range.
 

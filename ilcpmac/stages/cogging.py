@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.errors import ConfigError, IdentificationError
 from ilcpmac.core.files import read_bounded
 from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.core.schema import in_range
@@ -66,6 +66,9 @@ class CoggingFeedForward:
         self.orders = np.arange(motor.cogging_order, setup.max_harmonic + 1, motor.cogging_order)
         if opts["start_from"]:
             x0, std = scan_prior(Path(opts["start_from"]), self.orders, motor.cogging_order)
+        elif setup.identified.cogging_nm is None:
+            raise IdentificationError(f"stage {self.name!r} needs cogging_nm, which the identification could not "
+                                      "estimate; or set [stages.cogging] start_from")
         else:
             c = harmonic_amplitudes(setup.identified.cogging_nm)[self.orders]
             # tau_c = sum Re(c e^{j h theta}) = sum Re(c) cos - Im(c) sin

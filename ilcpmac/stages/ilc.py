@@ -164,7 +164,7 @@ class IterativeLearningControl:
         return request.with_changes(feedforward_nm=request.feedforward_nm + change)
 
     def learn(self, trial: TrialData, frame: Frame) -> None:
-        request = trial.request
+        request = trial.requested()
         if np.any(request.excitation_nm):
             return  # an identification trial: its ripple is mostly the excitation
         key = request.setpoint_key
@@ -200,8 +200,8 @@ class IterativeLearningControl:
 
     def state(self) -> dict:
         def pack(m: dict[str, np.ndarray]) -> dict:
-            out = {name: {"re": m[name].real.tolist(), "im": m[name].imag.tolist()}
-                   for name in ("t", "u_applied", "d")}
+            out: dict[str, object] = {name: {"re": m[name].real.tolist(), "im": m[name].imag.tolist()}
+                                      for name in ("t", "u_applied", "d")}
             out["P"] = [None if np.isinf(p) else p for p in m["P"]]  # JSON has no infinity
             return out
 

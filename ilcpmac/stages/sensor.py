@@ -113,8 +113,9 @@ class CurrentSensorCorrection:
     def columns(self, trial: TrialData) -> np.ndarray:
         """K_p I~*_p less the phases' mean of the feed-forward's part, then K_p (module docstring)."""
         k = self._backemf
-        loop = self._identified.loop_at(trial.request.calibration)
-        feedforward = k * _through_loop(current_references(trial.request.feedforward_nm, k),
+        request = trial.requested()
+        loop = self._identified.loop_at(request.calibration)
+        feedforward = k * _through_loop(current_references(request.feedforward_nm, k),
                                         trial.mean_speed_hz(self._cpr), loop)
         currents = k * filtered_references(trial, self._cpr, loop) - feedforward.mean(axis=1, keepdims=True)
         return np.hstack([currents, k])
@@ -123,12 +124,13 @@ class CurrentSensorCorrection:
         return request.with_changes(calibration=self.calibration())
 
     def learn(self, trial: TrialData, frame: Frame) -> None:
-        cal = trial.request.calibration
+        request = trial.requested()
+        cal = request.calibration
         H = frame.delta * np.block([[np.diag(cal.current_scale), np.zeros((3, 3))],
                                     [-np.diag(cal.current_offset), np.eye(3)]])
         block = frame.block(self.name)
         information = block.information
-        if not np.any(trial.request.excitation_nm):
+        if not np.any(request.excitation_nm):
             information = _without_common_modes(information)
         self._kalman.update_block(block.estimate, information, H)
 

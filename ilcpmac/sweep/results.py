@@ -12,6 +12,7 @@ import stat
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Generic, TypeVar
 
 import numpy as np
 import pyarrow as pa
@@ -176,14 +177,18 @@ def worst_tasks(table: pa.Table, column: str, n: int) -> list[tuple[int, int, fl
     return [(tasks[i], seeds[i], float(x[i])) for i in order]
 
 
+#: what a `TaskOutcome` tells of its task: a failure's reason (str) or a main figure's value (float)
+Detail = TypeVar("Detail", str, float)
+
+
 @dataclass(frozen=True)
-class TaskOutcome:
+class TaskOutcome(Generic[Detail]):
     """One task named in the summary: a failure (``detail`` its reason) or one of the worst (``detail`` its
     value of the main figure), with the command that reruns it alone."""
 
     task: int
     seed: int
-    detail: str | float
+    detail: Detail
     rerun: str
 
 
@@ -204,14 +209,14 @@ class SweepSummary:
     kind: str
     tasks: int
     finished: int
-    failed: tuple[TaskOutcome, ...]
+    failed: tuple[TaskOutcome[str], ...]
     spread: tuple[Percentiles, ...]
     main_figure: str | None
-    worst: tuple[TaskOutcome, ...]
+    worst: tuple[TaskOutcome[float], ...]
 
     def to_json(self) -> dict:
         """Its summary.json object."""
-        def named(outcome: TaskOutcome, detail: str) -> dict:
+        def named(outcome: TaskOutcome[str] | TaskOutcome[float], detail: str) -> dict:
             return {"task": outcome.task, "seed": outcome.seed, detail: outcome.detail, "rerun": outcome.rerun}
 
         return {"kind": self.kind, "tasks": self.tasks, "finished": self.finished,

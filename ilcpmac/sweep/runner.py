@@ -19,10 +19,12 @@ from typing import Protocol
 from distributed import Client, LocalCluster, WorkerPlugin, as_completed
 from filelock import FileLock
 
+from ilcpmac.config import packaged_config
 from ilcpmac.core.errors import IlcpmacError
 from ilcpmac.core.runtime import tune_process
+from ilcpmac.core.schema import read_toml, toml_text
 from ilcpmac.sweep.results import finished_tasks, read_results, write_result
-from ilcpmac.sweep.spec import SweepSpec, SweepSpecError, TaskDraw, toml_text
+from ilcpmac.sweep.spec import SweepSpec, SweepSpecError, TaskDraw
 from ilcpmac.sweep.task import SweepTask, TaskResult, run_task
 
 __all__ = ["CONNECT_TIMEOUT_S", "MAX_WORKERS_PER_CORE", "SPEC_COPY", "NumbaWarmup", "SweepEvents", "SweepRunError",
@@ -39,7 +41,7 @@ CONNECT_TIMEOUT_S = 10.0
 #: tasks submitted per worker thread ahead of the results: enough to keep every worker busy
 TASKS_IN_FLIGHT_PER_THREAD = 2
 #: the config of the warm-up task: the seed bench, small (seconds, and every kernel a task uses compiled)
-WARMUP_CHANGES = {
+WARMUP_CHANGES: dict[str, dict[str, object]] = {
     "bench": {"counts_per_rev": 512},
     "excitation": {"harmonics": 60},
     "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 2},
@@ -65,9 +67,6 @@ def numba_lock() -> FileLock:
 def warm_kernels(kind: str) -> None:
     """Run a small task of ``kind`` under `numba_lock`, so that every kernel it uses is compiled (or loaded
     from the cache) before the real tasks run."""
-    from ilcpmac.config import packaged_config
-    from ilcpmac.core.schema import read_toml
-
     data = read_toml(packaged_config("seed-bench.toml"))
     for table, values in WARMUP_CHANGES.items():
         data.setdefault(table, {})

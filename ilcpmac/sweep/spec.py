@@ -31,12 +31,23 @@ from ilcpmac.config import (
     model_key,
 )
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.schema import coerce_value, finite_number, read_toml, shown, value_problem
+from ilcpmac.core.schema import (
+    coerce_value,
+    finite_number,
+    in_range,
+    parse_section,
+    read_toml,
+    setting,
+    shown,
+    toml_text,
+    unknown_key,
+    value_problem,
+)
+from ilcpmac.core.seeds import trial_seed
 from ilcpmac.model.motor import BackEmf, Excitation, TrialGrid
-from ilcpmac.sim.simulator import trial_seed
 
-__all__ = ["KINDS", "Draw", "MagnetTemperature", "SweepSpec", "SweepSpecError", "TaskDraw", "load_spec",
-           "toml_text"]
+__all__ = ["KINDS", "Draw", "MagnetTemperature", "SweepSettings", "SweepSpec", "SweepSpecError", "TaskDraw",
+           "load_spec"]
 
 #: what a task runs: the identification grid and `identify_bench`, or the whole campaign of ``ilcpmac run``
 KINDS = ("identify", "campaign")
@@ -59,6 +70,16 @@ BACKEMF_SCALE_KEY = "simulator.winding.backemf_scale"
 
 class SweepSpecError(ConfigError):
     """A sweep spec is malformed, or a task's draws make an invalid config."""
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """The [sweep] table (optional; defaults shown)."""
+
+    kind: str = setting(lambda x: x in KINDS, 'what a task runs: "identify" (the grid and identify_bench) or '
+                        '"campaign" (ilcpmac run)', "identify")
+    tasks: int = setting(in_range(1, MAX_TASKS), f"tasks per point of the grid draws, 1..{MAX_TASKS}", 1)
+    seed: int = setting(in_range(0, 2**63 - 1), "the sweep's seed, 0..2^63-1", 0)
 
 
 @dataclass(frozen=True)
@@ -284,32 +305,6 @@ def _field(cls: type, name: str) -> dataclasses.Field:
     return next(f for f in dataclasses.fields(cls) if f.name == name)
 
 
-def _toml_value(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items()) + "}"
-    return repr(float(value)) if isinstance(value, (float, np.floating)) else str(int(value))
-
-
-def _toml_key(key: str) -> str:
-    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_value(key)
-
-
-def toml_text(data: dict, prefix: str = "") -> str:
-    """TOML text of ``data`` (tables of tables, scalars and lists), as `tomllib` reads it back."""
-    lines = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for k, v in data.items():
-        if isinstance(v, dict):
-            name = f"{prefix}{_toml_key(k)}"
-            lines += ["", f"[{name}]", toml_text(v, f"{name}.")]
-    return "\n".join(line for line in lines if line) + "\n"
-
-
 def load_spec(spec_path: str | Path, config_path: str | Path) -> SweepSpec:
     """Read the sweep spec at ``spec_path`` over the base config at ``config_path`` (docs/sweep.md).
 
@@ -323,14 +318,8 @@ def load_spec(spec_path: str | Path, config_path: str | Path) -> SweepSpec:
     unknown = sorted(set(data) - {"sweep", "draw", "magnets"})
     if unknown:
         raise SweepSpecError(f"{spec_path}: unknown table [{shown(unknown[0])}] (known: sweep, draw, magnets)")
-    sweep = _table(data, "sweep", spec_path)
-    _known(sweep, ("kind", "tasks", "seed"), spec_path, "[sweep]")
-    kind = sweep.get("kind", "identify")
-    if kind not in KINDS:
-        raise SweepSpecError(f"{spec_path}: [sweep] kind: {shown(kind)} is not one of {', '.join(KINDS)}")
-    tasks = _integer(sweep.get("tasks", 1), 1, MAX_TASKS, spec_path, "[sweep] tasks")
-    seed = _integer(sweep.get("seed", 0), 0, 2**63 - 1, spec_path, "[sweep] seed")
-    spec = SweepSpec(spec_path, config, config_data, kind, seed, tasks)
+    sweep = parse_section(data.get("sweep", {}), SweepSettings, str(spec_path), "sweep", error=SweepSpecError)
+    spec = SweepSpec(spec_path, config, config_data, sweep.kind, sweep.seed, sweep.tasks)
     draws = tuple(_draw(spec, key, table) for key, table in _table(data, "draw", spec_path).items())
     magnets = _magnets(data["magnets"], spec_path) if "magnets" in data else None
     if magnets is not None and config.model is None:
@@ -350,15 +339,9 @@ def _table(data: dict, name: str, path: Path) -> dict:
 
 
 def _known(table: dict, keys, path: Path, where: str) -> None:
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        raise SweepSpecError(f"{path}: {where} unknown key {shown(unknown[0])} (known: {', '.join(keys)})")
-
-
-def _integer(value, low: int, high: int, path: Path, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise SweepSpecError(f"{path}: {where}: expected an integer within {low}..{high}, got {shown(value)}")
-    return value
+    problem = unknown_key(table, keys)
+    if problem is not None:
+        raise SweepSpecError(f"{path}: {where} {problem}")
 
 
 def _numbers(value, n: int, path: Path, where: str) -> tuple[float, ...]:

@@ -9,12 +9,14 @@ from __future__ import annotations
 import shlex
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from ilcpmac.campaign.events import CampaignMessage, GuardEvent, NoEvents
 from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.core.records import IdentificationResult
 
 __all__ = ["CampaignFigures", "IdentificationErrors", "SweepTask", "TaskResult", "run_task"]
 
@@ -165,89 +167,53 @@ def _one_line(error: Exception) -> str:
     return text if isinstance(error, IlcpmacError) else f"{type(error).__name__}: {text}"
 
 
-def _truth(simulator, calibration):
-    from ilcpmac.core.records import IdentificationResult, TrialRequest
-    from ilcpmac.sim.grid import truth_dict
-
-    cpr = simulator.model.encoder.counts_per_rev
-    request = TrialRequest(1.0, 1.0, 1, np.zeros(cpr), np.zeros(cpr), calibration)
-    return IdentificationResult.from_json(truth_dict(simulator, request))
-
-
 def _identification(config_path: Path, seed: int) -> IdentificationErrors:
     """``ilcpmac simulate`` then ``ilcpmac identify``, in memory: the grid's trials as written, identified."""
-    from ilcpmac.bench.format import Bench, as_written
+    # imported in the worker that runs the task: the client that submits it loads no numba or scipy
+    from ilcpmac.bench.format import as_written
+    from ilcpmac.campaign.service import simulated_bench
     from ilcpmac.config import load_config
-    from ilcpmac.core.records import BenchLimits
     from ilcpmac.identify import identify_bench
-    from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-    from ilcpmac.sim.grid import grid_plan, grid_requests, simulated_description
-    from ilcpmac.sim.simulator import Simulator
 
-    config = load_config(config_path)
-    lim = config.limits
-    simulator = Simulator(config.simulated_model(), config.grid.warmup_revolutions)
-    bench_limits = BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz)
-    description = simulated_description(simulator, bench_limits)
-    requests = grid_requests(config, description.calibration, seed, config.grid.revolutions)
-    check_plan(grid_plan(config, requests), description,
-               SafetyLimits.of_campaign(lim, bench_limits, config.grid.warmup_revolutions))
-    trials = tuple(as_written(t) for t in simulator.run_trials(requests, workers=1))
-    bench = Bench(description.motor, description.backemf_nm_per_a, description.calibration, trials,
-                  tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))))
-    return IdentificationErrors.of(identify_bench(bench), _truth(simulator, description.calibration))
+    bench, truth = simulated_bench(load_config(config_path), seed, workers=1)
+    bench = replace(bench, trials=tuple(as_written(t) for t in bench.trials))
+    return IdentificationErrors.of(identify_bench(bench), IdentificationResult.from_json(truth))
 
 
-class _Events:
-    """Campaign events that count the guard's interventions and say nothing."""
+class _GuardCount(NoEvents):
+    """Campaign events that count the guard's interventions (`GuardEvent`) and show nothing."""
 
     def __init__(self) -> None:
         self.guard_events = 0
 
-    def trial(self, record, records) -> None:
-        pass
-
-    def message(self, text: str) -> None:
-        self.guard_events += text.startswith("guard:")
-
-    def progress(self, fraction: float) -> None:
-        pass
+    def message(self, message: CampaignMessage) -> None:
+        self.guard_events += isinstance(message, GuardEvent)
 
 
 def _campaign(config_path: Path, seed: int, run_path: Path) -> tuple[IdentificationErrors, CampaignFigures]:
     """``ilcpmac run CONFIG --seed SEED`` on the simulator, one trial at a time, into ``run_path``."""
-    from ilcpmac.backends.registry import BackendSetup, build_backend
-    from ilcpmac.campaign.record import records_of
-    from ilcpmac.campaign.rundir import RunDir
-    from ilcpmac.campaign.runner import CampaignRunner
-    from ilcpmac.campaign.validation import point_results
-    from ilcpmac.config import load_config
-    from ilcpmac.core.records import IdentificationResult
-    from ilcpmac.identify import identify_bench
+    # imported in the worker that runs the task, as in `_identification`
+    from ilcpmac.backends.registry import BackendSetup
+    from ilcpmac.backends.simulated import SimulatorBackend
+    from ilcpmac.campaign.service import load_campaign_config, run
+    from ilcpmac.sim.bench import true_result
 
-    config = load_config(config_path)
-    backend = build_backend("sim", BackendSetup(config, None))
+    config = load_campaign_config(config_path)
+    backend = SimulatorBackend.from_setup(BackendSetup(config))
     backend.max_parallel_trials = 1  # a worker process per core: no threads of its own
-    events = _Events()
+    events = _GuardCount()
     try:
-        description = backend.describe()
-        lock = RunDir.lock(run_path, new=True)
-        try:
-            run_dir = RunDir.create(run_path, description, config_path.read_text(), {"seed": seed}, lock)
-            runner = CampaignRunner(config, backend, run_dir, seed, identify_bench, events)
-            summary = runner.run()
-        finally:
-            lock.release()
+        result = run(config, out=run_path, backend=backend, seed=seed, events=events)
     finally:
         backend.close()
-    records = records_of(summary)
-    results = point_results(records, runner.plan.learned, runner.plan.validated)
-    ripple = tuple((f"{r.point[0]:g}Nm@{r.point[1]:g}Hz", r.after.true.pp) for r in results)
+    results = result.points
+    true_pp = [r.after.true.pp if r.after.true is not None else float("nan") for r in results]  # the simulator's
+    ripple = tuple((f"{r.point[0]:g}Nm@{r.point[1]:g}Hz", pp) for r, pp in zip(results, true_pp))
 
     def worst(learned: bool) -> float:
-        return max((r.after.true.pp for r in results if r.learned == learned), default=float("nan"))
+        return max((pp for r, pp in zip(results, true_pp) if r.learned == learned), default=float("nan"))
 
-    figures = CampaignFigures(ripple, worst(True), worst(False), len(records), events.guard_events,
+    figures = CampaignFigures(ripple, worst(True), worst(False), len(result.records), events.guard_events,
                               sum(r.worse for r in results))
-    truth = _truth(backend.simulator, description.calibration)
-    return IdentificationErrors.of(IdentificationResult.from_json(summary["identification"]), truth), figures
+    truth = true_result(backend.simulator, result.plan.description.calibration)
+    return IdentificationErrors.of(result.identification, truth), figures

@@ -20,11 +20,11 @@ from ilcpmac.backends.simulated import SimulatorBackend
 from ilcpmac.config import load_config
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import TrialData, TrialRequest
+from ilcpmac.core.seeds import trial_seed
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import SafetyLimits
 from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
-from ilcpmac.sim.grid import truth_dict
-from ilcpmac.sim.simulator import trial_seed
+from ilcpmac.sim.bench import truth_dict
 from ilcpmac.stages.base import Identified, StageSetup
 from ilcpmac.stages.registry import build_stages, installed_stages
 from ilcpmac_harmonic_canceller import HarmonicCanceller
@@ -49,7 +49,7 @@ def request_for(backend: SimulatorBackend, seed: int) -> TrialRequest:
 
 
 def identified(backend: SimulatorBackend) -> Identified:
-    truth = truth_dict(backend.simulator, request_for(backend, 0))
+    truth = truth_dict(backend.simulator, request_for(backend, 0).calibration)
     return Identified.from_result(truth, backend.describe().calibration)
 
 
