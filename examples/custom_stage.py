@@ -49,7 +49,7 @@ class OneHarmonicCanceller:
         return request.with_changes(feedforward_nm=request.feedforward_nm + table)
 
     def learn(self, trial, frame: Frame):
-        g = self.setup.torque_response(np.array([self.order]), frame.speed_hz, trial.request.calibration)[0]
+        g = self.setup.torque_response(np.array([self.order]), frame.speed_hz, trial.requested().calibration)[0]
         self.c -= self.gain * frame.learning_gain * frame.torque_harmonics_nm[self.order] / g
 
     def state(self):

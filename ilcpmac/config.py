@@ -19,7 +19,7 @@ from importlib import resources
 from pathlib import Path
 
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import SensorCalibration
+from ilcpmac.core.records import BenchLimits, SensorCalibration
 from ilcpmac.core.schema import (
     all_of,
     field_like,
@@ -139,6 +139,10 @@ class LimitSettings:
         _positive, "recorded encoder counts per trial (revolutions x counts_per_rev)", 2_000_000)
     max_trial_duration_s: float = setting(
         _positive, "duration of one trial, warm-up included, s", 600.0)
+
+    def bench_limits(self) -> BenchLimits:
+        """The limits a bench built from this config (the simulator, the emulator) accepts."""
+        return BenchLimits(self.max_current_a, self.max_torque_nm, self.max_speed_hz)
 
 
 @dataclass(frozen=True)

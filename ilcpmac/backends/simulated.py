@@ -37,9 +37,7 @@ class SimulatorBackend:
     def from_setup(cls, setup: BackendSetup) -> SimulatorBackend:
         """The numba simulator of the config's [bench] and [simulator.*] tables, within its [limits]."""
         config = setup.config
-        lim = config.limits
-        return cls(config.simulated_model(), BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz),
-                   config.grid.warmup_revolutions)
+        return cls(config.simulated_model(), config.limits.bench_limits(), config.grid.warmup_revolutions)
 
     def describe(self) -> BenchDescription:
         return simulated_description(self.simulator, self.limits)

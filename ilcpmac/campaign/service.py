@@ -28,7 +28,7 @@ from ilcpmac.campaign.rundir import RunDir, RunFiles, RunLock
 from ilcpmac.campaign.validation import PointResult, point_results
 from ilcpmac.config import CampaignConfig, check_config, load_config, packaged_config
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import BenchLimits, IdentificationResult, TrialData
+from ilcpmac.core.records import IdentificationResult, TrialData
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
 from ilcpmac.stages.registry import check_stage_options
 
@@ -209,7 +209,7 @@ def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions
     revolutions = config.grid.revolutions if revolutions is None else revolutions
     lim = config.limits
     simulator = Simulator(config.simulated_model(), config.grid.warmup_revolutions)
-    bench_limits = BenchLimits(lim.max_current_a, lim.max_torque_nm, lim.max_speed_hz)
+    bench_limits = lim.bench_limits()
     description = simulated_description(simulator, bench_limits)
     requests = grid_requests(config, description.calibration, seed, revolutions)
     check_plan(grid_plan(config, requests), description,

@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from ilcpmac.core.records import MAX_GRID_SETPOINTS, MOTOR_RANGES, SensorCalibration
+from ilcpmac.core.records import MAX_GRID_SETPOINTS, MOTOR_RANGES, MotorInfo, SensorCalibration
 from ilcpmac.core.schema import all_of, config_key, in_range, length_in, param, section_problem
 from ilcpmac.model.encoder import MAX_LINE_ERROR_COUNTS, line_errors_counts, line_errors_problem
 
@@ -262,6 +262,11 @@ class MotorModel:
     current_sensors: CurrentSensors
     torque_sensor: TorqueSensor
     encoder: Encoder
+
+    def motor_info(self) -> MotorInfo:
+        """The motor as a bench describes it (what the controller knows: the nominal inertia)."""
+        return MotorInfo(self.winding.pole_pairs, self.winding.slots, self.encoder.counts_per_rev,
+                         self.mechanics.inertia_kgm2)
 
 
 def backemf_problem(backemf: BackEmf, pole_pairs: int, counts_per_rev: int,

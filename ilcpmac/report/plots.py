@@ -29,7 +29,7 @@ from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import point_results
 from ilcpmac.config import CampaignConfig, load_config
-from ilcpmac.core.records import BenchDescription, BenchLimits
+from ilcpmac.core.records import BenchDescription
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
@@ -81,9 +81,7 @@ class RunReport:
         head = read_bench_head(files.path)
         if head.sensors is None:
             raise RunDirError(f"{files.bench}: a run's bench.toml has [sensors]")
-        limits = config.limits
-        description = BenchDescription(head.motor, head.backemf_nm_per_a, head.sensors,
-                                       BenchLimits(limits.max_current_a, limits.max_torque_nm, limits.max_speed_hz))
+        description = BenchDescription(head.motor, head.backemf_nm_per_a, head.sensors, config.limits.bench_limits())
         return cls(files, records, config, description)
 
     @property

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ilcpmac.core.records import BenchDescription, BenchLimits, IdentificationResult, MotorInfo, SensorCalibration
+from ilcpmac.core.records import BenchDescription, BenchLimits, IdentificationResult, SensorCalibration
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.simulator import Simulator
@@ -50,7 +50,7 @@ def simulated_description(simulator: Simulator, limits: BenchLimits) -> BenchDes
     """What the simulated bench tells before its first trial: what its controller knows, and ``limits``."""
     m = simulator.model
     return BenchDescription(
-        motor=MotorInfo(m.winding.pole_pairs, m.winding.slots, m.encoder.counts_per_rev, m.mechanics.inertia_kgm2),
+        motor=m.motor_info(),
         backemf_nm_per_a=simulator.backemf_counts,
         calibration=m.controller.calibration(),
         limits=limits,

@@ -59,10 +59,11 @@ class HarmonicCanceller:
         return request.with_changes(feedforward_nm=request.feedforward_nm + table)
 
     def learn(self, trial: TrialData, frame: Frame) -> None:
-        if np.any(trial.request.excitation_nm):
+        request = trial.requested()
+        if np.any(request.excitation_nm):
             return  # an identification trial: its ripple is mostly the excitation
-        key = trial.request.setpoint_key
-        g = self._setup.torque_response(self.orders, frame.speed_hz, trial.request.calibration)
+        key = request.setpoint_key
+        g = self._setup.torque_response(self.orders, frame.speed_hz, request.calibration)
         applied = self._correction.get(key, np.zeros(self.orders.size, complex))
         z = frame.torque_harmonics_nm[self.orders] - g * applied
         var = frame.torque_harmonics_var[self.orders] / 2.0  # per real component
