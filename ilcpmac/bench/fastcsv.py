@@ -26,7 +26,7 @@ _PAIRS = np.frombuffer("".join(f"{i:02d}" for i in range(100)).encode(), np.uint
 
 
 def _format_block(values: np.ndarray, decimals: np.ndarray) -> bytes:
-    from ilcpmac.bench.csv_kernels import format_kernel
+    from ilcpmac.bench.csv_kernels import format_kernel  # numba: loaded on the first CSV written
 
     width = 21 + decimals.max(initial=0) + 3  # sign, 19 integer digits, '.', decimals, separator
     out = np.empty(values.shape[0] * values.shape[1] * width, np.uint8)
@@ -87,7 +87,7 @@ def parse_rows(body: bytes | np.ndarray, columns: int, max_rows: int) -> np.ndar
     Returns None when a field is not a plain decimal number, a row has another
     number of fields, or a line is blank: parse such a body another way.
     """
-    from ilcpmac.bench.csv_kernels import parse_kernel
+    from ilcpmac.bench.csv_kernels import parse_kernel  # numba: loaded on the first CSV read
 
     if columns < 1:
         return None

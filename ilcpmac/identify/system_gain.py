@@ -108,7 +108,7 @@ def chi2_quantile(probability: float, dof: float) -> float:
     scipy.stats.chi2.ppf's formula, 2 P^-1(dof / 2, probability) (the inverse regularised lower incomplete gamma
     function), from scipy.special: importing scipy.stats takes about 1 s.
     """
-    from scipy.special import gammaincinv
+    from scipy.special import gammaincinv  # deferred with scipy.optimize: only when fitting
 
     return float(2.0 * gammaincinv(dof / 2.0, probability))
 

@@ -24,6 +24,7 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from ilcpmac import plotting
+from ilcpmac.bench.format import read_bench_head
 from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
@@ -69,8 +70,6 @@ class RunReport:
     @classmethod
     def read(cls, run_dir: str | Path) -> RunReport:
         """Read ``run_dir``; `RunDirError` (or the bench format's error) naming the file that cannot be read."""
-        from ilcpmac.bench.format import read_bench_head
-
         files = RunFiles(run_dir)
         summary = files.read_summary()
         try:

@@ -291,7 +291,7 @@ def not_a_knot_spline(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> tuple[np.
     checks and the piecewise-polynomial object that take most of its time on
     long series. ``x`` (n >= 4) strictly increasing, ``y`` of shape (n, m).
     """
-    from scipy.linalg import solve_banded
+    from scipy.linalg import solve_banded  # deferred: scipy only where a spline is drawn
 
     if x.size < 4:
         from scipy.interpolate import CubicSpline  # 0.05 s to import: for the short series only
