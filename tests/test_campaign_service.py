@@ -11,7 +11,7 @@ import ilcpmac.campaign
 from ilcpmac.campaign.events import CampaignStart, GuardEvent, NoEvents, PipelineNote
 from ilcpmac.campaign.record import records_of
 from ilcpmac.config import load_config
-from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.errors import BackendError, ConfigError
 from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.sweep.task import _GuardCount
 
@@ -77,3 +77,44 @@ def test_the_sweep_counts_guard_events_by_type_not_by_their_text():
     events.message(PipelineNote("guard: a stage's note that merely starts like the guard's"))
     events.message(GuardEvent("2@0.9", 14, 0.5))
     assert events.guard_events == 2
+
+
+class FailingAt:
+    """A backend that runs ``inner``'s trials and fails at trial ``n`` (a bench that drops its link)."""
+
+    def __init__(self, inner, n: int) -> None:
+        self.inner, self.n, self.ran = inner, n, 0
+        self.max_parallel_trials = 1
+
+    def describe(self):
+        return self.inner.describe()
+
+    def run_trial(self, request):
+        self.ran += 1
+        if self.ran == self.n:
+            raise BackendError("link lost")
+        return self.inner.run_trial(request)
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def test_a_run_that_fails_after_its_first_trials_keeps_them_to_resume(write_config, tmp_path):
+    """The run directory a failed run made stays with its finished trials (it was removed whole once)."""
+    cfg = load_config(write_config(SHORT_CAMPAIGN))
+    backend = FailingAt(simulator_backend(cfg), 3)
+    with pytest.raises(BackendError, match="link lost"):
+        ilcpmac.campaign.run(cfg, out=tmp_path / "run", backend=backend, seed=7,
+                             identify=TruthIdentification(backend.inner))
+    assert (tmp_path / "run" / "states" / "trial_002.json").is_file()
+    result = ilcpmac.campaign.run(resume=tmp_path / "run", backend=simulator_backend(cfg),
+                                  identify=TruthIdentification(backend.inner))
+    assert len(result.records) == len(result.plan.grid) + 8
+
+
+def test_an_unknown_stage_stops_the_run_before_its_first_trial(write_config, tmp_path):
+    cfg = load_config(write_config({**SHORT_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "cogging", "ilc", "nowhere"]}}))
+    backend = FailingAt(simulator_backend(cfg), 1)
+    with pytest.raises(ConfigError, match="no stage named 'nowhere'"):
+        ilcpmac.campaign.run(cfg, out=tmp_path / "run", backend=backend)
+    assert backend.ran == 0 and not (tmp_path / "run").exists()

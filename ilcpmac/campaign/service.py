@@ -24,13 +24,13 @@ from ilcpmac.campaign.events import CampaignEvents, CampaignStart, NoEvents
 from ilcpmac.campaign.grid import grid_plan, grid_requests
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.record import TrialRecord, records_of
-from ilcpmac.campaign.rundir import RunDir, RunFiles, RunLock
+from ilcpmac.campaign.rundir import RunDir, RunFiles
 from ilcpmac.campaign.validation import PointResult, point_results
 from ilcpmac.config import CampaignConfig, check_config, load_config, packaged_config
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import IdentificationResult, TrialData
+from ilcpmac.core.records import BenchDescription, IdentificationResult, TrialData
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-from ilcpmac.stages.registry import check_stage_options
+from ilcpmac.stages.registry import check_stage_options, stage_needs
 
 if TYPE_CHECKING:
     from ilcpmac.identify import Identifier
@@ -134,6 +134,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         if seed is not None:
             cfg = replace(cfg, grid=replace(cfg.grid, seed=seed))
         check_campaign_config(cfg)  # the overrides obey the same ranges as the file
+        stage_needs(list(cfg.pipeline.stages), extra_stages)  # an unknown stage stops here, not after the grid
         seed = cfg.grid.seed
         path = resume_dir or out_dir or Path("runs") / f"{cfg.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
         if lock is None:
@@ -141,8 +142,15 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
             lock = RunDir.lock(path, new=True)
         bench = build_backend(backend, BackendSetup(cfg, address)) if isinstance(backend, str) else backend
         try:
-            run_dir, plan, summary = _run(cfg, bench, seed, trials, path, resume_dir is not None, lock, events,
-                                          identify, extra_stages)
+            description = bench.describe()
+            plan = CampaignPlan.build(cfg, description, seed)  # before anything is written
+            if resume_dir is not None:
+                run_dir = RunDir.resume(path, description, lock)
+            else:
+                run_dir = RunDir.create(path, description, cfg.path.read_text(),
+                                        {"seed": seed, "trials": trials, "config": str(cfg.path)}, lock)
+            summary = _run(cfg, bench, description, run_dir, plan, seed, resume_dir is not None, events, identify,
+                           extra_stages)
         finally:
             if isinstance(backend, str):
                 bench.close()
@@ -156,23 +164,15 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
                           None if identification is None else IdentificationResult.from_json(identification))
 
 
-def _run(cfg: CampaignConfig, backend: Backend, seed: int, trials: int | None, path: Path, resume: bool,
-         lock: RunLock, events: CampaignEvents,
-         identify: Identifier | None,
-         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> tuple[RunDir, CampaignPlan, dict]:
-    """`run` on a built backend in the locked run directory ``path`` (to create, or to ``resume``): the run
-    directory, the plan, the summary."""
+def _run(cfg: CampaignConfig, backend: Backend, description: BenchDescription, run_dir: RunDir, plan: CampaignPlan,
+         seed: int, resume: bool, events: CampaignEvents, identify: Identifier | None,
+         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> dict:
+    """`run`'s campaign on a built backend (which ``description`` describes) in its created (or resumed) run
+    directory: the summary."""
     # the runner's estimators import numba: deferred so that importing ilcpmac.campaign stays light
     from ilcpmac.campaign.runner import CampaignRunner, torque_source
     from ilcpmac.identify import identify_bench
 
-    description = backend.describe()
-    plan = CampaignPlan.build(cfg, description, seed)  # before anything is written
-    if resume:
-        run_dir = RunDir.resume(path, description, lock)
-    else:
-        run_dir = RunDir.create(path, description, cfg.path.read_text(),
-                                {"seed": seed, "trials": trials, "config": str(cfg.path)}, lock)
     events.start(CampaignStart(plan, run_dir.path, resume, torque_source(cfg, description)))
     try:
         summary = CampaignRunner(cfg, backend, run_dir, seed, identify or identify_bench, events, extra_stages,
@@ -181,7 +181,7 @@ def _run(cfg: CampaignConfig, backend: Backend, seed: int, trials: int | None, p
         events.end("stopped")
         raise
     events.end("done")
-    return run_dir, plan, summary
+    return summary
 
 
 def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions: int | None = None,
