@@ -295,7 +295,10 @@ def write_c(compensation: Compensation, out_dir: Path, c_type: str = "int16", so
 
 
 def export(compensation: Compensation, out_dir: Path, fmt: str, c_type: str = "int16", source: str = "") -> Exported:
-    """Write ``compensation`` into ``out_dir`` (made if missing) in format ``fmt`` (`FORMATS`)."""
+    """Write ``compensation`` into ``out_dir`` (made if missing) in format ``fmt`` (`FORMATS`; another raises
+    `ValueError` before anything is made)."""
+    if fmt not in FORMATS:
+        raise ValueError(f"export format must be one of {', '.join(FORMATS)}, got {fmt!r}")
     out_dir.mkdir(parents=True, exist_ok=True)
     if fmt == "json":
         return write_json(compensation, out_dir)

@@ -246,3 +246,10 @@ def test_the_commands_choices_are_the_writers():
 
     params = {p.name: p for p in main.commands["export"].params}
     assert tuple(params["fmt"].type.choices) == FORMATS and tuple(params["c_type"].type.choices) == C_TYPES
+
+
+def test_an_unknown_format_is_refused_before_anything_is_written(tmp_path):
+    """A format with no branch in `export` once fell through to the C writer."""
+    with pytest.raises(ValueError, match="export format must be one of json, csv, c, got 'tsv'"):
+        export(compensation(), tmp_path / "out", "tsv")
+    assert not (tmp_path / "out").exists()

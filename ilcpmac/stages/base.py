@@ -1,4 +1,4 @@
-"""The stage plugin API: four methods and a name, discovered through entry points.
+"""The stage plugin API: a name and five methods, discovered through entry points.
 
 A stage is built by a factory ``factory(setup: StageSetup) -> Stage``
 registered in the entry-point group ``ilcpmac.stages``. Before each trial the
