@@ -113,7 +113,8 @@ def test_a_run_that_fails_after_its_first_trials_keeps_them_to_resume(write_conf
 
 
 def test_an_unknown_stage_stops_the_run_before_its_first_trial(write_config, tmp_path):
-    cfg = load_config(write_config({**SHORT_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "cogging", "ilc", "nowhere"]}}))
+    stages = ["current-sensor", "cogging", "ilc", "nowhere"]
+    cfg = load_config(write_config({**SHORT_CAMPAIGN, "pipeline": {"stages": stages}}))
     backend = FailingAt(simulator_backend(cfg), 1)
     with pytest.raises(ConfigError, match="no stage named 'nowhere'"):
         ilcpmac.campaign.run(cfg, out=tmp_path / "run", backend=backend)
