@@ -42,12 +42,15 @@ from ilcpmac.core.records import (
     MAX_SPEED_HZ,
     MAX_TORQUE_NM,
     MOTOR_RANGES,
+    IdentificationResult,
     SensorCalibration,
     TrialRequest,
 )
 from ilcpmac.core.schema import coerce_value, section_problem, shown, unique_keys
+from ilcpmac.signals.harmonics import harmonic_amplitudes
 
-__all__ = ["COMPENSATION_FILE", "FORMAT", "MAX_FILE_BYTES", "MAX_TABLE_VALUES", "UNITS", "Compensation", "FadeOut"]
+__all__ = ["COMPENSATION_FILE", "CONTENTS", "FORMAT", "MAX_FILE_BYTES", "MAX_RESULT_BYTES", "MAX_TABLE_VALUES", "UNITS",
+           "Compensation", "FadeOut", "PositionTable", "read_position_table"]
 
 #: the record's file in a run directory
 COMPENSATION_FILE = "compensation.json"
@@ -62,6 +65,12 @@ UNITS = {"torques_nm": "N m", "speeds_hz": "Hz", "tables_nm": "N m per encoder c
          "calibration.current_scale": "counts per A", "calibration.current_offset": "counts",
          "calibration.torque_gain": "V per N m", "fade.full_hz": "Hz (null: never fades)",
          "fade.zero_hz": "Hz (null: never fades)"}
+#: what a `PositionTable` holds (``ilcpmac export --content``)
+CONTENTS = ("cogging", "position-torque")
+#: largest identification or standstill scan result read, bytes
+MAX_RESULT_BYTES = 2**26
+#: a harmonic of an identification's cogging table counts towards its order above this fraction of its largest
+ORDER_FLOOR = 1e-6
 _KEYS = ("format", "units", "counts_per_rev", "calibration", "torques_nm", "speeds_hz", "fade", "tables_nm")
 _CALIBRATION_KEYS = tuple(f.name for f in dataclasses.fields(SensorTable))
 _FADE_KEYS = ("full_hz", "zero_hz")
@@ -274,16 +283,116 @@ class Compensation:
     def read(cls, path: Path) -> Compensation:
         """The record in the JSON file ``path``: a regular file of at most `MAX_FILE_BYTES`; anything else raises
         `BenchFormatError` naming the file (and the key)."""
-        raw = read_bounded(path, MAX_FILE_BYTES, BenchFormatError)
-        try:
-            data = json.loads(raw.decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=unique_keys)
-        except UnicodeDecodeError as e:
-            raise BenchFormatError(f"{path}: not UTF-8 text (byte {e.start})") from None
-        except ValueError as e:
-            raise BenchFormatError(f"{path}: not valid JSON ({e})") from None
-        except RecursionError:
-            raise BenchFormatError(f"{path}: not valid JSON (nested too deeply)") from None
-        return cls.from_json(data, str(path))
+        return cls.from_json(_read_json(path, MAX_FILE_BYTES), str(path))
+
+
+@dataclass(frozen=True)
+class PositionTable:
+    """A torque feed-forward of position alone, from an identification or a standstill scan: it applies at every
+    torque and speed (docs/export.md, "From an identification").
+
+    Not a `Compensation` of one grid point: that would need a torque and a speed set point the data never had
+    and a calibration a scan does not give, and it would lose the harmonic structure the drive formats need.
+
+    Attributes
+    ----------
+    content : str
+        One of `CONTENTS`: "cogging", the cogging band; "position-torque", all the position-locked torque the
+        result holds.
+    feedforward_nm : ndarray, shape (counts_per_rev,)
+        -tau per count, N m, added to the torque reference: it cancels the position torque tau.
+    orders : ndarray of int, shape (k,)
+        The harmonics it is exported as: the cogging order's multiples ("cogging") or every order ("position-
+        torque"), up to counts_per_rev / 2.
+    calibration : SensorCalibration or None
+        The identification's corrected current-sensor calibration (None: not identified; a scan has none).
+    source : str
+        The file it was read from.
+    """
+
+    content: str
+    feedforward_nm: np.ndarray
+    orders: np.ndarray
+    calibration: SensorCalibration | None
+    source: str
+
+    @property
+    def counts_per_rev(self) -> int:
+        """Encoder counts per mechanical revolution."""
+        return int(self.feedforward_nm.size)
+
+    def coefficients_nm(self) -> np.ndarray:
+        """(a_n, b_n) at `orders`, shape (k, 2), N m: feedforward = sum a_n cos(n theta) + b_n sin(n theta) with
+        theta = 2 pi c / counts_per_rev at count c."""
+        c = harmonic_amplitudes(self.feedforward_nm)[self.orders]
+        return np.column_stack([c.real, -c.imag])
+
+    def to_json(self) -> dict:
+        """The object of position_table.json (docs/export.md)."""
+        a, b = self.coefficients_nm().T
+        return {"kind": "position_table", "content": self.content, "source": self.source,
+                "counts_per_rev": self.counts_per_rev,
+                "calibration": None if self.calibration is None else self.calibration.to_json(),
+                "feedforward_nm": {"count": list(range(self.counts_per_rev)),
+                                   "torque": self.feedforward_nm.tolist()},
+                "harmonics": {"orders": self.orders.tolist(), "cos_nm": a.tolist(), "sin_nm": b.tolist()}}
+
+
+def _cogging_order(tau: np.ndarray) -> int:
+    """The gcd of the orders carrying more than `ORDER_FLOOR` of the table's largest harmonic."""
+    amplitude = np.abs(harmonic_amplitudes(tau))[1:]
+    return math.gcd(*(np.flatnonzero(amplitude > ORDER_FLOOR * amplitude.max()) + 1).tolist())
+
+
+def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
+    """The position table of an identification's result JSON (`IdentificationResult`: its cogging and
+    calibration) or a standstill scan's (`ilcpmac.bench.standstill.ScanResult`: its cogging or position
+    torque); anything else raises `BenchFormatError` naming the file (and the key)."""
+    if content not in CONTENTS:
+        raise ValueError(f"content must be one of {', '.join(CONTENTS)}, got {content!r}")
+    data = _read_json(path, MAX_RESULT_BYTES)
+    if not isinstance(data, dict):
+        raise BenchFormatError(f"{path}: must hold an object, got {_shown(data)}")
+    scan = data.get("kind") == "standstill_scan"
+    key = "cogging" if content == "cogging" or not scan else "position_torque"
+    try:
+        if scan:
+            table, order, calibration = data[key]["torque"], data["cogging_order"], None
+        else:
+            result = IdentificationResult.from_json(data)
+            table, order, calibration = result.cogging_nm, None, result.calibration
+    except (KeyError, TypeError, ValueError) as e:
+        raise BenchFormatError(f"{path}: not a result of ilcpmac identify ({type(e).__name__}: {e})") from None
+    if table is None:
+        raise BenchFormatError(f"{path}: no cogging table (key 'cogging' is missing or null): the identification "
+                               "did not identify one (its 'messages' say why)")
+    tau = _array(table.tolist() if isinstance(table, np.ndarray) else table, 1, str(path), f"{key}.torque")
+    if not _is_counts_per_rev(tau.size) or np.any(np.abs(tau) > MAX_TORQUE_NM):
+        raise BenchFormatError(f"{path}: key '{key}.torque': needs one value per count ({tau.size} is no count "
+                               f"in {list(MOTOR_RANGES['counts_per_rev'])}), each within +-{MAX_TORQUE_NM:g} N m")
+    if not np.any(tau != tau[0]):
+        raise BenchFormatError(f"{path}: key '{key}.torque': the table is constant: no position torque to cancel")
+    if order is None:
+        order = _cogging_order(tau)
+    if type(order) is not int or not 1 <= order <= tau.size // 2:
+        raise BenchFormatError(f"{path}: key 'cogging_order': must be an integer in [1, {tau.size // 2}], "
+                               f"got {_shown(order)}")
+    orders = np.arange(order if content == "cogging" else 1, tau.size // 2 + 1, order if content == "cogging" else 1)
+    return PositionTable(content, -tau, orders, calibration, str(path))
+
+
+def _read_json(path: Path, max_bytes: int):
+    """The JSON value in the regular file ``path`` of at most ``max_bytes``; anything else raises
+    `BenchFormatError` naming the file."""
+    raw = read_bounded(path, max_bytes, BenchFormatError)
+    try:
+        return json.loads(raw.decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=unique_keys)
+    except UnicodeDecodeError as e:
+        raise BenchFormatError(f"{path}: not UTF-8 text (byte {e.start})") from None
+    except ValueError as e:
+        raise BenchFormatError(f"{path}: not valid JSON ({e})") from None
+    except RecursionError:
+        raise BenchFormatError(f"{path}: not valid JSON (nested too deeply)") from None
 
 
 def _no_constant(name: str):

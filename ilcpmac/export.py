@@ -1,43 +1,102 @@
-"""Writers of a `Compensation` for a drive's firmware: JSON, CSV, or C99 (docs/export.md).
+"""Writers of a `Compensation` or a `PositionTable` for a drive's firmware (docs/export.md).
 
-- json: ``compensation.json``, the record with its units, indented.
+- json: ``compensation.json``, the record with its units, indented (a position table: ``position_table.json``).
 - csv: ``calibration.csv`` (a row per phase), ``torque_gain.csv`` (one row), ``feedforward.csv`` (a row per
   count, a column per (torque, speed) point, torque-major) and ``map.csv`` (the grid, counts_per_rev and the
-  fade-out, one value per row); every number as the shortest decimal that reads back to the same double.
+  fade-out, one value per row); every number as the shortest decimal that reads back to the same double. A
+  position table: ``feedforward.csv`` with one column, and the calibration's two files where it has one.
 - c: ``ilcpmac_compensation.h`` and ``ilcpmac_compensation.c``: const tables (int16 at a stated N m per LSB,
   or float), the calibration, and ``ilcpmac_feedforward_nm`` implementing the rule of
-  `ilcpmac.compensation` in float arithmetic; C99, no allocation, only <stdint.h>.
+  `ilcpmac.compensation` in float arithmetic; C99, no allocation, only <stdint.h>. A position table:
+  ``ilcpmac_position_table.h`` and ``.c`` with ``ilcpmac_position_feedforward_nm(count)``.
+- harmonics (a position table): ``harmonics.csv``, a row per order: cos and sin, amplitude and phase, in N m
+  and in q-axis amperes at a stated torque constant.
+- moteus (a position table): ``moteus_cogging.txt``, the ``conf set`` lines of moteus's
+  ``motor.cogging_dq_scale`` and 1024 int8 ``motor.cogging_dq_comp`` entries, q-axis amperes.
+
+Every export states its `Residual`: the table as the target reproduces it per count, against the table.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from string import Template
 
 import numpy as np
 
-from ilcpmac.compensation import COMPENSATION_FILE, Compensation
+from ilcpmac.compensation import COMPENSATION_FILE, Compensation, PositionTable
+from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.core.records import SensorCalibration
+from ilcpmac.signals.harmonics import harmonic_amplitudes
 
-__all__ = ["C_TYPES", "FORMATS", "INT16_FULL_SCALE", "Exported", "Int16Tables", "export", "feedforward_column",
-           "write_c", "write_csv", "write_json"]
+__all__ = ["C_TYPES", "FORMATS", "INT16_FULL_SCALE", "MOTEUS_INT8_MAX", "MOTEUS_TABLE_SIZE", "POSITION_FORMATS",
+           "Exported", "Int16Tables", "MoteusTable", "Residual", "export", "feedforward_column", "write_c",
+           "write_csv", "write_harmonics", "write_json", "write_moteus"]
 
 #: what ``ilcpmac export --format`` writes
-FORMATS = ("json", "csv", "c")
+FORMATS = ("json", "csv", "c", "harmonics", "moteus")
+#: the formats of a position table alone: they need a table of position only
+POSITION_FORMATS = ("harmonics", "moteus")
+#: moteus's cogging table: entries per revolution of its commutation encoder, and the int8 magnitude used
+MOTEUS_TABLE_SIZE = 1024
+MOTEUS_INT8_MAX = 127
+#: the files of a position table and of the drive formats
+POSITION_JSON, HARMONICS_FILE, MOTEUS_FILE = "position_table.json", "harmonics.csv", "moteus_cogging.txt"
 #: the C tables' element type
 C_TYPES = ("int16", "float")
 #: the int16 value of the tables' largest magnitude: 8 % headroom below 32767
 INT16_FULL_SCALE = 30000
 #: the C files
 C_HEADER, C_SOURCE = "ilcpmac_compensation.h", "ilcpmac_compensation.c"
+POSITION_C_HEADER, POSITION_C_SOURCE = "ilcpmac_position_table.h", "ilcpmac_position_table.c"
 _PHASES = ("a", "b", "c")
 #: table values per line of the C source
 _C_PER_LINE = 12
 #: a CSV row: text as it is, numbers as their shortest exact decimals
 _Row = list[str | float]
+
+
+@dataclass(frozen=True)
+class Residual:
+    """The ripple a format leaves: the exported tables as the target samples them per count, minus the tables.
+
+    Attributes
+    ----------
+    rms_nm, peak_nm : float
+        RMS and largest magnitude over every count (and grid point), N m.
+    reference_nm : float
+        The torque the percentages are of, N m: a stated rated torque, else the tables' largest peak-to-peak.
+    reference : str
+        What it is: "rated torque" or "the table's peak-to-peak".
+    """
+
+    rms_nm: float
+    peak_nm: float
+    reference_nm: float
+    reference: str
+
+    @classmethod
+    def of(cls, tables_nm: np.ndarray, rendered_nm: np.ndarray, rated_torque_nm: float | None = None) -> Residual:
+        """``rendered_nm`` (same shape as ``tables_nm``, counts on the last axis) against ``tables_nm``."""
+        error = np.asarray(rendered_nm, float) - tables_nm
+        if rated_torque_nm is None:
+            flat = tables_nm.reshape(-1, tables_nm.shape[-1])
+            reference_nm, reference = float(np.max(np.ptp(flat, axis=-1))), "the table's peak-to-peak"
+        else:
+            reference_nm, reference = float(rated_torque_nm), "rated torque"
+        return cls(float(np.sqrt(np.mean(error**2))), float(np.max(np.abs(error))), reference_nm, reference)
+
+    def line(self, fmt: str) -> str:
+        """The line ``ilcpmac export`` prints."""
+        def percent(x: float) -> str:
+            return f"{100.0 * x / self.reference_nm:.3g} %" if self.reference_nm > 0 else "- %"
+        return (f"residual ripple of the {fmt} export: {self.rms_nm:.3g} N m RMS, {self.peak_nm:.3g} N m peak "
+                f"({percent(self.rms_nm)}, {percent(self.peak_nm)} of {self.reference} {self.reference_nm:.4g} N m)")
 
 
 @dataclass(frozen=True)
@@ -50,10 +109,16 @@ class Exported:
         The files, in the order written.
     quantisation_error_nm : float or None
         int16 C tables: max |table - int16 x N m per LSB| over every value, N m; None otherwise.
+    rendered_nm : ndarray or None
+        The tables as the target reproduces them per count from the files, N m.
+    residual : Residual or None
+        `rendered_nm` against the tables (`export` sets it).
     """
 
     files: tuple[Path, ...]
     quantisation_error_nm: float | None = None
+    rendered_nm: np.ndarray | None = field(default=None, repr=False)
+    residual: Residual | None = None
 
 
 @dataclass(frozen=True)
@@ -92,34 +157,55 @@ def _text(rows: list[_Row]) -> str:
     return "".join(",".join(v if isinstance(v, str) else repr(v) for v in row) + "\n" for row in rows)
 
 
-def write_json(compensation: Compensation, out_dir: Path) -> Exported:
-    """compensation.json: the record (`Compensation.to_json`), indented."""
-    path = out_dir / COMPENSATION_FILE
-    path.write_text(json.dumps(compensation.to_json(), indent=1, allow_nan=False) + "\n")
-    return Exported((path,))
+Record = Compensation | PositionTable
 
 
-def write_csv(compensation: Compensation, out_dir: Path) -> Exported:
-    """calibration.csv, torque_gain.csv, feedforward.csv and map.csv (module docstring)."""
-    c = compensation
-    cal = c.calibration
+def tables_of(record: Record) -> np.ndarray:
+    """The record's feed-forward tables, N m: counts on the last axis."""
+    return record.tables_nm if isinstance(record, Compensation) else record.feedforward_nm
+
+
+def write_json(record: Record, out_dir: Path) -> Exported:
+    """compensation.json (`Compensation.to_json`) or position_table.json (`PositionTable.to_json`), indented."""
+    path = out_dir / (COMPENSATION_FILE if isinstance(record, Compensation) else POSITION_JSON)
+    path.write_text(json.dumps(record.to_json(), indent=1, allow_nan=False) + "\n")
+    return Exported((path,), rendered_nm=tables_of(record))
+
+
+def _calibration_files(cal: SensorCalibration | None) -> dict[str, list[_Row]]:
+    """calibration.csv and torque_gain.csv of ``cal`` (none without one)."""
+    if cal is None:
+        return {}
     calibration: list[_Row] = [["phase", "current_scale_counts_per_a", "current_offset_counts"]]
     calibration += [[phase, float(cal.current_scale[p]), float(cal.current_offset[p])]
                     for p, phase in enumerate(_PHASES)]
+    return {"calibration.csv": calibration, "torque_gain.csv": [["torque_gain_v_per_nm"], [cal.torque_gain]]}
+
+
+def _write_rows(files: dict[str, list[_Row]], out_dir: Path, rendered_nm: np.ndarray) -> Exported:
+    for name, rows in files.items():
+        (out_dir / name).write_text(_text(rows))
+    return Exported(tuple(out_dir / name for name in files), rendered_nm=rendered_nm)
+
+
+def write_csv(record: Record, out_dir: Path) -> Exported:
+    """calibration.csv, torque_gain.csv, feedforward.csv and map.csv (module docstring)."""
+    if isinstance(record, PositionTable):
+        feedforward: list[_Row] = [["count", "feedforward_nm"]]
+        feedforward += [[str(count), value] for count, value in enumerate(record.feedforward_nm.tolist())]
+        return _write_rows({**_calibration_files(record.calibration), "feedforward.csv": feedforward}, out_dir,
+                           record.feedforward_nm)
+    c = record
     points = [(float(t), float(s)) for t in c.torques_nm for s in c.speeds_hz]
     columns = c.tables_nm.reshape(len(points), c.counts_per_rev).T
-    feedforward: list[_Row] = [["count", *(feedforward_column(t, s) for t, s in points)]]
+    feedforward = [["count", *(feedforward_column(t, s) for t, s in points)]]
     feedforward += [[str(count), *row] for count, row in enumerate(columns.tolist())]
     grid: list[_Row] = [["name", "index", "value"], ["counts_per_rev", "0", str(c.counts_per_rev)]]
     grid += [["torques_nm", str(i), float(t)] for i, t in enumerate(c.torques_nm)]
     grid += [["speeds_hz", str(i), float(s)] for i, s in enumerate(c.speeds_hz)]
     grid += [["fade_full_hz", "0", c.fade.full_hz], ["fade_zero_hz", "0", c.fade.zero_hz]]
-    files: dict[str, list[_Row]] = {
-        "calibration.csv": calibration, "torque_gain.csv": [["torque_gain_v_per_nm"], [cal.torque_gain]],
-        "feedforward.csv": feedforward, "map.csv": grid}
-    for name, rows in files.items():
-        (out_dir / name).write_text(_text(rows))
-    return Exported(tuple(out_dir / name for name in files))
+    return _write_rows({**_calibration_files(c.calibration), "feedforward.csv": feedforward, "map.csv": grid},
+                       out_dir, c.tables_nm)
 
 
 def _c_float(x: float) -> str:
@@ -139,9 +225,7 @@ _HEADER = Template("""\
 /* $header: the torque-ripple compensation of $source, written by ilcpmac export.
  *
  * C99, no allocation, only <stdint.h>; docs/export.md of ilcpmac gives every field and the rule.
- * Current of phase p (0, 1, 2 = a, b, c) from a raw reading r, A:
- *     i_p = (r + ilcpmac_current_offset_counts[p]) / ilcpmac_current_scale_counts_per_a[p]
- * Torque sensor, N m: volts / ILCPMAC_TORQUE_GAIN_V_PER_NM.
+$calibration_doc
  * Torque reference at encoder count n, torque set point T (N m), mechanical speed S (Hz):
  *     tau_ref = T + ilcpmac_feedforward_nm(n, T, S)
  * the tables learned at the grid's (T, S) points, bilinear between them, T and S clamped into the
@@ -163,12 +247,7 @@ extern "C" {
 #define ILCPMAC_N_SPEEDS ${n_speeds}u
 /* N m per table unit */
 #define ILCPMAC_TABLE_NM_PER_LSB $nm_per_lsb
-$fade_defines#define ILCPMAC_TORQUE_GAIN_V_PER_NM $torque_gain
-
-/* per phase a, b, c */
-extern const float ilcpmac_current_scale_counts_per_a[3];
-extern const float ilcpmac_current_offset_counts[3];
-/* the grid, strictly ascending */
+$fade_defines$calibration/* the grid, strictly ascending */
 extern const float ilcpmac_torques_nm[ILCPMAC_N_TORQUES];
 extern const float ilcpmac_speeds_hz[ILCPMAC_N_SPEEDS];
 /* the feed-forward per count at each grid point, in ILCPMAC_TABLE_NM_PER_LSB */
@@ -188,9 +267,7 @@ _SOURCE = Template("""\
 /* $source_name: written by ilcpmac export; see $header. */
 #include "$header"
 
-const float ilcpmac_current_scale_counts_per_a[3] = {$current_scale};
-const float ilcpmac_current_offset_counts[3] = {$current_offset};
-const float ilcpmac_torques_nm[ILCPMAC_N_TORQUES] = {$torques};
+${calibration}const float ilcpmac_torques_nm[ILCPMAC_N_TORQUES] = {$torques};
 const float ilcpmac_speeds_hz[ILCPMAC_N_SPEEDS] = {$speeds};
 const $element ilcpmac_feedforward_table[ILCPMAC_N_TORQUES][ILCPMAC_N_SPEEDS][ILCPMAC_COUNTS_PER_REV] = {
 $tables
@@ -258,50 +335,257 @@ def _c_tables(compensation: Compensation, values: np.ndarray, literal: Callable[
     return ",\n".join(blocks)
 
 
-def write_c(compensation: Compensation, out_dir: Path, c_type: str = "int16", source: str = "") -> Exported:
-    """ilcpmac_compensation.h and .c (module docstring); ``source`` names the record in their comments."""
-    c = compensation
-    cal = c.calibration
+@dataclass(frozen=True)
+class _CTables:
+    """Tables as the C source holds them: element type, values, literal, the scale's literal, its comment,
+    the int16 quantisation (None: float), and what the lookup gives back, N m."""
+
+    element: str
+    values: np.ndarray
+    literal: Callable[[float], str]
+    nm_per_lsb: str
+    doc: str
+    quantised: Int16Tables | None
+    rendered_nm: np.ndarray
+
+    @classmethod
+    def of(cls, tables_nm: np.ndarray, c_type: str) -> _CTables:
+        if c_type == "int16":
+            q = Int16Tables.of(tables_nm)
+            doc = (f" * Tables: int16, {q.nm_per_lsb:.9g} N m per LSB; quantisation error\n"
+                   f" * max |float - int16| = {q.error_nm:.3g} N m (the lookup's float arithmetic adds less\n"
+                   " * than 1e-6 of the tables' peak).")
+            rendered = (q.values.astype(np.float32) * np.float32(q.nm_per_lsb)).astype(float)
+            return cls("int16_t", q.values, str, _c_float(q.nm_per_lsb), doc, q, rendered)
+        return cls("float", tables_nm, _c_float, "1.0f", " * Tables: float, N m.", None,
+                   tables_nm.astype(np.float32).astype(float))
+
+
+def _calibration_c(cal: SensorCalibration) -> tuple[str, str]:
+    """The calibration's declarations (header) and definitions (source)."""
+    return ("#define ILCPMAC_TORQUE_GAIN_V_PER_NM " + _c_float(cal.torque_gain) + "\n"
+            "/* per phase a, b, c */\n"
+            "extern const float ilcpmac_current_scale_counts_per_a[3];\n"
+            "extern const float ilcpmac_current_offset_counts[3];\n",
+            f"const float ilcpmac_current_scale_counts_per_a[3] = {{{_c_list(cal.current_scale)}}};\n"
+            f"const float ilcpmac_current_offset_counts[3] = {{{_c_list(cal.current_offset)}}};\n")
+
+
+_POSITION_HEADER = Template("""\
+/* $header: the position torque feed-forward ($content) of $source, written by ilcpmac export.
+ *
+ * C99, no allocation, only <stdint.h>; docs/export.md of ilcpmac gives every field.
+ * A function of position alone: at every torque set point T and every speed, at encoder count n,
+ *     tau_ref = T + ilcpmac_position_feedforward_nm(n)
+$calibration_doc
+$table_doc
+ */
+#ifndef ILCPMAC_POSITION_TABLE_H
+#define ILCPMAC_POSITION_TABLE_H
+
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define ILCPMAC_COUNTS_PER_REV ${counts_per_rev}u
+/* N m per table unit */
+#define ILCPMAC_TABLE_NM_PER_LSB $nm_per_lsb
+$calibration/* the feed-forward per count, in ILCPMAC_TABLE_NM_PER_LSB */
+extern const $element ilcpmac_position_feedforward_table[ILCPMAC_COUNTS_PER_REV];
+
+/* The torque feed-forward at encoder count `count` (taken modulo ILCPMAC_COUNTS_PER_REV), N m. */
+float ilcpmac_position_feedforward_nm(uint32_t count);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif
+""")
+
+_POSITION_SOURCE = Template("""\
+/* $source_name: written by ilcpmac export; see $header. */
+#include "$header"
+
+${calibration}const $element ilcpmac_position_feedforward_table[ILCPMAC_COUNTS_PER_REV] = {
+$table
+};
+
+float ilcpmac_position_feedforward_nm(uint32_t count)
+{
+    return (float)ilcpmac_position_feedforward_table[count % ILCPMAC_COUNTS_PER_REV] * ILCPMAC_TABLE_NM_PER_LSB;
+}
+""")
+
+_CALIBRATION_DOC = """\
+ * Current of phase p (0, 1, 2 = a, b, c) from a raw reading r, A:
+ *     i_p = (r + ilcpmac_current_offset_counts[p]) / ilcpmac_current_scale_counts_per_a[p]
+ * Torque sensor, N m: volts / ILCPMAC_TORQUE_GAIN_V_PER_NM."""
+
+
+def _write_position_c(table: PositionTable, out_dir: Path, c_type: str) -> Exported:
+    """ilcpmac_position_table.h and .c (module docstring)."""
+    form = _CTables.of(table.feedforward_nm, c_type)
+    cal = table.calibration
+    declarations, definitions = ("", "") if cal is None else _calibration_c(cal)
+    header = _POSITION_HEADER.substitute(
+        header=POSITION_C_HEADER, content=table.content, source=table.source, table_doc=form.doc,
+        calibration_doc=_CALIBRATION_DOC if cal is not None else " * No current-sensor calibration was identified.",
+        counts_per_rev=table.counts_per_rev, nm_per_lsb=form.nm_per_lsb, calibration=declarations,
+        element=form.element)
+    body = _POSITION_SOURCE.substitute(
+        source_name=POSITION_C_SOURCE, header=POSITION_C_HEADER, calibration=definitions, element=form.element,
+        table=_c_list(form.values.tolist(), " " * 4, form.literal))
+    paths = (out_dir / POSITION_C_HEADER, out_dir / POSITION_C_SOURCE)
+    paths[0].write_text(header)
+    paths[1].write_text(body)
+    return Exported(paths, None if form.quantised is None else form.quantised.error_nm, form.rendered_nm)
+
+
+def write_c(record: Record, out_dir: Path, c_type: str = "int16", source: str = "") -> Exported:
+    """ilcpmac_compensation.h and .c, or a position table's ilcpmac_position_table.h and .c (module docstring);
+    ``source`` names a compensation in their comments."""
+    if isinstance(record, PositionTable):
+        return _write_position_c(record, out_dir, c_type)
+    c = record
     fade = c.fade
     fades = not math.isinf(fade.full_hz)
-    literal: Callable[[float], str]
-    if c_type == "int16":
-        quantised = Int16Tables.of(c.tables_nm)
-        element, values, literal, nm_per_lsb = "int16_t", quantised.values, str, _c_float(quantised.nm_per_lsb)
-        table_doc = (f" * Tables: int16, {quantised.nm_per_lsb:.9g} N m per LSB; quantisation error\n"
-                     f" * max |float - int16| = {quantised.error_nm:.3g} N m (the lookup's float arithmetic adds less\n"
-                     " * than 1e-6 of the tables' peak).")
-    else:
-        quantised = None
-        element, values, literal, nm_per_lsb = "float", c.tables_nm, _c_float, "1.0f"
-        table_doc = " * Tables: float, N m."
+    form = _CTables.of(c.tables_nm, c_type)
+    declarations, definitions = _calibration_c(c.calibration)
     header = _HEADER.substitute(
-        header=C_HEADER, source=source or "a campaign", table_doc=table_doc,
+        header=C_HEADER, source=source or "a campaign", table_doc=form.doc, calibration_doc=_CALIBRATION_DOC,
         fade_doc=f" * Fade-out: 1 up to {fade.full_hz:g} Hz, linear down to 0 at {fade.zero_hz:g} Hz, 0 beyond."
         if fades else " * Fade-out: none (the feed-forward never fades).",
         counts_per_rev=c.counts_per_rev, n_torques=c.torques_nm.size, n_speeds=c.speeds_hz.size,
-        nm_per_lsb=nm_per_lsb, element=element, torque_gain=_c_float(cal.torque_gain),
+        nm_per_lsb=form.nm_per_lsb, element=form.element, calibration=declarations,
         fade_defines=f"#define ILCPMAC_FADE_FULL_HZ {_c_float(fade.full_hz)}\n"
                      f"#define ILCPMAC_FADE_ZERO_HZ {_c_float(fade.zero_hz)}\n" if fades else "")
     body = _SOURCE.substitute(
-        source_name=C_SOURCE, header=C_HEADER, element=element, current_scale=_c_list(cal.current_scale),
-        current_offset=_c_list(cal.current_offset), torques=_c_list(c.torques_nm), speeds=_c_list(c.speeds_hz),
-        tables=_c_tables(c, values, literal),
+        source_name=C_SOURCE, header=C_HEADER, element=form.element, calibration=definitions,
+        torques=_c_list(c.torques_nm), speeds=_c_list(c.speeds_hz), tables=_c_tables(c, form.values, form.literal),
         fade_body=_FADE_BODY if fades else "    (void)speed_hz;\n    return 1.0f;\n")
     paths = (out_dir / C_HEADER, out_dir / C_SOURCE)
     paths[0].write_text(header)
     paths[1].write_text(body)
-    return Exported(paths, None if quantised is None else quantised.error_nm)
+    return Exported(paths, None if form.quantised is None else form.quantised.error_nm, form.rendered_nm)
 
 
-def export(compensation: Compensation, out_dir: Path, fmt: str, c_type: str = "int16", source: str = "") -> Exported:
-    """Write ``compensation`` into ``out_dir`` (made if missing) in format ``fmt`` (`FORMATS`; another raises
-    `ValueError` before anything is made)."""
+def _harmonic_sum(orders: np.ndarray, coefficients: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """sum a_n cos(n theta) + b_n sin(n theta) at the angles ``theta``."""
+    angle = np.outer(theta, orders)
+    return np.cos(angle) @ coefficients[:, 0] + np.sin(angle) @ coefficients[:, 1]
+
+
+def _angles(counts: int) -> np.ndarray:
+    """theta = 2 pi c / counts at each count c, rad."""
+    return 2.0 * np.pi * np.arange(counts) / counts
+
+
+def write_harmonics(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float) -> Exported:
+    """harmonics.csv: per order n of ``table.orders``, a_n, b_n, the amplitude sqrt(a_n^2 + b_n^2) and the
+    phase atan2(b_n, a_n) (a_n cos + b_n sin = amplitude cos(n theta - phase)), in N m and in q-axis A."""
+    coefficients = table.coefficients_nm()
+    amplitude = np.hypot(coefficients[:, 0], coefficients[:, 1])
+    phase = np.arctan2(coefficients[:, 1], coefficients[:, 0])
+    kt = float(torque_constant_nm_per_a)
+    at = f"_at_{kt!r}_nm_per_a"
+    rows: list[_Row] = [["order", "cos_nm", "sin_nm", "amplitude_nm", "phase_rad",
+                         "cos_a" + at, "sin_a" + at, "amplitude_a" + at]]
+    rows += [[str(n), float(a), float(b), float(m), float(ph), float(a) / kt, float(b) / kt, float(m) / kt]
+             for n, (a, b), m, ph in zip(table.orders.tolist(), coefficients, amplitude, phase)]
+    path = out_dir / HARMONICS_FILE
+    path.write_text(_text(rows))
+    return Exported((path,), rendered_nm=_harmonic_sum(table.orders, coefficients, _angles(table.counts_per_rev)))
+
+
+@dataclass(frozen=True)
+class MoteusTable:
+    """moteus's cogging compensation: q-axis current = ``values[k] x scale_a``, A, at commutation position
+    k / `MOTEUS_TABLE_SIZE` of a revolution, linear between entries.
+
+    The firmware (fw/bldc_servo_control.h, fw/bldc_servo_structs.h of mjbots/moteus) takes the commutation
+    encoder's position p in [0, 1) of a revolution, the entry k = min(1023, floor(1024 p)) and the next one
+    (k + 1) mod 1024, and interpolates linearly with the fraction 1024 p - k.
+
+    Attributes
+    ----------
+    values : ndarray of int8, shape (1024,)
+        Within +-`MOTEUS_INT8_MAX`.
+    scale_a : float
+        A float32 number, A per unit: the largest magnitude maps to `MOTEUS_INT8_MAX`.
+    """
+
+    values: np.ndarray
+    scale_a: float
+
+    @classmethod
+    def of(cls, table: PositionTable, torque_constant_nm_per_a: float) -> MoteusTable:
+        """The feed-forward in q-axis amperes at the 1024 positions k / 1024 by its Fourier series (orders up
+        to 511, what 1024 entries hold), each order n divided by sinc^2(n / 1024), the linear interpolation's
+        response to it, and quantised."""
+        orders = np.arange(min(table.counts_per_rev // 2, MOTEUS_TABLE_SIZE // 2 - 1) + 1)
+        c = harmonic_amplitudes(table.feedforward_nm)[orders] / np.sinc(orders / MOTEUS_TABLE_SIZE) ** 2
+        current_a = np.real(np.exp(1j * np.outer(_angles(MOTEUS_TABLE_SIZE), orders)) @ c) / torque_constant_nm_per_a
+        peak = float(np.max(np.abs(current_a)))
+        scale = float(np.float32((peak or 1.0) / MOTEUS_INT8_MAX))
+        values = np.clip(np.rint(current_a / scale), -MOTEUS_INT8_MAX, MOTEUS_INT8_MAX).astype(np.int8)
+        return cls(values, scale)
+
+    def sample_a(self, position: np.ndarray) -> np.ndarray:
+        """The firmware's q-axis current at positions ``position`` in [0, 1) of a revolution, A."""
+        size = self.values.size
+        left = np.minimum(size - 1, np.floor(size * position).astype(np.int64))
+        fraction = (position - left / size) * size
+        low, high = self.values[left] * self.scale_a, self.values[(left + 1) % size] * self.scale_a
+        return (high - low) * fraction + low
+
+    def lines(self) -> list[str]:
+        """The moteus console commands that store it (``conf write`` then keeps them)."""
+        return [f"conf set motor.cogging_dq_scale {np.float32(self.scale_a)}",
+                *(f"conf set motor.cogging_dq_comp.{k} {v}" for k, v in enumerate(self.values.tolist()))]
+
+
+def write_moteus(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float) -> Exported:
+    """moteus_cogging.txt: the `MoteusTable` lines, count c at commutation position c / counts_per_rev."""
+    moteus = MoteusTable.of(table, torque_constant_nm_per_a)
+    path = out_dir / MOTEUS_FILE
+    path.write_text("\n".join(moteus.lines()) + "\n")
+    rendered = moteus.sample_a(np.arange(table.counts_per_rev) / table.counts_per_rev) * torque_constant_nm_per_a
+    return Exported((path,), rendered_nm=rendered)
+
+
+def export(record: Record, out_dir: Path, fmt: str, c_type: str = "int16", source: str = "",
+           torque_constant_nm_per_a: float | None = None, rated_torque_nm: float | None = None) -> Exported:
+    """Write ``record`` into ``out_dir`` (made if missing) in format ``fmt`` (`FORMATS`; another raises
+    `ValueError` before anything is made), with its `Residual` against ``rated_torque_nm`` (None: the tables'
+    peak-to-peak). `POSITION_FORMATS` take a `PositionTable` and a torque constant, N m per q-axis A; without
+    either they raise `IlcpmacError` before anything is made."""
     if fmt not in FORMATS:
         raise ValueError(f"export format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    if fmt in POSITION_FORMATS:
+        if not isinstance(record, PositionTable):
+            raise IlcpmacError(f"--format {fmt} takes an identification's or a scan's result.json: "
+                               f"{source or 'a campaign'}'s compensation varies with torque and speed (use json, "
+                               "csv or c)")
+        if torque_constant_nm_per_a is None or not torque_constant_nm_per_a > 0:
+            raise IlcpmacError(f"--format {fmt} needs --torque-constant NM_PER_A > 0, the q-axis torque constant "
+                               f"that turns N m into q-axis amperes ({record.source} does not hold the back-EMF)")
+    if rated_torque_nm is not None and not rated_torque_nm > 0:
+        raise IlcpmacError(f"--rated-torque must be > 0 N m, got {rated_torque_nm!r}")
     out_dir.mkdir(parents=True, exist_ok=True)
+    exported: Exported
     if fmt == "json":
-        return write_json(compensation, out_dir)
-    if fmt == "csv":
-        return write_csv(compensation, out_dir)
-    return write_c(compensation, out_dir, c_type, source)
+        exported = write_json(record, out_dir)
+    elif fmt == "csv":
+        exported = write_csv(record, out_dir)
+    elif fmt == "c":
+        exported = write_c(record, out_dir, c_type, source)
+    else:
+        assert isinstance(record, PositionTable) and torque_constant_nm_per_a is not None
+        writer = write_harmonics if fmt == "harmonics" else write_moteus
+        exported = writer(record, out_dir, torque_constant_nm_per_a)
+    assert exported.rendered_nm is not None
+    residual = Residual.of(tables_of(record), exported.rendered_nm, rated_torque_nm)
+    return dataclasses.replace(exported, residual=residual)

@@ -205,7 +205,7 @@ def test_export_writes_the_c_files_and_says_the_quantisation_error(tmp_path):
     lines = out.output.splitlines()
     assert lines[0].startswith("wrote 2 files, ") and lines[0].endswith(f"in {tmp_path / 'fw'}")
     assert lines[1].split()[0] == "ilcpmac_compensation.h" and lines[2].split()[0] == "ilcpmac_compensation.c"
-    assert lines[3] == f"int16 tables: quantisation error max |float - int16| = {error:.3g} N m"
+    assert lines[3].startswith("residual ripple of the c export: ") and f", {error:.3g} N m peak (" in lines[3]
     assert sorted(p.name for p in (tmp_path / "fw").iterdir()) == ["ilcpmac_compensation.c", "ilcpmac_compensation.h"]
 
 
@@ -213,9 +213,10 @@ def test_export_csv_lists_its_four_files(tmp_path):
     write_json(compensation(), tmp_path)
     out = CliRunner().invoke(main, ["export", str(tmp_path), "--format", "csv", "--out", str(tmp_path / "csv")])
     assert out.exit_code == 0, out.output
-    assert out.output.startswith("wrote 4 files, ") and "quantisation" not in out.output
-    assert [line.split()[0] for line in out.output.splitlines()[1:]] == [
+    assert out.output.startswith("wrote 4 files, ")
+    assert [line.split()[0] for line in out.output.splitlines()[1:-1]] == [
         "calibration.csv", "torque_gain.csv", "feedforward.csv", "map.csv"]
+    assert out.output.splitlines()[-1].startswith("residual ripple of the csv export: 0 N m RMS, 0 N m peak (0 %, ")
 
 
 def test_export_of_a_run_without_compensation_is_one_line(tmp_path):
@@ -250,6 +251,6 @@ def test_the_commands_choices_are_the_writers():
 
 def test_an_unknown_format_is_refused_before_anything_is_written(tmp_path):
     """A format with no branch in `export` once fell through to the C writer."""
-    with pytest.raises(ValueError, match="export format must be one of json, csv, c, got 'tsv'"):
+    with pytest.raises(ValueError, match="export format must be one of json, csv, c, harmonics, moteus, got 'tsv'"):
         export(compensation(), tmp_path / "out", "tsv")
     assert not (tmp_path / "out").exists()
