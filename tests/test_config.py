@@ -9,11 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SEED_CONFIG
+from conftest import MAPPING_BENCH, PHASE_LOG, SEED_CONFIG
 
+from ilcpmac.bench.importer import read_mapping
 from ilcpmac.config import CampaignSettings, LimitSettings, PipelineSettings, config_reference, load_config
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.schema import toml_text
+from ilcpmac.model.tables import backemf_table
 
 
 def test_seed_config_values(seed_config):
@@ -176,6 +178,30 @@ def test_toml_text_writes_any_string_as_tomllib_reads_it(text):
     writer once wrote that as a raw newline, which is not TOML."""
     data = {"bench": {"backemf_file": text, "pole_pairs": 8, "backemf": {"harmonics": [1, 3]}}}
     assert tomllib.loads(toml_text(data)) == data
+
+
+def test_backemf_phases_and_asymmetry_default_to_zeros(write_config, tmp_path):
+    """A plain sinusoid needs only [bench.backemf] harmonics and amplitudes, in a config and in an import
+    mapping: the phases are zeros, one per harmonic, and the asymmetry zero, as if given."""
+    plain = {"harmonics": [1, 3], "amplitudes_nm_per_a": [0.2, 0.01]}
+    explicit = {**plain, "phases_rad": [0.0, 0.0], "asymmetry": [0.0, 0.0, 0.0]}
+    short = load_config(write_config({"bench.backemf": plain}, name="short.toml",
+                                     drop=("bench.backemf.phases_rad", "bench.backemf.asymmetry"))).model
+    full = load_config(write_config({"bench.backemf": explicit}, name="full.toml")).model
+    assert short.backemf == full.backemf and short.backemf.phases_rad == (0.0, 0.0)
+    cpr = full.encoder.counts_per_rev
+    assert np.array_equal(backemf_table(short.winding, short.backemf, cpr),
+                          backemf_table(full.winding, full.backemf, cpr))
+    tables = []
+    for name, backemf in (("short", plain), ("full", explicit)):
+        bench = MAPPING_BENCH.replace('backemf_file = "backemf.csv"\n', "")
+        (tmp_path / f"{name}-map.toml").write_text(f"{bench}\n[bench.backemf]\n{toml_text(backemf)}\n{PHASE_LOG}")
+        tables.append(read_mapping(tmp_path / f"{name}-map.toml").backemf_nm_per_a)
+    assert np.array_equal(*tables) and np.abs(tables[0]).max() > 0.1
+    with pytest.raises(ConfigError, match=r"\[bench\.backemf\] harmonics, amplitudes_nm_per_a, phases_rad: must have "
+                                          r"equal lengths"):
+        load_config(write_config({"bench.backemf": {**plain, "phases_rad": [0.0]}}, name="bad.toml",
+                                 drop=("bench.backemf.asymmetry",)))
 
 
 def test_the_config_reference_is_generated_from_the_declarations():

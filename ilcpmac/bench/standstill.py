@@ -13,7 +13,11 @@ A *scan folder* is a bench folder without trials (bench.toml's [motor] and
 [sensors], backemf.csv) plus ``scan.toml`` and the samples (``scan.csv``);
 `read_scan` reads it, `reduce_scan` gives a `ScanResult`, `identify_scan`
 is ``ilcpmac identify SCAN_FOLDER``. Every problem of a file raises
-`BenchFormatError` naming the file and the key, line or count.
+`BenchFormatError` naming the file and the key, line or count. A few counts
+without a sample in one direction are filled from their neighbours, their
+error bound in the standard errors and their list in the result
+(`ScanResult.filled_counts`); a gap that could move a cogging harmonic by
+more than its standard error is refused.
 """
 
 from __future__ import annotations
@@ -115,7 +119,7 @@ class ScanData:
 @dataclass(frozen=True)
 class Scan:
     """A scan folder in memory: the motor, its back-EMF table (N m / A, shape (counts_per_rev, 3)), the
-    calibration it ran with, the sensors' errors and the samples."""
+    calibration it ran with, the sensors' errors and the samples, read from ``data_file`` in the folder."""
 
     path: Path
     motor: MotorInfo
@@ -123,6 +127,7 @@ class Scan:
     sensors: SensorCalibration | None
     errors: SensorErrors
     data: ScanData
+    data_file: str = SCAN_DATA_FILE
 
 
 @dataclass(frozen=True)
@@ -146,6 +151,8 @@ class ScanResult:
         Scatter of one sample about its count's mean (pooled).
     samples : (int, int)
         Forward and reverse samples.
+    filled_counts : (tuple of int, tuple of int)
+        The counts without a forward (reverse) sample, filled from their neighbours; empty for a complete scan.
     """
 
     counts_per_rev: int
@@ -162,10 +169,21 @@ class ScanResult:
     coefficients_std_nm: np.ndarray
     noise_std_nm: float
     samples: tuple[int, int]
+    filled_counts: tuple[tuple[int, ...], tuple[int, ...]] = ((), ())
+
+    @property
+    def messages(self) -> tuple[str, ...]:
+        """Warnings about the result: the counts filled from their neighbours, one line."""
+        if not any(self.filled_counts):
+            return ()
+        return (f"{_gaps_text(self.filled_counts)} without a sample: filled from their neighbours, the "
+                "interpolation's error bound in their standard errors (docs/standstill.md)",)
 
     def to_json(self) -> dict:
         """The scan result JSON (docs/standstill.md); its ``cogging`` reads as an identification's."""
         count = list(range(self.counts_per_rev))
+        filled = ({"filled_counts": {"forward": list(self.filled_counts[0]), "reverse": list(self.filled_counts[1])}}
+                  if any(self.filled_counts) else {})
         return finite_json({
             "kind": "standstill_scan", "counts_per_rev": self.counts_per_rev, "cogging_order": self.cogging_order,
             "source": self.source,
@@ -180,7 +198,23 @@ class ScanResult:
                                   "sin_std_nm": self.coefficients_std_nm[:, 1].tolist()},
             "noise_std_nm": self.noise_std_nm,
             "samples": {"forward": self.samples[0], "reverse": self.samples[1]},
+            **filled,
         })
+
+
+def _gaps_text(filled: tuple[tuple[int, ...], tuple[int, ...]]) -> str:
+    """``"2 forward counts (137, 900-902) and 1 reverse count (55)"``: the counts of each direction, runs
+    joined, the first ten runs shown."""
+    parts = []
+    for direction, counts in zip(("forward", "reverse"), filled):
+        if not counts:
+            continue
+        starts = [c for i, c in enumerate(counts) if i == 0 or counts[i - 1] != c - 1]
+        ends = [c for i, c in enumerate(counts) if i == len(counts) - 1 or counts[i + 1] != c + 1]
+        runs = [str(a) if a == b else f"{a}-{b}" for a, b in zip(starts, ends)]
+        shown_runs = ", ".join(runs[:10]) + (f", ... ({len(runs)} runs)" if len(runs) > 10 else "")
+        parts.append(f"{len(counts)} {direction} count{'s' if len(counts) > 1 else ''} ({shown_runs})")
+    return " and ".join(parts)
 
 
 # ---------------------------------------------------------------- reading
@@ -224,7 +258,7 @@ def read_scan(folder: str | Path) -> Scan:
                     np.column_stack([columns[c] for c in CURRENT_COLUMNS]) if kind == CURRENT_COLUMNS else None,
                     columns.get(TORQUE_COLUMN))
     check_scan(scan, str(samples))
-    return Scan(folder, head.motor, head.backemf_nm_per_a, head.sensors, errors, scan)
+    return Scan(folder, head.motor, head.backemf_nm_per_a, head.sensors, errors, scan, name)
 
 
 def _header(path: Path) -> list[str]:
@@ -295,14 +329,44 @@ def _binned(bins: np.ndarray, values: np.ndarray, cpr: int, hits: np.ndarray) ->
     return np.column_stack([np.bincount(bins, weights=v, minlength=cpr) for v in values.T]) / hits[:, None]
 
 
+@dataclass(frozen=True)
+class _Direction:
+    """One direction's holding torque per count (`_direction_means`), shapes (counts_per_rev, ...).
+
+    ``inverse_hits`` is 1 / n for a count of n samples and sum_j w_j^2 / n_j for a count filled with weights
+    w_j of its neighbours j; ``fill_bound_nm`` holds one column per gap, the interpolation's error bound on
+    the gap's counts and zero elsewhere.
+    """
+
+    holding_nm: np.ndarray
+    sensitivity: np.ndarray
+    inverse_hits: np.ndarray
+    squared_residuals: np.ndarray
+    filled: tuple[int, ...]
+    fill_bound_nm: np.ndarray
+
+
+def _neighbours(present: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per count, the nearest counts with samples at or before it and after it (periodic, unwrapped: left <=
+    count < right) and the gap's index (the same for every count of one gap)."""
+    cpr = present.size
+    counts = np.flatnonzero(present)
+    before = np.searchsorted(counts, np.arange(cpr), side="right") - 1
+    left = counts[before] - np.where(before < 0, cpr, 0)
+    right = np.where(before + 1 < counts.size, counts[(before + 1) % counts.size], counts[0] + cpr)
+    return left, right, before % counts.size
+
+
 def _direction_means(scan: Scan, h: np.ndarray, sensitivity: np.ndarray, forward: bool, where: str
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                     ) -> _Direction:
     """One direction's holding torque per count at the count itself, its sensitivities, sample numbers and
-    squared residuals.
+    squared residuals; counts without a sample filled from their neighbours.
 
     The samples of count c lie at c + d, |d| <= 1/2: their mean is h(c) + h'(c) mean(d) + h''(c) mean(d^2) / 2,
     so the derivatives (central differences of the means) remove that bias, and the residuals the slope
-    within the count.
+    within the count. A count c without a sample, t counts after the last count with one and g - t before
+    the next, is their linear interpolation; its error is at most M t (g - t) / 2 with M = max |h''|, taken
+    as the largest second difference of three neighbouring counts with samples (noise makes it larger).
     """
     cpr = scan.motor.counts_per_rev
     keep = (scan.data.direction > 0) if forward else (scan.data.direction < 0)
@@ -311,18 +375,33 @@ def _direction_means(scan: Scan, h: np.ndarray, sensitivity: np.ndarray, forward
     bins = nearest.astype(np.int64) % cpr
     offset = position - nearest
     hits = np.bincount(bins, minlength=cpr).astype(float)
-    empty = np.flatnonzero(hits == 0)
+    present = hits > 0
+    means = _binned(bins, np.column_stack([h[keep], offset, offset**2, sensitivity[keep]]), cpr,
+                    np.maximum(hits, 1.0))
+    empty = np.flatnonzero(~present)
+    left, right, gap = _neighbours(present)
+    weight = ((np.arange(cpr) - left) / (right - left))[empty]
     if empty.size:
-        raise BenchFormatError(f"{where}: count {empty[0]} has no {'forward' if forward else 'reverse'} sample "
-                               f"({empty.size} counts lack one): a scan covers every count of a revolution in "
-                               "both directions")
-    means = _binned(bins, np.column_stack([h[keep], offset, offset**2, sensitivity[keep]]), cpr, hits)
+        means[empty] = (1.0 - weight)[:, None] * means[left[empty] % cpr] + weight[:, None] * means[right[empty] % cpr]
     m, d1, d2 = means[:, 0], means[:, 1], means[:, 2]
     slope = (np.roll(m, -1) - np.roll(m, 1)) / 2.0
     curvature = np.roll(m, -1) - 2.0 * m + np.roll(m, 1)
     at_count = m - slope * d1 - curvature * d2 / 2.0
     residual = h[keep] - m[bins] - slope[bins] * (offset - d1[bins])
-    return at_count, means[:, 3:], hits, residual**2
+    inverse_hits = 1.0 / np.maximum(hits, 1.0)
+    bound = np.zeros((cpr, np.unique(gap[empty]).size))
+    if empty.size:
+        at_count[empty] = (1.0 - weight) * at_count[left[empty] % cpr] + weight * at_count[right[empty] % cpr]
+        inverse_hits[empty] = (1.0 - weight) ** 2 / hits[left[empty] % cpr] + weight**2 / hits[right[empty] % cpr]
+        triples = present & np.roll(present, 1) & np.roll(present, -1)
+        if not triples.any():
+            raise BenchFormatError(f"{where}: {empty.size} of {cpr} counts lack a "
+                                   f"{'forward' if forward else 'reverse'} sample, too many to fill from their "
+                                   "neighbours: a scan covers every count of a revolution in both directions")
+        steepest = np.abs(np.roll(at_count, -1) - 2.0 * at_count + np.roll(at_count, 1))[triples].max()
+        t = (np.arange(cpr) - left)[empty]
+        bound[empty, np.unique(gap[empty], return_inverse=True)[1]] = steepest * t * ((right - left)[empty] - t) / 2.0
+    return _Direction(at_count, means[:, 3:], inverse_hits, residual**2, tuple(int(c) for c in empty), bound)
 
 
 def reduce_scan(scan: Scan) -> ScanResult:
@@ -331,38 +410,58 @@ def reduce_scan(scan: Scan) -> ScanResult:
     tau_pos = -(h_+ + h_-) / 2 minus its mean, f = (h_+ - h_-) / 2 per count. Standard errors: the
     pooled scatter sigma^2 of one sample about its count's mean gives var = sigma^2 (1/n_+ + 1/n_-) / 4
     per count; each sensor error's standard error adds its sensitivity (linear, correlated over counts)
-    in quadrature; the cogging band and its harmonics propagate both exactly (linear maps).
+    in quadrature; the cogging band and its harmonics propagate both exactly (linear maps). A gap filled
+    from its neighbours (`_direction_means`) adds its error bound b / 2 on tau_pos, correlated over the gap,
+    as a standard error b / (2 sqrt 3) (h'' uniform within +-M); the scan is refused when the gaps could
+    move a cogging harmonic by more than its standard error: sqrt(sum over gaps of (sum |W_h| b / 2)^2)
+    against the harmonic's standard error without the gaps' own.
     """
-    where = str(scan.path / SCAN_FILE)
+    where = str(scan.path / scan.data_file)
     cpr, order = scan.motor.counts_per_rev, scan.motor.cogging_order
     h, sensitivity = _holding(scan)
     n_forward = int(np.count_nonzero(scan.data.direction > 0))
     if n_forward == 0 or n_forward == h.size:
         raise BenchFormatError(f"{where}: only {'forward' if n_forward else 'reverse'} samples: friction and "
                                "hysteresis cannot be cancelled (scan forward and back)")
-    up, s_up, n_up, r_up = _direction_means(scan, h, sensitivity, True, where)
-    down, s_down, n_down, r_down = _direction_means(scan, h, sensitivity, False, where)
-    dof = h.size - 2 * cpr
+    up = _direction_means(scan, h, sensitivity, True, where)
+    down = _direction_means(scan, h, sensitivity, False, where)
+    means = 2 * cpr - len(up.filled) - len(down.filled)
+    dof = h.size - means
     if dof < 1:
-        raise BenchFormatError(f"{where}: {h.size} samples for {cpr} counts in two directions: the scatter needs "
-                               f"more than {2 * cpr} (two samples per count and direction or more)")
-    noise_var = float((r_up.sum() + r_down.sum()) / dof)
-    position = -(up + down) / 2.0
+        raise BenchFormatError(f"{where}: {h.size} samples for {means} counts in two directions: the scatter needs "
+                               f"more than {means} (two samples per count and direction or more)")
+    noise_var = float((up.squared_residuals.sum() + down.squared_residuals.sum()) / dof)
+    position = -(up.holding_nm + down.holding_nm) / 2.0
     position -= position.mean()
-    friction = (up - down) / 2.0
-    var = noise_var * (1.0 / n_up + 1.0 / n_down) / 4.0
+    friction = (up.holding_nm - down.holding_nm) / 2.0
+    var = noise_var * (up.inverse_hits + down.inverse_hits) / 4.0
+    orders = np.arange(order, cpr // 2 + 1, order)
+    theta = 2.0 * np.pi * np.arange(cpr) / cpr
+    weights = np.stack([np.cos(np.outer(orders, theta)), np.sin(np.outer(orders, theta))], axis=1)
+    weights *= np.where(2 * orders == cpr, 1.0, 2.0)[:, None, None] / cpr  # (k, 2, cpr): a_h, b_h = W tau
+    gaps_up, gaps_down = up.fill_bound_nm.shape[1], down.fill_bound_nm.shape[1]
+    s_up = np.hstack([up.sensitivity, up.fill_bound_nm / math.sqrt(3.0), np.zeros((cpr, gaps_down))])
+    s_down = np.hstack([down.sensitivity, np.zeros((cpr, gaps_up)), down.fill_bound_nm / math.sqrt(3.0)])
     systematic = -(s_up + s_down) / 2.0
     systematic -= systematic.mean(axis=0)
+    filled = (up.filled, down.filled)
+    if gaps_up + gaps_down:
+        sensors = systematic[:, :up.sensitivity.shape[1]]
+        std = np.sqrt(weights**2 @ var + np.sum((weights @ sensors) ** 2, axis=-1))
+        fill_bound = np.hstack([up.fill_bound_nm, down.fill_bound_nm]) / 2.0  # on tau_pos
+        change = np.sqrt(np.sum((np.abs(weights) @ fill_bound) ** 2, axis=-1))
+        worst = np.unravel_index(np.argmax(change / np.maximum(std, 1e-300)), change.shape)
+        if change[worst] > std[worst]:
+            raise BenchFormatError(
+                f"{where}: {_gaps_text(filled)} without a sample: filled from their neighbours they could move "
+                f"cogging harmonic {orders[worst[0]]} ({'cos' if worst[1] == 0 else 'sin'}) by {change[worst]:.2g} "
+                f"N m, beyond its standard error {std[worst]:.2g} N m (scan those counts again)")
     band = harmonic_band(cpr, order, cpr // 2, order)
     impulse = np.fft.irfft(band, n=cpr)  # the cogging band's circular impulse response
     cogging = filtered(position, band)
     cogging_noise = np.real(np.fft.ifft(np.fft.fft(var) * np.fft.fft(impulse**2)))
     cogging_systematic = filtered(systematic, band[:, None])
-    orders = np.arange(order, cpr // 2 + 1, order)
     c = harmonic_amplitudes(position)[orders]
-    theta = 2.0 * np.pi * np.arange(cpr) / cpr
-    weights = np.stack([np.cos(np.outer(orders, theta)), np.sin(np.outer(orders, theta))], axis=1)
-    weights *= np.where(2 * orders == cpr, 1.0, 2.0)[:, None, None] / cpr  # (k, 2, cpr): a_h, b_h = W tau
     coefficient_var = weights**2 @ var + np.sum((weights @ systematic) ** 2, axis=-1)
     return ScanResult(
         cpr, order, "torque" if scan.data.torque_nm is not None else "currents",
@@ -370,7 +469,7 @@ def reduce_scan(scan: Scan) -> ScanResult:
         cogging, np.sqrt(np.maximum(cogging_noise, 0.0) + np.sum(cogging_systematic**2, axis=1)),
         friction, np.sqrt(var + np.sum(((s_up - s_down) / 2.0) ** 2, axis=1)),
         orders, np.column_stack([c.real, -c.imag]), np.sqrt(coefficient_var),
-        math.sqrt(noise_var), (n_forward, int(h.size - n_forward)))
+        math.sqrt(noise_var), (n_forward, int(h.size - n_forward)), filled)
 
 
 # ---------------------------------------------------------------- writing and identify
@@ -412,9 +511,10 @@ def _truth_tables(folder: Path) -> dict[str, np.ndarray]:
         raise BenchFormatError(f"{path}: unreadable ({e})") from None
 
 
-def identify_scan(folder: str | Path, output: str | Path) -> list[str]:
+def identify_scan(folder: str | Path, output: str | Path) -> tuple[ScanResult, list[str]]:
     """``ilcpmac identify SCAN_FOLDER``: reduce the scan, write the result JSON to ``output`` and return the
-    lines to print; with a truth.json (a simulated scan's), the RMS errors against it."""
+    result (its ``messages`` the warnings) and the lines to print; with a truth.json (a simulated scan's),
+    the RMS errors against it."""
     folder = Path(folder)
     result = reduce_scan(read_scan(folder))
     truth_nm = _truth_tables(folder)
@@ -439,4 +539,4 @@ def identify_scan(folder: str | Path, output: str | Path) -> list[str]:
             lines.append(f"vs truth: {key.replace('_', ' ')} RMS error {100 * _rms(estimate - true) / _rms(true):.3g} "
                          f"% of its RMS")
     lines.append(f"wrote {output}")
-    return lines
+    return result, lines

@@ -177,7 +177,10 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     from ilcpmac.identify import STEPS, identify_bench
 
     if (bench_dir / SCAN_FILE).exists():  # a standstill scan folder (docs/standstill.md)
-        for line in identify_scan(bench_dir, output):
+        scan, lines = identify_scan(bench_dir, output)
+        for message in scan.messages:
+            console.print(f"[yellow]warning:[/yellow] {message}")
+        for line in lines:
             console.print(line)
         return
     truth = read_truth(bench_dir)

@@ -25,17 +25,17 @@ _THREE = length_in(3, 3)
 _TERMS = length_in(0, MAX_TERMS)
 
 
-def _terms(low: float, high: float, doc: str):
-    """A list of a sum of sines' terms (at most MAX_TERMS), each within [low, high]."""
-    return param(all_of(_TERMS, in_range(low, high)), f"{doc}, at most {MAX_TERMS} terms", parallel=True)
+def _terms(low: float, high: float, doc: str, **kw):
+    """A list of a sum of sines' terms (at most MAX_TERMS), each within [low, high]; ``kw`` go to `param`."""
+    return param(all_of(_TERMS, in_range(low, high)), f"{doc}, at most {MAX_TERMS} terms", parallel=True, **kw)
 
 
-def _phases():
-    return _terms(-2 * math.pi, 2 * math.pi, "phi, rad, each within [-2 pi, 2 pi]")
+def _phases(note: str = "", **kw):
+    return _terms(-2 * math.pi, 2 * math.pi, f"phi, rad, each within [-2 pi, 2 pi]{note}", **kw)
 
 
-def _per_phase(low: float, high: float, doc: str, *, low_open: bool = False):
-    return param(all_of(_THREE, in_range(low, high, low_open=low_open)), f"{doc}, three values")
+def _per_phase(low: float, high: float, doc: str, *, low_open: bool = False, **kw):
+    return param(all_of(_THREE, in_range(low, high, low_open=low_open)), f"{doc}, three values", **kw)
 
 
 @dataclass(frozen=True)
@@ -63,16 +63,22 @@ class BackEmf:
     """Per-phase torque constant K_p(theta_e), N m / A.
 
     ``K_p = (1 + asymmetry_p) sum_n k_n sin(n (theta_e - 2 pi p / 3) + phi_n)``
-    with theta_e = pole_pairs * theta the electrical angle.
+    with theta_e = pole_pairs * theta the electrical angle. A plain sinusoid needs only the harmonics and
+    amplitudes: phases left out (None) become zeros, one per harmonic, and the asymmetry is zero by default.
     """
 
     harmonics: tuple[int, ...] = param(all_of(length_in(1, MAX_TERMS), in_range(1, 4096)),
                                        f"harmonic orders n of the electrical angle, 1..4096, "
                                        f"1 to {MAX_TERMS} terms", parallel=True)
     amplitudes_nm_per_a: tuple[float, ...] = _terms(-100.0, 100.0, "k_n, N m / A, each within [-100, 100]")
-    phases_rad: tuple[float, ...] = _phases()
+    phases_rad: tuple[float, ...] = _phases(" (zeros if left out)", default=None)
     asymmetry: tuple[float, ...] = _per_phase(-1.0, 1.0, "relative amplitude deviation per phase, within "
-                                              "(-1, 1] (a phase's constant keeps its sign)", low_open=True)
+                                              "(-1, 1] (a phase's constant keeps its sign)", low_open=True,
+                                              default=(0.0, 0.0, 0.0))
+
+    def __post_init__(self) -> None:
+        if self.phases_rad is None:
+            object.__setattr__(self, "phases_rad", (0.0,) * len(self.harmonics))
 
 
 @dataclass(frozen=True)

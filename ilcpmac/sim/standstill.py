@@ -24,6 +24,9 @@ a torque sensor that holds DC (a strain-gauge or reaction transducer; a piezo
 cannot measure a scan's quasi-static torque, so [simulator.torque_sensor]
 highpass_hz and drift_nm_per_s are not used): the log holds delta h plus a
 constant zero offset (drawn within dc_level_nm) and noise_nm per sample.
+
+A log may lack counts (``ScanPlan.skipped_forward``, ``skipped_reverse``): every sample nearest to such a
+count, moving that way, is left out, as a drive that logs too slowly for its ramp would.
 """
 
 from __future__ import annotations
@@ -65,6 +68,8 @@ class ScanPlan:
         "currents" or "torque".
     reverse : bool
     seed : int
+    skipped_forward, skipped_reverse : tuple of int
+        Counts of a revolution, 0..counts_per_rev - 1, whose samples the log lacks in that direction.
     """
 
     revolutions: int = 1
@@ -75,6 +80,8 @@ class ScanPlan:
     holding: str = "currents"
     reverse: bool = True
     seed: int = 0
+    skipped_forward: tuple[int, ...] = ()
+    skipped_reverse: tuple[int, ...] = ()
 
     def problem(self, counts_per_rev: int) -> str | None:
         """The first value out of its range, as "name: why", or None."""
@@ -84,6 +91,9 @@ class ScanPlan:
         for name, check in checks:
             if not check(getattr(self, name)):
                 return f"{name}: invalid value {shown(getattr(self, name))}"
+        for name in ("skipped_forward", "skipped_reverse"):
+            if not in_range(0, counts_per_rev - 1)(getattr(self, name)):
+                return f"{name}: counts 0..{counts_per_rev - 1}, got {shown(getattr(self, name))}"
         if self.holding not in ("currents", "torque"):
             return f'holding: "currents" or "torque", got {shown(self.holding)}'
         rows = self.revolutions * counts_per_rev * self.samples_per_count * (2 if self.reverse else 1) - self.reverse
@@ -132,6 +142,9 @@ def scan_log(simulator: Simulator, plan: ScanPlan) -> tuple[dict[str, np.ndarray
             position.size)
     else:
         columns.update(_holding_currents(simulator, position, holding, rng))
+    nearest = np.round(position).astype(np.int64) % cpr
+    logged = ~np.where(direction > 0, np.isin(nearest, plan.skipped_forward), np.isin(nearest, plan.skipped_reverse))
+    columns = {name: values[logged] for name, values in columns.items()}
     count = np.arange(cpr)
     truth = {"cogging": {"count": count.tolist(), "torque": simulator.cogging_counts().tolist()},
              "position_torque": {"count": count.tolist(),
