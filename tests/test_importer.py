@@ -505,3 +505,38 @@ def test_a_log_without_torque_too_coarse_for_the_encoder_torque_refused(tmp_path
     with pytest.raises(BenchFormatError, match=r"log.csv: the crossing times resolve 0.00197 s only, coarser than "
                                                r"0.001 s: too coarse for the torque of the encoder's time stamps"):
         import_log(log, mapping)
+
+
+def rippled_q_log(path: Path, phases: bool) -> Path:
+    """One revolution at 0.5 Hz logged at 2 kHz with i_q = 1 A + 3 A cos(48 theta) (the speed loop's answer to
+    the cogging of 48 slots and 8 pole pairs, larger than the mean), the torque beside it: as i_q (Q_LOG's
+    layout) or as the phase currents of the inverse Park transform at pole_pairs 8 (PHASE_LOG's)."""
+    t = np.arange(-2, 2 * 2_000 + 3) / 2_000.0
+    theta = np.pi * t
+    i_q = 1.0 + 3.0 * np.cos(48 * theta)
+    torque = 0.3 * i_q + 0.01 * np.sin(7 * theta)
+    if phases:
+        currents = [i_q * np.sin(8 * theta - 2 * np.pi * p / 3) for p in range(3)]
+        np.savetxt(path, np.column_stack([t, theta, *currents, torque]), delimiter=",", header="t,theta,ia,ib,ic,tq",
+                   comments="", fmt="%.12g")
+        return path
+    position = np.mod(theta / (2 * np.pi) * LOG_COUNTS_PER_REV, LOG_COUNTS_PER_REV)
+    np.savetxt(path, np.column_stack([1e3 * t, position, 100 * i_q, torque]), delimiter=";",
+               header="drive log\nrate 2 kHz\nt_ms;pos;iq;tq", comments="", fmt="%.12g")
+    return path
+
+
+def test_the_electrical_period_is_checked_on_logged_phase_currents_only(tmp_path, sine_native):
+    backemf = sine_native[1]
+    imported = import_log(rippled_q_log(tmp_path / "q.csv", phases=False),
+                          read_mapping(write_folder(tmp_path / "q", backemf, Q_LOG)))
+    spectrum = np.abs(np.fft.rfft(imported.trial.i_ref_a[:COUNTS_PER_REV], axis=0)).sum(axis=1)
+    assert np.argmax(spectrum[1:]) + 1 in (40, 56)  # the derived currents' largest harmonic is not the electrical
+    np.testing.assert_allclose(imported.trial.i_ref_a[:, 0], (1.0 + 3.0 * np.cos(48 * 2 * np.pi * imported.trial.count
+                               / COUNTS_PER_REV)) * np.sin(8 * 2 * np.pi * imported.trial.count / COUNTS_PER_REV),
+                               atol=imported.error.current_a)
+    log = rippled_q_log(tmp_path / "phases.csv", phases=True)
+    with pytest.raises(BenchFormatError, match=r"repeat (40|56) times per revolution of 1024 counts, but \[motor\] "
+                       r"pole_pairs = 8") as e:
+        import_log(log, read_mapping(write_folder(tmp_path / "phases", backemf, PHASE_LOG)))
+    assert "\n" not in str(e.value) and str(e.value).startswith(str(log))

@@ -432,15 +432,16 @@ def _range(values: np.ndarray) -> tuple[float, float]:
     return (values.min(), values.max()) if values.size else (np.nan, np.nan)
 
 
-def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
+def check_trial(trial: TrialData, motor: MotorInfo, where: str, electrical_period: bool = True) -> None:
     """A trial must carry data and fit the declared motor: its speed and its electrical period.
 
     Every value must be finite; no current reference may be zero throughout,
     nor the torque (which it has exactly when ``motor.torque_sensor``). The
     counts and time stamps give the mean speed at ``counts_per_rev``; it must lie within a factor SPEED_TOLERANCE of the
-    speed set point (a wrong counts_per_rev or time unit does not). Over a
+    speed set point (a wrong counts_per_rev or time unit does not). With ``electrical_period``, over a
     revolution or more, the current references' largest harmonic must be the
-    electrical one, ``pole_pairs`` per revolution.
+    electrical one, ``pole_pairs`` per revolution (False for references derived from i_q at ``pole_pairs``:
+    i_q's own ripple then decides their largest harmonic, and the period is the one the derivation put in).
 
     Raises
     ------
@@ -480,7 +481,7 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
         raise BenchFormatError(
             f"{where}: counts and time stamps give {speed_hz:.4g} revolutions per second at [motor] counts_per_rev "
             f"= {cpr}, but speed_setpoint = {trial.speed_setpoint_hz:g} Hz (wrong counts_per_rev or time unit?)")
-    if span + 1 < cpr:
+    if span + 1 < cpr or not electrical_period:
         return
     position = trial.count % cpr
     hits = np.maximum(np.bincount(position, minlength=cpr), 1)

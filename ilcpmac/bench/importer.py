@@ -15,7 +15,9 @@ bench of the motor's mirror image beside the forward one (`reverse_folder`,
 [motor] mirrored = true; docs/bench-format.md, "Reverse laps").
 A mapping with ``[log] kind = "scan"`` marks its logs as a standstill
 position scan (`ilcpmac.bench.standstill`): their rows are kept as they are,
-in standard units, with the direction of motion, and written as a scan folder.
+in standard units, with the direction of motion, and written as a scan folder;
+with ``[log] kind = "moteus-cogging"``, moteus cogging files
+(`ilcpmac.bench.moteus`) make a scan folder.
 Every problem raises `ConfigError` (the mapping, naming its key) or
 `BenchFormatError` (a log, naming its line and column), one line each.
 """
@@ -45,6 +47,7 @@ from ilcpmac.bench.format import (
     write_bench,
 )
 from ilcpmac.bench.logs import LogLayout, current_columns, named_columns, read_log
+from ilcpmac.bench.moteus import MOTEUS_COGGING, MoteusLog, MoteusMapping, cogging_scan
 from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan, write_scan
 from ilcpmac.config import BenchSettings, model_key
 from ilcpmac.core.errors import BenchFormatError, ConfigError
@@ -194,8 +197,9 @@ class ImportedBench:
     laps: tuple[ImportedLog, ...]
 
 
-def read_mapping(path: str | Path) -> ImportMapping:
-    """Read and check a mapping file; each problem raises `ConfigError` naming the file and key."""
+def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
+    """Read and check a mapping file, of logs or (``[log] kind = "moteus-cogging"``) of moteus cogging files;
+    each problem raises `ConfigError` naming the file and key."""
     path = Path(path)
     data = read_toml(path)
     known = ("bench", "log", "points", "scan")
@@ -208,6 +212,9 @@ def read_mapping(path: str | Path) -> ImportMapping:
     bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
     if bench.inertia_kgm2 is None:
         raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
+    if isinstance(data["log"], dict) and data["log"].get("kind") == MOTEUS_COGGING:
+        return _moteus_mapping(data, bench, MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev,
+                                                      bench.inertia_kgm2, torque_sensor=True), path)
     layout = parse_section(data["log"], LogLayout, str(path), "log")
     motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2,
                       torque_sensor=layout.kind == "scan" or layout.torque is not None)
@@ -226,6 +233,17 @@ def read_mapping(path: str | Path) -> ImportMapping:
     errors = SensorErrors.parse(data.get("scan", {}), str(path), "scan")
     return ImportMapping(path, motor, _backemf(bench, motor, path), None if bench.calibration is None
                          else bench.calibration.calibration(), layout, by_file, errors)
+
+
+def _moteus_mapping(data: dict, bench: BenchSettings, motor: MotorInfo, path: Path) -> MoteusMapping:
+    """A mapping for moteus cogging files: [log] holds the kind alone, no [[points]]; ``motor`` has a torque
+    sensor (the scan holds a torque)."""
+    parse_section(data["log"], MoteusLog, str(path), "log")
+    if "points" in data:
+        raise ConfigError(f"{path}: [[points]]: only for run logs (a moteus cogging file has no operating point)")
+    return MoteusMapping(path, motor, _backemf(bench, motor, path), None if bench.calibration is None
+                         else bench.calibration.calibration(), SensorErrors.parse(data.get("scan", {}), str(path),
+                                                                                  "scan"))
 
 
 def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
@@ -443,7 +461,7 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
     trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents),
                       values_at[:, -1].copy() if torque_names else None,
                       i_meas_a=currents.copy() if layout.current == "measured" else None)
-    _check_as_written(trial, motor, where)
+    _check_as_written(trial, motor, where, electrical_period=layout.i_q is None)
     error = InterpolationError(float(time_error.max()), float(current_error.max()),
                                float(value_error[:, -1].max()) if torque_names else None)
     highest_hz = layout.highest_harmonic * trial.mean_speed_hz(cpr)
@@ -452,11 +470,12 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
                        reverse, lines)
 
 
-def _check_as_written(trial: TrialData, motor: MotorInfo, where: str) -> None:
+def _check_as_written(trial: TrialData, motor: MotorInfo, where: str, electrical_period: bool) -> None:
     """``trial`` as its file will hold it (`as_written`: stamps to 0.1 us, currents and torque to 1e-6) must pass
-    `check_trial` and keep its stamps increasing, as `read_bench` requires."""
+    `check_trial` and keep its stamps increasing, as `read_bench` requires; its electrical period is checked on
+    logged phase currents only (``electrical_period``), not on those the inverse Park transform made from i_q."""
     written = as_written(trial)
-    check_trial(written, motor, f"{where} (as a trial file holds it)")
+    check_trial(written, motor, f"{where} (as a trial file holds it)", electrical_period)
     same = np.flatnonzero(np.diff(written.time_s) <= 0)
     if same.size:
         raise BenchFormatError(f"{where}: counts {trial.count[same[0]]} and {trial.count[same[0] + 1]} are crossed "
@@ -551,14 +570,19 @@ def import_scan(log: Path, mapping: ImportMapping) -> ScanData:
     return scan
 
 
-def write_scan_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> ScanData:
-    """Import every scan log (`import_scan`) and write them, one after the other, as the scan folder ``out``.
+def write_scan_folder(logs: list[Path], mapping: ImportMapping | MoteusMapping, out: Path) -> ScanData:
+    """Import every scan log (`import_scan`) or moteus cogging file (`cogging_scan`) and write them, one after
+    the other, as the scan folder ``out``.
 
     Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
     """
     _check_new(out)
-    _check_logs(logs, mapping)
-    scans = [import_scan(log, mapping) for log in logs]
+    _check_distinct(logs)
+    if isinstance(mapping, MoteusMapping):
+        scans = [cogging_scan(log, mapping) for log in logs]
+    else:
+        _check_points(logs, mapping)
+        scans = [import_scan(log, mapping) for log in logs]
     currents = [s.currents_a for s in scans if s.currents_a is not None]
     torques = [s.torque_nm for s in scans if s.torque_nm is not None]
     joined = ScanData(np.concatenate([s.time_s for s in scans]), np.concatenate([s.position_counts for s in scans]),
@@ -575,14 +599,18 @@ def _check_new(folder: Path) -> None:
         raise BenchFormatError(f"{folder}: holds a {BENCH_FILE} already (refused: choose a new folder)")
 
 
-def _check_logs(logs: list[Path], mapping: ImportMapping) -> None:
-    """Each log given once (a bench folder holds each trial once), and every [[points]] file among the logs."""
+def _check_distinct(logs: list[Path]) -> None:
+    """Each log given once (a bench folder holds each trial once)."""
     seen: dict[object, Path] = {}
     for log in logs:
         identity = _file_identity(log)
         if identity in seen:
             raise BenchFormatError(f"{log}: given twice (as {seen[identity]} before): each log is imported once")
         seen[identity] = log
+
+
+def _check_points(logs: list[Path], mapping: ImportMapping) -> None:
+    """Every [[points]] file among the logs, once."""
     names = [log.name for log in logs]
     for name in mapping.points:
         if names.count(name) != 1:
@@ -629,7 +657,8 @@ def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str
 
     Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
     """
-    _check_logs(logs, mapping)
+    _check_distinct(logs)
+    _check_points(logs, mapping)
     if mapping.layout.kind == "scan":
         raise BenchFormatError(f'{mapping.path}: [log] kind = "scan": a scan makes a scan folder (write_scan_folder)')
     imported = [lap for log in logs for lap in import_laps(log, mapping)]

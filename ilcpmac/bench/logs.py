@@ -81,7 +81,8 @@ class LogLayout:
     highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
                                    "(two rows per period or more)", 150)
     kind: str = setting(_one_of("run", "scan"), '"run" (turning laps, resampled onto counts) or "scan" (a standstill '
-                       "position scan, forward and back)", "run")
+                       'position scan, forward and back); "moteus-cogging" for moteus cogging files, with no other '
+                       "key", "run")
     direction: str | None = setting(None, "column of the direction of motion of a scan (> 0 forward, < 0 reverse); "
                                    "without it, the sign of the position's last change", None)
 

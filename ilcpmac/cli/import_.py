@@ -24,19 +24,26 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
     encoder counts, one trial per lap; prints each trial written with its set point and the estimated
     interpolation error (docs/bench-format.md). Reverse laps are mirrored into a second bench folder,
     OUT_DIR-reverse ([motor] mirrored = true). Logs without a torque column make a bench without a torque
-    sensor. Logs of a standstill scan ([log] kind = "scan") become one scan folder (docs/standstill.md).
+    sensor. Logs of a standstill scan ([log] kind = "scan"), or moteus cogging files ([log] kind =
+    "moteus-cogging"), become one scan folder (docs/standstill.md).
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.markup import escape
 
     from ilcpmac.bench.importer import import_logs, read_mapping, write_scan_folder
+    from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
 
     mapping = read_mapping(mapping_file)
-    if mapping.layout.kind == "scan":
+    if isinstance(mapping, MoteusMapping) or mapping.layout.kind == "scan":
         scan = write_scan_folder(list(logs), mapping, out_dir)
         forward = int((scan.direction > 0).sum())
-        console.print(f"{len(logs)} scan logs -> scan.csv: {forward} forward and {scan.direction.size - forward} "
-                      f"reverse samples, holding {'torque' if scan.torque_nm is not None else 'currents'}")
+        moteus = isinstance(mapping, MoteusMapping)
+        console.print(f"{len(logs)} {'moteus cogging files' if moteus else 'scan logs'} -> scan.csv: {forward} "
+                      f"forward and {scan.direction.size - forward} reverse samples, holding "
+                      f"{'torque' if scan.torque_nm is not None else 'currents'}")
+        if isinstance(mapping, MoteusMapping):
+            k_q = q_torque_constant(mapping.backemf_nm_per_a, mapping.motor.pole_pairs)
+            console.print(f"holding torque = k_q i_q, k_q = {k_q:.4g} N m / A (3/2 of the back-EMF's fundamental)")
         console.print(f"wrote scan.csv, scan.toml, backemf.csv and bench.toml to {out_dir}")
         return
     harmonic = mapping.layout.highest_harmonic
