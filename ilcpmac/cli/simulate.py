@@ -1,42 +1,82 @@
-"""``ilcpmac simulate``: the multisine set-point grid on the simulator, as a bench folder."""
+"""``ilcpmac simulate``: the multisine set-point grid on the simulator as a bench folder, or a simulated drive
+log (a standstill scan, a rolling log) with its import mapping."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from ilcpmac.cli import console, main, progress_bar
+from ilcpmac.core.errors import IlcpmacError
+
+if TYPE_CHECKING:
+    from ilcpmac.config import CampaignConfig
+
+#: the options of one kind only, by kind (--seed serves every kind)
+_KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revolutions", "rate_hz"),
+                 "log": ("rate_hz", "speed_hz", "duration_s", "loop", "current_column", "jitter_s", "load_nm")}
 
 
 @main.command()
 @click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Bench folder to write.")
+              help="Folder to write.")
+@click.option("--kind", type=click.Choice(["grid", "scan", "log"]), default="grid", show_default=True,
+              help="grid: the multisine set-point grid as a bench folder; scan: a standstill scan log; log: a "
+                   "rolling drive log (both with mapping.toml for ilcpmac import).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override [trials] seed.")
 @click.option("--revolutions", type=click.IntRange(min=1), default=None,
-              help="Override [trials] revolutions (recorded, after the warm-up).")
+              help="grid: override [trials] revolutions (recorded, after the warm-up); scan: revolutions each "
+                   "way (default 1).")
 @click.option("--no-torque-sensor", "no_torque_sensor", is_flag=True,
-              help="A bench without a torque sensor: no torque column, [motor] torque_sensor = false.")
-def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | None, no_torque_sensor: bool) -> None:
-    """Simulate CONFIG's multisine set-point grid into a bench folder.
+              help="grid: a bench without a torque sensor: no torque column, [motor] torque_sensor = false.")
+@click.option("--rate-hz", type=float, default=None, help="scan, log: rows per second (default 1000).")
+@click.option("--speed-hz", type=float, default=None, help="log: mechanical speed reference, Hz (default 0.5).")
+@click.option("--duration-s", type=float, default=None, help="log: duration, s (default 10).")
+@click.option("--loop", type=click.Choice(["speed", "position", "current"]), default=None,
+              help="log: the loop the drive closes (default speed).")
+@click.option("--current-column", type=click.Choice(["q", "phases"]), default=None,
+              help="log: i_q, or the phase currents i_a, i_b, i_c (default q).")
+@click.option("--jitter-s", type=float, default=None,
+              help="log: each row's instant drawn within +-JITTER_S of its slot (default 0).")
+@click.option("--load-nm", type=float, default=None,
+              help="log: constant load torque against the motion, N m (default 0.2).")
+def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutions: int | None,
+             no_torque_sensor: bool, **log_options) -> None:
+    """Simulate CONFIG's drive into a folder (docs/simulator.md, "ilcpmac simulate").
 
-    The folder also gets truth.json: the simulator's true values under the result keys (the encoder's
-    line errors included).
+    grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under
+    the result keys (the encoder's line errors included). scan, log: the log, mapping.toml (ilcpmac import
+    LOG --map mapping.toml --out BENCH takes it as it is), backemf.csv and truth.json.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     import dataclasses
 
-    from ilcpmac.campaign import simulate_bench
     from ilcpmac.config import check_config, load_config
 
+    given = {"revolutions": revolutions, "no_torque_sensor": no_torque_sensor or None, **log_options}
+    for name, value in given.items():
+        if value is not None and name not in _KIND_OPTIONS[kind]:
+            raise IlcpmacError(f"--{name.replace('_', '-')}: not for --kind {kind}")
     cfg = load_config(config)
-    if seed is not None or revolutions is not None:
-        grid = cfg.grid
-        cfg = dataclasses.replace(cfg, grid=dataclasses.replace(
-            grid, seed=grid.seed if seed is None else seed,
-            revolutions=grid.revolutions if revolutions is None else revolutions))
-        check_config(cfg)
+    if kind == "grid":
+        if seed is not None or revolutions is not None:
+            grid = cfg.grid
+            cfg = dataclasses.replace(cfg, grid=dataclasses.replace(
+                grid, seed=grid.seed if seed is None else seed,
+                revolutions=grid.revolutions if revolutions is None else revolutions))
+            check_config(cfg)
+        _simulate_grid(cfg, out_dir, no_torque_sensor)
+        return
+    _simulate_log(cfg, out_dir, kind, cfg.grid.seed if seed is None else seed, revolutions, log_options)
+
+
+def _simulate_grid(cfg: CampaignConfig, out_dir: Path, no_torque_sensor: bool) -> None:
+    """The set-point grid as a bench folder with truth.json."""
+    from ilcpmac.campaign import simulate_bench
+
     out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the trials run
     n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
     with progress_bar() as progress:
@@ -45,3 +85,40 @@ def simulate(config: Path, out_dir: Path, seed: int | None, revolutions: int | N
                                torque_sensor=not no_torque_sensor)
     samples = sum(t.n_samples for t in bench.trials)
     console.print(f"wrote {len(bench.trials)} trials ({samples} samples) and truth.json to {out_dir}")
+
+
+def _simulate_log(cfg: CampaignConfig, out_dir: Path, kind: str, seed: int, revolutions: int | None,
+                  options: dict[str, Any]) -> None:
+    """A standstill scan or a rolling log, with its mapping, backemf.csv and truth.json."""
+    from ilcpmac.sim.drive_log import LogPlan
+    from ilcpmac.sim.log_folders import DRIVE_LOG, MAPPING, SCAN_LOG, write_simulated_log, write_simulated_scan
+    from ilcpmac.sim.simulator import Simulator
+
+    simulator = Simulator(cfg.simulated_model())
+    chosen: dict[str, Any] = {name: value for name, value in options.items() if value is not None}
+    if kind == "scan":
+        from ilcpmac.sim.standstill import ScanPlan
+
+        if revolutions is not None:
+            chosen["revolutions"] = revolutions
+        plan = ScanPlan(seed=seed, **chosen)
+        _check(plan.problem(simulator.model.encoder.counts_per_rev))
+        out_dir.mkdir(parents=True, exist_ok=True)
+        write_simulated_scan(out_dir, simulator, plan)
+        console.print(f"wrote {SCAN_LOG} (a standstill scan, {plan.revolutions} revolution(s) each way), {MAPPING}, "
+                      f"backemf.csv and truth.json to {out_dir}")
+        return
+    log_plan = LogPlan(seed=seed, **chosen)
+    _check(log_plan.problem(simulator))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    truth = write_simulated_log(out_dir, simulator, log_plan)
+    console.print(f"wrote {DRIVE_LOG} ({log_plan.loop} loop, {log_plan.duration_s:g} s at {log_plan.rate_hz:g} Hz, "
+                  f"K_t = {truth['torque_constant_nm_per_a']:.4g} N m / A), {MAPPING}, backemf.csv and truth.json "
+                  f"to {out_dir}")
+
+
+def _check(problem: str | None) -> None:
+    """A plan's problem ("name: why") as the option's error, before anything is written."""
+    if problem is not None:
+        name, _, why = problem.partition(": ")
+        raise IlcpmacError(f"--{name.replace('_', '-')}: {why}")

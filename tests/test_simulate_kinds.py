@@ -1,0 +1,133 @@
+"""``ilcpmac simulate --kind grid|scan|log``: the grid unchanged; a scan that imports and identifies the cogging
+within its stated uncertainty; a rolling log that imports and whose truth its motion obeys."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner, Result
+from conftest import COUNTS_PER_REV
+
+import ilcpmac.cli.identify  # noqa: F401  (registers the commands on main)
+import ilcpmac.cli.import_  # noqa: F401
+import ilcpmac.cli.simulate  # noqa: F401
+from ilcpmac.campaign import simulate_bench
+from ilcpmac.cli import main
+from ilcpmac.config import load_config
+
+#: two trials of two revolutions at 1024 counts per revolution (tests/test_cli_simulate.py's)
+SMALL = {"bench": {"counts_per_rev": COUNTS_PER_REV},
+         "trials": {"torque_setpoints_nm": [2.0], "speed_setpoints_hz": [0.5, 1.0], "revolutions": 2}}
+
+
+def run(*args: str) -> Result:
+    return CliRunner().invoke(main, list(args))
+
+
+def rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def test_grid_is_the_library_grid(write_config, tmp_path):
+    config = write_config(SMALL)
+    result = run("simulate", str(config), "--out", str(tmp_path / "cli"), "--kind", "grid")
+    assert result.exit_code == 0, result.output
+    simulate_bench(load_config(config), tmp_path / "library")
+    names = sorted(p.name for p in (tmp_path / "library").iterdir())
+    assert sorted(p.name for p in (tmp_path / "cli").iterdir()) == names
+    for name in names:
+        assert (tmp_path / "cli" / name).read_bytes() == (tmp_path / "library" / name).read_bytes(), name
+
+
+def test_scan_imports_and_identifies_the_cogging_within_its_uncertainty(write_config, tmp_path):
+    """tests/test_standstill.py's bounds, on the folder the command writes and the mapping as it is."""
+    out = tmp_path / "sim"
+    result = run("simulate", str(write_config(SMALL)), "--out", str(out), "--kind", "scan", "--seed", "5")
+    assert result.exit_code == 0, result.output
+    assert {p.name for p in out.iterdir()} == {"scan_log.csv", "mapping.toml", "backemf.csv", "truth.json"}
+    folder = tmp_path / "scan"
+    result = run("import", str(out / "scan_log.csv"), "--map", str(out / "mapping.toml"), "--out", str(folder))
+    assert result.exit_code == 0, result.output
+    shutil.copy(out / "truth.json", folder / "truth.json")
+    result = run("identify", str(folder), "--output", str(tmp_path / "scan.json"))
+    assert result.exit_code == 0, result.output
+    truth = json.loads((out / "truth.json").read_text())
+    data = json.loads((tmp_path / "scan.json").read_text())
+    true = np.asarray(truth["cogging"]["torque"])
+    cogging, std = np.asarray(data["cogging"]["torque"]), np.asarray(data["cogging"]["std"])
+    assert rms(cogging - true) < 0.02 * rms(true)
+    z = (cogging - true) / std
+    assert rms(z) < 1.5 and np.abs(z).max() < 4.5
+    harmonics = data["cogging_harmonics"]
+    c = np.fft.rfft(true) / COUNTS_PER_REV * 2
+    orders = np.asarray(harmonics["orders"])
+    for key, value in (("cos", c.real[orders]), ("sin", -c.imag[orders])):
+        assert np.all(np.abs(np.asarray(harmonics[f"{key}_nm"]) - value) < 3 * np.asarray(harmonics[f"{key}_std_nm"]))
+
+
+@pytest.fixture(scope="module")
+def rolling_log(tmp_path_factory):
+    """The seed bench's speed-loop log (4096 counts, 0.5 Hz, 1 kHz, 10 s), imported."""
+    from conftest import SEED_CONFIG
+
+    tmp = tmp_path_factory.mktemp("log")
+    result = run("simulate", str(SEED_CONFIG), "--out", str(tmp / "sim"), "--kind", "log")
+    assert result.exit_code == 0, result.output
+    imported = run("import", str(tmp / "sim" / "drive_log.csv"), "--map", str(tmp / "sim" / "mapping.toml"), "--out",
+                   str(tmp / "bench"))
+    data = np.genfromtxt(tmp / "sim" / "drive_log.csv", delimiter=",", names=True)
+    return data, json.loads((tmp / "sim" / "truth.json").read_text()), imported
+
+
+def test_log_imports_as_it_is(rolling_log):
+    _, _, imported = rolling_log
+    assert imported.exit_code == 0, imported.output
+    assert "no torque column" in imported.output
+
+
+def test_log_obeys_its_truths_equation_of_motion(rolling_log):
+    """The position's second difference against J domega/dt = k_q i_q + tau_pos - (F + L) from the truth, at
+    the cogging order (order 96 is the encoder's quantisation aliased, 2048 Hz onto 48 Hz): within 5 %, and a
+    20 % wrong inertia is seen."""
+    data, truth, _ = rolling_log
+    t, theta, i_q = data["time"], data["position"], data["i_q"]
+    cpr = len(truth["cogging"]["count"])
+    grid = 2 * np.pi * np.arange(cpr + 1) / cpr
+
+    def table(values):  # a per-count table at the mid-count (the position is the count's floor)
+        return np.interp((theta + np.pi / cpr) % (2 * np.pi), grid, np.append(values, values[0]))
+
+    torque = (table(truth["torque_per_ampere"]["nm_per_a"]) * i_q + table(truth["position_torque"]["torque"])
+              - truth["coulomb_friction_nm"] - truth["load_nm"])
+    period = t[1] - t[0]
+    acceleration = (theta[2:] - 2 * theta[1:-1] + theta[:-2]) / period**2
+    speed = (theta[-1] - theta[0]) / (t[-1] - t[0])
+    weights = np.hanning(acceleration.size) * np.exp(-48j * speed * t[1:-1])
+    predicted, measured = np.sum(weights * torque[1:-1]), np.sum(weights * acceleration)
+    inertia = truth["inertia_kgm2"]
+    assert abs(measured - predicted / inertia) < 0.05 * abs(predicted / inertia)
+    assert abs(measured - predicted / (1.2 * inertia)) > 0.1 * abs(predicted / inertia)
+
+
+def test_speed_loop_ripple_at_the_cogging_order_exceeds_the_mean(rolling_log):
+    data, truth, _ = rolling_log
+    i_q = data["i_q"]
+    ripple = 2 * abs(np.mean(i_q * np.exp(-48j * data["position"])))
+    assert ripple > 2 * i_q.mean()
+    assert i_q.mean() == pytest.approx(truth["load_nm"] / truth["torque_constant_nm_per_a"], rel=0.2)
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--kind", "scan", "--speed-hz", "1"], "--speed-hz: not for --kind scan"),
+    (["--kind", "grid", "--rate-hz", "100"], "--rate-hz: not for --kind grid"),
+    (["--kind", "log", "--rate-hz", "20000"], "--rate-hz: invalid value 20000.0"),
+    (["--kind", "log", "--jitter-s", "0.01"], "--jitter-s: invalid value 0.01"),
+])
+def test_bad_options_exit_2_with_one_line_before_writing(write_config, tmp_path, options, message):
+    result = run("simulate", str(write_config(SMALL)), "--out", str(tmp_path / "out"), *options)
+    assert result.exit_code == 2
+    assert result.stderr.strip() == f"error: {message}"
+    assert not (tmp_path / "out").exists()
