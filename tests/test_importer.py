@@ -528,8 +528,16 @@ def rippled_q_log(path: Path, phases: bool) -> Path:
 
 def test_the_electrical_period_is_checked_on_logged_phase_currents_only(tmp_path, sine_native):
     backemf = sine_native[1]
-    imported = import_log(rippled_q_log(tmp_path / "q.csv", phases=False),
-                          read_mapping(write_folder(tmp_path / "q", backemf, Q_LOG)))
+    q_log, q_mapping = rippled_q_log(tmp_path / "q.csv", phases=False), read_mapping(write_folder(tmp_path / "q",
+                                                                                                   backemf, Q_LOG))
+    imported = import_log(q_log, q_mapping)
+    (written,) = import_logs([q_log], q_mapping, tmp_path / "bench")  # bench.toml records the derivation ...
+    toml = (written.folder / "bench.toml").read_text()
+    assert 'currents = "from_i_q"' in toml
+    assert read_bench(written.folder).motor.currents == "from_i_q"  # ... so the reader skips the check too
+    (written.folder / "bench.toml").write_text(toml.replace('currents = "from_i_q"', 'currents = "phases"'))
+    with pytest.raises(BenchFormatError, match=r"repeat (40|56) times per revolution"):
+        read_bench(written.folder)
     spectrum = np.abs(np.fft.rfft(imported.trial.i_ref_a[:COUNTS_PER_REV], axis=0)).sum(axis=1)
     assert np.argmax(spectrum[1:]) + 1 in (40, 56)  # the derived currents' largest harmonic is not the electrical
     np.testing.assert_allclose(imported.trial.i_ref_a[:, 0], (1.0 + 3.0 * np.cos(48 * 2 * np.pi * imported.trial.count

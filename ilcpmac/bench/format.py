@@ -24,6 +24,8 @@ from ilcpmac.config import BACKEMF_TOLERANCE, CampaignConfig
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import (
+    CURRENTS_FROM_I_Q,
+    CURRENTS_FROM_PHASES,
     MAX_CALIBRATION,
     MAX_CURRENT_A,
     MAX_SPEED_HZ,
@@ -115,17 +117,26 @@ class MotorTable:
     timer_resolution_s: float | None = field_like(Encoder, "timer_resolution_s", default=None)
     mirrored: bool = setting(None, "reverse laps, stored as forward laps of the motor's mirror image", False,
                              commented=True)
+    currents: str = setting(lambda x: x in (CURRENTS_FROM_PHASES, CURRENTS_FROM_I_Q),
+                            f'"{CURRENTS_FROM_PHASES}" (logged per phase) or "{CURRENTS_FROM_I_Q}" (made from a q-axis '
+                            "current: no electrical-period check)", CURRENTS_FROM_PHASES, commented=True)
+    inertia_uncertainty: float | None = setting(in_range(0.0, 1.0), "relative standard uncertainty of inertia, "
+                                                "within [0, 1]", None, commented=True)
+    log_rate_hz: float | None = setting(in_range(0.0, 1e9, low_open=True), "row rate of the drive logs the trials "
+                                        "were resampled from, Hz (written by ilcpmac import)", None, commented=True)
 
     @classmethod
     def of(cls, motor: MotorInfo, backemf_file: str) -> MotorTable:
         """The table of ``motor`` and its back-EMF table's file."""
         return cls(motor.pole_pairs, motor.slots, motor.counts_per_rev, motor.inertia_kgm2, backemf_file,
-                   motor.torque_sensor, motor.timer_resolution_s, motor.mirrored)
+                   motor.torque_sensor, motor.timer_resolution_s, motor.mirrored, motor.currents,
+                   motor.inertia_uncertainty, motor.log_rate_hz)
 
     def info(self) -> MotorInfo:
         """The motor this table describes."""
         return MotorInfo(self.pole_pairs, self.slots, self.counts_per_rev, self.inertia, self.torque_sensor,
-                         self.timer_resolution_s, self.mirrored)
+                         self.timer_resolution_s, self.mirrored, self.currents, self.inertia_uncertainty,
+                         self.log_rate_hz)
 
 
 @dataclass(frozen=True)
@@ -432,16 +443,17 @@ def _range(values: np.ndarray) -> tuple[float, float]:
     return (values.min(), values.max()) if values.size else (np.nan, np.nan)
 
 
-def check_trial(trial: TrialData, motor: MotorInfo, where: str, electrical_period: bool = True) -> None:
+def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
     """A trial must carry data and fit the declared motor: its speed and its electrical period.
 
     Every value must be finite; no current reference may be zero throughout,
     nor the torque (which it has exactly when ``motor.torque_sensor``). The
     counts and time stamps give the mean speed at ``counts_per_rev``; it must lie within a factor SPEED_TOLERANCE of the
-    speed set point (a wrong counts_per_rev or time unit does not). With ``electrical_period``, over a
+    speed set point (a wrong counts_per_rev or time unit does not). Over a
     revolution or more, the current references' largest harmonic must be the
-    electrical one, ``pole_pairs`` per revolution (False for references derived from i_q at ``pole_pairs``:
-    i_q's own ripple then decides their largest harmonic, and the period is the one the derivation put in).
+    electrical one, ``pole_pairs`` per revolution; not for references made from i_q (``motor.currents`` =
+    `CURRENTS_FROM_I_Q`: i_q's own ripple then decides their largest harmonic, and the period is the one the
+    inverse Park transform put in).
 
     Raises
     ------
@@ -481,7 +493,7 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str, electrical_perio
         raise BenchFormatError(
             f"{where}: counts and time stamps give {speed_hz:.4g} revolutions per second at [motor] counts_per_rev "
             f"= {cpr}, but speed_setpoint = {trial.speed_setpoint_hz:g} Hz (wrong counts_per_rev or time unit?)")
-    if span + 1 < cpr or not electrical_period:
+    if span + 1 < cpr or motor.currents == CURRENTS_FROM_I_Q:
         return
     position = trial.count % cpr
     hits = np.maximum(np.bincount(position, minlength=cpr), 1)

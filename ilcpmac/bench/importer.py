@@ -40,6 +40,7 @@ from ilcpmac.bench.format import (
     MAX_TIMER_RESOLUTION_S,
     MAX_TRIAL_ROWS,
     Bench,
+    MotorTable,
     as_written,
     check_backemf,
     check_trial,
@@ -51,12 +52,21 @@ from ilcpmac.bench.moteus import MOTEUS_COGGING, MoteusLog, MoteusMapping, coggi
 from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan, write_scan
 from ilcpmac.config import BenchSettings, model_key
 from ilcpmac.core.errors import BenchFormatError, ConfigError
-from ilcpmac.core.records import MAX_SPEED_HZ, MotorInfo, SensorCalibration, TrialData, mirrored_table
-from ilcpmac.core.schema import in_range, parse_section, read_toml, setting, shown
+from ilcpmac.core.records import (
+    CURRENTS_FROM_I_Q,
+    CURRENTS_FROM_PHASES,
+    MAX_SPEED_HZ,
+    MotorInfo,
+    SensorCalibration,
+    TrialData,
+    mirrored_table,
+)
+from ilcpmac.core.schema import field_like, in_range, parse_section, read_toml, setting, shown
 from ilcpmac.model.motor import backemf_problem
 from ilcpmac.model.tables import backemf_table
 
 __all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogPoint", "MAX_TIME_S",
+           "MappingMechanics",
            "bench_motor", "import_laps", "import_log", "import_logs", "import_scan", "read_mapping",
            "resample_to_counts", "reverse_folder", "stamp_resolution_s", "write_scan_folder"]
 
@@ -80,6 +90,14 @@ class LogPoint:
                                        dataclasses.MISSING)
     speed_setpoint_hz: float = setting(in_range(0.0, 1e3, low_open=True), "Hz, within (0, 1e3]",
                                       dataclasses.MISSING)
+
+
+@dataclass(frozen=True)
+class MappingMechanics:
+    """The key of a mapping's [bench] that a campaign config's [bench] does not take: it goes to bench.toml's
+    [motor] as it is."""
+
+    inertia_uncertainty: float | None = field_like(MotorTable, "inertia_uncertainty", default=None)
 
 
 @dataclass(frozen=True)
@@ -162,6 +180,8 @@ class ImportedLog:
         1 - sinc^2(H f / f_s): how much the crossing times' linear interpolation lowers the encoder-derived
         torque at harmonic H = [log] highest_harmonic of a revolution, at the log's mean speed f (Hz) and
         row rate f_s; (pi H f / f_s)^2 / 3 for H f << f_s.
+    row_rate_hz : float
+        The log's rows per second over the lap.
     reverse : bool
         A reverse lap: ``trial`` is its mirror image (counts -c, torque and set point negated, time kept),
         a forward lap of the mirrored motor.
@@ -175,6 +195,7 @@ class ImportedLog:
     resolved_harmonic: int
     stamp_resolution_s: float
     torque_loss: float
+    row_rate_hz: float
     reverse: bool
     lines: tuple[int, int] | None
 
@@ -209,7 +230,12 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
     for name in known[:2]:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
-    bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
+    given, extra = data["bench"], {}
+    if isinstance(given, dict):
+        given = dict(given)
+        extra = {f.name: given.pop(f.name) for f in dataclasses.fields(MappingMechanics) if f.name in given}
+    mechanics = parse_section(extra, MappingMechanics, str(path), "bench")
+    bench = parse_section(given, BenchSettings, str(path), "bench")
     if bench.inertia_kgm2 is None:
         raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
     if isinstance(data["log"], dict) and data["log"].get("kind") == MOTEUS_COGGING:
@@ -217,7 +243,9 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
                                                       bench.inertia_kgm2, torque_sensor=True), path)
     layout = parse_section(data["log"], LogLayout, str(path), "log")
     motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2,
-                      torque_sensor=layout.kind == "scan" or layout.torque is not None)
+                      torque_sensor=layout.kind == "scan" or layout.torque is not None,
+                      currents=CURRENTS_FROM_PHASES if layout.i_q is None else CURRENTS_FROM_I_Q,
+                      inertia_uncertainty=mechanics.inertia_uncertainty)
     _check_layout(layout, motor, path)
     points = data.get("points", [])
     if not isinstance(points, list):
@@ -461,21 +489,21 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
     trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents),
                       values_at[:, -1].copy() if torque_names else None,
                       i_meas_a=currents.copy() if layout.current == "measured" else None)
-    _check_as_written(trial, motor, where, electrical_period=layout.i_q is None)
+    _check_as_written(trial, motor, where)
     error = InterpolationError(float(time_error.max()), float(current_error.max()),
                                float(value_error[:, -1].max()) if torque_names else None)
     highest_hz = layout.highest_harmonic * trial.mean_speed_hz(cpr)
     row_rate_hz = (time_s.size - 1) / (time_s[-1] - time_s[0])
     return ImportedLog(log, trial, error, resolved, resolution_s, float(1.0 - np.sinc(highest_hz / row_rate_hz) ** 2),
-                       reverse, lines)
+                       float(row_rate_hz), reverse, lines)
 
 
-def _check_as_written(trial: TrialData, motor: MotorInfo, where: str, electrical_period: bool) -> None:
+def _check_as_written(trial: TrialData, motor: MotorInfo, where: str) -> None:
     """``trial`` as its file will hold it (`as_written`: stamps to 0.1 us, currents and torque to 1e-6) must pass
     `check_trial` and keep its stamps increasing, as `read_bench` requires; its electrical period is checked on
-    logged phase currents only (``electrical_period``), not on those the inverse Park transform made from i_q."""
+    logged phase currents only, not on those the inverse Park transform made from i_q (``motor.currents``)."""
     written = as_written(trial)
-    check_trial(written, motor, f"{where} (as a trial file holds it)", electrical_period)
+    check_trial(written, motor, f"{where} (as a trial file holds it)")
     same = np.flatnonzero(np.diff(written.time_s) <= 0)
     if same.size:
         raise BenchFormatError(f"{where}: counts {trial.count[same[0]]} and {trial.count[same[0] + 1]} are crossed "
@@ -678,11 +706,13 @@ def import_logs(logs: list[Path], mapping: ImportMapping, out: Path, suffix: str
 
 
 def bench_motor(mapping: ImportMapping, imported: Sequence[ImportedLog]) -> MotorInfo:
-    """[motor] of the bench that laps of one direction make: mirrored for reverse laps; without torque,
+    """[motor] of the bench that laps of one direction make: mirrored for reverse laps; log_rate_hz the slowest
+    lap's row rate (it bounds the harmonics the acceleration method resolves); without torque,
     torque_sensor = false and timer_resolution_s the finest of the laps' `stamp_resolution_s` (one value per
     bench: the floor of the encoder-derived torque's weights, which an understated value leaves to the
     measured scatter and an overstated one would raise)."""
-    motor = dataclasses.replace(mapping.motor, mirrored=imported[0].reverse)
+    motor = dataclasses.replace(mapping.motor, mirrored=imported[0].reverse,
+                                log_rate_hz=float(f"{min(r.row_rate_hz for r in imported):.6g}"))
     if motor.torque_sensor:
         return motor
     return dataclasses.replace(motor, timer_resolution_s=min(r.stamp_resolution_s for r in imported))

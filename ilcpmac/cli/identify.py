@@ -168,7 +168,8 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
 
     Estimates delta*eps, delta, eps, alpha, beta, J* and the cogging torque with both methods, writes the
     result to --output and prints it; with a truth.json in BENCH_DIR (a simulated bench), also each
-    estimate's error.
+    estimate's error. A bench without a torque sensor at one operating point (a rolling drive log) is
+    identified by the acceleration method (docs/sensorless.md): its position-locked torque and friction.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import read_bench
@@ -207,3 +208,25 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     from rich.console import Console
 
     Console().print(estimates_table(result, truth))
+    for line in acceleration_lines(result):
+        console.print(line)
+
+
+def acceleration_lines(result) -> list[str]:
+    """The acceleration method's summary (docs/sensorless.md): the harmonics estimated with their standard
+    errors, the position-locked torque's RMS and the friction; none for another method's result."""
+    summary = result.diagnostics.get("acceleration")
+    if summary is None:
+        return []
+    estimated = [h for h in summary["harmonics"] if h["status"] == "estimated"]
+    lines = [f"acceleration method at {summary['speed_hz']:.4g} Hz, {summary['revolutions']} revolutions, J given "
+             f"({summary['inertia_kgm2']:.4g} kg m²)",
+             f"Coulomb friction (b = 0): {_cell(summary['coulomb_friction_nm'], summary['coulomb_friction_std_nm'])}"
+             " N m"]
+    if result.position_torque_nm is not None:
+        lines.append(f"position-locked torque: {1000 * _rms(result.position_torque_nm):.4g} mN m RMS, ± "
+                     f"{1000 * _rms(result.position_torque_std_nm):.2g} mN m per count")
+    lines += [f"  order {h['order']}: {_cell(1000 * abs(complex(h['re'], h['im'])), 1000 * h['std'])} mN m; an "
+              f"encoder error of {h['encoder_error_counts_per_std']:.2g} counts biases it by one std"
+              for h in estimated]
+    return lines

@@ -33,6 +33,8 @@ MAX_GRID_SETPOINTS = 100
 MAX_CURRENT_A = 1e4
 MAX_TORQUE_NM = 1e5
 MAX_SPEED_HZ = 1e3
+#: where a bench's phase currents come from ([motor] currents): logged per phase, or made from i_q
+CURRENTS_FROM_PHASES, CURRENTS_FROM_I_Q = "phases", "from_i_q"
 MAX_CALIBRATION = 1e9
 
 @dataclass(frozen=True)
@@ -53,6 +55,15 @@ class MotorInfo:
         The trials are reverse laps of the motor stored as forward laps of its mirror image (phi = -theta;
         backemf.csv the mirror's table, `mirrored_table`); the identification reports in the motor's own
         coordinates (docs/bench-format.md, "Reverse laps").
+    currents : str
+        `CURRENTS_FROM_PHASES` ("phases": the phase currents logged) or `CURRENTS_FROM_I_Q` ("from_i_q": made
+        from a q-axis current by the inverse Park transform, whose electrical period is the one the
+        transform put in; `ilcpmac.bench.format.check_trial` then skips the period check).
+    inertia_uncertainty : float or None
+        The relative standard uncertainty of ``inertia_kgm2`` (None: not stated).
+    log_rate_hz : float or None
+        The row rate of the drive logs the trials were resampled from (the slowest), Hz; None: the trials were
+        recorded per count.
     """
 
     pole_pairs: int
@@ -62,6 +73,9 @@ class MotorInfo:
     torque_sensor: bool = True
     timer_resolution_s: float | None = None
     mirrored: bool = False
+    currents: str = "phases"
+    inertia_uncertainty: float | None = None
+    log_rate_hz: float | None = None
 
     @property
     def cogging_order(self) -> int:
@@ -354,7 +368,8 @@ class IdentificationResult(MethodEstimates):
     current_loop : CurrentLoop or None
         The identified current loop at the bench's calibration (None: no lag identified).
     methods : dict
-        ``"report"`` and ``"joint"``: `MethodEstimates` of each method.
+        ``"report"`` and ``"joint"``: `MethodEstimates` of each method (``"acceleration"`` alone for the
+        acceleration method's result, `ilcpmac.identify.acceleration`).
     calibration : SensorCalibration or None
         Corrected sensor calibration, when bench.toml has [sensors] and the estimates allow it.
     messages : tuple of str
@@ -377,6 +392,10 @@ class IdentificationResult(MethodEstimates):
         and the phase, rad.
     encoder_line_rms_counts : float or None
         The RMS of the rest (line to line), its noise removed, counts.
+    position_torque_nm, position_torque_std_nm : ndarray, shape (counts_per_rev,), or None
+        The whole position-locked torque per count (cogging and every other order resolved) and its standard
+        error, N m; None where not identified (only the acceleration method gives it,
+        `ilcpmac.identify.acceleration`).
     """
 
     current_loop: CurrentLoop | None = None
@@ -394,6 +413,8 @@ class IdentificationResult(MethodEstimates):
     encoder_eccentricity_std_counts: float | None = None
     encoder_eccentricity_phase_rad: float | None = None
     encoder_line_rms_counts: float | None = None
+    position_torque_nm: np.ndarray | None = field(default=None, repr=False)
+    position_torque_std_nm: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def current_loop_bandwidth_per_phase_hz(self) -> tuple | None:
@@ -430,6 +451,9 @@ class IdentificationResult(MethodEstimates):
         out["encoder_error"] = None if self.encoder_error_counts is None else {
             "count": list(range(self.encoder_error_counts.size)),
             **{key: _json_value(getattr(self, name)) for key, name in ENCODER_ERROR_KEYS}}
+        out["position_torque"] = None if self.position_torque_nm is None else {
+            "count": list(range(self.position_torque_nm.size)), "torque": _json_value(self.position_torque_nm),
+            "std": _json_value(self.position_torque_std_nm)}
         out["diagnostics"] = self.diagnostics
         out["messages"] = list(self.messages)
         return finite_json(out)
@@ -452,6 +476,7 @@ class IdentificationResult(MethodEstimates):
         encoder = data.get("encoder_error") or {}
         diagnostics = data.get("diagnostics") or {}
         joint = diagnostics.get("joint") or {}
+        position = data.get("position_torque") or {}
         return cls(**cls.fields_from_json(data), current_loop=loop,
                    methods={name: MethodEstimates.from_json(m) for name, m in (data.get("methods") or {}).items()},
                    calibration=None if calibration is None else SensorCalibration.from_json(calibration),
@@ -460,4 +485,6 @@ class IdentificationResult(MethodEstimates):
                    torque_sensor_highpass_hz=joint.get("torque_sensor_highpass_hz"),
                    torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
                    **{name: _from_json_value(encoder.get(key), key.startswith("error"))
-                      for key, name in ENCODER_ERROR_KEYS})
+                      for key, name in ENCODER_ERROR_KEYS},
+                   position_torque_nm=_from_json_value(position.get("torque"), True),
+                   position_torque_std_nm=_from_json_value(position.get("std"), True))

@@ -14,7 +14,13 @@ and returns an `IdentificationResult` holding both methods' estimates and,
 in its main fields, the better one of each; a bench of reverse laps
 ([motor] mirrored = true) in the motor's own coordinates (`mirror`).
 
-Without a torque sensor (or asked to), the torque is the encoder-derived one
+Without a torque sensor, trials at one operating point (one speed and one
+torque set point: a rolling drive log), which neither the joint fit nor the
+encoder error can use, are identified by the acceleration method instead
+(`acceleration`): the position-locked torque from J domega/dt - K.i, the
+inertia given.
+
+Otherwise without a torque sensor (or asked to), the torque is the encoder-derived one
 (`ilcpmac.identify.encoder`): the trials are reduced on it with the encoder's
 graduation error taken out (the part of its estimate that stands out of the
 estimate's noise), over three joint fits that model the brake
@@ -35,6 +41,7 @@ from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.records import IdentificationResult, MethodEstimates, SensorCalibration
 from ilcpmac.core.torque_source import TorqueSource
+from ilcpmac.identify.acceleration import estimate_by_acceleration, one_operating_point
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.encoder import EncoderIdentification, identify_on_encoder
 from ilcpmac.identify.joint import JointEstimate, fit_joint
@@ -61,6 +68,9 @@ NOT_IDENTIFIED_WITHOUT_SENSOR = (
     "Coulomb friction: not identified - the encoder sees b Omega + C only (the mean torque): taken as 0 in each "
     "trial's brake b = mean torque / Omega",
 )
+#: what the acceleration method does not give beyond what needs a sensor
+ACCELERATION_NOT_IDENTIFIED = ("current sensors (eps, alpha, beta), current loop, encoder error: not identified - "
+                               "the acceleration method at one speed gives the position-locked torque and the friction")
 
 
 @dataclass(frozen=True)
@@ -167,7 +177,9 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         ``progress(step, index, total)`` before each step of STEPS.
     torque_source : TorqueSource, optional
         Where the torque comes from: SENSOR, the torque sensor's column, or ENCODER, the encoder's time stamps
-        (also on a bench with a sensor, to compare), not BOTH; None: `TorqueSource.default` of the bench.
+        (also on a bench with a sensor, to compare), not BOTH; None: `TorqueSource.default` of the bench. ENCODER
+        on a bench without a sensor at one operating point (`one_operating_point`) runs the acceleration method:
+        ``details`` is then its `AccelerationEstimate`, and ``progress`` is not called.
 
     Raises
     ------
@@ -186,6 +198,9 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
     if source.reads_sensor and not bench.motor.torque_sensor:
         raise IdentificationError(f"torque source {source.value!r}: the bench has no torque sensor ([motor] "
                                   "torque_sensor = false); use the encoder")
+    if source.reads_encoder and not bench.motor.torque_sensor and bench.trials and one_operating_point(bench):
+        result = _by_acceleration(bench, source)
+        return in_motor_coordinates(result) if bench.motor.mirrored else result
     step(0)
     encoder = None
     if source.reads_encoder:
@@ -252,6 +267,20 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
         torque_source=source, torque_sensor_highpass_hz=None if joint is None else joint.highpass_hz,
         torque_sensor_delay_s=None if joint is None else joint.torque_delay_s, **_encoder_error_fields(encoder))
     return in_motor_coordinates(result) if bench.motor.mirrored else result
+
+
+def _by_acceleration(bench: Bench, source: TorqueSource) -> IdentificationResult:
+    """The result of the acceleration method (`estimate_by_acceleration`): the cogging (its resolved band; None
+    where none is) and the whole position-locked torque with its standard error, the rest None with the reasons."""
+    estimate = estimate_by_acceleration(bench)
+    cogging = estimate.table_nm(cogging_only=True) if np.any(estimate.resolved & estimate.cogging_band) else None
+    position = estimate.table_nm() if estimate.resolved.any() else None
+    return IdentificationResult(
+        cogging_nm=cogging, methods={"acceleration": MethodEstimates(cogging_nm=cogging)},
+        messages=(*estimate.messages, *NOT_IDENTIFIED_WITHOUT_SENSOR[:2], ACCELERATION_NOT_IDENTIFIED),
+        diagnostics={"trials_used": estimate.trials, "method": "acceleration", "acceleration": estimate.to_json()},
+        details=estimate, torque_source=source, position_torque_nm=position,
+        position_torque_std_nm=None if position is None else estimate.table_std_nm())
 
 
 class _UnitSensor:

@@ -22,14 +22,16 @@ __all__ = ["MIRRORED_MESSAGE", "in_motor_coordinates", "in_mirror_coordinates"]
 
 #: the line a mirrored bench's result carries in its messages
 MIRRORED_MESSAGE = ("reverse laps (bench.toml: mirrored = true): identified as forward laps of the motor's mirror "
-                    "image (phi = -theta); the cogging and the encoder error are mirrored back into the motor's "
-                    "coordinates, everything else is as identified (the figures of --plots show the mirror)")
+                    "image (phi = -theta); the cogging, the position torque and the encoder error are mirrored back "
+                    "into the motor's coordinates, everything else is as identified (the figures of --plots show the "
+                    "mirror)")
 
 
 def in_motor_coordinates(result: IdentificationResult) -> IdentificationResult:
     """``result`` of a mirrored bench in the motor's own coordinates, with `MIRRORED_MESSAGE` in its messages.
 
-    The cogging tables (the result's and each method's) and the encoder's line errors become
+    The cogging tables (the result's and each method's), the position-locked torque and the encoder's line
+    errors become
     t(c) = -t'((N - c) mod N); their standard errors keep their sign and take the same row order; the
     eccentricity A sin(2 pi c / N + phase) keeps A and takes -phase, within (-pi, pi]. ``details`` stay
     the mirror's.
@@ -43,6 +45,10 @@ def in_motor_coordinates(result: IdentificationResult) -> IdentificationResult:
         changes["encoder_error_counts"] = mirrored_table(result.encoder_error_counts)
     if result.encoder_error_std_counts is not None:
         changes["encoder_error_std_counts"] = -mirrored_table(result.encoder_error_std_counts)
+    if result.position_torque_nm is not None:
+        changes["position_torque_nm"] = mirrored_table(result.position_torque_nm)
+    if result.position_torque_std_nm is not None:
+        changes["position_torque_std_nm"] = -mirrored_table(result.position_torque_std_nm)
     phase = result.encoder_eccentricity_phase_rad
     if phase is not None:
         changes["encoder_eccentricity_phase_rad"] = math.pi if phase == math.pi else -phase

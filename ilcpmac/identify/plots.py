@@ -19,13 +19,15 @@ from matplotlib.figure import Figure
 from ilcpmac import plotting
 from ilcpmac.core.records import IdentificationResult
 from ilcpmac.identify import IdentificationDetails, sensor_gain
+from ilcpmac.identify.acceleration import AccelerationEstimate
 from ilcpmac.identify.decoupling import DecouplingEstimate
 from ilcpmac.identify.mirror import in_mirror_coordinates
 from ilcpmac.identify.reduction import BenchTables
 from ilcpmac.identify.sensor_gain import SensorGainEstimate
 from ilcpmac.identify.system_gain import SystemGainEstimate, excluded_harmonics, theoretical_torque_tables
 
-__all__ = ["IDENTIFICATION_FIGURES", "SIGNAL_FIGURES", "build_figures", "write_plots"]
+__all__ = ["ACCELERATION_FIGURE", "IDENTIFICATION_FIGURES", "SIGNAL_FIGURES", "acceleration_method", "build_figures",
+           "write_plots"]
 
 
 def _details(result: IdentificationResult) -> IdentificationDetails:
@@ -284,6 +286,38 @@ def cogging_error(result: IdentificationResult) -> Figure:
     return fig
 
 
+def acceleration_method(result: IdentificationResult) -> Figure:
+    """The acceleration method (docs/sensorless.md): the position-locked torque per count with +-2 standard errors,
+    and each harmonic's amplitude against its standard error, by status."""
+    estimate = result.details
+    assert isinstance(estimate, AccelerationEstimate), "a result of the acceleration method"
+    counts = np.arange(estimate.counts_per_rev)
+    degrees = plotting.mechanical_degrees(counts, estimate.counts_per_rev)
+    table, std = estimate.table_nm(), estimate.table_std_nm()
+    fig, (top, bottom) = plotting.figure(2, 3.0, sharex=False)
+    top.fill_between(degrees, table - 2 * std, table + 2 * std, color="0.8", label="+-2 standard errors")
+    top.plot(degrees, table, "k", lw=0.8, label="position-locked torque")
+    top.plot(degrees, estimate.table_nm(cogging_only=True), lw=0.8, label="cogging band")
+    top.set_title(f"acceleration method at {estimate.speed_hz:.3g} Hz (J given), the bench's coordinates")
+    top.set_ylabel("torque (N m)")
+    plotting.angle_axis(top)
+    plotting.legend(top)
+    h = np.arange(estimate.harmonics_nm.size)[1:]
+    amplitude, sigma = np.abs(estimate.harmonics_nm[1:]), np.sqrt(estimate.variance_nm2[1:])
+    resolved, above = estimate.resolved[1:], estimate.above_nyquist[1:]
+    for mask, style, label in ((resolved, "ko", "estimated"), (~resolved & ~above, "x", "within noise, or aliased"),
+                               (above, "+", "above the log's Nyquist limit")):
+        if mask.any():
+            bottom.semilogy(h[mask], amplitude[mask], style, ms=4, label=label)
+    bottom.semilogy(h, sigma, "0.5", lw=0.8, label="standard error")
+    bottom.set_xlabel("harmonic of a revolution")
+    bottom.set_ylabel("|tau_h| (N m)")
+    plotting.legend(bottom)
+    return fig
+
+
+#: file name and builder of the acceleration method's figure
+ACCELERATION_FIGURE = ("acceleration_position_torque", acceleration_method)
 #: file name -> (the detail it needs, builder): the figures of the estimates
 IDENTIFICATION_FIGURES = {
     "fig2_4_harmonic_response": ("system", partial(harmonic_response, kept_only=False)),
@@ -304,7 +338,11 @@ SIGNAL_FIGURES = {
 
 
 def build_figures(result: IdentificationResult, which: dict = IDENTIFICATION_FIGURES) -> dict[str, Figure]:
-    """The figures of ``which`` that the result's details allow, by file name."""
+    """The figures of ``which`` that the result's details allow, by file name (an acceleration method's result:
+    its own figure, `ACCELERATION_FIGURE`)."""
+    if isinstance(result.details, AccelerationEstimate):
+        name, build = ACCELERATION_FIGURE
+        return {name: build(result)}
     return {name: build(result) for name, (detail, build) in which.items()
             if getattr(result.details, detail) is not None}
 
