@@ -345,24 +345,29 @@ def _cogging_order(tau: np.ndarray) -> int:
 
 
 def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
-    """The position table of an identification's result JSON (`IdentificationResult`: its cogging and
-    calibration) or a standstill scan's (`ilcpmac.bench.standstill.ScanResult`: its cogging or position
-    torque); anything else raises `BenchFormatError` naming the file (and the key)."""
+    """The position table of an identification's result JSON (`IdentificationResult`: its cogging, or its
+    position torque where it has one, e.g. the acceleration method's; and its calibration) or a standstill scan's
+    (`ilcpmac.bench.standstill.ScanResult`: its cogging or position torque); anything else raises
+    `BenchFormatError` naming the file (and the key)."""
     if content not in CONTENTS:
         raise ValueError(f"content must be one of {', '.join(CONTENTS)}, got {content!r}")
     data = _read_json(path, MAX_RESULT_BYTES)
     if not isinstance(data, dict):
         raise BenchFormatError(f"{path}: must hold an object, got {_shown(data)}")
     scan = data.get("kind") == "standstill_scan"
-    key = "cogging" if content == "cogging" or not scan else "position_torque"
+    key = "cogging" if content == "cogging" else "position_torque"
     try:
         if scan:
             table, order, calibration = data[key]["torque"], data["cogging_order"], None
         else:
             result = IdentificationResult.from_json(data)
-            table, order, calibration = result.cogging_nm, None, result.calibration
+            table = result.cogging_nm if content == "cogging" else result.position_torque_nm
+            order, calibration = None, result.calibration
     except (KeyError, TypeError, ValueError) as e:
         raise BenchFormatError(f"{path}: not a result of ilcpmac identify ({type(e).__name__}: {e})") from None
+    if table is None and content != "cogging":
+        raise BenchFormatError(f"{path}: no position torque (key 'position_torque' is missing or null): the result "
+                               "holds only the cogging (export it with --content cogging)")
     if table is None:
         raise BenchFormatError(f"{path}: no cogging table (key 'cogging' is missing or null): the identification "
                                "did not identify one (its 'messages' say why)")

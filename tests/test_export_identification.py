@@ -208,3 +208,22 @@ def test_the_drive_formats_need_a_torque_constant_and_a_result(tmp_path):
     assert out.exit_code == 2 and len(out.output.splitlines()) == 1
     assert out.output.startswith("error: --format harmonics needs --torque-constant NM_PER_A > 0")
     assert not (tmp_path / "h").exists()
+
+
+def test_a_result_exports_its_position_torque_or_says_it_holds_only_the_cogging(tmp_path):
+    """The acceleration method's result: --content position-torque is its position_torque, a 5th harmonic
+    beside the cogging; a result without one is refused in one line, never exported as its cogging."""
+    position = COGGING_NM + 0.004 * np.cos(5 * THETA)
+    path = tmp_path / "rolling.json"
+    path.write_text(json.dumps(IdentificationResult(cogging_nm=COGGING_NM, position_torque_nm=position,
+                                                    position_torque_std_nm=np.full(CPR, 1e-4)).to_json()))
+    whole = read_position_table(path, "position-torque")
+    assert whole.content == "position-torque" and np.array_equal(whole.feedforward_nm, -position)
+    assert np.allclose(whole.coefficients_nm()[4], [-0.004, 0.0], atol=1e-15)
+    assert np.array_equal(read_position_table(path).feedforward_nm, -COGGING_NM)
+    only_cogging = result_json(tmp_path)
+    out = CliRunner().invoke(main, ["export", str(only_cogging), "--format", "csv", "--content", "position-torque",
+                                    "--out", str(tmp_path / "out")])
+    assert out.exit_code == 2 and len(out.output.splitlines()) == 1, out.output
+    assert out.output.startswith(f"error: {only_cogging}: no position torque") and "only the cogging" in out.output
+    assert not (tmp_path / "out").exists()

@@ -14,6 +14,7 @@ from conftest import COUNTS_PER_REV
 import ilcpmac.cli.identify  # noqa: F401  (registers the commands on main)
 import ilcpmac.cli.import_  # noqa: F401
 import ilcpmac.cli.simulate  # noqa: F401
+from ilcpmac.bench.importer import read_mapping
 from ilcpmac.campaign import simulate_bench
 from ilcpmac.cli import main
 from ilcpmac.config import load_config
@@ -70,7 +71,8 @@ def test_scan_imports_and_identifies_the_cogging_within_its_uncertainty(write_co
 
 @pytest.fixture(scope="module")
 def rolling_log(tmp_path_factory):
-    """The seed bench's speed-loop log (4096 counts, 0.5 Hz, 1 kHz, 10 s), imported."""
+    """The seed bench's speed-loop log (a 20-bit position in rad, imported onto 4096 counts; 0.5 Hz, 1 kHz, 10 s),
+    imported."""
     from conftest import SEED_CONFIG
 
     tmp = tmp_path_factory.mktemp("log")
@@ -90,15 +92,14 @@ def test_log_imports_as_it_is(rolling_log):
 
 def test_log_obeys_its_truths_equation_of_motion(rolling_log):
     """The position's second difference against J domega/dt = k_q i_q + tau_pos - (F + L) from the truth, at
-    the cogging order (order 96 is the encoder's quantisation aliased, 2048 Hz onto 48 Hz): within 5 %, and a
-    20 % wrong inertia is seen."""
+    the cogging order: within 5 %, and a 20 % wrong inertia is seen."""
     data, truth, _ = rolling_log
     t, theta, i_q = data["time"], data["position"], data["i_q"]
     cpr = len(truth["cogging"]["count"])
     grid = 2 * np.pi * np.arange(cpr + 1) / cpr
 
-    def table(values):  # a per-count table at the mid-count (the position is the count's floor)
-        return np.interp((theta + np.pi / cpr) % (2 * np.pi), grid, np.append(values, values[0]))
+    def table(values):  # a per-count table at the logged position (the nearest of the drive's 2^20 lines)
+        return np.interp(theta % (2 * np.pi), grid, np.append(values, values[0]))
 
     torque = (table(truth["torque_per_ampere"]["nm_per_a"]) * i_q + table(truth["position_torque"]["torque"])
               - truth["coulomb_friction_nm"] - truth["load_nm"])
@@ -120,7 +121,30 @@ def test_speed_loop_ripple_at_the_cogging_order_exceeds_the_mean(rolling_log):
     assert i_q.mean() == pytest.approx(truth["load_nm"] / truth["torque_constant_nm_per_a"], rel=0.2)
 
 
+def test_the_log_holds_its_encoders_nearest_line_and_the_mapping_states_the_inertia(write_config, tmp_path):
+    """A current loop's motion does not depend on the encoder: its 12-bit log is its 24-bit log rounded to the
+    nearest line (not truncated); the mapping gives the controller's J and its relative error as uncertainty."""
+    config = write_config({**SMALL, "simulator": {"mechanics": {"coulomb_friction_nm": 0.0, "inertia_scale": 1.04}}})
+    positions = {}
+    for bits in (12, 24):
+        out = tmp_path / str(bits)
+        result = run("simulate", str(config), "--out", str(out), "--kind", "log", "--loop", "current",
+                     "--duration-s", "1", "--encoder-bits", str(bits))
+        assert result.exit_code == 0, result.output
+        positions[bits] = np.genfromtxt(out / "drive_log.csv", delimiter=",", names=True)["position"]
+    lines = positions[12] * 2**12 / (2 * np.pi)
+    assert np.abs(lines - np.round(lines)).max() < 1e-4
+    fine = positions[24] * 2**12 / (2 * np.pi)
+    assert np.array_equal(np.round(lines), np.round(fine))
+    assert np.abs(fine - np.round(lines)).max() <= 0.5 + 1e-4
+    mapping = read_mapping(tmp_path / "12" / "mapping.toml")
+    truth = json.loads((tmp_path / "12" / "truth.json").read_text())
+    assert mapping.motor.inertia_kgm2 * 1.04 == pytest.approx(truth["inertia_kgm2"], rel=1e-12)
+    assert mapping.motor.inertia_uncertainty == pytest.approx(0.04)
+
+
 @pytest.mark.parametrize("options, message", [
+    (["--kind", "log", "--encoder-bits", "30"], "--encoder-bits: invalid value 30"),
     (["--kind", "scan", "--speed-hz", "1"], "--speed-hz: not for --kind scan"),
     (["--kind", "grid", "--rate-hz", "100"], "--rate-hz: not for --kind grid"),
     (["--kind", "log", "--rate-hz", "20000"], "--rate-hz: invalid value 20000.0"),

@@ -20,7 +20,7 @@ import numpy as np
 
 from ilcpmac.bench import parquet
 from ilcpmac.bench.fastcsv import format_rows, parse_rows
-from ilcpmac.config import BACKEMF_TOLERANCE, CampaignConfig
+from ilcpmac.config import BACKEMF_TOLERANCE, BenchSettings, CampaignConfig
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import (
@@ -120,8 +120,7 @@ class MotorTable:
     currents: str = setting(lambda x: x in (CURRENTS_FROM_PHASES, CURRENTS_FROM_I_Q),
                             f'"{CURRENTS_FROM_PHASES}" (logged per phase) or "{CURRENTS_FROM_I_Q}" (made from a q-axis '
                             "current: no electrical-period check)", CURRENTS_FROM_PHASES, commented=True)
-    inertia_uncertainty: float | None = setting(in_range(0.0, 1.0), "relative standard uncertainty of inertia, "
-                                                "within [0, 1]", None, commented=True)
+    inertia_uncertainty: float | None = field_like(BenchSettings, "inertia_uncertainty", default=None)
     log_rate_hz: float | None = setting(in_range(0.0, 1e9, low_open=True), "row rate of the drive logs the trials "
                                         "were resampled from, Hz (written by ilcpmac import)", None, commented=True)
 

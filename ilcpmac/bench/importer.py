@@ -40,7 +40,6 @@ from ilcpmac.bench.format import (
     MAX_TIMER_RESOLUTION_S,
     MAX_TRIAL_ROWS,
     Bench,
-    MotorTable,
     as_written,
     check_backemf,
     check_trial,
@@ -61,12 +60,11 @@ from ilcpmac.core.records import (
     TrialData,
     mirrored_table,
 )
-from ilcpmac.core.schema import field_like, in_range, parse_section, read_toml, setting, shown
+from ilcpmac.core.schema import in_range, parse_section, read_toml, setting, shown
 from ilcpmac.model.motor import backemf_problem
 from ilcpmac.model.tables import backemf_table
 
 __all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogPoint", "MAX_TIME_S",
-           "MappingMechanics",
            "bench_motor", "import_laps", "import_log", "import_logs", "import_scan", "read_mapping",
            "resample_to_counts", "reverse_folder", "stamp_resolution_s", "write_scan_folder"]
 
@@ -90,14 +88,6 @@ class LogPoint:
                                        dataclasses.MISSING)
     speed_setpoint_hz: float = setting(in_range(0.0, 1e3, low_open=True), "Hz, within (0, 1e3]",
                                       dataclasses.MISSING)
-
-
-@dataclass(frozen=True)
-class MappingMechanics:
-    """The key of a mapping's [bench] that a campaign config's [bench] does not take: it goes to bench.toml's
-    [motor] as it is."""
-
-    inertia_uncertainty: float | None = field_like(MotorTable, "inertia_uncertainty", default=None)
 
 
 @dataclass(frozen=True)
@@ -230,12 +220,7 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
     for name in known[:2]:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
-    given, extra = data["bench"], {}
-    if isinstance(given, dict):
-        given = dict(given)
-        extra = {f.name: given.pop(f.name) for f in dataclasses.fields(MappingMechanics) if f.name in given}
-    mechanics = parse_section(extra, MappingMechanics, str(path), "bench")
-    bench = parse_section(given, BenchSettings, str(path), "bench")
+    bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
     if bench.inertia_kgm2 is None:
         raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
     if isinstance(data["log"], dict) and data["log"].get("kind") == MOTEUS_COGGING:
@@ -245,7 +230,7 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
     motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2,
                       torque_sensor=layout.kind == "scan" or layout.torque is not None,
                       currents=CURRENTS_FROM_PHASES if layout.i_q is None else CURRENTS_FROM_I_Q,
-                      inertia_uncertainty=mechanics.inertia_uncertainty)
+                      inertia_uncertainty=bench.inertia_uncertainty)
     _check_layout(layout, motor, path)
     points = data.get("points", [])
     if not isinstance(points, list):

@@ -16,7 +16,8 @@ if TYPE_CHECKING:
 
 #: the options of one kind only, by kind (--seed serves every kind)
 _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revolutions", "rate_hz"),
-                 "log": ("rate_hz", "speed_hz", "duration_s", "loop", "current_column", "jitter_s", "load_nm")}
+                 "log": ("rate_hz", "speed_hz", "duration_s", "loop", "current_column", "jitter_s", "load_nm",
+                         "encoder_bits")}
 
 
 @main.command()
@@ -43,11 +44,15 @@ _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revoluti
               help="log: each row's instant drawn within +-JITTER_S of its slot (default 0).")
 @click.option("--load-nm", type=float, default=None,
               help="log: constant load torque against the motion, N m (default 0.2).")
+@click.option("--encoder-bits", type=int, default=None,
+              help="log: the drive's encoder, which its loop reads and its log holds in rad: 2^BITS lines per "
+                   "revolution, the reading rounded to the nearest line, independent of [bench] counts_per_rev "
+                   "(default 20).")
 def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutions: int | None,
              no_torque_sensor: bool, **log_options) -> None:
-    """Simulate CONFIG's drive into a folder (docs/simulator.md, "ilcpmac simulate").
+    """Simulate CONFIG's grid, scan or drive log into a folder.
 
-    grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under
+    See docs/simulator.md, "ilcpmac simulate". grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under
     the result keys (the encoder's line errors included). scan, log: the log, mapping.toml (ilcpmac import
     LOG --map mapping.toml --out BENCH takes it as it is), backemf.csv and truth.json.
     """

@@ -19,9 +19,11 @@ friction (b = 0), no saturation term here (c i^2 is below 1e-3 at the log's curr
 sensors: the i_q flowing is the one logged, plus white noise. The current follows the loop's command as a
 first-order lag of corner [simulator.controller] bandwidth_hz (a tuned PI current loop's closed loop).
 
-The loop, at the control rate, reads the encoder (quantised to counts_per_rev, the true angle's floor)
-and estimates the speed as the count difference over one period low-passed by two first-order stages of
-corner 4 f_c. "speed": a PI on the speed error, i_q = K_p e + K_p w_i int e, K_p = J* 2 pi f_c / K*_t
+The drive has an encoder of its own, of 2^encoder_bits lines per revolution (the plan's, independent of the
+bench's counts_per_rev that the import resamples onto): the loop reads it at the control rate, and the log
+holds it in rad, each reading the true angle rounded to the nearest line. The loop estimates the speed as the
+line difference over one period low-passed by two first-order stages of corner 4 f_c. "speed": a PI on the
+speed error, i_q = K_p e + K_p w_i int e, K_p = J* 2 pi f_c / K*_t
 (J*, K*_t what the controller knows), w_i = 2 pi f_c / 4; "position": the same PI on the speed reference
 omega* + 2 pi f_c / 5 (theta* - theta), theta* = omega* t; "current": i_q held at (F + L) / K*_t, the rotor
 coasting at its start speed omega*. The loops start settled (the integrator at that current).
@@ -75,6 +77,9 @@ class LogPlan:
         L, a constant load against the motion (a brake), N m, >= 0.
     speed_bandwidth_hz : float
         f_c, the speed loop's crossover, Hz, at most control rate / 100.
+    encoder_bits : int
+        The drive's encoder, which its loop reads and its log holds: 2^encoder_bits lines per revolution,
+        within [8, 24].
     seed : int
     """
 
@@ -86,6 +91,7 @@ class LogPlan:
     jitter_s: float = 0.0
     load_nm: float = 0.2
     speed_bandwidth_hz: float = 30.0
+    encoder_bits: int = 20
     seed: int = 0
 
     def problem(self, simulator: Simulator) -> str | None:
@@ -96,6 +102,7 @@ class LogPlan:
                   ("speed_hz", in_range(0.0, 1e3, low_open=True)),
                   ("duration_s", in_range(0.0, 3600.0, low_open=True)), ("load_nm", in_range(0.0, 1e4)),
                   ("speed_bandwidth_hz", in_range(0.0, control_hz / 100, low_open=True)),
+                  ("encoder_bits", in_range(8, 24)),
                   ("seed", in_range(0, 2**63 - 1)),
                   ("jitter_s", lambda x: in_range(0.0, 0.5 / self.rate_hz - 1.0 / control_hz)(x))]
         for name, check in checks:  # in order: jitter_s's bound needs a valid rate_hz
@@ -124,10 +131,11 @@ def torque_per_ampere(pole_pairs: int, backemf_nm_per_a: np.ndarray, rows_per_re
 
 
 @njit(cache=True)
-def _roll(k_q_fine, torque_pos_fine, counts_per_rev, steps, dt, inertia, friction_nm, omega_ref, loop,
+def _roll(k_q_fine, torque_pos_fine, lines, steps, dt, inertia, friction_nm, omega_ref, loop,
           k_p, w_i, k_theta, a_filter, a_current, i_hold, row_steps, out_count, out_i_q):
-    """Run ``steps`` control periods; at step ``row_steps[n]`` write the encoder's count and the flowing i_q to
-    row n. ``loop``: 0 speed, 1 position, 2 current. Returns the rows written."""
+    """Run ``steps`` control periods, the encoder of ``lines`` per revolution read as the nearest line; at step
+    ``row_steps[n]`` write its reading (lines) and the flowing i_q to row n. ``loop``: 0 speed, 1 position,
+    2 current. Returns the rows written."""
     n_fine = k_q_fine.size - 1
     two_pi = 2.0 * np.pi
     theta, omega, i_q, integral = 0.0, omega_ref, i_hold, i_hold
@@ -135,9 +143,9 @@ def _roll(k_q_fine, torque_pos_fine, counts_per_rev, steps, dt, inertia, frictio
     count_before = 0
     row = 0
     for k in range(steps):
-        count = math.floor(theta / two_pi * counts_per_rev)
-        theta_m = count * two_pi / counts_per_rev
-        raw = omega_ref if k == 0 else (count - count_before) * two_pi / counts_per_rev / dt
+        count = math.floor(theta / two_pi * lines + 0.5)
+        theta_m = count * two_pi / lines
+        raw = omega_ref if k == 0 else (count - count_before) * two_pi / lines / dt
         count_before = count
         speed_1 += a_filter * (raw - speed_1)
         speed_2 += a_filter * (speed_1 - speed_2)
@@ -167,8 +175,8 @@ def _roll(k_q_fine, torque_pos_fine, counts_per_rev, steps, dt, inertia, frictio
 
 
 def drive_log(simulator: Simulator, plan: LogPlan) -> tuple[dict[str, np.ndarray], dict]:
-    """The log's columns (time s, position rad, unwrapped, in whole encoder counts; i_q or i_a..i_c, A) and its
-    truth (`write_drive_log` lists the keys)."""
+    """The log's columns (time s, position rad, unwrapped, in whole lines of the plan's encoder; i_q or i_a..i_c,
+    A) and its truth (`write_drive_log` lists the keys)."""
     problem = plan.problem(simulator)
     if problem is not None:
         raise SimulationError(f"log plan {problem}")
@@ -188,7 +196,8 @@ def drive_log(simulator: Simulator, plan: LogPlan) -> tuple[dict[str, np.ndarray
     w_c = 2.0 * np.pi * plan.speed_bandwidth_hz
     k_p = m.mechanics.inertia_kgm2 * w_c / k_t_known
     count, i_q = np.zeros(rows, np.int64), np.zeros(rows)
-    written = _roll(k_q_fine, np.ascontiguousarray(simulator.fine[:, 3]), cpr, int(row_steps[-1]) + 1, dt,
+    lines = 2**plan.encoder_bits
+    written = _roll(k_q_fine, np.ascontiguousarray(simulator.fine[:, 3]), lines, int(row_steps[-1]) + 1, dt,
                     m.mechanics.true_inertia_kgm2, hold_nm, 2.0 * np.pi * plan.speed_hz, LOOPS.index(plan.loop),
                     k_p, _INTEGRAL_RATIO * w_c, _POSITION_RATIO * w_c, 1.0 - math.exp(-_FILTER_RATIO * w_c * dt),
                     1.0 - math.exp(-2.0 * np.pi * m.controller.bandwidth_hz * dt), hold_nm / k_t_known, row_steps,
@@ -196,7 +205,7 @@ def drive_log(simulator: Simulator, plan: LogPlan) -> tuple[dict[str, np.ndarray
     if written != rows:
         raise SimulationError(f"the log wrote {written} of its {rows} rows")
     sigma_a = m.current_sensors.noise_counts / float(np.mean(m.controller.calibration().current_scale))
-    columns = {"time": row_steps * dt, "position": count * (2.0 * np.pi / cpr)}
+    columns = {"time": row_steps * dt, "position": count * (2.0 * np.pi / lines)}
     if plan.current_column == "q":
         columns["i_q"] = i_q + sigma_a * math.sqrt(2.0 / 3.0) * rng.standard_normal(rows)
     else:

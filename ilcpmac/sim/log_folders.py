@@ -22,11 +22,19 @@ __all__ = ["DRIVE_LOG", "MAPPING", "SCAN_LOG", "write_simulated_log", "write_sim
 MAPPING, SCAN_LOG, DRIVE_LOG = "mapping.toml", "scan_log.csv", "drive_log.csv"
 
 
+#: the smallest relative uncertainty of the inertia a mapping states
+MIN_INERTIA_UNCERTAINTY = 0.01
+
+
 def _bench_table(simulator: Simulator) -> dict:
-    """[bench] of a mapping: the motor as its controller knows it, the back-EMF in backemf.csv."""
+    """[bench] of a mapping: the motor as its controller knows it, the back-EMF in backemf.csv; the inertia the
+    controller's, its uncertainty the truth's relative difference ([simulator.mechanics] inertia_scale - 1), at
+    least `MIN_INERTIA_UNCERTAINTY`."""
     info = simulator.model.motor_info()
+    uncertainty = max(abs(simulator.model.mechanics.inertia_scale - 1.0), MIN_INERTIA_UNCERTAINTY)
     return {"pole_pairs": info.pole_pairs, "slots": info.slots, "counts_per_rev": info.counts_per_rev,
-            "inertia_kgm2": info.inertia_kgm2, "backemf_file": "backemf.csv"}
+            "inertia_kgm2": info.inertia_kgm2, "inertia_uncertainty": float(f"{uncertainty:.3g}"),
+            "backemf_file": "backemf.csv"}
 
 
 def _write(out: Path, simulator: Simulator, mapping: dict, truth: dict) -> None:
@@ -54,7 +62,7 @@ def write_simulated_scan(out: str | Path, simulator: Simulator, plan: ScanPlan) 
 
 def write_simulated_log(out: str | Path, simulator: Simulator, plan: LogPlan) -> dict:
     """A rolling drive log (`write_drive_log`) in ``out``: drive_log.csv, mapping.toml (position in rad,
-    measured currents, no torque column), backemf.csv, truth.json; returns the truth."""
+    measured currents, no torque column, the inertia's uncertainty), backemf.csv, truth.json; returns the truth."""
     out = Path(out)
     truth = write_drive_log(out / DRIVE_LOG, simulator, plan)
     log: dict[str, object] = {"time": "time", "position": "position", "position_unit": "rad", "current": "measured"}
