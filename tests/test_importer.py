@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import ilcpmac.cli.import_  # noqa: F401  (registers the command on main)
 from ilcpmac.bench import read_bench
-from ilcpmac.bench.format import Bench, write_backemf_csv
+from ilcpmac.bench.format import Bench, check_trial, write_backemf_csv
 from ilcpmac.bench.importer import (
     MAX_TIME_S,
     import_log,
@@ -526,25 +526,30 @@ def rippled_q_log(path: Path, phases: bool) -> Path:
     return path
 
 
-def test_the_electrical_period_is_checked_on_logged_phase_currents_only(tmp_path, sine_native):
+def test_the_electrical_period_holds_whatever_the_ripple_and_catches_wrong_pole_pairs(tmp_path, sine_native):
+    """A speed loop's i_q ripple at the cogging order, larger than its mean, makes a sideband the currents' largest
+    harmonic (40 or 56 here): the period is read off the space vector's square, so such a log imports as i_q or
+    as phase currents (both were refused once), and a wrong pole-pair count is still named."""
     backemf = sine_native[1]
     q_log, q_mapping = rippled_q_log(tmp_path / "q.csv", phases=False), read_mapping(write_folder(tmp_path / "q",
                                                                                                    backemf, Q_LOG))
     imported = import_log(q_log, q_mapping)
-    (written,) = import_logs([q_log], q_mapping, tmp_path / "bench")  # bench.toml records the derivation ...
+    (written,) = import_logs([q_log], q_mapping, tmp_path / "bench")
     toml = (written.folder / "bench.toml").read_text()
     assert 'currents = "from_i_q"' in toml
-    assert read_bench(written.folder).motor.currents == "from_i_q"  # ... so the reader skips the check too
+    assert read_bench(written.folder).motor.currents == "from_i_q"
     (written.folder / "bench.toml").write_text(toml.replace('currents = "from_i_q"', 'currents = "phases"'))
-    with pytest.raises(BenchFormatError, match=r"repeat (40|56) times per revolution"):
-        read_bench(written.folder)
+    read_bench(written.folder)  # checked as logged phase currents, it passes too
     spectrum = np.abs(np.fft.rfft(imported.trial.i_ref_a[:COUNTS_PER_REV], axis=0)).sum(axis=1)
-    assert np.argmax(spectrum[1:]) + 1 in (40, 56)  # the derived currents' largest harmonic is not the electrical
+    assert np.argmax(spectrum[1:]) + 1 in (40, 56)  # the currents' largest harmonic is not the electrical
     np.testing.assert_allclose(imported.trial.i_ref_a[:, 0], (1.0 + 3.0 * np.cos(48 * 2 * np.pi * imported.trial.count
                                / COUNTS_PER_REV)) * np.sin(8 * 2 * np.pi * imported.trial.count / COUNTS_PER_REV),
                                atol=imported.error.current_a)
     log = rippled_q_log(tmp_path / "phases.csv", phases=True)
-    with pytest.raises(BenchFormatError, match=r"repeat (40|56) times per revolution of 1024 counts, but \[motor\] "
-                       r"pole_pairs = 8") as e:
-        import_log(log, read_mapping(write_folder(tmp_path / "phases", backemf, PHASE_LOG)))
-    assert "\n" not in str(e.value) and str(e.value).startswith(str(log))
+    phases = import_log(log, read_mapping(write_folder(tmp_path / "phases", backemf, PHASE_LOG)))
+    motor = read_bench(written.folder).motor
+    for wrong in (7, 9, 16):
+        with pytest.raises(BenchFormatError, match=rf"repeat 8 times per revolution of 1024 counts, but \[motor\] "
+                           rf"pole_pairs = {wrong} ") as e:
+            check_trial(phases.trial, dataclasses.replace(motor, pole_pairs=wrong, currents="phases"), str(log))
+        assert "\n" not in str(e.value) and str(e.value).startswith(str(log))

@@ -90,6 +90,25 @@ def test_log_imports_as_it_is(rolling_log):
     assert "no torque column" in imported.output
 
 
+def test_a_log_of_phase_currents_imports_and_identifies_as_the_i_q_log(rolling_log, tmp_path):
+    """The same speed-loop log with phase currents: their largest harmonic is a sideband of the cogging order, and
+    the electrical-period check (refusing it once) reads the period off their space vector instead."""
+    from conftest import SEED_CONFIG
+
+    _, truth, _ = rolling_log
+    done = run("simulate", str(SEED_CONFIG), "--out", str(tmp_path / "sim"), "--kind", "log", "--current-column",
+               "phases")
+    assert done.exit_code == 0, done.output
+    done = run("import", str(tmp_path / "sim" / "drive_log.csv"), "--map", str(tmp_path / "sim" / "mapping.toml"),
+               "--out", str(tmp_path / "bench"))
+    assert done.exit_code == 0, done.output
+    done = run("identify", str(tmp_path / "bench"), "--torque-source", "encoder", "--output", str(tmp_path / "r.json"))
+    assert done.exit_code == 0, done.output
+    cogging = np.asarray(json.loads((tmp_path / "r.json").read_text())["cogging"]["torque"])
+    true = np.asarray(truth["cogging"]["torque"])
+    assert rms(cogging - true) < 0.05 * rms(true)
+
+
 def test_log_obeys_its_truths_equation_of_motion(rolling_log):
     """The position's second difference against J domega/dt = k_q i_q + tau_pos - (F + L) from the truth, at
     the cogging order: within 5 %, and a 20 % wrong inertia is seen."""

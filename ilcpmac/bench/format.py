@@ -298,6 +298,22 @@ def _dominant_harmonic(table: np.ndarray) -> int:
     return int(np.argmax(spectrum))
 
 
+def _electrical_periods(currents_a: np.ndarray) -> float:
+    """Electrical periods per revolution of three phase currents, shape (n, 3), one row per count of a revolution.
+
+    The space vector i_s = 2/3 (i_a + a i_b + a^2 i_c), a = e^{j 2 pi / 3}, of currents i_q(theta) along an axis
+    turning p times per revolution is i_q(theta) e^{j (p theta + phi)}; its square's largest harmonic is 2p
+    whatever the ripple of i_q (its mean square m^2 + r^2 / 2 outweighs every sideband: m r, r^2 / 4 for
+    i_q = m + r cos(k theta)), where the currents' own largest harmonic is a sideband p +- k once the ripple
+    r exceeds the mean m (a speed loop against cogging).
+    """
+    space = currents_a @ (2.0 / 3.0 * np.exp(2j * np.pi * np.arange(3) / 3.0))
+    spectrum = np.abs(np.fft.fft(space**2))
+    spectrum[0] = 0.0
+    order = int(np.argmax(spectrum))
+    return min(order, spectrum.size - order) / 2
+
+
 def read_backemf_csv(path: Path, motor: MotorInfo) -> np.ndarray:
     """A back-EMF table (count,k_a,k_b,k_c, one row per count), N m / A, checked against ``motor``."""
     header, data = _read_csv(path, motor.counts_per_rev)
@@ -449,10 +465,9 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
     nor the torque (which it has exactly when ``motor.torque_sensor``). The
     counts and time stamps give the mean speed at ``counts_per_rev``; it must lie within a factor SPEED_TOLERANCE of the
     speed set point (a wrong counts_per_rev or time unit does not). Over a
-    revolution or more, the current references' largest harmonic must be the
-    electrical one, ``pole_pairs`` per revolution; not for references made from i_q (``motor.currents`` =
-    `CURRENTS_FROM_I_Q`: i_q's own ripple then decides their largest harmonic, and the period is the one the
-    inverse Park transform put in).
+    revolution or more, the current references must turn ``pole_pairs`` electrical periods per revolution,
+    whatever their ripple (`_electrical_periods`); not checked for references made from i_q (``motor.currents``
+    = `CURRENTS_FROM_I_Q`: the period is the one the inverse Park transform put in).
 
     Raises
     ------
@@ -498,10 +513,10 @@ def check_trial(trial: TrialData, motor: MotorInfo, where: str) -> None:
     hits = np.maximum(np.bincount(position, minlength=cpr), 1)
     table = np.stack([np.bincount(position, weights=trial.i_ref_a[:, p], minlength=cpr) / hits
                       for p in range(3)], axis=1)
-    dominant = _dominant_harmonic(table)
+    dominant = _electrical_periods(table)
     if dominant != motor.pole_pairs:
         raise BenchFormatError(
-            f"{where}: the current references repeat {dominant} times per revolution of {cpr} counts, but "
+            f"{where}: the current references repeat {dominant:g} times per revolution of {cpr} counts, but "
             f"[motor] pole_pairs = {motor.pole_pairs} (wrong pole_pairs or counts_per_rev?)")
 
 

@@ -52,9 +52,10 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
              no_torque_sensor: bool, **log_options) -> None:
     """Simulate CONFIG's grid, scan or drive log into a folder.
 
-    See docs/simulator.md, "ilcpmac simulate". grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under
-    the result keys (the encoder's line errors included). scan, log: the log, mapping.toml (ilcpmac import
-    LOG --map mapping.toml --out BENCH takes it as it is), backemf.csv and truth.json.
+    grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under the
+    result keys (the encoder's line errors included). scan, log: the log, mapping.toml (ilcpmac import LOG --map
+    mapping.toml --out BENCH takes it as it is), backemf.csv and truth.json (docs/simulator.md, "ilcpmac
+    simulate").
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     import dataclasses
