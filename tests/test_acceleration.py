@@ -219,3 +219,43 @@ def test_a_reverse_rolling_log_gives_the_position_torque_in_the_motors_coordinat
     error = result.position_torque_nm - truth_nm()
     assert np.sqrt(np.mean(error**2) / np.mean(truth_nm() ** 2)) < 0.02
     assert np.all(np.abs(error) < 3 * result.position_torque_std_nm)
+
+
+@pytest.fixture(scope="module")
+def two_speed_bench(tmp_path_factory) -> Path:
+    """10 s at 0.4 Hz and 10 s at 0.8 Hz, logged at 1 kHz, imported into one bench with J given 20 % high
+    (stated uncertainty 20 %: a loose prior)."""
+    folder = tmp_path_factory.mktemp("two_speeds")
+    logs = [rolling_log(folder / f"log_{i}.csv", speed, 10.0, 1000.0, seed=11 + i)
+            for i, speed in enumerate((0.4, 0.8))]
+    (imported,) = import_logs(logs, read_mapping(mapping(folder, 1.2 * INERTIA, uncertainty=0.2)), folder / "bench")
+    return imported.folder
+
+
+def test_two_speeds_identify_the_inertia_and_the_friction(two_speed_bench):
+    bench = read_bench(two_speed_bench)
+    assert len(bench.trials) == 2
+    result = identify_bench(bench, torque_source=TorqueSource.ENCODER)
+    estimate = result.details
+    assert estimate.inertia_identified and estimate.inertia_given_kgm2 == pytest.approx(1.2 * INERTIA)
+    j_std = estimate.inertia_uncertainty * estimate.inertia_kgm2
+    assert abs(estimate.inertia_kgm2 - INERTIA) < 3 * j_std, (estimate.inertia_kgm2, j_std)
+    assert abs(estimate.inertia_kgm2 / INERTIA - 1) < 0.05
+    truth = truth_nm()
+    error = result.position_torque_nm - truth
+    assert np.sqrt(np.mean(error**2) / np.mean(truth**2)) < 0.05
+    assert np.all(np.abs(error) < 3 * result.position_torque_std_nm)
+    summary = result.diagnostics["acceleration"]
+    assert summary["inertia"] == "identified"
+    assert abs(summary["coulomb_friction_nm"] - COULOMB_NM) < 3 * summary["coulomb_friction_std_nm"]
+    assert abs(summary["viscous_friction_nm_s"]) < 3 * summary["viscous_friction_std_nm_s"]  # b = 0 in the logs
+    assert any(m.startswith("inertia: identified from 2 speeds") for m in result.messages)
+    assert any(m.startswith("viscous friction b: identified") for m in result.messages)
+
+
+def test_identify_cli_at_two_speeds(two_speed_bench, tmp_path):
+    run = CliRunner().invoke(main, ["identify", str(two_speed_bench), "--torque-source", "encoder", "--output",
+                                    str(tmp_path / "result.json"), "--plots", str(tmp_path / "plots")])
+    assert run.exit_code == 0, run.output
+    assert "J identified" in run.output and "viscous friction" in run.output
+    assert (tmp_path / "plots" / "acceleration_position_torque.png").is_file()

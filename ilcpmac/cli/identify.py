@@ -219,10 +219,20 @@ def acceleration_lines(result) -> list[str]:
     if summary is None:
         return []
     estimated = [h for h in summary["harmonics"] if h["status"] == "estimated"]
-    lines = [f"acceleration method at {summary['speed_hz']:.4g} Hz, {summary['revolutions']} revolutions, J given "
-             f"({summary['inertia_kgm2']:.4g} kg m²)",
-             f"Coulomb friction (b = 0): {_cell(summary['coulomb_friction_nm'], summary['coulomb_friction_std_nm'])}"
-             " N m"]
+    if summary.get("inertia") == "identified":
+        speeds = ", ".join(f"{f:.4g}" for f in sorted(set(summary["speeds_hz"])))
+        lines = [f"acceleration method at {speeds} Hz, {summary['revolutions']} revolutions, J identified: "
+                 f"{_cell(summary['inertia_kgm2'], summary['inertia_std_kgm2'])} kg m² (given "
+                 f"{summary['inertia_given_kgm2']:.4g})",
+                 f"Coulomb friction: {_cell(summary['coulomb_friction_nm'], summary['coulomb_friction_std_nm'])} N m"]
+        if summary["viscous_friction_nm_s"] is not None:
+            viscous = _cell(summary["viscous_friction_nm_s"], summary["viscous_friction_std_nm_s"])
+            lines.append(f"viscous friction: {viscous} N m s")
+    else:
+        lines = [f"acceleration method at {summary['speed_hz']:.4g} Hz, {summary['revolutions']} revolutions, "
+                 f"J given ({summary['inertia_kgm2']:.4g} kg m²)",
+                 f"Coulomb friction (b = 0): "
+                 f"{_cell(summary['coulomb_friction_nm'], summary['coulomb_friction_std_nm'])} N m"]
     if result.position_torque_nm is not None:
         lines.append(f"position-locked torque: {1000 * _rms(result.position_torque_nm):.4g} mN m RMS, ± "
                      f"{1000 * _rms(result.position_torque_std_nm):.2g} mN m per count")

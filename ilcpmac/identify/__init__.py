@@ -18,7 +18,10 @@ Without a torque sensor, trials at one operating point (one speed and one
 torque set point: a rolling drive log), which neither the joint fit nor the
 encoder error can use, are identified by the acceleration method instead
 (`acceleration`): the position-locked torque from J domega/dt - K.i, the
-inertia given.
+inertia given. So are rolling logs ([motor] log_rate_hz: an import) at
+several speeds (`several_speeds`) and one torque set point (the joint fit
+needs several), and other trials at several speeds where the encoder path
+fails: the inertia (and b) then identified.
 
 Otherwise without a torque sensor (or asked to), the torque is the encoder-derived one
 (`ilcpmac.identify.encoder`): the trials are reduced on it with the encoder's
@@ -41,7 +44,7 @@ from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.records import IdentificationResult, MethodEstimates, SensorCalibration
 from ilcpmac.core.torque_source import TorqueSource
-from ilcpmac.identify.acceleration import estimate_by_acceleration, one_operating_point
+from ilcpmac.identify.acceleration import estimate_by_acceleration, one_operating_point, one_setpoint, several_speeds
 from ilcpmac.identify.decoupling import DecouplingEstimate, decouple
 from ilcpmac.identify.encoder import EncoderIdentification, identify_on_encoder
 from ilcpmac.identify.joint import JointEstimate, fit_joint
@@ -178,7 +181,8 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
     torque_source : TorqueSource, optional
         Where the torque comes from: SENSOR, the torque sensor's column, or ENCODER, the encoder's time stamps
         (also on a bench with a sensor, to compare), not BOTH; None: `TorqueSource.default` of the bench. ENCODER
-        on a bench without a sensor at one operating point (`one_operating_point`) runs the acceleration method:
+        on a bench without a sensor at one operating point (`one_operating_point`), or of rolling logs at several
+        speeds (`several_speeds`) and one set point, runs the acceleration method:
         ``details`` is then its `AccelerationEstimate`, and ``progress`` is not called.
 
     Raises
@@ -198,9 +202,16 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
     if source.reads_sensor and not bench.motor.torque_sensor:
         raise IdentificationError(f"torque source {source.value!r}: the bench has no torque sensor ([motor] "
                                   "torque_sensor = false); use the encoder")
-    if source.reads_encoder and not bench.motor.torque_sensor and bench.trials and one_operating_point(bench):
+    sensorless = source.reads_encoder and not bench.motor.torque_sensor and bool(bench.trials)
+    rolling = bench.motor.log_rate_hz is not None and bool(bench.trials) and one_setpoint(bench)
+    if sensorless and (one_operating_point(bench) or (several_speeds(bench) and rolling)):
         result = _by_acceleration(bench, source)
         return in_motor_coordinates(result) if bench.motor.mirrored else result
+    return _identify(bench, source, step)
+
+
+def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -> IdentificationResult:
+    """`identify_bench` by the report's, the joint and (on the encoder) the encoder path's steps."""
     step(0)
     encoder = None
     if source.reads_encoder:
@@ -277,7 +288,10 @@ def _by_acceleration(bench: Bench, source: TorqueSource) -> IdentificationResult
     position = estimate.table_nm() if estimate.resolved.any() else None
     return IdentificationResult(
         cogging_nm=cogging, methods={"acceleration": MethodEstimates(cogging_nm=cogging)},
-        messages=(*estimate.messages, *NOT_IDENTIFIED_WITHOUT_SENSOR[:2], ACCELERATION_NOT_IDENTIFIED),
+        messages=(*estimate.messages, *NOT_IDENTIFIED_WITHOUT_SENSOR[:2],
+                  ACCELERATION_NOT_IDENTIFIED.replace("at one speed", "at several speeds").replace(
+                      "and the friction", "J and the friction") if estimate.inertia_identified
+                  else ACCELERATION_NOT_IDENTIFIED),
         diagnostics={"trials_used": estimate.trials, "method": "acceleration", "acceleration": estimate.to_json()},
         details=estimate, torque_source=source, position_torque_nm=position,
         position_torque_std_nm=None if position is None else estimate.table_std_nm())

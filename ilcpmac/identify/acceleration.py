@@ -57,8 +57,35 @@ log's quantum is thus not presented as resolved.
 Limits
 ------
 * Inertia: a motion periodic in position at one speed does not identify J
-  (J a_h and tau_pos,h share every harmonic); it is taken as given. Only the
-  non-repeating part (speed steps) or several speeds would identify it.
+  (J a_h and tau_pos,h share every harmonic); it is taken as given. Trials
+  at several speeds do (below); speed steps (the non-repeating part) would
+  too, and are not used.
+
+Several speeds
+--------------
+Trials whose mean speeds span a factor `SEVERAL_SPEEDS` or more (each trial
+at one speed: rolling logs at different speeds) identify J: tau_pos,h is the
+same at every speed while a_k,h, the motion's, changes with it (about as
+the speed squared at a given speed ripple). Per trial k, with J0 the given
+inertia and I_k,h = J0 a_k,h, eq. (2) at J = J0 (1 + x) reads
+
+    y_k,h = J0 a_k,h - (K . i)_k,h = tau_pos,h - x I_k,h                  (3)
+
+one weighted least squares over all trials and the harmonics below the
+fastest trial's Nyquist limit and off its folds: x (one column, the
+measured acceleration per count) and the shared tau_pos,h. With the
+weighted means over the trials (weights 1 / v_k,h) of y and I per harmonic,
+x = -sum 2 Re(conj(I~) y~) / v / (sum 2 |I~|^2 / v + 1 / u_J^2), I~ and y~
+the deviations from those means, and tau_pos,h = mean(y)_h + x mean(I)_h;
+the variance of x is one over the denominator. The given J enters only as a
+prior x = 0 +- u_J ([motor] inertia_uncertainty; without one, no prior;
+u_J = 0, J exact: x = 0). (b) becomes var(x) |mean(I)_h|^2, from the fit.
+Each trial's interpolation gain sinc^2(h f_k / f_s) is divided out before.
+Harmonic 0 gives (K . i)_0,k = C + b omega_k: C and b by weighted least
+squares over the trials when they share one torque set point (within
+`ONE_SPEED`); with several set points the mean torque holds their loads and
+neither is identified. b omega_h in the harmonics (b over J h Omega of
+J a_h) is neglected.
 * Nyquist: harmonic h is at h f Hz; at or above f_s / 2 the log does not
   resolve it, and it is not estimated (reported as 0). An order above folds
   onto |h - k R|, R = f_s / f rows per revolution: the harmonics within one of
@@ -89,8 +116,8 @@ from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.signals.encoder_torque import encoder_error_gain, quantisation_variance_nm2, revolution_torques_nm
 from ilcpmac.signals.harmonics import revolution_table, table_from_amplitudes, table_harmonics, whole_revolution_span
 
-__all__ = ["AccelerationEstimate", "FALSE_ALARM", "ONE_SPEED", "POOLED_HARMONICS", "estimate_by_acceleration",
-           "one_operating_point", "one_speed"]
+__all__ = ["AccelerationEstimate", "FALSE_ALARM", "ONE_SPEED", "POOLED_HARMONICS", "SEVERAL_SPEEDS",
+           "estimate_by_acceleration", "one_operating_point", "one_setpoint", "one_speed", "several_speeds"]
 
 #: harmonics each side whose revolution scatter a harmonic's noise variance pools
 POOLED_HARMONICS = 4
@@ -98,6 +125,20 @@ POOLED_HARMONICS = 4
 FALSE_ALARM = 0.01
 #: largest relative spread of the trials' speeds that is still one speed (as `separate_encoder_error`'s)
 ONE_SPEED = 0.05
+#: smallest ratio of the fastest trial's mean speed to the slowest's that identifies J (module notes, "Several
+#: speeds"): at 1.3, a_h changes by about 1.7 times between them
+SEVERAL_SPEEDS = 1.3
+
+
+def several_speeds(bench: Bench) -> bool:
+    """Whether the trials' mean speeds, all of one sign, span a factor `SEVERAL_SPEEDS` or more."""
+    return _spans(np.array([t.mean_speed_hz(bench.motor.counts_per_rev) for t in bench.trials]))
+
+
+def _spans(speeds: np.ndarray) -> bool:
+    if speeds.size < 2 or not (np.all(speeds > 0) or np.all(speeds < 0)):
+        return False
+    return bool(np.abs(speeds).max() >= SEVERAL_SPEEDS * np.abs(speeds).min())
 
 
 def one_speed(bench: Bench) -> bool:
@@ -108,7 +149,12 @@ def one_speed(bench: Bench) -> bool:
 def one_operating_point(bench: Bench) -> bool:
     """Whether the trials share one speed (`one_speed`) and one torque set point (within `ONE_SPEED`): what
     neither the joint fit (several set points) nor the encoder error (several speeds) can use."""
-    return one_speed(bench) and _within(np.array([t.torque_setpoint_nm for t in bench.trials]))
+    return one_speed(bench) and one_setpoint(bench)
+
+
+def one_setpoint(bench: Bench) -> bool:
+    """Whether the trials share one torque set point (within `ONE_SPEED`)."""
+    return _within(np.array([t.torque_setpoint_nm for t in bench.trials]))
 
 
 def _within(values: np.ndarray) -> bool:
@@ -138,7 +184,7 @@ class AccelerationEstimate:
     encoder_error_counts : ndarray, shape (H + 1,)
         The encoder error harmonic |e_h| that would bias tau_pos,h by one standard error, counts (entry 0 inf).
     friction_nm, friction_std_nm : float
-        C + b omega_0 = (K . i)_0 and its standard error, N m (b fixed to 0: one speed).
+        C + b omega_0 = (K . i)_0 and its standard error, N m (b fixed to 0: one speed); C where b is identified.
     speed_hz : float
         The trials' mean speed.
     trials : int
@@ -146,12 +192,20 @@ class AccelerationEstimate:
     revolutions : int
         Whole revolutions used, over all trials.
     inertia_kgm2 : float
-        J, as given.
+        J, as given, or as identified (``inertia_identified``).
     inertia_uncertainty : float or None
-        u_J, as given (None: not stated, (b) left out).
+        u_J, as given (None: not stated, (b) left out), or identified J's standard error over J.
     counts_per_rev, cogging_order : int
     messages : tuple of str
         What was assumed and what is not estimated.
+    inertia_identified : bool
+        J identified from several speeds (module notes, "Several speeds").
+    inertia_given_kgm2 : float or None
+        The given J where it was identified.
+    viscous_nm_s, viscous_std_nm_s : float or None
+        b and its standard error where identified (several speeds, one set point), N m s.
+    speeds_hz : tuple of float
+        Each used trial's mean speed.
     """
 
     harmonics_nm: np.ndarray
@@ -173,6 +227,11 @@ class AccelerationEstimate:
     counts_per_rev: int
     cogging_order: int
     messages: tuple[str, ...]
+    inertia_identified: bool = False
+    inertia_given_kgm2: float | None = None
+    viscous_nm_s: float | None = None
+    viscous_std_nm_s: float | None = None
+    speeds_hz: tuple[float, ...] = ()
 
     @property
     def variance_nm2(self) -> np.ndarray:
@@ -201,9 +260,13 @@ class AccelerationEstimate:
         std = np.sqrt(self.variance_nm2)
         return {
             "speed_hz": self.speed_hz, "trials": self.trials, "revolutions": self.revolutions,
-            "inertia_kgm2": self.inertia_kgm2, "inertia": "given", "inertia_uncertainty": self.inertia_uncertainty,
+            "inertia_kgm2": self.inertia_kgm2, "inertia": "identified" if self.inertia_identified else "given",
+            "inertia_uncertainty": self.inertia_uncertainty,
+            **({"inertia_std_kgm2": (self.inertia_uncertainty or 0.0) * self.inertia_kgm2,
+                "inertia_given_kgm2": self.inertia_given_kgm2, "speeds_hz": list(self.speeds_hz)}
+               if self.inertia_identified else {}),
             "coulomb_friction_nm": self.friction_nm, "coulomb_friction_std_nm": self.friction_std_nm,
-            "viscous_friction_nm_s": None,
+            "viscous_friction_nm_s": self.viscous_nm_s, "viscous_friction_std_nm_s": self.viscous_std_nm_s,
             "harmonics": [{"order": h, "re": float(x.real), "im": float(x.imag), "std": float(s),
                            "status": "estimated" if ok else "above Nyquist" if nyq else "aliased" if fold
                            else "within noise", "encoder_error_counts_per_std": float(e)}
@@ -265,8 +328,10 @@ def estimate_by_acceleration(bench: Bench, max_harmonic: int | None = None) -> A
         check_backemf(bench.backemf_nm_per_a, motor, "back-EMF")
     except BenchFormatError as e:
         raise IdentificationError(str(e)) from None
-    if not one_speed(bench):
-        raise IdentificationError(f"the acceleration method needs trials at one speed (within {ONE_SPEED:.0%})")
+    several = not one_speed(bench)
+    if several and not several_speeds(bench):
+        raise IdentificationError(f"the acceleration method needs trials at one speed (within {ONE_SPEED:.0%}) "
+                                  f"or at speeds of one sign spanning a factor {SEVERAL_SPEEDS:g} or more")
     limit = cpr // 2 - 1
     top = min(2 * motor.cogging_order if max_harmonic is None else max_harmonic, limit)
     timer_s = timer_resolution_s(bench)
@@ -280,33 +345,35 @@ def estimate_by_acceleration(bench: Bench, max_harmonic: int | None = None) -> A
     if not per_trial:
         raise IdentificationError("acceleration method: no trial can be used: " + "; ".join(messages))
     weight = 1.0 / np.array([p[1] for p in per_trial])
-    speed_hz = float(np.mean([p[3] for p in per_trial]))
+    speeds = np.array([p[3] for p in per_trial])
+    if several and not _spans(speeds):
+        raise IdentificationError(f"acceleration method: the trials that can be used do not span a factor "
+                                  f"{SEVERAL_SPEEDS:g} in speed: " + "; ".join(messages))
+    speed_hz = float(np.mean(speeds))
+    fastest = float(speeds[np.argmax(np.abs(speeds))])
     h = np.arange(top + 1)
-    gain = np.ones(top + 1)
-    above = np.zeros(top + 1, bool)
-    folds: dict[int, int] = {}
-    if motor.log_rate_hz is not None:
-        above = h * speed_hz >= motor.log_rate_hz / 2.0
-        gain = np.sinc(h * speed_hz / motor.log_rate_hz) ** 2
-        rows_per_rev = motor.log_rate_hz / speed_hz
-        folds = {order: int(round(abs(order - round(order / rows_per_rev) * rows_per_rev)))
-                 for order in range(motor.cogging_order, top + 1, motor.cogging_order)
-                 if order >= rows_per_rev / 2.0}
-    aliased = np.zeros(top + 1, bool)
-    for alias in folds.values():
-        aliased[max(alias - 1, 1):alias + 2] = True
-    aliased &= ~above
-    total = weight.sum(axis=0)
-    harmonics = np.sum(weight * np.array([p[0] for p in per_trial]), axis=0) / total / gain
-    inertial = np.sum(weight * np.array([p[2] for p in per_trial]), axis=0) / total / gain
-    noise = 1.0 / total / gain**2
-    friction, friction_std = -float(harmonics[0].real), float(np.sqrt(noise[0]))
-    harmonics[0], inertial[0], noise[0] = 0.0, 0.0, 0.0
+    above, aliased, folds = _nyquist(motor, h, top, [speed_hz] if not several else list(speeds),
+                                     speed_hz if not several else fastest)
+    gain = _gain(motor, h, speeds[:, None] if several else np.array([[speed_hz]]))
+    identified: dict = {}
     u_j = motor.inertia_uncertainty
-    inertia_var = ((u_j or 0.0) * np.abs(inertial)) ** 2
-    omega = 2.0 * np.pi * speed_hz
-    resolution_var = (motor.inertia_kgm2 * (h * omega) ** 2 * omega * timer_s) ** 2 / 6.0
-    resolution_var[0] = 0.0
+    if several:
+        harmonics, inertial, noise, inertia_var, resolution_var, identified = _several_speeds(
+            per_trial, gain, h, ~above & ~aliased & (h > 0), motor.inertia_kgm2, u_j, timer_s,
+            np.array([t.torque_setpoint_nm for t in bench.trials]))
+        friction, friction_std = identified["coulomb"]
+        u_j = identified["inertia_std"] / identified["inertia"]
+    else:
+        gain = gain[0]
+        total = weight.sum(axis=0)
+        harmonics = np.sum(weight * np.array([p[0] for p in per_trial]), axis=0) / total / gain
+        inertial = np.sum(weight * np.array([p[2] for p in per_trial]), axis=0) / total / gain
+        noise = 1.0 / total / gain**2
+        friction, friction_std = -float(harmonics[0].real), float(np.sqrt(noise[0]))
+        harmonics[0], inertial[0], noise[0] = 0.0, 0.0, 0.0
+        inertia_var = ((u_j or 0.0) * np.abs(inertial)) ** 2
+        resolution_var = _resolution_variance(motor.inertia_kgm2, h, speed_hz, timer_s)
+    omega = 2.0 * np.pi * (fastest if several else speed_hz)
     threshold = np.log(top / FALSE_ALARM)
     standing = np.abs(harmonics) ** 2 > threshold * (noise + inertia_var + resolution_var)
     resolved = (h > 0) & ~above & ~aliased & standing
@@ -314,7 +381,12 @@ def estimate_by_acceleration(bench: Bench, max_harmonic: int | None = None) -> A
     variance = noise + inertia_var + resolution_var
     m = np.abs(encoder_error_gain(h, cpr, motor.inertia_kgm2, 2.0 * np.pi * speed_hz, 0.0))
     tolerance = np.divide(np.sqrt(variance), m, out=np.full(top + 1, np.inf), where=m > 0)
-    messages += _messages(motor, h, resolved, above, aliased, folds, tolerance, speed_hz, top, u_j)
+    if several:
+        messages += _several_messages(motor, speeds, identified)
+        messages += [m.replace("not separable at one speed", "not separated (at the fastest speed)")
+                     for m in _messages(motor, h, resolved, above, aliased, folds, tolerance, fastest, top, u_j)[3:]]
+    else:
+        messages += _messages(motor, h, resolved, above, aliased, folds, tolerance, speed_hz, top, u_j)
     if unresolved.any():
         messages.append(f"orders {', '.join(str(int(k)) for k in h[unresolved])}: stand out of the noise but not "
                         f"of the stamps' resolution ({omega * timer_s:.3g} rad: J (h Omega)^2 q_theta / sqrt(6) "
@@ -322,7 +394,115 @@ def estimate_by_acceleration(bench: Bench, max_harmonic: int | None = None) -> A
     return AccelerationEstimate(harmonics, noise, inertia_var, resolution_var, inertial, resolved, above, aliased,
                                 tolerance,
                                 friction, friction_std, speed_hz, len(per_trial), int(sum(p[4] for p in per_trial)),
-                                motor.inertia_kgm2, u_j, cpr, motor.cogging_order, tuple(messages))
+                                identified.get("inertia", motor.inertia_kgm2), u_j, cpr, motor.cogging_order,
+                                tuple(messages), several, motor.inertia_kgm2 if several else None,
+                                identified.get("viscous"), identified.get("viscous_std"),
+                                tuple(float(f) for f in speeds))
+
+
+def _nyquist(motor: MotorInfo, h: np.ndarray, top: int, speeds: list[float], speed_hz: float
+             ) -> tuple[np.ndarray, np.ndarray, dict[int, int]]:
+    """The harmonics above the log's Nyquist limit at ``speed_hz``, those within one of where a cogging order
+    folds at any of ``speeds``, and the folds (order -> harmonic, at ``speed_hz``)."""
+    above = np.zeros(top + 1, bool)
+    aliased = np.zeros(top + 1, bool)
+    folds: dict[int, int] = {}
+    if motor.log_rate_hz is None:
+        return above, aliased, folds
+    above = h * abs(speed_hz) >= motor.log_rate_hz / 2.0
+    for f in speeds:
+        rows_per_rev = motor.log_rate_hz / f
+        fold = {order: int(round(abs(order - round(order / rows_per_rev) * rows_per_rev)))
+                for order in range(motor.cogging_order, top + 1, motor.cogging_order)
+                if order >= rows_per_rev / 2.0}
+        if f == speed_hz:
+            folds = fold
+        for alias in fold.values():
+            aliased[max(alias - 1, 1):alias + 2] = True
+    return above, aliased & ~above, folds
+
+
+def _gain(motor: MotorInfo, h: np.ndarray, speed_hz: np.ndarray) -> np.ndarray:
+    """The linear interpolation's gain sinc^2(h f / f_s) at each speed (rows) and harmonic (columns)."""
+    if motor.log_rate_hz is None:
+        return np.ones((speed_hz.shape[0], h.size))
+    return np.sinc(h * speed_hz / motor.log_rate_hz) ** 2
+
+
+def _resolution_variance(inertia_kgm2: float, h: np.ndarray, speed_hz: float, timer_s: float) -> np.ndarray:
+    """(c): (J (h Omega)^2 Omega q)^2 / 6, 0 at h = 0."""
+    omega = 2.0 * np.pi * speed_hz
+    out = (inertia_kgm2 * (h * omega) ** 2 * omega * timer_s) ** 2 / 6.0
+    out[0] = 0.0
+    return out
+
+
+def _several_speeds(per_trial: list, gain: np.ndarray, h: np.ndarray, use: np.ndarray, inertia_kgm2: float,
+                    uncertainty: float | None, timer_s: float, setpoints: np.ndarray):
+    """Eq. (3) over trials at several speeds (module notes, "Several speeds"): tau_pos,h, J a_h pooled, the
+    noise (a), J's (b) and the resolution's (c) variances per harmonic (0 where not ``use``), and a dict of J,
+    its standard error, C and b with theirs."""
+    gain = np.where(gain > 0, gain, 1.0)
+    y = np.array([p[0] for p in per_trial]) / gain
+    inertial = np.array([p[2] for p in per_trial]) / gain
+    weight = 1.0 / (np.array([p[1] for p in per_trial]) / gain**2)
+    total = weight.sum(axis=0)
+    y_mean = np.sum(weight * y, axis=0) / total
+    i_mean = np.sum(weight * inertial, axis=0) / total
+    dy, di = (y - y_mean)[:, use], (inertial - i_mean)[:, use]
+    w = 2.0 * weight[:, use]
+    information = float(np.sum(w * np.abs(di) ** 2))
+    if uncertainty is not None and uncertainty > 0.0:
+        information += 1.0 / uncertainty**2
+    if uncertainty == 0.0 or information <= 0.0:
+        x, x_var = 0.0, 0.0
+    else:
+        x, x_var = -float(np.sum(w * np.real(np.conj(di) * dy))) / information, 1.0 / information
+    harmonics = np.where(use, y_mean + x * i_mean, 0.0)
+    pooled_inertial = np.where(use, (1.0 + x) * i_mean, 0.0)
+    noise = np.where(use, 1.0 / total, 0.0)
+    inertia_var = np.where(use, x_var * np.abs(i_mean) ** 2, 0.0)
+    resolution = np.array([_resolution_variance(inertia_kgm2, h, p[3], timer_s) for p in per_trial])
+    resolution_var = np.where(use, (np.sum(weight * np.sqrt(resolution), axis=0) / total) ** 2, 0.0)
+    # harmonic 0: y_k,0 = -(K . i)_0,k = -(C + b omega_k)
+    mean = -np.array([p[0][0].real for p in per_trial])
+    variance = np.array([p[1][0] for p in per_trial])
+    omega = 2.0 * np.pi * np.array([p[3] for p in per_trial])
+    out: dict = {"inertia": inertia_kgm2 * (1.0 + x), "inertia_std": inertia_kgm2 * float(np.sqrt(x_var)),
+           "prior": uncertainty, "viscous": None, "viscous_std": None}
+    if np.ptp(setpoints) <= ONE_SPEED * np.abs(setpoints).max():
+        design = np.column_stack([np.sign(omega), omega]) / np.sqrt(variance)[:, None]
+        covariance = np.linalg.inv(design.T @ design)
+        (c, b) = covariance @ design.T @ (mean / np.sqrt(variance))
+        out["coulomb"] = (float(c * np.sign(omega[0])), float(np.sqrt(covariance[0, 0])))
+        out["viscous"], out["viscous_std"] = float(b), float(np.sqrt(covariance[1, 1]))
+    else:
+        out["coulomb"] = (float(np.sum(mean / variance) / np.sum(1.0 / variance)),
+                          float(np.sqrt(1.0 / np.sum(1.0 / variance))))
+    return harmonics, pooled_inertial, noise, inertia_var, resolution_var, out
+
+
+def _several_messages(motor: MotorInfo, speeds: np.ndarray, identified: dict) -> list[str]:
+    """What the acceleration method at several speeds identified and assumed."""
+    j, j_std, prior = identified["inertia"], identified["inertia_std"], identified["prior"]
+    speed_list = ", ".join(f"{f:.4g}" for f in sorted(set(np.round(speeds, 4))))
+    out = [f"acceleration method ({speeds.size} trials at {speed_list} Hz, no torque sensor): the position-locked "
+           "torque from J domega/dt - K.i and J, fitted together over the speeds"]
+    if prior == 0.0:
+        out.append(f"inertia: taken as given (J = {motor.inertia_kgm2:.6g} kg m^2, stated exact: [motor] "
+                   "inertia_uncertainty = 0), not identified from the speeds")
+    else:
+        out.append(f"inertia: identified from {speeds.size} speeds: J = {j:.6g} +- {j_std:.2g} kg m^2 (given "
+                   f"{motor.inertia_kgm2:.6g}"
+                   + (", not used: no inertia_uncertainty stated)" if prior is None
+                      else f", used as a prior with relative uncertainty {prior:g})"))
+    if identified["viscous"] is not None:
+        out.append(f"viscous friction b: identified from the speeds: {identified['viscous']:.4g} +- "
+                   f"{identified['viscous_std']:.2g} N m s (b omega in the harmonics neglected)")
+    else:
+        out.append("viscous friction b: not identified - the trials' torque set points differ (their loads move "
+                   "the mean torque); the Coulomb friction reported is the weighted mean torque")
+    return out
 
 
 def _messages(motor: MotorInfo, h: np.ndarray, resolved: np.ndarray, above: np.ndarray, aliased: np.ndarray,

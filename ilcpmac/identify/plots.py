@@ -298,7 +298,9 @@ def acceleration_method(result: IdentificationResult) -> Figure:
     top.fill_between(degrees, table - 2 * std, table + 2 * std, color="0.8", label="+-2 standard errors")
     top.plot(degrees, table, "k", lw=0.8, label="position-locked torque")
     top.plot(degrees, estimate.table_nm(cogging_only=True), lw=0.8, label="cogging band")
-    top.set_title(f"acceleration method at {estimate.speed_hz:.3g} Hz (J given), the bench's coordinates")
+    speeds = (f"{min(estimate.speeds_hz):.3g}-{max(estimate.speeds_hz):.3g} Hz (J identified)"
+              if estimate.inertia_identified else f"{estimate.speed_hz:.3g} Hz (J given)")
+    top.set_title(f"acceleration method at {speeds}, the bench's coordinates")
     top.set_ylabel("torque (N m)")
     plotting.angle_axis(top)
     plotting.legend(top)
