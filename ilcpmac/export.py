@@ -32,6 +32,7 @@ import numpy as np
 from ilcpmac.compensation import COMPENSATION_FILE, Compensation, PositionTable
 from ilcpmac.core.errors import IlcpmacError
 from ilcpmac.core.records import SensorCalibration
+from ilcpmac.model.tables import mechanical_angles_rad
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
 __all__ = ["C_TYPES", "FORMATS", "INT16_FULL_SCALE", "MOTEUS_INT8_MAX", "MOTEUS_TABLE_SIZE", "POSITION_FORMATS",
@@ -478,11 +479,6 @@ def _harmonic_sum(orders: np.ndarray, coefficients: np.ndarray, theta: np.ndarra
     return np.cos(angle) @ coefficients[:, 0] + np.sin(angle) @ coefficients[:, 1]
 
 
-def _angles(counts: int) -> np.ndarray:
-    """theta = 2 pi c / counts at each count c, rad."""
-    return 2.0 * np.pi * np.arange(counts) / counts
-
-
 def write_harmonics(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float) -> Exported:
     """harmonics.csv: per order n of ``table.orders``, a_n, b_n, the amplitude sqrt(a_n^2 + b_n^2) and the
     phase atan2(b_n, a_n) (a_n cos + b_n sin = amplitude cos(n theta - phase)), in N m and in q-axis A."""
@@ -497,7 +493,8 @@ def write_harmonics(table: PositionTable, out_dir: Path, torque_constant_nm_per_
              for n, (a, b), m, ph in zip(table.orders.tolist(), coefficients, amplitude, phase)]
     path = out_dir / HARMONICS_FILE
     path.write_text(_text(rows))
-    return Exported((path,), rendered_nm=_harmonic_sum(table.orders, coefficients, _angles(table.counts_per_rev)))
+    theta = mechanical_angles_rad(table.counts_per_rev)
+    return Exported((path,), rendered_nm=_harmonic_sum(table.orders, coefficients, theta))
 
 
 @dataclass(frozen=True)
@@ -527,7 +524,8 @@ class MoteusTable:
         response to it, and quantised."""
         orders = np.arange(min(table.counts_per_rev // 2, MOTEUS_TABLE_SIZE // 2 - 1) + 1)
         c = harmonic_amplitudes(table.feedforward_nm)[orders] / np.sinc(orders / MOTEUS_TABLE_SIZE) ** 2
-        current_a = np.real(np.exp(1j * np.outer(_angles(MOTEUS_TABLE_SIZE), orders)) @ c) / torque_constant_nm_per_a
+        theta = mechanical_angles_rad(MOTEUS_TABLE_SIZE)
+        current_a = np.real(np.exp(1j * np.outer(theta, orders)) @ c) / torque_constant_nm_per_a
         peak = float(np.max(np.abs(current_a)))
         scale = float(np.float32((peak or 1.0) / MOTEUS_INT8_MAX))
         values = np.clip(np.rint(current_a / scale), -MOTEUS_INT8_MAX, MOTEUS_INT8_MAX).astype(np.int8)

@@ -62,7 +62,7 @@ from ilcpmac.core.records import (
 )
 from ilcpmac.core.schema import in_range, parse_section, read_toml, setting, shown
 from ilcpmac.model.motor import backemf_problem
-from ilcpmac.model.tables import backemf_table
+from ilcpmac.model.tables import backemf_table, q_axis
 
 __all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogPoint", "MAX_TIME_S",
            "bench_motor", "import_laps", "import_log", "import_logs", "import_scan", "read_mapping",
@@ -75,7 +75,6 @@ MIN_STAMP_RESOLUTION_S = 1e-7
 MAX_TIME_S = 2.0**53 * MIN_STAMP_RESOLUTION_S
 #: a change of the row interval or of the position step below this fraction of it is rounding, not a quantum
 _ROUNDING = 1e-6
-_PHASE_SHIFTS_RAD = 2.0 * np.pi * np.arange(3) / 3.0
 
 
 @dataclass(frozen=True)
@@ -306,7 +305,7 @@ def _inverse_park(i_q: np.ndarray, position_counts: np.ndarray, motor: MotorInfo
     """Phase currents i_p = i_q sin(theta_e - 2 pi p / 3), theta_e = pole_pairs 2 pi position / counts_per_rev
     + offset_rad, shape (n, 3)."""
     theta_e = motor.pole_pairs * 2.0 * np.pi * position_counts / motor.counts_per_rev + offset_rad
-    return i_q[:, None] * np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD)
+    return i_q[:, None] * q_axis(theta_e)
 
 
 def _interval_error(values: np.ndarray, k: np.ndarray) -> np.ndarray:

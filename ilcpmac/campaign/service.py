@@ -123,12 +123,12 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     try:
         if resume_dir is not None:
             settings = RunDir.read_settings(resume_dir)
-            cfg = load_campaign_config(RunFiles(resume_dir).config)
+            cfg = load_config(RunFiles(resume_dir).config)
             seed, trials = settings.get("seed"), settings.get("trials")
         elif isinstance(config, CampaignConfig):
             cfg = config
         else:
-            cfg = load_campaign_config(config or packaged_config(DEFAULT_CONFIG))
+            cfg = load_config(config or packaged_config(DEFAULT_CONFIG))
         if trials is not None:
             cfg = replace(cfg, campaign=replace(cfg.campaign, learn_trials=trials))
         if seed is not None:

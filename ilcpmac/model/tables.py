@@ -49,6 +49,13 @@ def disturbance_table(unexplained: Unexplained, n_points: int) -> np.ndarray:
     return _sines(unexplained.orders, unexplained.amplitudes_nm, unexplained.phases_rad, n_points)
 
 
+def q_axis(theta_e_rad: np.ndarray) -> np.ndarray:
+    """sin(theta_e - 2 pi p / 3) per phase p, shape (n, 3): the phase currents of a unit amplitude-invariant i_q
+    (i_d = 0, the inverse Park transform); i_q = 2/3 sum_p i_p of it, and a back-EMF table K gives the q-axis
+    torque per ampere sum_p K_p of it."""
+    return np.sin(np.asarray(theta_e_rad)[:, None] - 2.0 * np.pi * np.arange(3) / 3.0)
+
+
 def dead_counts(backemf_nm_per_a: np.ndarray) -> np.ndarray:
     """The counts whose back-EMF row is zero: no current makes torque there, shape (n,)."""
     return np.sum(backemf_nm_per_a**2, axis=1) == 0

@@ -42,13 +42,13 @@ from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.bench.logs import MAX_LOG_ROWS
 from ilcpmac.core.errors import SimulationError
 from ilcpmac.core.schema import in_range, shown
+from ilcpmac.model.tables import q_axis
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator
 
 __all__ = ["LOOPS", "LogPlan", "drive_log", "torque_per_ampere", "write_drive_log"]
 
 #: the loops a log's drive closes
 LOOPS = ("speed", "position", "current")
-_PHASE_SHIFTS_RAD = 2.0 * np.pi * np.arange(3) / 3.0
 #: corner of the speed estimate's two low-pass stages, and the integral and position loops' corners,
 #: over the speed loop's bandwidth
 _FILTER_RATIO, _INTEGRAL_RATIO, _POSITION_RATIO = 4.0, 0.25, 0.2
@@ -127,7 +127,7 @@ def torque_per_ampere(pole_pairs: int, backemf_nm_per_a: np.ndarray, rows_per_re
     """k_q = sum_p K_p sin(theta_e - 2 pi p / 3), N m / A, of a back-EMF table whose row j is at the angle
     2 pi j / rows_per_rev."""
     theta_e = pole_pairs * 2.0 * np.pi * np.arange(backemf_nm_per_a.shape[0]) / rows_per_rev
-    return np.sum(backemf_nm_per_a * np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD), axis=1)
+    return np.sum(backemf_nm_per_a * q_axis(theta_e), axis=1)
 
 
 @njit(cache=True)
@@ -210,7 +210,7 @@ def drive_log(simulator: Simulator, plan: LogPlan) -> tuple[dict[str, np.ndarray
         columns["i_q"] = i_q + sigma_a * math.sqrt(2.0 / 3.0) * rng.standard_normal(rows)
     else:
         theta_e = m.winding.pole_pairs * columns["position"]
-        phases = i_q[:, None] * np.sin(theta_e[:, None] - _PHASE_SHIFTS_RAD) + sigma_a * rng.standard_normal((rows, 3))
+        phases = i_q[:, None] * q_axis(theta_e) + sigma_a * rng.standard_normal((rows, 3))
         columns.update({"i_a": phases[:, 0], "i_b": phases[:, 1], "i_c": phases[:, 2]})
     counts = list(range(cpr))
     truth = {"torque_constant_nm_per_a": k_t_true,

@@ -39,7 +39,7 @@ import numpy as np
 from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.core.errors import SimulationError
 from ilcpmac.core.schema import in_range, shown
-from ilcpmac.model.tables import current_references
+from ilcpmac.model.tables import current_references, q_axis
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator, airgap_torque_nm
 
 __all__ = ["ScanPlan", "scan_log", "write_scan_log"]
@@ -179,9 +179,8 @@ def _holding_currents(simulator: Simulator, position: np.ndarray, holding_nm: np
     measured = reference[:, None] * per_nm + (m.current_sensors.noise_counts / calibration.current_scale
                                               * rng.standard_normal((position.size, 3)))
     theta_e = m.winding.pole_pairs * 2.0 * np.pi * position / cpr
-    park = np.sin(theta_e[:, None] - 2.0 * np.pi * np.arange(3) / 3.0)
     return {"i_a": measured[:, 0], "i_b": measured[:, 1], "i_c": measured[:, 2],
-            "i_q": 2.0 / 3.0 * np.sum(measured * park, axis=1)}
+            "i_q": 2.0 / 3.0 * np.sum(measured * q_axis(theta_e), axis=1)}
 
 
 def write_scan_log(path: str | Path, simulator: Simulator, plan: ScanPlan) -> dict:
