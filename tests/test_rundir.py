@@ -54,7 +54,8 @@ DESCRIPTION = BenchDescription(MotorInfo(4, 12, CPR, 1e-3), 0.1 * np.cos(_ANGLE)
 
 def trial(torque_nm: float = 1.0) -> TrialData:
     count = np.arange(CPR, dtype=np.int64)
-    return TrialData(torque_nm, 0.5, count, count / (0.5 * CPR), torque_nm * np.cos(_ANGLE),
+    # K . i_ref = 0.1 x 1.5 x i_ref's amplitude: the set point
+    return TrialData(torque_nm, 0.5, count, count / (0.5 * CPR), torque_nm / 0.15 * np.cos(_ANGLE),
                      torque_nm + 0.01 * np.sin(_ANGLE[:, 0]))
 
 

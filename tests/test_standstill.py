@@ -190,7 +190,7 @@ def good_rows(per_count: int = 2) -> list[str]:
      "s/scan.csv: 1 reverse count (17) without a sample: filled from their neighbours they could move"),
     (lambda r: r[:5] + [r[5].rsplit(",", 1)[0] + ",nan"] + r[6:], "line 7: torque is not a finite number"),
     (lambda r: r[:2] + [r[2].rsplit(",", 1)[0] + ",1e9"] + r[3:], "line 4: torque beyond"),
-    (lambda r: r[:2] + ["1,2"] + r[3:], "not rows of 4 numbers"),
+    (lambda r: r[:2] + ["1,2"] + r[3:], "line 4 has 2 fields, the header has 4"),
     (lambda r: r[::2], "the scatter needs more than 48"),
 ])
 def test_hostile_scan_rows_one_line(tmp_path, change, expected):

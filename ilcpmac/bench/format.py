@@ -88,6 +88,8 @@ MAX_SPAN_PER_ROW = 4
 MAX_COUNT = 2**53
 #: how far (a factor) the speed given by counts and time stamps may lie from the speed set point
 SPEED_TOLERANCE = 1.5
+#: how far (a factor) a trial's torque set point may lie from the mean torque its current references ask for
+SETPOINT_TOLERANCE = 2.0
 #: largest timer resolution of the time stamps, s
 MAX_TIMER_RESOLUTION_S = 1e-3
 #: the tables of bench.toml
@@ -230,14 +232,16 @@ def _rest(f) -> np.ndarray:
     return text
 
 
-def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
+def _read_csv(path: Path, max_rows: int, expected: list[str] | None = None) -> tuple[list[str], np.ndarray]:
     """Header and float rows of a CSV of at most ``max_rows`` rows; bad rows raise naming file and line.
 
     The file's size is checked against ``max_rows`` before it is opened, the
-    header line is read with a bounded readline and no more than ``max_rows``
-    + 1 rows are ever parsed. Plain decimal numbers are parsed by
-    `parse_rows` (always finite); anything else by numpy, whose errors name
-    the line, and then checked to be finite.
+    header line is read with a bounded readline and must be ``expected`` when
+    given (before any row is parsed), and no more than ``max_rows`` + 1 rows
+    are ever parsed. Plain decimal numbers are parsed by `parse_rows` (always
+    finite); anything else by numpy (a ``#`` is no comment: a value that is
+    not a number), whose errors name the line and column (`loadtxt_problem`),
+    and then checked to be finite. No message quotes the file's text.
     """
     _regular_file(path, MAX_HEADER_BYTES + max_rows * MAX_ROW_BYTES)
     try:
@@ -247,17 +251,20 @@ def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
                 raise BenchFormatError(f"{path}: line 1: no end of the header line in {MAX_HEADER_BYTES} bytes")
             try:
                 header = [h.strip() for h in header_line.decode().strip().split(",")]
-            except UnicodeDecodeError as e:
-                raise BenchFormatError(f"{path}: cannot read ({e})") from None
+            except UnicodeDecodeError:
+                raise BenchFormatError(f"{path}: line 1: the header is not UTF-8 text") from None
+            if expected is not None and header != expected:
+                raise BenchFormatError(f"{path}: line 1: header must be {','.join(expected)}")
             body = f.tell()
             data = parse_rows(_rest(f), len(header), max_rows)
             parsed = data is not None
             if data is None:
                 f.seek(body)
                 try:
-                    data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float, max_rows=max_rows + 1)
+                    data = np.loadtxt(f, delimiter=",", ndmin=2, dtype=float, max_rows=max_rows + 1,
+                                      comments=None)
                 except ValueError as e:
-                    raise BenchFormatError(f"{path}: {_shortened(_loadtxt_message(e, len(header)), 200)}") from None
+                    raise BenchFormatError(f"{path}: {loadtxt_problem(e, header, ',', 1)}") from None
     except OSError as e:
         raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
     if data.shape[0] > max_rows:
@@ -271,8 +278,10 @@ def _read_csv(path: Path, max_rows: int) -> tuple[list[str], np.ndarray]:
     return header, data
 
 
-def _loadtxt_message(e: ValueError, n_header: int) -> str:
-    """Name the file line of a numpy loadtxt error (the header is line 1, the first data row line 2).
+def loadtxt_problem(e: ValueError, header: list[str], delimiter: str, header_lines: int) -> str:
+    """A numpy loadtxt error of rows under ``header_lines`` lines, the last naming the columns ``header``: the
+    file line and column at fault, without the file's text (a file named by mistake, a password file say,
+    must not show in a message).
 
     numpy counts data rows from 0 when a value does not convert, but from 1
     when a row's number of fields differs from the first data row's (which
@@ -282,13 +291,15 @@ def _loadtxt_message(e: ValueError, n_header: int) -> str:
     m = re.search(r"number of columns changed from (\d+) to (\d+) at row (\d+)", text)
     if m:
         first, fields, row = (int(g) for g in m.groups())
-        if first != n_header:
-            return f"line 2 has {first} fields, the header has {n_header}"
-        return f"line {row + 1} has {fields} fields, the header has {n_header}"
-    m = re.search(r"(?:at|in) row (\d+)", text)
+        if first != len(header):
+            return f"line {header_lines + 1} has {first} fields, the header has {len(header)}"
+        return f"line {row + header_lines} has {fields} fields, the header has {len(header)}"
+    m = re.search(r"(?:at|in) row (\d+), column (\d+)", text)
     if m:
-        return f"line {int(m.group(1)) + 2}: {text}"
-    return text
+        row, column = (int(g) for g in m.groups())
+        name = f" ({_shortened(header[column - 1], 40)})" if column <= len(header) else ""
+        return f"line {row + header_lines + 1}, column {column}{name}: not a number"
+    return f"not rows of {len(header)} numbers separated by {delimiter!r}"
 
 
 def _dominant_harmonic(table: np.ndarray) -> int:
@@ -316,9 +327,7 @@ def _electrical_periods(currents_a: np.ndarray) -> float:
 
 def read_backemf_csv(path: Path, motor: MotorInfo) -> np.ndarray:
     """A back-EMF table (count,k_a,k_b,k_c, one row per count), N m / A, checked against ``motor``."""
-    header, data = _read_csv(path, motor.counts_per_rev)
-    if header != ["count", "k_a", "k_b", "k_c"]:
-        raise BenchFormatError(f"{path}: line 1: header must be count,k_a,k_b,k_c, got {_shortened(','.join(header))}")
+    _, data = _read_csv(path, motor.counts_per_rev, ["count", "k_a", "k_b", "k_c"])
     if data.shape[0] != motor.counts_per_rev:
         raise BenchFormatError(f"{path}: has {data.shape[0]} rows, expected counts_per_rev = {motor.counts_per_rev}")
     wrong = np.flatnonzero(data[:, 0] != np.arange(motor.counts_per_rev))
@@ -344,6 +353,29 @@ def check_backemf(backemf_nm_per_a: np.ndarray, motor: MotorInfo, where: str) ->
     if dominant != motor.pole_pairs:
         raise BenchFormatError(f"{where}: the back-EMF repeats {dominant} times per revolution of "
                                f"{motor.counts_per_rev} counts, but [motor] pole_pairs = {motor.pole_pairs}")
+
+
+def mean_torque_reference_nm(count: np.ndarray, currents_a: np.ndarray, backemf_nm_per_a: np.ndarray) -> float:
+    """The mean of K(count) . i_ref over a trial's rows: the torque the current references ask for, N m."""
+    return float(np.mean(np.sum(backemf_nm_per_a[count % backemf_nm_per_a.shape[0]] * currents_a, axis=1)))
+
+
+def check_torque_setpoint(trial: TrialData, backemf_nm_per_a: np.ndarray, key: str, where: str) -> None:
+    """The trial's torque set point (named by ``key``) within a factor `SETPOINT_TOLERANCE` of the mean torque
+    its current references ask for (`mean_torque_reference_nm`; the torque sensor's mean is no measure: a piezo
+    holds no DC).
+
+    Raises
+    ------
+    BenchFormatError
+        Naming ``key``, with ``where`` naming the trial's data.
+    """
+    asked = mean_torque_reference_nm(trial.count, trial.i_ref_a, backemf_nm_per_a)
+    if not 1.0 / SETPOINT_TOLERANCE <= asked / trial.torque_setpoint_nm <= SETPOINT_TOLERANCE:
+        raise BenchFormatError(
+            f"{key}: {trial.torque_setpoint_nm:g} N m, but the current references of {where} ask for "
+            f"{asked:.3g} N m on average (K . i_ref), more than {SETPOINT_TOLERANCE:g}x apart (wrong set point, "
+            "current unit or back-EMF table?)")
 
 
 def _csv_line(row: int) -> str:
@@ -583,7 +615,8 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
 
     Every file is a regular file inside the folder (symbolic links resolved),
     no larger than its rows may take; each trial is checked against the motor
-    (`check_trial`) and the back-EMF against the pole pairs (`check_backemf`).
+    (`check_trial`), its torque set point against its current references
+    (`check_torque_setpoint`) and the back-EMF against the pole pairs (`check_backemf`).
     The trials are read `READERS` at a time, while backemf.csv is read (its
     parser is the first use of numba in a process, GIL-bound: 0.3 s); the
     error raised is the one a reading in order, backemf.csv first, meets
@@ -629,12 +662,15 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
     try:
         read_trials = pool.map(read, jobs)
         backemf = read_backemf_csv(backemf_path, motor)
-        trials = tuple(read_trials)
+        trials = []
+        for i, (trial, (path, _, _)) in enumerate(zip(read_trials, jobs), start=1):
+            check_torque_setpoint(trial, backemf, f"{toml_path}: [[trials]] #{i} torque_setpoint", str(path))
+            trials.append(trial)
     finally:
         pool.shutdown(cancel_futures=True)
     if refusal is not None:
         raise refusal
-    return Bench(motor, backemf, sensors, trials, tuple(files))
+    return Bench(motor, backemf, sensors, tuple(trials), tuple(files))
 
 
 # ---------------------------------------------------------------- writing

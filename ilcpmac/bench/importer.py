@@ -42,7 +42,9 @@ from ilcpmac.bench.format import (
     Bench,
     as_written,
     check_backemf,
+    check_torque_setpoint,
     check_trial,
+    mean_torque_reference_nm,
     read_backemf_csv,
     write_bench,
 )
@@ -54,7 +56,9 @@ from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.records import (
     CURRENTS_FROM_I_Q,
     CURRENTS_FROM_PHASES,
+    MAX_CURRENT_A,
     MAX_SPEED_HZ,
+    MAX_TORQUE_NM,
     MotorInfo,
     SensorCalibration,
     TrialData,
@@ -75,6 +79,14 @@ MIN_STAMP_RESOLUTION_S = 1e-7
 MAX_TIME_S = 2.0**53 * MIN_STAMP_RESOLUTION_S
 #: a change of the row interval or of the position step below this fraction of it is rounding, not a quantum
 _ROUNDING = 1e-6
+#: row rates a drive log may have, Hz: from a coarse logger's (40 Hz still gives the low harmonics) to 10x the
+#: 20 kHz drives log at (a time column in s read as ms moves the rate 1000x up)
+LOG_RATE_HZ = (10.0, 200e3)
+#: the slowest mean speed a log may show, Hz: a time column in ms read as s moves a drive's speed (0.1 Hz and up)
+#: 1000x down, below it
+MIN_LOG_SPEED_HZ = 0.01
+#: most median row intervals between two rows: a longer gap means rows are missing
+MAX_GAP_INTERVALS = 10.0
 
 
 @dataclass(frozen=True)
@@ -405,8 +417,10 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     Raises
     ------
     BenchFormatError
-        Naming the log: time not increasing, time or position beyond what a
-        trial file holds (`MAX_TIME_S`, 2^53 counts), a position that never
+        Naming the log: time not increasing, a row's time, position, current
+        or torque beyond what a trial file holds (`MAX_TIME_S`, 2^53 counts,
+        1e4 A, 1e5 N m), rows off a drive's rate or with a gap (`_check_clock`),
+        a [[points]] torque set point at odds with the currents, a position that never
         changes or that turns (`import_laps` cuts such a log into laps), a
         mean speed beyond a bench's 1000 Hz, rows too coarse for [log]
         highest_harmonic (with the highest harmonic they resolve), crossing
@@ -447,6 +461,7 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
             f"{where}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
             f"at the fastest, fewer than two per period of harmonic {layout.highest_harmonic} ([log] "
             f"highest_harmonic); the data resolve harmonics up to {resolved}")
+    _check_clock(log, where, time_s, first, speed_hz, mapping)
     resolution_s = stamp_resolution_s(time_s, position, layout.timer_resolution_s)
     if layout.torque is None and resolution_s > MAX_TIMER_RESOLUTION_S:
         raise BenchFormatError(f"{where}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
@@ -474,12 +489,54 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
                       values_at[:, -1].copy() if torque_names else None,
                       i_meas_a=currents.copy() if layout.current == "measured" else None)
     _check_as_written(trial, motor, where)
+    if point is not None:
+        check_torque_setpoint(trial, backemf, f"{mapping.path}: [[points]] file {shown(log.name)} torque_setpoint_nm",
+                              where)
     error = InterpolationError(float(time_error.max()), float(current_error.max()),
                                float(value_error[:, -1].max()) if torque_names else None)
     highest_hz = layout.highest_harmonic * trial.mean_speed_hz(cpr)
     row_rate_hz = (time_s.size - 1) / (time_s[-1] - time_s[0])
     return ImportedLog(log, trial, error, resolved, resolution_s, float(1.0 - np.sinc(highest_hz / row_rate_hz) ** 2),
                        float(row_rate_hz), reverse, lines)
+
+
+def _time_unit(s_per_unit: float) -> str:
+    """The name of a time unit of ``s_per_unit`` seconds: s, ms, us or ns, else "units of ... s"."""
+    for name, size in (("s", 1.0), ("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9)):
+        if math.isclose(s_per_unit, size, rel_tol=1e-9):
+            return name
+    return f"units of {s_per_unit:g} s"
+
+
+def _check_clock(log: Path, where: str, time_s: np.ndarray, first: int, speed_hz: float,
+                 mapping: ImportMapping) -> None:
+    """A lap's rows (the first at row ``first`` of the log) at a drive's row rate, without gaps.
+
+    The rate is the inverse of the median row interval: within
+    `LOG_RATE_HZ`, at a mean speed of `MIN_LOG_SPEED_HZ` or more (a time column in the wrong unit, ms read as
+    s, say, moves both 1000x; the message names the unit it looks like), and no interval longer
+    than `MAX_GAP_INTERVALS` median ones (rows missing, which the
+    interpolation would bridge, and the speed set point would average over).
+    """
+    layout = mapping.layout
+    interval_s = np.diff(time_s)
+    median_s = float(np.median(interval_s))
+    rate_hz = 1.0 / median_s
+    low_hz, high_hz = LOG_RATE_HZ
+    if not (low_hz <= rate_hz <= high_hz and abs(speed_hz) >= MIN_LOG_SPEED_HZ):
+        given = layout.time_s_per_unit
+        likely = given * (1e3 if rate_hz > high_hz else 1e-3)
+        raise BenchFormatError(
+            f"{where}: {layout.time} gives {rate_hz:.3g} rows per second and a mean speed of {speed_hz:.3g} Hz; a "
+            f"drive logs {low_hz:g} to {high_hz:g} rows per second at {MIN_LOG_SPEED_HZ:g} Hz or faster: "
+            f"{layout.time} looks like {_time_unit(likely)}, not {_time_unit(given)} ([log] time_s_per_unit = "
+            f"{given:g} in {mapping.path})")
+    gap = int(np.argmax(interval_s))
+    if interval_s[gap] > MAX_GAP_INTERVALS * median_s:
+        raise BenchFormatError(
+            f"{log}: line {_line(layout, first + gap + 1)}: {layout.time} jumps by {interval_s[gap]:.3g} s, "
+            f"{interval_s[gap] / median_s:.3g} times the median row interval {median_s:.3g} s (more than "
+            f"{MAX_GAP_INTERVALS:g}: rows are missing; cut the log at the gap)")
 
 
 def _check_as_written(trial: TrialData, motor: MotorInfo, where: str) -> None:
@@ -525,7 +582,8 @@ def _finest_change(steps: np.ndarray) -> float:
 
 def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """A log's columns, its time stamps in s (strictly increasing) and its unwrapped position in counts of
-    [bench] counts_per_rev."""
+    [bench] counts_per_rev; every row's time, position, currents and torque, once scaled, within what a trial
+    file holds (`MAX_TIME_S`, 2^53 counts, 1e4 A, 1e5 N m), or the first row beyond is named."""
     layout, cpr = mapping.layout, mapping.motor.counts_per_rev
     columns = read_log(log, layout)
     time_s = columns[layout.time] * layout.time_s_per_unit
@@ -536,8 +594,11 @@ def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.
     if per_rev is None:
         raise ConfigError(f'{log}: [log] position_counts_per_rev: missing (position_unit = "counts" needs it)')
     position = columns[layout.position] * (cpr / per_rev)
-    for name, values, bound, unit in ((layout.time, time_s, MAX_TIME_S, "s"),
-                                      (layout.position, position, MAX_COUNT, "counts")):
+    bounds = [(layout.time, time_s, MAX_TIME_S, "s"), (layout.position, position, MAX_COUNT, "counts")] + [
+        (name, columns[name] * layout.current_a_per_unit, MAX_CURRENT_A, "A") for name in current_columns(layout)] + (
+        [] if layout.torque is None else [(layout.torque, columns[layout.torque] * layout.torque_nm_per_unit,
+                                           MAX_TORQUE_NM, "N m")])
+    for name, values, bound, unit in bounds:
         beyond = np.flatnonzero(~(np.abs(values) <= bound))
         if beyond.size:
             raise BenchFormatError(f"{log}: line {layout.header_lines + 1 + beyond[0]}: {name} beyond {bound:.4g} "
@@ -646,7 +707,7 @@ def _operating_point(where: str, count: np.ndarray, time_s: np.ndarray, currents
     K(count) . i_ref (the current law's torque reference; for a mirrored lap, the mirror's table and counts
     give the motor's reference negated) and the mean speed."""
     cpr = mapping.motor.counts_per_rev
-    torque = float(np.mean(np.sum(backemf_nm_per_a[count % cpr] * currents, axis=1)))
+    torque = mean_torque_reference_nm(count, currents, backemf_nm_per_a)
     speed = (count[-1] - count[0]) / cpr / (time_s[-1] - time_s[0])
     if torque <= 0:
         raise BenchFormatError(f"{where}: the mean torque reference is {torque:.3g} N m in the direction of motion: "

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.fastcsv import parse_rows
-from ilcpmac.bench.format import MAX_HEADER_BYTES, MAX_TIMER_RESOLUTION_S
+from ilcpmac.bench.format import MAX_HEADER_BYTES, MAX_TIMER_RESOLUTION_S, loadtxt_problem
 from ilcpmac.core.errors import BenchFormatError
 from ilcpmac.core.files import read_bounded
 from ilcpmac.core.schema import in_range, setting, shown
@@ -112,7 +112,7 @@ def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
     if missing:
         raise BenchFormatError(f"{path}: line {layout.header_lines}: no column {shown(missing[0])} (the header "
                                f"has {shown(names)})")
-    rows = _rows(path, raw[start:], len(names), layout)
+    rows = _rows(path, raw[start:], names, layout)
     columns = {}
     for name in wanted:
         values = rows[:, names.index(name)]
@@ -143,8 +143,11 @@ def current_columns(layout: LogLayout) -> list[str]:
     return [] if layout.i_q is None else [layout.i_q]
 
 
-def _rows(path: Path, body: bytes, width: int, layout: LogLayout) -> np.ndarray:
-    """The data rows: plain decimals by the compiled parser, anything else by numpy."""
+def _rows(path: Path, body: bytes, names: list[str], layout: LogLayout) -> np.ndarray:
+    """The data rows under the column ``names``: plain decimals by the compiled parser, anything else by numpy
+    (a ``#`` is no comment: a value that is not a number); errors name the line and column, never quote the
+    file."""
+    width = len(names)
     delimiter = layout.delimiter.encode()
     rows = None
     if delimiter == b"," or b"," not in body:
@@ -152,11 +155,10 @@ def _rows(path: Path, body: bytes, width: int, layout: LogLayout) -> np.ndarray:
     if rows is None:
         try:
             rows = np.loadtxt(io.BytesIO(body), delimiter=layout.delimiter, ndmin=2, dtype=float,
-                              max_rows=MAX_LOG_ROWS + 1)
+                              max_rows=MAX_LOG_ROWS + 1, comments=None)
         except ValueError as e:
-            text = str(e)
-            raise BenchFormatError(f"{path}: after line {layout.header_lines}: not rows of {width} numbers "
-                                   f"separated by {layout.delimiter!r} ({text[:160]})") from None
+            raise BenchFormatError(f"{path}: {loadtxt_problem(e, names, layout.delimiter, layout.header_lines)}"
+                                   ) from None
     if rows.shape[0] > MAX_LOG_ROWS:
         raise BenchFormatError(f"{path}: more than {MAX_LOG_ROWS} rows (refused)")
     if rows.shape[0] < 3:
