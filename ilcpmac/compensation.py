@@ -50,7 +50,7 @@ from ilcpmac.core.schema import coerce_value, section_problem, shown, unique_key
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
 __all__ = ["COMPENSATION_FILE", "CONTENTS", "FORMAT", "MAX_FILE_BYTES", "MAX_RESULT_BYTES", "MAX_TABLE_VALUES", "UNITS",
-           "Compensation", "FadeOut", "PositionTable", "read_position_table"]
+           "Compensation", "FadeOut", "PositionTable", "interpolation_weights", "read_position_table"]
 
 #: the record's file in a run directory
 COMPENSATION_FILE = "compensation.json"
@@ -146,6 +146,19 @@ def _bracket(grid: np.ndarray, x: float) -> tuple[int, int, float]:
     return i, i + 1, float((x - grid[i]) / (grid[i + 1] - grid[i]))
 
 
+def interpolation_weights(torques_nm: np.ndarray, speeds_hz: np.ndarray, torque_nm: float, speed_hz: float
+                          ) -> np.ndarray:
+    """The weight of each learned point's table in the feed-forward at ``torque_nm``, ``speed_hz``: bilinear
+    between the four learned points around it, clamped at the grid's edges; shape (n_T, n_S), summing to 1."""
+    i, j, u = _bracket(np.asarray(torques_nm, float), torque_nm)
+    k, m, v = _bracket(np.asarray(speeds_hz, float), speed_hz)
+    weights = np.zeros((np.size(torques_nm), np.size(speeds_hz)))
+    for a, wa in ((i, 1.0 - u), (j, u)):
+        for b, wb in ((k, 1.0 - v), (m, v)):
+            weights[a, b] += wa * wb
+    return weights
+
+
 @dataclass(frozen=True)
 class Compensation:
     """What a drive applies: per-phase current-sensor calibration, torque gain, and a torque feed-forward per
@@ -218,11 +231,8 @@ class Compensation:
         """The feed-forward per count at a torque and a speed set point, shape (counts_per_rev,), N m."""
         if math.isnan(torque_nm) or math.isnan(speed_hz):
             raise ValueError(f"the feed-forward needs a torque and a speed, got {torque_nm!r} N m, {speed_hz!r} Hz")
-        i, j, u = _bracket(self.torques_nm, torque_nm)
-        k, m, v = _bracket(self.speeds_hz, speed_hz)
-        t = self.tables_nm
-        lower, upper = (1.0 - v) * t[i, k] + v * t[i, m], (1.0 - v) * t[j, k] + v * t[j, m]
-        return ((1.0 - u) * lower + u * upper) * self.fade.factor(speed_hz)
+        weights = interpolation_weights(self.torques_nm, self.speeds_hz, torque_nm, speed_hz)
+        return np.tensordot(weights, self.tables_nm, axes=2) * self.fade.factor(speed_hz)
 
     def apply(self, request: TrialRequest) -> TrialRequest:
         """``request`` with this calibration and this feed-forward added to its own."""

@@ -31,6 +31,7 @@ from ilcpmac.core.schema import (
     section_problem,
     setting,
     toml_name,
+    toml_text,
 )
 from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.model.motor import (
@@ -52,6 +53,9 @@ from ilcpmac.model.motor import (
 
 #: Most learned or validated torques, and speeds, of [campaign].
 MAX_OPERATING_POINTS = 32
+#: the fewest revolutions a campaign trial records: the revolution scatter and the encoder torque need two
+#: whole ones, and a trial need not begin at a revolution's start
+MIN_REVOLUTIONS = 3
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
 
@@ -88,15 +92,24 @@ class CampaignSettings:
         f"speeds learned at, Hz: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
         "slowest speed, [limits] max_speed_hz and midway", None)
     learn_revolutions: tuple[int, ...] = setting(
-        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(1, 2**24)),
-        "recorded revolutions per learning trial at the slowest learned speed (more at a faster speed, "
-        "`CampaignConfig.trial_revolutions`): one for all learned torques, or one per learned torque", (32,))
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(MIN_REVOLUTIONS, 2**24)),
+        "recorded revolutions of a learned point's last learning trial at the slowest learned speed (more at a "
+        "faster speed, fewer in earlier trials: `CampaignConfig.trial_revolutions`): one for all learned torques, "
+        f"or one per learned torque, at least {MIN_REVOLUTIONS}", (32,))
+    learn_growth: float = setting(
+        in_range(1.0, 16.0), "each learning trial at a point records this many times the revolutions of the one "
+        "before it (the compensation trial first), up to learn_revolutions; 1: all as long; within [1, 16]", 2.0)
     learn_trials: int = setting(in_range(1, 1000), "most learning trials per learned operating point, 1..1000",
-                               10)
+                               3)
     min_improvement: float = setting(lambda x: 0 <= x < 1, "relative ripple improvement that counts, within [0, 1)",
                                     0.05)
     patience: int = setting(in_range(1, 1000),
-                           "learning trials without improvement before an operating point stops, 1..1000", 4)
+                           "learning trials without improvement before an operating point stops, 1..1000; at "
+                           "learn_trials or more a point never stops early, and the plan's bench time is exact",
+                           1000)
+    baseline_revolutions: int = setting(
+        in_range(MIN_REVOLUTIONS, 2**24), "recorded revolutions of each uncompensated trial, at every speed (its "
+        f"ripple stands hundreds of times above the noise), at least {MIN_REVOLUTIONS}", MIN_REVOLUTIONS)
     ripple_harmonics: int = setting(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, "
                                    "below counts_per_rev / 2", 150)
     validate_torques_nm: tuple[float, ...] | None = setting(
@@ -108,8 +121,8 @@ class CampaignSettings:
         "speeds validated at, Hz: distinct positive values; left out: the slowest, middle and fastest learned "
         "speed; empty: no validation", None)
     validate_revolutions: int = setting(
-        in_range(1, 2**24), "recorded revolutions per validation trial at the slowest learned speed (more at a "
-        "faster speed)", 32)
+        in_range(MIN_REVOLUTIONS, 2**24), "recorded revolutions per validation trial at the slowest learned speed "
+        f"(more at a faster speed), at least {MIN_REVOLUTIONS}", 32)
     torque_source: str | None = setting(
         lambda x: x in [source.value for source in TorqueSource],
         '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md) '
@@ -266,12 +279,16 @@ class CampaignConfig:
         low, high = min(self.grid.speed_setpoints_hz), self.limits.max_speed_hz
         return tuple(sorted({low, (low + high) / 2, high}))
 
-    def trial_revolutions(self, point: tuple[float, float]) -> int:
+    def trial_revolutions(self, point: tuple[float, float], learned: int | None = None) -> int:
         """The recorded revolutions of a trial at ``point`` (torque N m, speed Hz) after the grid.
 
         [campaign] learn_revolutions at a learned torque, else validate_revolutions, hold at the slowest
         learned speed; a faster trial records as many more as keep it as long, since the current-sensor
-        noise left in its synchronous average falls with its duration, not its revolutions.
+        noise left in its synchronous average falls with its duration, not its revolutions. ``learned``:
+        how many trials the pipeline learned from at the point before this one (the compensation trial is
+        the 0th); trial k of K = learn_trials records learn_growth^(K - k) times fewer (at least
+        `MIN_REVOLUTIONS`): a trial's noise matters only once the ripple it leaves is small (docs/campaign.md,
+        "Bench time"). None: the longest, the last.
         """
         c = self.campaign
         torques = self.learned_torques_nm()
@@ -279,7 +296,23 @@ class CampaignConfig:
             base = c.validate_revolutions
         else:
             base = c.learn_revolutions[0 if len(c.learn_revolutions) == 1 else torques.index(point[0])]
-        return max(base, math.ceil(base * point[1] / self.learned_speeds_hz()[0] - 1e-9))
+        last = max(base, math.ceil(base * point[1] / self.learned_speeds_hz()[0] - 1e-9))
+        if learned is None:
+            return last
+        shrink = c.learn_growth ** max(c.learn_trials - learned, 0)
+        return max(MIN_REVOLUTIONS, math.ceil(last / shrink - 1e-9))
+
+    def with_trial_lengths(self, factor: float) -> CampaignConfig:
+        """This config with [campaign] learn_revolutions and validate_revolutions ``factor`` times as many
+        (rounded up, at least `MIN_REVOLUTIONS`): the trials after the grid, as ``--budget`` sizes them."""
+        c = self.campaign
+
+        def scaled(n: int) -> int:
+            return max(MIN_REVOLUTIONS, math.ceil(n * factor - 1e-9))
+
+        return dataclasses.replace(self, campaign=dataclasses.replace(
+            c, learn_revolutions=tuple(map(scaled, c.learn_revolutions)),
+            validate_revolutions=scaled(c.validate_revolutions)))
 
     def learned_points(self) -> list[tuple[float, float]]:
         """The operating points learned at, (torque N m, speed Hz), torque by torque."""
@@ -331,10 +364,49 @@ def packaged_config(name: str) -> Path:
     return Path(str(resources.files("ilcpmac") / "configs" / name))
 
 
-def load_config(path: str | Path) -> CampaignConfig:
-    """Read and validate a campaign config (see configs/seed-bench.toml and `check_config`)."""
-    path = Path(path)
+#: how many configs deep `extends` may chain
+MAX_EXTENDS = 4
+
+
+def _merged(base: dict, over: dict) -> dict:
+    """``base`` with ``over``'s keys: a table merged key by key, anything else replaced."""
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def config_tables(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+    """The tables of config ``path``, the config its top-level ``extends`` names (a file name, relative to its
+    folder) under them: its tables merged key by key, any other value replaced (`MAX_EXTENDS` deep)."""
     data = read_toml(path)
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str) or not base:
+        raise ConfigError(f"{path}: extends: a config's file name, relative to {path.parent}, got {base!r}")
+    base_path = path.parent / base
+    if base_path.resolve() in {p.resolve() for p in (*chain, path)}:
+        raise ConfigError(f"{path}: extends: {base!r} extends itself, through {' -> '.join(map(str, chain))}")
+    if len(chain) + 1 >= MAX_EXTENDS:
+        raise ConfigError(f"{path}: extends: more than {MAX_EXTENDS} configs deep")
+    return _merged(config_tables(base_path, (*chain, path)), data)
+
+
+def config_text(config: CampaignConfig) -> str:
+    """The text of ``config``'s file as a run directory keeps it: the file itself, or the tables it and what it
+    extends make together (`config_tables`) when it extends one (a run must not depend on another file)."""
+    text = config.path.read_text()
+    tables = read_toml(config.path)
+    return text if "extends" not in tables else \
+        f"# {config.path} with what it extends, merged\n{toml_text(config_tables(config.path))}"
+
+
+def load_config(path: str | Path) -> CampaignConfig:
+    """Read and validate a campaign config (see configs/seed-bench.toml and `check_config`); a config whose
+    top-level ``extends`` names another builds on it (`config_tables`)."""
+    path = Path(path)
+    data = config_tables(path)
     known = {"bench", "simulator", "trials", "excitation", "stages"} | set(RUN_SECTIONS)
     unknown = sorted(set(data) - known)
     if unknown:

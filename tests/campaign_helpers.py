@@ -20,7 +20,7 @@ SMALL_CAMPAIGN = {
     "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
     "campaign": {"learn_torques_nm": [2.0, 4.0], "learn_speeds_hz": [0.9], "learn_revolutions": [6],
                  "learn_trials": 4, "ripple_harmonics": 100, "validate_torques_nm": [3.0],
-                 "validate_speeds_hz": [0.9], "validate_revolutions": 6},
+                 "validate_speeds_hz": [0.9], "validate_revolutions": 6, "torque_source": "sensor"},
     "stages": {"ilc": {"learning_gain": 1.0, "q_cutoff_harmonic": 100, "estimation": "kalman"}},
 }
 

@@ -15,11 +15,12 @@ from hypothesis import strategies as st
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.backends.guard import LimitGuard
-from ilcpmac.campaign.plan import records_at
+from ilcpmac.campaign.plan import CampaignPlan, records_at
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import FadeOut
+from ilcpmac.config import load_config
 from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
@@ -71,7 +72,19 @@ def done(index: int, role: str, torque: float, repeatable: float = 0.01, speed: 
     return TrialRecord(index, phase, role, torque, speed, dataclasses.replace(figures(1.0), rms_repeatable=repeatable))
 
 
-def test_the_plan_orders_grid_baselines_compensation_learning_then_validation_from_the_records_alone(plan):
+@pytest.fixture
+def stopping_plan(write_config):
+    """The small campaign's plan with [campaign] patience 2: a point stops after 2 trials that do not improve."""
+    from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
+
+    small = {**SMALL_CAMPAIGN, "campaign": {**SMALL_CAMPAIGN["campaign"], "patience": 2}}
+    cfg = load_config(write_config(small))
+    return CampaignPlan.build(cfg, simulator_backend(cfg).describe(), 7)
+
+
+def test_the_plan_orders_grid_baselines_compensation_learning_then_validation_from_the_records_alone(
+        stopping_plan):
+    plan = stopping_plan
     records: list[TrialRecord] = []
     steps = []
     while (step := plan.next_step(records)) is not None:
@@ -120,7 +133,8 @@ def test_the_plan_ends_only_after_the_validation_and_bounds_every_trial_on_the_w
         if step.phase == "validate":
             assert left == 2 - len(records_at(records, (3.0, 0.9), ("baseline", "validate")))
             assert (step.request.torque_setpoint_nm, step.request.speed_setpoint_hz) == (3.0, 0.9)
-            assert step.request.revolutions == plan.config.trial_revolutions((3.0, 0.9))
+            assert step.request.revolutions == (plan.config.trial_revolutions((3.0, 0.9)) if step.role == "validate"
+                                                else plan.config.campaign.baseline_revolutions)
             assert not step.request.feedforward_nm.any()
         records.append(done(len(records) + 1, step.role, step.request.torque_setpoint_nm,
                             speed=step.request.speed_setpoint_hz))
@@ -318,10 +332,11 @@ def test_the_custom_stage_example_prints_typed_records(capsys):
     assert capsys.readouterr().out == "trial 34 ilc        3 N m: true ripple   0.100 % pp\n"
 
 
-def test_learning_runs_in_rounds_of_the_points_still_learning_as_next_step_gives_them(plan):
+def test_learning_runs_in_rounds_of_the_points_still_learning_as_next_step_gives_them(stopping_plan):
     """A round is the compensation trials, then one learning trial at every point still learning: the same
     requests and seeds as `next_step` one by one, and ``begun`` the records before the round, wherever in
     it the records stop (a resume). The point at 2 N m improves on and on; 4 N m stops after patience."""
+    plan = stopping_plan
     c = plan.config.campaign
 
     def key(step):

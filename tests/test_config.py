@@ -109,9 +109,25 @@ def test_learn_revolutions_are_one_number_or_one_per_learned_torque(write_config
     assert [cfg.trial_revolutions((t, 0.5)) for t in (1.0, 3.0, 5.0)] == [64, 32, 16]
     # faster trials last as long as at the slowest learned speed (0.5 Hz); validation trials likewise
     assert [cfg.trial_revolutions((1.0, s)) for s in (0.5, 1.0, 1.5)] == [64, 128, 192]
-    assert [cfg.trial_revolutions((2.0, s)) for s in (0.5, 0.75, 1.5)] == [32, 48, 96]
+    assert [cfg.trial_revolutions((2.0, s)) for s in (0.5, 0.75, 1.5)] == [10, 15, 30]
     with pytest.raises(ConfigError, match=r"campaign.toml: \[campaign\] learn_revolutions: give one number"):
         load_config(write_config({"campaign": {"learn_revolutions": [64, 32]}}))
+
+
+def test_learning_trials_grow_by_learn_growth_up_to_learn_revolutions(write_config):
+    cfg = load_config(write_config({"campaign": {"learn_revolutions": [40, 12, 6], "learn_trials": 4,
+                                                 "learn_growth": 2.0}}))
+    # the compensation trial (0) then learning trials 1..4: halving back from the last, never under 3
+    assert [cfg.trial_revolutions((1.0, 0.5), k) for k in range(5)] == [3, 5, 10, 20, 40]
+    assert [cfg.trial_revolutions((1.0, 1.5), k) for k in range(5)] == [8, 15, 30, 60, 120]
+    assert [cfg.trial_revolutions((3.0, 0.5), k) for k in range(5)] == [3, 3, 3, 6, 12]
+    assert cfg.trial_revolutions((1.0, 0.5), 9) == 40  # past learn_trials (a resumed run's extra trial): the last
+    flat = load_config(write_config({"campaign": {"learn_revolutions": [40], "learn_growth": 1.0}}))
+    assert {flat.trial_revolutions((5.0, 0.5), k) for k in range(5)} == {40}
+    with pytest.raises(ConfigError, match=r"\[campaign\] learn_growth: invalid value 0.5"):
+        load_config(write_config({"campaign": {"learn_growth": 0.5}}))
+    with pytest.raises(ConfigError, match=r"\[campaign\] baseline_revolutions: invalid value 2 .*at least 3"):
+        load_config(write_config({"campaign": {"baseline_revolutions": 2}}))
 
 
 def test_the_operating_points_are_derived_from_the_grid_and_limits_when_not_given(write_config):

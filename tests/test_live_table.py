@@ -218,7 +218,8 @@ def test_summary_json_units_cover_every_number_of_a_trial_a_validation_point_and
     numbers = {k for k in records[-1].to_json() if k not in ("index", "phase", "role")}
     points = {k for k in validation_json(records)[0]
               if k not in ("learned", "uncompensated_trial", "compensated_trial", "worse_than_uncompensated")}
-    assert set(SUMMARY_UNITS) == numbers | points | {"fade_full_hz", "fade_zero_hz"}
+    later = {"motor_time_s", "floor_pp_measured", "floor_pp_true"}
+    assert set(SUMMARY_UNITS) == numbers | points | later | {"fade_full_hz", "fade_zero_hz"}
     assert SUMMARY_UNITS["ripple_pp_true"] == "fraction of mean torque"
     assert SUMMARY_UNITS["uncompensated_pp_measured"] == "fraction of mean torque"
     assert SUMMARY_UNITS["amp_1x_measured_nm"] == "N m" and SUMMARY_UNITS["speed_setpoint"] == "Hz"
@@ -270,7 +271,10 @@ def test_the_status_line_names_the_running_trial_and_bounds_the_time_left(plan):
     assert view.time_left_s() == 13 * 3.0
     clock.now += 1.25
     status = view.status()
-    assert "trial 6 baseline 4 N m 0.9 Hz, 1.2 s | 5 done, 8.8 s | ≤ 13 to go, ~39.0 s" in status
+    motor = duration(sum(plan.bench_time_left(records).values()))
+    assert f"trial 6 baseline 4 N m 0.9 Hz, 1.2 s | 5 done, 8.8 s | ≤ 13 to go, motor {motor} (wall ~39.0 s)" \
+        in view.status(200)
+    assert status.endswith(f"≤ 13 to go, motor {motor} (wall ~39.0 s)")  # at 80 columns, without the trials done
     assert status[0] in "⠋⠙⠹⠸⠼⠴⠦⠧⠇⠏"
     text = render(view, width=80)
     assert "1-4" in text and "trial 6 baseline" in text and "…" not in text
@@ -304,7 +308,9 @@ def test_the_status_line_shows_the_running_trials_progress_and_the_eta_follows_i
     view.progress(0.25)  # 10 s for a quarter: 40 s a trial, 30 s left of this one
     assert view.time_left_s() == pytest.approx((left - 1) * 40.0 + 30.0)
     assert f"Hz 25 %, 10.0 s | {len(records)} done" in view.status(200)
-    assert view.status().endswith(f"to go, ~{duration((left - 1) * 40.0 + 30.0)}")
+    assert view.status().endswith(f"(wall ~{duration((left - 1) * 40.0 + 30.0)})")
+    motor = sum(plan.bench_time_left(records).values()) - 0.25 * plan.bench_seconds(step.request)
+    assert f"to go, motor {duration(motor)} (wall" in view.status()  # the quarter done counted off
     for ignored in (float("nan"), -0.1, 1.5):
         view.progress(ignored)
     view.progress(0.999)
@@ -341,7 +347,7 @@ def test_a_trial_in_progress_fits_80_and_100_columns_on_one_line(plan, width):
     text = render(view, width=width)
     assert "…" not in text and max(map(len, text.splitlines())) <= width
     status = text.rstrip("\n").splitlines()[-1]
-    assert " 37 %, 1h02m | " in status and re.search(r"≤ \d+ to go, ~\d+h\d\dm$", status.rstrip())
+    assert " 37 %, 1h02m | " in status and re.search(r"≤ \d+ to go, motor \S+ \(wall ~\d+h\d\dm\)$", status.rstrip())
     assert status.startswith(view.status(width)[:2] + f"trial {len(records) + 1} ")
 
 

@@ -69,7 +69,7 @@ def simulator(config) -> SimulatorBackend:
 def requests(config) -> list[TrialRequest]:
     """Four grid requests (2 revolutions each), from both ends of the set-point grid."""
     grid = grid_requests(config, config.model.controller.calibration(), seed=11, revolutions=2)
-    return [grid[0], grid[7], grid[15], grid[-1]]
+    return [grid[0], grid[len(grid) // 3], grid[2 * len(grid) // 3], grid[-1]]
 
 
 @pytest.fixture
@@ -234,7 +234,9 @@ def test_a_fault_once_ends_in_a_clean_retry(emulator, remote, simulator, request
         assert_same_trial(trial, simulator.run_trial(request))
     assert server.faults_fired == [(fault, 2)]
     assert server.requests_received == 4  # trial 2 was sent twice, nothing else repeated
-    assert "trial 2 (2 N m, 0.6 Hz)" in caplog.text and "attempt 1 of 4 failed" in caplog.text
+    r = requests[1]
+    assert f"trial 2 ({r.torque_setpoint_nm:g} N m, {r.speed_setpoint_hz:g} Hz)" in caplog.text
+    assert "attempt 1 of 4 failed" in caplog.text
 
 
 @pytest.mark.parametrize("fault, reason", [
@@ -247,8 +249,9 @@ def test_a_persistent_fault_ends_in_a_clear_error(emulator, remote, requests, fa
     server = emulator(faults=FaultPlan(**{fault: Fault(2, repeat=True)}, stall_s=5.0))
     backend = remote(server.address, retries=3)
     backend.run_trial(requests[0])
-    with pytest.raises(BackendError, match=rf"^trial 2 \(2 N m, 0.6 Hz\) on 127.0.0.1:\d+: gave up after 4 "
-                                           rf"attempts; last failure: .*({reason})"):
+    r = requests[1]
+    with pytest.raises(BackendError, match=rf"^trial 2 \({r.torque_setpoint_nm:g} N m, {r.speed_setpoint_hz:g} Hz\) "
+                                           rf"on 127.0.0.1:\d+: gave up after 4 attempts; last failure: .*({reason})"):
         backend.run_trial(requests[1])
     assert 2 <= server.requests_received <= 5
 

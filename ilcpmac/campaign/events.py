@@ -13,7 +13,8 @@ from ilcpmac.compensation import FadeOut
 from ilcpmac.core.torque_source import TorqueSource
 
 __all__ = ["CampaignEvents", "CampaignMessage", "CampaignStart", "CompensationBeatsNone", "CompensationWorse",
-           "CompensationWritten", "GridStarted", "GuardEvent", "Identifying", "NoEvents", "PipelineNote", "Resumed"]
+           "CompensationWritten", "FloorsExpected", "GridStarted", "GuardEvent", "Identifying", "NoEvents",
+           "PipelineNote", "PlanStated", "Resumed"]
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,72 @@ class CampaignStart:
     path: Path
     resumed: bool
     torque_source: TorqueSource
+
+
+def minutes(seconds: float) -> str:
+    """Motor time for people: "9.9 min"."""
+    return f"{seconds / 60:.1f} min"
+
+
+@dataclass(frozen=True)
+class PlanStated:
+    """Before the first trial (and on resume): the trials left and the motor's running time per phase, warm-ups
+    included (`CampaignPlan.steps_left`).
+
+    Attributes
+    ----------
+    trials : trials left per phase, phases in order.
+    motor_time_s : the motor's running time left per phase, s.
+    exact : False when learned points may stop early (`CampaignPlan.stops_early`): the figures are then at most.
+    budget_s : the ``--budget`` the plan was sized to, s; None without one.
+    scale : the trials after the grid against the config's (`CampaignConfig.with_trial_lengths`); 1 without a
+        budget.
+    """
+
+    trials: dict[str, int]
+    motor_time_s: dict[str, float]
+    exact: bool = True
+    budget_s: float | None = None
+    scale: float = 1.0
+
+    @property
+    def text(self) -> str:
+        total = sum(self.motor_time_s.values())
+        phases = ", ".join(f"{phase} {self.trials[phase]} trials {minutes(t)}"
+                           for phase, t in self.motor_time_s.items())
+        head = (f"plan: {sum(self.trials.values())} trials, {'at most ' if not self.exact else ''}{minutes(total)} "
+                f"of motor time ({phases}; warm-ups included)")
+        if self.budget_s is None:
+            return head
+        return (f"{head}\nbudget {minutes(self.budget_s)}: the trials after the grid {self.scale:.2f}x the config's; "
+                f"the final trials' noise floor {1 / self.scale**0.5:.2f}x the config plan's (it falls as one over "
+                "the square root of a trial's duration; the floors expected are stated after the grid)")
+
+
+@dataclass(frozen=True)
+class FloorsExpected:
+    """After the identification: the noise floor the final trials' own noise sets, predicted from the grid's
+    (each point's nearest grid trial, its variance scaled by its duration over the final trial's), peak-to-peak as
+    fractions of the mean torque (docs/campaign.md, "The noise floor"); the learning's part comes on top.
+
+    Attributes
+    ----------
+    measured : (learned, validated) ranges (lowest, highest); None where there are no such points.
+    true : the same for the true torque (simulator only); None without it.
+    """
+
+    measured: tuple[tuple[float, float] | None, tuple[float, float] | None]
+    true: tuple[tuple[float, float] | None, tuple[float, float] | None] | None
+
+    @property
+    def text(self) -> str:
+        def span(r: tuple[float, float] | None) -> str:
+            return "-" if r is None else f"{100 * r[0]:.3g}-{100 * r[1]:.3g} %"
+
+        parts = [f"{name} {span(self.measured[k])} measured" + ("" if self.true is None else
+                                                                f", {span(self.true[k])} true")
+                 for k, name in enumerate(("learned", "validation")) if self.measured[k] is not None]
+        return "expected noise floor of the final trials (from the grid's noise): " + "; ".join(parts)
 
 
 @dataclass(frozen=True)
@@ -143,8 +210,8 @@ class Resumed:
 
 
 #: what the campaign says between its trials
-CampaignMessage = (GridStarted | Identifying | PipelineNote | GuardEvent | CompensationWritten | CompensationWorse
-                   | CompensationBeatsNone | Resumed)
+CampaignMessage = (PlanStated | GridStarted | Identifying | FloorsExpected | PipelineNote | GuardEvent
+                   | CompensationWritten | CompensationWorse | CompensationBeatsNone | Resumed)
 
 
 class CampaignEvents(Protocol):

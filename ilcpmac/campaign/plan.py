@@ -68,6 +68,8 @@ class CampaignPlan:
     grid: list[TrialRequest]
     learned: list[Point]
     validated: list[Point]
+    budget_s: float | None = None
+    scale: float = 1.0
 
     @classmethod
     def build(cls, config: CampaignConfig, description: BenchDescription, seed: int) -> CampaignPlan:
@@ -92,16 +94,89 @@ class CampaignPlan:
                                       f"max_scale_deviation, max_offset_deviation_a): {why}")
         return plan
 
+    @classmethod
+    def within_budget(cls, config: CampaignConfig, description: BenchDescription, seed: int, budget_s: float
+                      ) -> CampaignPlan:
+        """The plan of ``config`` with its trials after the grid as long as fits ``budget_s`` of motor time
+        (`CampaignConfig.with_trial_lengths`, in steps of 2^(1/8), from 1/64 to 16 times the config's; the
+        longest that fits, and passes the limits). Raises `ConfigError` when even the shortest does not fit."""
+        best = shortest = None
+        for k in range(-48, 33):
+            scale = 2.0 ** (k / 8)
+            try:
+                plan = cls.build(config.with_trial_lengths(scale), description, seed)
+            except ConfigError:
+                if shortest is None:
+                    raise
+                break  # longer trials break a limit: longer still would too
+            shortest = shortest or plan
+            if plan.motor_time_s() > budget_s:
+                break
+            best = replace(plan, budget_s=budget_s, scale=scale)
+        if best is None:
+            assert shortest is not None
+            phases = ", ".join(f"{phase} {t / 60:.1f}" for phase, t in shortest.bench_time_left([]).items())
+            raise ConfigError(f"--budget {budget_s / 60:g} min: the shortest plan of {config.path} takes "
+                              f"{shortest.motor_time_s() / 60:.1f} min of motor time ({phases} min)")
+        return best
+
+    def motor_time_s(self) -> float:
+        """The motor's running time of the whole plan, s (`bench_time_left` from the start)."""
+        return sum(self.bench_time_left([]).values())
+
     @property
     def learning_phase(self) -> str:
         """The learning phase's name (`learning_phase`)."""
         return learning_phase(self.config.pipeline.stages)
 
-    def base_request(self, point: Point, seed: int) -> TrialRequest:
-        """An uncompensated request at ``point``, with the bench's own calibration."""
+    def base_request(self, point: Point, seed: int, revolutions: int | None = None) -> TrialRequest:
+        """An uncompensated request at ``point``, with the bench's own calibration, of ``revolutions`` (None: the
+        point's longest trial, `CampaignConfig.trial_revolutions`)."""
         cpr = self.description.motor.counts_per_rev
-        return TrialRequest(point[0], point[1], self.config.trial_revolutions(point), np.zeros(cpr), np.zeros(cpr),
+        revolutions = self.config.trial_revolutions(point) if revolutions is None else revolutions
+        return TrialRequest(point[0], point[1], revolutions, np.zeros(cpr), np.zeros(cpr),
                             self.description.calibration, seed=seed)
+
+    def revolutions(self, records: list[TrialRecord], point: Point, role: str) -> int:
+        """The revolutions of the next trial of ``role`` at ``point`` after ``records``: [campaign]
+        baseline_revolutions uncompensated, the learning schedule's next (`CampaignConfig.trial_revolutions`)
+        where the pipeline learns, the point's longest otherwise."""
+        if role == "baseline":
+            return self.config.campaign.baseline_revolutions
+        if role in ("compensate", "learn"):
+            return self.config.trial_revolutions(point, len(records_at(records, point, ("compensate", "learn"))))
+        return self.config.trial_revolutions(point)
+
+    def step(self, records: list[TrialRecord], phase: str, role: str, point: Point, seed: int) -> Step:
+        """The step of ``role`` at ``point`` after ``records``, its request uncompensated (`base_request`)."""
+        return Step(phase, role, self.base_request(point, seed, self.revolutions(records, point, role)))
+
+    def bench_seconds(self, request: TrialRequest) -> float:
+        """The motor's running time for ``request``: its warm-up and recorded revolutions at its speed, s."""
+        return (self.config.grid.warmup_revolutions + request.revolutions) / request.speed_setpoint_hz
+
+    def stops_early(self) -> bool:
+        """Whether a learned point may stop before [campaign] learn_trials (patience below it)."""
+        return self.config.campaign.patience < self.config.campaign.learn_trials
+
+    def steps_left(self, records: list[TrialRecord]) -> list[Step]:
+        """Every step after ``records``, in order, with every learned point still learning running to [campaign]
+        learn_trials (`stops_early`: at most); their requests uncompensated, seeds 0."""
+        steps: list[Step] = []
+        done = list(records)
+        finished = {p for p in self.learned if self.learn_finished(records, p)}
+        while (step := self._next(done, finished, 0)) is not None:
+            steps.append(step)
+            done.append(TrialRecord(len(done) + 1, step.phase, step.role, step.request.torque_setpoint_nm,
+                                    step.request.speed_setpoint_hz))
+        return steps
+
+    def bench_time_left(self, records: list[TrialRecord]) -> dict[str, float]:
+        """The motor's running time of `steps_left` per phase, s (warm-up included), phases in order."""
+        left: dict[str, float] = {}
+        for step in self.steps_left(records):
+            left[step.phase] = left.get(step.phase, 0.0) + self.bench_seconds(step.request)
+        return left
 
     def learn_finished(self, records: list[TrialRecord], point: Point) -> bool:
         """Whether learning at ``point`` is over: [campaign] learn_trials done, or the measured repeatable
@@ -118,16 +193,9 @@ class CampaignPlan:
 
     def most_remaining(self, records: list[TrialRecord]) -> int:
         """The most trials that can follow ``records``: the grid, uncompensated and compensation trials left,
-        every unfinished learned point running to [campaign] learn_trials, and the validation trials left."""
-        c = self.config.campaign
-        left = max(len(self.grid) - len(records), 0)
-        for point in self.learned:
-            left += sum(not records_at(records, point, (role,)) for role in ("baseline", "compensate"))
-            if not self.learn_finished(records, point):
-                left += c.learn_trials - len(records_at(records, point, ("learn",)))
-        for point in self.validated:
-            left += sum(not records_at(records, point, (role,)) for role in ("baseline", "validate"))
-        return left
+        every unfinished learned point running to [campaign] learn_trials, and the validation trials left
+        (`steps_left`)."""
+        return len(self.steps_left(records))
 
     def independent_steps(self, records: list[TrialRecord]) -> list[Step]:
         """The steps after ``records`` up to the next that learns or depends on learning: grid, uncompensated
@@ -165,7 +233,7 @@ class CampaignPlan:
             lap = min(counts[p] for p in learning)
             left = [p for p in learning if counts[p] == lap]
             begun = len(records) - sum(counts[p] == lap + 1 for p in self.learned)
-        return begun, [Step(step.phase, step.role, self.base_request(point, trial_seed(self.seed, len(records) + k)))
+        return begun, [self.step(records, step.phase, step.role, point, trial_seed(self.seed, len(records) + k))
                        for k, point in enumerate(left, start=1)]
 
     def next_step(self, records: list[TrialRecord]) -> Step | None:
@@ -176,21 +244,25 @@ class CampaignPlan:
         trials, the first such in the plan's order; then, per validation point, an uncompensated and a
         compensated trial.
         """
+        finished = {p for p in self.learned if self.learn_finished(records, p)}
+        return self._next(records, finished, trial_seed(self.seed, len(records) + 1))
+
+    def _next(self, records: list[TrialRecord], finished: set[Point], seed: int) -> Step | None:
+        """`next_step`, the learned points in ``finished`` (and those at learn_trials) done learning."""
         n = len(records)
         if n < len(self.grid):
             return Step("identify", "grid", self.grid[n])
-        seed = trial_seed(self.seed, n + 1)
         for role, phase in (("baseline", "identify"), ("compensate", "compensate")):
             for point in self.learned:
                 if not records_at(records, point, (role,)):
-                    return Step(phase, role, self.base_request(point, seed))
-        learning = {p: len(records_at(records, p, ("learn",))) for p in self.learned
-                    if not self.learn_finished(records, p)}
+                    return self.step(records, phase, role, point, seed)
+        counts = {p: len(records_at(records, p, ("learn",))) for p in self.learned}
+        learning = {p: n for p, n in counts.items() if p not in finished and n < self.config.campaign.learn_trials}
         if learning:
             point = min(learning, key=learning.__getitem__)  # the first of the fewest: dicts keep the plan's order
-            return Step(self.learning_phase, "learn", self.base_request(point, seed))
+            return self.step(records, self.learning_phase, "learn", point, seed)
         for point in self.validated:
             for role in ("baseline", "validate"):
                 if not records_at(records, point, (role,)):
-                    return Step("validate", role, self.base_request(point, seed))
+                    return self.step(records, "validate", role, point, seed)
         return None

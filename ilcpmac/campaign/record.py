@@ -49,6 +49,9 @@ class TrialRecord:
     reduction_factor, reduction_factor_true : float or None
         The operating point's uncompensated peak-to-peak ripple over this trial's, measured and true
         (compensate, learn and validate trials; None where the trial's ripple is zero).
+    motor_time_s : float or None
+        How long the motor ran for it: warm-up and recorded revolutions at its speed set point, s
+        (`CampaignPlan.bench_seconds`); None in records of earlier releases.
     """
 
     index: int
@@ -60,6 +63,7 @@ class TrialRecord:
     true: RippleFigures | None = None
     reduction_factor: float | None = None
     reduction_factor_true: float | None = None
+    motor_time_s: float | None = None
 
     @property
     def learns(self) -> bool:
@@ -87,7 +91,7 @@ class TrialRecord:
         out = {"index": self.index, "phase": self.phase, "role": self.role, "torque_setpoint": self.torque_setpoint_nm,
                "speed_setpoint": self.speed_setpoint_hz, **_figures_json("true", self.true),
                **_figures_json("measured", self.measured)}
-        for f in ("reduction_factor", "reduction_factor_true"):
+        for f in ("reduction_factor", "reduction_factor_true", "motor_time_s"):
             if getattr(self, f) is not None:
                 out[f] = getattr(self, f)
         return out
@@ -97,7 +101,8 @@ class TrialRecord:
         """The record `to_json` wrote."""
         return cls(int(data["index"]), str(data["phase"]), str(data["role"]), float(data["torque_setpoint"]),
                    float(data["speed_setpoint"]), _figures_from_json("measured", data),
-                   _figures_from_json("true", data), data.get("reduction_factor"), data.get("reduction_factor_true"))
+                   _figures_from_json("true", data), data.get("reduction_factor"), data.get("reduction_factor_true"),
+                   data.get("motor_time_s"))
 
 
 def records_of(summary: dict) -> list[TrialRecord]:

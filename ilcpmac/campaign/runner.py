@@ -45,12 +45,15 @@ from ilcpmac.campaign.events import (
     CompensationBeatsNone,
     CompensationWorse,
     CompensationWritten,
+    FloorsExpected,
     GridStarted,
     GuardEvent,
     Identifying,
     PipelineNote,
+    PlanStated,
     Resumed,
 )
+from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
 from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir
@@ -66,7 +69,7 @@ from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import identified_truth
-from ilcpmac.signals.harmonics import RippleFigures
+from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs
 
@@ -80,6 +83,9 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                  "reduction_factor_true": "x (uncompensated peak-to-peak ripple over this one, true)",
                  **{f"{name}_pp_{kind}": "fraction of mean torque" for name in ("uncompensated", "ripple")
                     for kind in ("measured", "true")},
+                 **{f"floor_pp_{kind}": "fraction of mean torque (the point's noise floor, docs/campaign.md)"
+                    for kind in ("measured", "true")},
+                 "motor_time_s": "s (the motor's running time: warm-up and recorded revolutions; per phase, and all)",
                  "fade_full_hz": "Hz (the feed-forward applies fully up to this speed; null: always)",
                  "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
 
@@ -150,6 +156,12 @@ class CampaignRunner:
         self._grid_data: dict[int, TrialData] = {}
         #: the grid trials' measured spectra as analysed when they finished (before the identification)
         self._grid_spectra: dict[int, TorqueSpectrum | None] = {}
+        #: the grid trials' true spectra and means (simulator only), for the floors expected
+        self._grid_true: dict[int, tuple[TorqueSpectrum, float]] = {}
+        #: what the floors need of each trial after the identification, by index (`PointSpectra`)
+        self._spectra: dict[int, PointSpectra] = {}
+        #: every point's noise floor, once the last trial is done
+        self.floors: list[PointFloor] | None = None
 
     @property
     def grid(self) -> list[TrialRequest]:
@@ -173,6 +185,7 @@ class CampaignRunner:
         """Run the campaign to its end (resuming what ``run_dir`` holds); return the summary."""
         try:
             self._resume()
+            self.events.message(self.plan_stated())
             self._loop()
             self.run_dir.flush()
             self._conclude()
@@ -181,6 +194,14 @@ class CampaignRunner:
         finally:
             self.run_dir.close()
         return summary
+
+    def plan_stated(self) -> PlanStated:
+        """The trials and the motor's running time left, per phase (`CampaignPlan.steps_left`)."""
+        trials: dict[str, int] = {}
+        for step in self.plan.steps_left(self.records):
+            trials[step.phase] = trials.get(step.phase, 0) + 1
+        return PlanStated(trials, self.plan.bench_time_left(self.records), not self.plan.stops_early(),
+                          self.plan.budget_s, self.plan.scale)
 
     def _loop(self) -> None:
         while (step := self.next_step()) is not None:
@@ -231,11 +252,13 @@ class CampaignRunner:
         request = step.request
         key = request.setpoint_key
         record = TrialRecord(len(self.records) + 1, step.phase, step.role, request.torque_setpoint_nm,
-                             request.speed_setpoint_hz, true=self._true_figures(analysis))
+                             request.speed_setpoint_hz, true=self._true_figures(analysis),
+                             motor_time_s=self.plan.bench_seconds(ran))
         if record.learns:
             self.pipeline.learn(trial, self.gains.get(key, 1.0), analysis.measured)
         if self.identified is not None:
             record = replace(record, measured=self._measured_figures(ran, analysis.measured))
+            self._spectra[record.index] = self._point_spectra(ran, analysis)
         if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)
@@ -246,6 +269,8 @@ class CampaignRunner:
         if step.role == "grid":
             self._grid_data[record.index] = trial
             self._grid_spectra[record.index] = analysis.measured
+            if analysis.true is not None and analysis.true_mean_nm is not None:
+                self._grid_true[record.index] = (analysis.true, analysis.true_mean_nm)
             if len(self.records) == len(self.grid):
                 self._identify(self._grid_trials())
         self.events.trial(record, self.records)
@@ -305,6 +330,41 @@ class CampaignRunner:
         self.run_dir.write_identification({"result": self.identification_json,
                                            "grid_records": [r.to_json() for r in self.records[:n]]})
         self.run_dir.write_summary(self.summary())
+        if all(s is not None for s in spectra):
+            self.events.message(self._floors_expected([s for s in spectra if s is not None]))
+
+    def _floors_expected(self, spectra: list[TorqueSpectrum]) -> FloorsExpected:
+        """`FloorsExpected` from the grid's measured ``spectra`` (in the measurement's units) and true ones."""
+        assert self.measurement is not None
+        measurement, grid = self.measurement, self.grid
+        span_t = np.ptp([r.torque_setpoint_nm for r in grid]) or 1.0
+        span_s = np.ptp([r.speed_setpoint_hz for r in grid]) or 1.0
+        ranges: dict[str, list] = {"measured": [], "true": []}
+        for points in (self.plan.learned, self.plan.validated):
+            found: dict[str, list[float]] = {"measured": [], "true": []}
+            for point in points:
+                k = min(range(len(grid)), key=lambda i: abs(grid[i].torque_setpoint_nm - point[0]) / span_t
+                        + abs(grid[i].speed_setpoint_hz - point[1]) / span_s)
+                final = self.plan.base_request(point, 0)
+                scale = (grid[k].revolutions / grid[k].speed_setpoint_hz) / (final.revolutions / point[1])
+                true_units = measurement.in_true_units(spectra[k], grid[k].speed_setpoint_hz, grid[k].calibration)
+                found["measured"].append(expected_noise_pp(true_units.variance_nm2 * scale, true_units.counts_per_rev)
+                                         / measurement.mean_torque_nm(final))
+                if k + 1 in self._grid_true:
+                    grid_true, _ = self._grid_true[k + 1]
+                    found["true"].append(expected_noise_pp(grid_true.variance_nm2 * scale, grid_true.counts_per_rev)
+                                         / measurement.mean_torque_nm(final))
+            for kind, values in found.items():
+                ranges[kind].append((min(values), max(values)) if values and len(values) == len(points) else None)
+        true_ranges = ranges["true"]
+        return FloorsExpected((ranges["measured"][0], ranges["measured"][1]),
+                              None if all(r is None for r in true_ranges) else (true_ranges[0], true_ranges[1]))
+
+    def _point_spectra(self, ran: TrialRequest, analysis: TrialAnalysis) -> PointSpectra:
+        """What the floors need of a trial that ran ``ran`` (`PointSpectra`), from its analysis."""
+        assert self.measurement is not None and analysis.measured is not None
+        measured = self.measurement.in_true_units(analysis.measured, ran.speed_setpoint_hz, ran.calibration)
+        return PointSpectra(measured, self.measurement.mean_torque_nm(ran), analysis.true, analysis.true_mean_nm)
 
     def _grid_bench(self, grid_trials: list[TrialData]) -> Bench:
         """The grid as a bench folder in memory."""
@@ -418,12 +478,36 @@ class CampaignRunner:
         if fade != compensation.fade:
             self.compensation = replace(compensation, fade=fade)
             self.run_dir.write_compensation(self.compensation.to_json())
+        self.floors = self._floors()
         worse = [r for r in results if r.worse]
         if worse:
             self.events.message(CompensationWorse(tuple(r.point for r in worse), fade))
         elif results:
             validated = sum(not r.learned for r in results)
             self.events.message(CompensationBeatsNone(len(results) - validated, validated))
+
+    def _floors(self) -> list[PointFloor]:
+        """Every learned and validated point's noise floor (`point_floors`), from the spectra of its trials: kept
+        as they finished, or, for trials before a resume, analysed again from their files and saved states."""
+        learned = {p: [r.index for r in records_at(self.records, p, ("compensate", "learn"))]
+                   for p in self.plan.learned}
+        validated = {p: done[-1].index for p in self.plan.validated
+                     if (done := records_at(self.records, p, ("validate",)))}
+        needed = [i for indices in learned.values() for i in indices] + list(validated.values())
+        missing = [i for i in needed if i not in self._spectra]
+        for index, trial in zip(missing, self.run_dir.read_trials(missing)):
+            saved = self.run_dir.state(index)
+            record = saved.record
+            cpr = self.description.motor.counts_per_rev
+            ran = TrialRequest(record.torque_setpoint_nm, record.speed_setpoint_hz, saved.revolutions, np.zeros(cpr),
+                               saved.feedforward_nm, saved.calibration, seed=saved.seed)
+            analysis = TrialAnalysis.of(replace(trial, request=ran), cpr, self.config.campaign.ripple_harmonics,
+                                        self.measurement)
+            self._spectra[index] = self._point_spectra(ran, analysis)
+        compensation = self._compensation()
+        return point_floors({p: [self._spectra[i] for i in indices] for p, indices in learned.items() if indices},
+                            {p: self._spectra[i] for p, i in validated.items()},
+                            compensation.torques_nm, compensation.speeds_hz, compensation.tables_nm)
 
     # ---------------------------------------------------------------- resume and summary
 
@@ -463,9 +547,16 @@ class CampaignRunner:
                 factors = [getattr(r, key) for r in last]
                 if all(f is not None for f in factors):
                     final[key] = min(factors)
+        floors = {f.point: f for f in self.floors or []}
+        motor_time: dict[str, float] = {}
+        for r in self.records:
+            motor_time[r.phase] = motor_time.get(r.phase, 0.0) + (r.motor_time_s or 0.0)
         summary = {"units": dict(SUMMARY_UNITS), "trials": [r.to_json() for r in self.records],
                    "identification": self.identification_json, "final": final,
-                   "validation": [r.to_json() for r in self._results() if not r.learned]}
+                   "validation": [r.to_json() for r in self._results() if not r.learned],
+                   "points": [{**r.to_json(), **(floors[r.point].to_json() if r.point in floors else {})}
+                              for r in self._results()],
+                   "motor_time_s": {**motor_time, "all": sum(motor_time.values())}}
         if self.compensation is not None:
             fade = self.compensation.fade
             summary["compensation"] = {"file": self.run_dir.files.compensation.name,

@@ -26,7 +26,7 @@ from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDir, RunFiles
 from ilcpmac.campaign.validation import PointResult, point_results
-from ilcpmac.config import CampaignConfig, check_config, load_config, packaged_config
+from ilcpmac.config import CampaignConfig, check_config, config_text, load_config, packaged_config
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import BenchDescription, IdentificationResult, TrialData
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
@@ -84,8 +84,8 @@ def load_campaign_config(path: str | Path) -> CampaignConfig:
 
 def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | None = None,
         backend: str | Backend = "sim", address: str | None = None, trials: int | None = None,
-        seed: int | None = None, resume: str | Path | None = None, events: CampaignEvents | None = None,
-        identify: Identifier | None = None,
+        seed: int | None = None, budget_min: float | None = None, resume: str | Path | None = None,
+        events: CampaignEvents | None = None, identify: Identifier | None = None,
         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None = None) -> CampaignResult:
     """Run a campaign (``ilcpmac run``): identify, learn, validate a compensation, every trial persisted in its
     run directory as it finishes.
@@ -100,6 +100,8 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     address : where the bench is, for backends built by name that need it.
     trials : most learning trials per learned point (overrides [campaign] learn_trials).
     seed : overrides [trials] seed.
+    budget_min : the motor's running time to plan the campaign to, minutes: the trials after the grid as long as
+        fit (`CampaignPlan.within_budget`); None: as the config says.
     resume : continue the run in this directory from its last complete trial (no ``config`` or ``out`` then:
         the run's own settings hold).
     events : told what happens (`CampaignEvents`); default nothing.
@@ -111,8 +113,8 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     directory that exists (or, with ``resume``, is locked) is left untouched.
     """
     events = events or NoEvents()
-    if resume is not None and (config is not None or out is not None):
-        raise ConfigError("--resume continues a run with its own config: give no CONFIG or --out")
+    if resume is not None and (config is not None or out is not None or budget_min is not None):
+        raise ConfigError("--resume continues a run with its own config: give no CONFIG, --out or --budget")
     resume_dir = None if resume is None else Path(resume)
     out_dir = None if out is None else Path(out)
     # the run directory is locked before the backend is built: a second run on it, or one that cannot
@@ -124,7 +126,10 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         if resume_dir is not None:
             settings = RunDir.read_settings(resume_dir)
             cfg = load_config(RunFiles(resume_dir).config)
-            seed, trials = settings.get("seed"), settings.get("trials")
+            seed, trials, budget_min = settings.get("seed"), settings.get("trials"), settings.get("budget_min")
+            if budget_min is not None and not (isinstance(budget_min, (int, float)) and 0 < budget_min <= 1e5):
+                raise ConfigError(f"{RunFiles(resume_dir).settings}: budget_min: {budget_min!r} is not a number "
+                                  "of minutes within (0, 1e5]")
         elif isinstance(config, CampaignConfig):
             cfg = config
         else:
@@ -143,12 +148,16 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         bench = build_backend(backend, BackendSetup(cfg, address)) if isinstance(backend, str) else backend
         try:
             description = bench.describe()
-            plan = CampaignPlan.build(cfg, description, seed)  # before anything is written
+            # before anything is written
+            plan = CampaignPlan.build(cfg, description, seed) if budget_min is None else \
+                CampaignPlan.within_budget(cfg, description, seed, budget_min * 60.0)
             if resume_dir is not None:
                 run_dir = RunDir.resume(path, description, lock)
             else:
-                run_dir = RunDir.create(path, description, cfg.path.read_text(),
-                                        {"seed": seed, "trials": trials, "config": str(cfg.path)}, lock)
+                run_dir = RunDir.create(path, description, config_text(cfg),
+                                        {"seed": seed, "trials": trials, "budget_min": budget_min,
+                                         "config": str(cfg.path)}, lock)
+            cfg = plan.config
             summary = _run(cfg, bench, description, run_dir, plan, seed, resume_dir is not None, events, identify,
                            extra_stages)
         finally:

@@ -19,7 +19,7 @@ from ilcpmac.cli import console, main
 
 if TYPE_CHECKING:
     from ilcpmac.campaign.events import CampaignMessage, CampaignStart
-    from ilcpmac.campaign.plan import CampaignPlan
+    from ilcpmac.campaign.plan import CampaignPlan, Step
     from ilcpmac.campaign.record import TrialRecord
 
 #: the live display's refreshes per second (one spinner frame each)
@@ -38,8 +38,9 @@ def duration(seconds: float) -> str:
 class CampaignView:
     """The live display of ``ilcpmac run`` and the campaign's events (`CampaignEvents`): the table of trials
     laid out for the console's width, under it a status line with the trial running, how far it is where the
-    backend reports it, its elapsed time, and the trials and time left at most (the plan's bound on the
-    trials, at the mean time of the trials so far).
+    backend reports it, its elapsed time, and what is left at most: the trials and the motor's running time
+    (the plan's), and beside them the wall time (the trials left at the mean time of those so far: on the
+    simulator far less than the motor's).
 
     Parameters
     ----------
@@ -107,6 +108,15 @@ class CampaignView:
             return None
         return sum(n * mean_s[grid] for grid, n in left.items() if n) + correction_s
 
+    def motor_time_left_s(self, running: Step | None) -> float:
+        """How long the motor still runs, at most: the plan's bench time left (`CampaignPlan.bench_time_left`),
+        less the part of the ``running`` trial the backend reported done."""
+        assert self.records is not None
+        left = sum(self.plan.bench_time_left(self.records).values())
+        if running is not None and self.fraction is not None:
+            left -= self.fraction * self.plan.bench_seconds(running.request)
+        return left
+
     def status(self, width: int = 80) -> str:
         """The status line, within ``width`` characters: the running trial's speed, then the trials done and
         the time elapsed, are left out if need be."""
@@ -133,7 +143,8 @@ class CampaignView:
         spinner = _SPINNER[int(now * REFRESH_HZ) % len(_SPINNER)]
         trial = duration(now - self.last_s)
         left = self.time_left_s()
-        bound = f"≤ {self.plan.most_remaining(self.records)} to go" + ("" if left is None else f", ~{duration(left)}")
+        bound = (f"≤ {self.plan.most_remaining(self.records)} to go, motor {duration(self.motor_time_left_s(step))}"
+                 + ("" if left is None else f" (wall ~{duration(left)})"))
         lines = [f"{spinner} {running}{speed}{percent}, {trial} | {done} done, {elapsed} | {bound}",
                  f"{spinner} {running}{percent}, {trial} | {done} done, {elapsed} | {bound}",
                  f"{spinner} {running}{percent}, {trial} | {bound}"]
@@ -212,10 +223,14 @@ class LiveCampaign:
 @click.option("--trials", type=click.IntRange(min=1), default=None,
               help="Most learning trials per learned point (overrides [campaign] learn_trials).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override [trials] seed.")
+@click.option("--budget", "budget_min", type=click.FloatRange(min=0.0, min_open=True, max=1e5), default=None,
+              metavar="MINUTES",
+              help="Plan the campaign to this much motor running time: the trials after the grid as long as fit "
+                   "(docs/campaign.md, \"Bench time\"); the plan says before the first trial what it takes.")
 @click.option("--resume", "resume_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Continue the run in this directory from its last complete trial.")
 def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: str | None, trials: int | None,
-        seed: int | None, resume_dir: Path | None) -> None:
+        seed: int | None, budget_min: float | None, resume_dir: Path | None) -> None:
     """Run a campaign: identify, learn, validate a compensation.
 
     With no CONFIG, runs the packaged seed-bench.toml on the simulator. Every trial is
@@ -227,9 +242,12 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
     result = ilcpmac.campaign.run(config, out=out_dir, backend=backend_kind, address=address, trials=trials,
-                                  seed=seed, resume=resume_dir, events=LiveCampaign(console))
+                                  seed=seed, budget_min=budget_min, resume=resume_dir,
+                                  events=LiveCampaign(console))
     console.print(Text(SUMMARY_TITLE))
-    console.print(summary_table(result.records, result.plan.learned, result.plan.validated))
+    floors = {(p["torque_setpoint"], p["speed_setpoint"]): p for p in result.summary.get("points", [])}
+    console.print(summary_table(result.records, result.plan.learned, result.plan.validated, floors,
+                                console.width))
     lines = final_lines(result.summary)
     if lines:
         console.print(Text("\n  ".join([FINAL_TITLE, *lines])))

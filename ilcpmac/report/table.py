@@ -145,20 +145,35 @@ def trials_table(records: list[TrialRecord], width: int, title: str | None = Non
 SUMMARY_TITLE = "summary per operating point (ripple peak-to-peak after, % of mean torque)"
 
 
-def summary_table(records: list[TrialRecord], learned: list[Point], validated: list[Point]) -> Table:
-    """Per learned, then validation point: the final ripple, the reduction factors against the uncompensated
-    trial there, and the learning trials used (`SUMMARY_TITLE`)."""
-    rows = []
-    for result in point_results(records, learned, validated):
-        after = result.after
-        trials = sum(r.role == "learn" and r.point == result.point for r in records)
-        rows.append([f"{result.point[0]:.4g}", f"{result.point[1]:.4g}", "learned" if result.learned else "valid.",
-                     _worst([after], "measured", "pp", 100), _worst([after], "true", "pp", 100),
-                     _factor([after], "reduction_factor"), _factor([after], "reduction_factor_true"),
-                     str(trials) if result.learned else "-"])
-    headers = ["torque\nN m", "speed\nHz", "point", "meas\n%", "true\n%", "reduction\nmeas",
-               "reduction\ntrue", "learn\ntrials"]
-    return _table([(h, "right", list(cells)) for h, cells in zip(headers, zip(*rows) if rows else [[]] * 8)])
+def summary_table(records: list[TrialRecord], learned: list[Point], validated: list[Point],
+                  floors: dict[Point, dict] | None = None, width: int = 80) -> Table:
+    """Per learned, then validation point: the final ripple beside its floor (``floors``: summary.json's
+    ``points`` entries by point, when known), the reduction factors against the uncompensated trial there, and
+    the learning trials used (`SUMMARY_TITLE`); the columns that fit ``width``, as the live table's."""
+    floors = floors or {}
+    results = point_results(records, learned, validated)
+    rows = [(result, floors.get(result.point, {}),
+             sum(r.role == "learn" and r.point == result.point for r in records)) for result in results]
+    columns = [
+        (_Column("torque\nN m", 0, str), [f"{r.point[0]:.4g}" for r, _, _ in rows]),
+        (_Column("speed\nHz", 0, str), [f"{r.point[1]:.4g}" for r, _, _ in rows]),
+        (_Column("point", 0, str), ["learned" if r.learned else "valid." for r, _, _ in rows]),
+        (_Column("meas\n%", 0, str), [_worst([r.after], "measured", "pp", 100) for r, _, _ in rows]),
+        (_Column("floor\n%", 2, str), [_floor(f, "measured") for _, f, _ in rows]),
+        (_Column("true\n%", 0, str), [_worst([r.after], "true", "pp", 100) for r, _, _ in rows]),
+        (_Column("floor\n%", 1, str), [_floor(f, "true") for _, f, _ in rows]),
+        (_Column("reduction\nmeas", 0, str), [_factor([r.after], "reduction_factor") for r, _, _ in rows]),
+        (_Column("reduction\ntrue", 1, str), [_factor([r.after], "reduction_factor_true") for r, _, _ in rows]),
+        (_Column("learn\ntrials", 0, str), [str(n) if r.learned else "-" for r, _, n in rows]),
+    ]
+    if not floors:
+        columns = [c for c in columns if not c[0].header.startswith("floor")]
+    return _table([(c.header, c.justify, cells) for c, cells in _fit(columns, width)])
+
+
+def _floor(point: dict, kind: str) -> str:
+    value = point.get(f"floor_pp_{kind}")
+    return "-" if value is None else significant(100 * value)
 
 
 #: the line above `final_lines`
@@ -181,5 +196,14 @@ def final_lines(summary: dict) -> list[str]:
             words = f"{where}: {kind} ripple {significant(100 * figures[f'ripple_pp_{kind}'])} % of mean torque"
             if factor in figures:
                 words += f", {significant(figures[factor])}x below uncompensated"
+            ratios = [p[f"ripple_pp_{kind}"] / p[f"floor_pp_{kind}"] for p in summary.get("points", [])
+                      if p["learned"] == (where == "learned") and f"floor_pp_{kind}" in p
+                      and p[f"floor_pp_{kind}"] > 0]
+            if ratios:
+                words += f"; {significant(min(ratios))}-{significant(max(ratios))}x its noise floor"
             lines.append(words)
+    motor = summary.get("motor_time_s")
+    if motor:
+        phases = ", ".join(f"{phase} {t / 60:.1f}" for phase, t in motor.items() if phase != "all")
+        lines.append(f"motor time: {motor['all'] / 60:.1f} min ({phases} min; warm-ups included)")
     return lines

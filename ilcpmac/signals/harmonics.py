@@ -128,6 +128,34 @@ class RippleFigures:
     amp_rest: float
 
 
+#: draws of `expected_noise_pp`, and the seed of its generator (the figure is a function of its inputs)
+NOISE_PP_DRAWS, NOISE_PP_SEED = 256, 20091
+
+
+def expected_noise_pp(variance_nm2: np.ndarray, counts_per_rev: int, mean_nm: np.ndarray | None = None) -> float:
+    """The expected peak-to-peak over one revolution of a ripple whose harmonics 1..H are independent complex
+    Gaussians of variance ``variance_nm2[1:]`` (index 0, the mean, is left out) about ``mean_nm[1:]`` (complex;
+    None: zero), N m.
+
+    Noise of variance v_h in each harmonic's estimate leaves this much peak-to-peak in a table built from the
+    estimates with nothing else in it: the floor that a synchronous average of that noise can show
+    (docs/campaign.md, "The noise floor"). The peak-to-peak of a Gaussian process has no closed form; the mean
+    over `NOISE_PP_DRAWS` draws of a fixed seed stands in for it (within about 1 % for white noise, 2 % for
+    noise falling as 1 / h), each drawn on the fewest points, a power of two, that put 8 or more on a period of
+    the highest harmonic (or ``counts_per_rev``, if fewer).
+    """
+    v = np.asarray(variance_nm2, float)
+    counts_per_rev = min(counts_per_rev, 1 << max(int(8 * (v.size - 1)) - 1, 1).bit_length())
+    rng = np.random.default_rng(NOISE_PP_SEED)
+    sd = np.sqrt(v[1:] / 2.0)
+    draws = np.zeros((NOISE_PP_DRAWS, v.size), complex)
+    draws[:, 1:] = sd * (rng.standard_normal((NOISE_PP_DRAWS, v.size - 1))
+                         + 1j * rng.standard_normal((NOISE_PP_DRAWS, v.size - 1)))
+    if mean_nm is not None:
+        draws[:, 1:] += np.asarray(mean_nm)[1:]
+    return float(np.mean(np.ptp(table_from_amplitudes(draws.T, counts_per_rev), axis=0)))
+
+
 def revolution_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int) -> np.ndarray:
     """Position-sampled ``values`` as one row per revolution, shape ``values.shape[:-1] + (n_revs, counts_per_rev)``.
 

@@ -1,0 +1,143 @@
+"""The noise floor of each operating point: the least peak-to-peak ripple its trials can reach and show
+(docs/campaign.md, "The noise floor").
+
+Two noises bound what a point ends at:
+
+- the **final trial's own noise** (what it can show): the non-repeatable part of the torque left in its
+  synchronous average, of variance v_h per harmonic (its revolution-to-revolution scatter over the number of
+  revolutions; `TorqueSpectrum.variance_nm2`); for the true torque on the simulator that is the current sensors'
+  noise reaching it through the loop, for the measured one the torque sensor's or the encoder torque's noise;
+- the **learning's noise** (what it can reach): the feed-forward that removes the ripple d_h the model-based
+  compensation left is estimated from the measured torque of the trials learned from before the final one,
+  no better than the inverse-variance mean of their harmonics, of variance P_h = 1 / sum_k (1 / v_k,h). A
+  harmonic learned keeps an error of variance P_h, one left alone keeps |d_h|^2: the least a learner of each
+  harmonic can leave is min(|d_h|^2, P_h), |d_h|^2 estimated without bias from the compensation trial's
+  measured harmonic e_h and its variance v_h as max(|e_h|^2 - v_h, 0).
+
+The floor is the expected peak-to-peak of independent harmonics of variance v_h + P_h over the band 1..H
+(`expected_noise_pp`), as a fraction of the mean torque. A validation point learns nothing: its learning part
+is that of the learned points its feed-forward is interpolated from, weighted as the compensation weighs their
+tables (`interpolation_weights`), w^2 P_h summed; and the feed-forward there is an interpolation, whose error
+no trial removes. Where three or more points were learned along an axis, the quadratic through the three
+nearest estimates that error: the floor's harmonics are centred on the difference between the quadratic's
+feed-forward and the bilinear one (`interpolation_error`), not on zero.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ilcpmac.campaign.record import Point
+from ilcpmac.compensation import interpolation_weights
+from ilcpmac.pipeline.analysis import TorqueSpectrum
+from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
+
+__all__ = ["PointFloor", "PointSpectra", "interpolation_error", "learning_variance", "point_floors"]
+
+@dataclass(frozen=True)
+class PointSpectra:
+    """What the floor of a point needs of one of its trials: its measured spectrum in true-torque units
+    (`TorqueMeasurement.in_true_units`) and the measurement's mean torque, N m; its true spectrum and mean
+    (simulator only)."""
+
+    measured: TorqueSpectrum
+    mean_nm: float
+    true: TorqueSpectrum | None = None
+    true_mean_nm: float | None = None
+
+
+@dataclass(frozen=True)
+class PointFloor:
+    """The noise floor of one operating point, peak-to-peak as fractions of the mean torque.
+
+    Attributes
+    ----------
+    point : (torque N m, speed Hz).
+    learned : whether the compensation was learned here.
+    measured_pp : of the measured ripple.
+    true_pp : of the true ripple (simulator only), else None.
+    """
+
+    point: Point
+    learned: bool
+    measured_pp: float
+    true_pp: float | None
+
+    def to_json(self) -> dict:
+        """Its keys in summary.json's ``validation`` entry of the point."""
+        out = {"floor_pp_measured": self.measured_pp}
+        if self.true_pp is not None:
+            out["floor_pp_true"] = self.true_pp
+        return out
+
+
+def learning_variance(compensation: TorqueSpectrum, learned_from: list[TorqueSpectrum]) -> np.ndarray:
+    """min(|d_h|^2, P_h) of the module docstring per harmonic 0..H (0 at h = 0), N m^2: P_h the inverse-variance
+    mean's variance of the spectra ``learned_from``, |d_h|^2 estimated from ``compensation``'s (true units)."""
+    information = sum(1.0 / np.maximum(s.variance_nm2, 1e-300) for s in learned_from)
+    ripple2 = np.maximum(np.abs(compensation.harmonics_nm) ** 2 - compensation.variance_nm2, 0.0)
+    least = np.minimum(ripple2, 1.0 / information)
+    least[0] = 0.0
+    return least
+
+
+def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:
+    """The Lagrange weights at ``x`` of the quadratic through the three values of ``grid`` nearest it (linear,
+    as the compensation's, with fewer than three)."""
+    if grid.size < 3:
+        return interpolation_weights(grid, np.ones(1), x, 1.0)[:, 0]
+    nearest = np.sort(np.argsort(np.abs(grid - x), kind="stable")[:3])
+    weights = np.zeros(grid.size)
+    for i in nearest:
+        others = [grid[j] for j in nearest if j != i]
+        weights[i] = np.prod([(x - g) / (grid[i] - g) for g in others])
+    return weights
+
+
+def interpolation_error(tables_nm: np.ndarray, torques_nm: np.ndarray, speeds_hz: np.ndarray, point: Point,
+                        max_harmonic: int) -> np.ndarray:
+    """Harmonics 0..H of the quadratic feed-forward at ``point`` (`_axis_weights` along torque and speed) less
+    the bilinear one (`interpolation_weights`) from the learned ``tables_nm`` (n_T, n_S, counts_per_rev), N m:
+    the estimated error of the interpolation there (zero at a learned point, and along an axis of one or two)."""
+    quadratic = np.outer(_axis_weights(torques_nm, point[0]), _axis_weights(speeds_hz, point[1]))
+    difference = np.tensordot(quadratic - interpolation_weights(torques_nm, speeds_hz, *point), tables_nm, axes=2)
+    return harmonic_amplitudes(difference, max_harmonic)
+
+
+def _floor(final: TorqueSpectrum, mean_nm: float, learning: np.ndarray, offset_nm: np.ndarray | None) -> float:
+    return expected_noise_pp(final.variance_nm2 + learning, final.counts_per_rev, offset_nm) / abs(mean_nm)
+
+
+def point_floors(learned: dict[Point, list[PointSpectra]], validated: dict[Point, PointSpectra],
+                 torques_nm: np.ndarray, speeds_hz: np.ndarray, tables_nm: np.ndarray) -> list[PointFloor]:
+    """The floor of every learned point (``learned``: its compensation trial, its learning trials and its final
+    one, in order) and every validation point (``validated``: its compensated trial), learned points first.
+
+    ``torques_nm`` x ``speeds_hz`` is the compensation's grid of learned points and ``tables_nm`` its feed-forward
+    tables there (`Compensation`).
+    """
+    learning = {}
+    floors = []
+    for point, trials in learned.items():
+        *before, final = trials
+        learning[point] = learning_variance(trials[0].measured, [t.measured for t in before]) if before else \
+            np.zeros_like(final.measured.variance_nm2)
+        floors.append(_point(point, True, final, learning[point], None))
+    for point, trial in validated.items():
+        weights = interpolation_weights(torques_nm, speeds_hz, *point)
+        part = np.zeros_like(trial.measured.variance_nm2)
+        for (i, j), w in np.ndenumerate(weights):
+            if w:
+                part = part + w**2 * learning[(float(torques_nm[i]), float(speeds_hz[j]))]
+        error = interpolation_error(tables_nm, torques_nm, speeds_hz, point, part.size - 1)
+        floors.append(_point(point, False, trial, part, error))
+    return floors
+
+
+def _point(point: Point, learned: bool, final: PointSpectra, learning: np.ndarray, offset_nm: np.ndarray | None
+           ) -> PointFloor:
+    true = None if final.true is None or final.true_mean_nm is None else \
+        _floor(final.true, final.true_mean_nm, learning, offset_nm)
+    return PointFloor(point, learned, _floor(final.measured, final.mean_nm, learning, offset_nm), true)

@@ -1,0 +1,186 @@
+"""Bench time and noise floors (docs/campaign.md, "Bench time" and "The noise floor"): the plan's motor time, the
+learning schedule, ``--budget``, the floor estimators against known answers, and configs that extend others."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ilcpmac.campaign.floors import interpolation_error, learning_variance
+from ilcpmac.campaign.plan import CampaignPlan
+from ilcpmac.compensation import interpolation_weights
+from ilcpmac.config import config_tables, config_text, load_config
+from ilcpmac.core.errors import ConfigError
+from ilcpmac.pipeline.analysis import TorqueSpectrum
+from ilcpmac.signals.harmonics import expected_noise_pp, table_from_amplitudes
+
+# ---------------------------------------------------------------- the noise floor's estimators
+
+
+def test_the_expected_noise_pp_is_the_mean_peak_to_peak_of_such_noise():
+    """Against an independent Monte-Carlo (another generator, 4000 draws) of white and of coloured noise."""
+    rng = np.random.default_rng(11)
+    cpr, H = 1024, 100
+    for variance in (np.full(H + 1, 4e-6), 1e-5 / (1.0 + np.arange(H + 1)) ** 2):
+        sd = np.sqrt(variance[1:] / 2)
+        draws = np.zeros((H + 1, 4000), complex)
+        draws[1:] = sd[:, None] * (rng.standard_normal((H, 4000)) + 1j * rng.standard_normal((H, 4000)))
+        truth = np.ptp(table_from_amplitudes(draws, cpr), axis=0).mean()
+        assert expected_noise_pp(variance, cpr) == pytest.approx(truth, rel=0.03)
+
+
+def test_a_known_ripple_with_no_noise_has_its_own_peak_to_peak():
+    mean = np.zeros(51, complex)
+    mean[7] = 0.02j
+    assert expected_noise_pp(np.zeros(51), 4096, mean) == pytest.approx(0.04, rel=1e-3)
+
+
+def test_the_floor_of_a_noisy_trial_is_the_peak_to_peak_its_noise_leaves_in_the_average():
+    """Truth first: trials of pure noise of a known variance per sample; the floor estimated from each trial's
+    own revolution scatter (`TorqueSpectrum`) predicts the peak-to-peak the noise leaves in its average."""
+    rng = np.random.default_rng(5)
+    cpr, revolutions, H = 512, 12, 60
+    count = np.arange(revolutions * cpr)
+    time_s = count / (cpr * 0.5)
+    observed, predicted = [], []
+    for _ in range(200):
+        torque = 0.02 * rng.standard_normal(count.size)
+        spectrum = TorqueSpectrum.of(count, time_s, torque, cpr, H)
+        observed.append(np.ptp(spectrum.ripple_table()))
+        predicted.append(expected_noise_pp(spectrum.variance_nm2, cpr))
+    assert np.mean(predicted) == pytest.approx(np.mean(observed), rel=0.05)
+
+
+def spectrum(harmonics: np.ndarray, variance: np.ndarray) -> TorqueSpectrum:
+    return TorqueSpectrum(np.asarray(harmonics, complex), np.asarray(variance, float), 0.0, 256)
+
+
+def test_the_learning_floor_is_the_least_of_the_ripple_and_the_inverse_variance_mean():
+    """A harmonic learned keeps the error of the mean of what it was learned from; one too small to learn keeps
+    itself; |d|^2 is estimated without bias from the compensation trial's harmonic and its variance."""
+    v = np.full(5, 1e-6)
+    ripple = np.array([1.0, 0.5, 2e-3, 0.0, np.sqrt(1e-6 + 0.4e-6)])
+    compensation = spectrum(ripple, v)
+    learned_from = [spectrum(np.zeros(5), v), spectrum(np.zeros(5), 3 * v)]
+    P = 1.0 / (1.0 / 1e-6 + 1.0 / 3e-6)
+    assert learning_variance(compensation, learned_from) == pytest.approx([0.0, P, P, 0.0, 0.4e-6])
+
+
+def test_the_interpolation_error_is_zero_where_learned_and_exact_for_a_quadratic_in_torque():
+    cpr, H = 256, 20
+    torques, speeds = np.array([1.0, 3.0, 5.0]), np.array([0.5, 1.0])
+    shape = np.zeros(H + 1, complex)
+    shape[8], shape[16] = 0.01, 0.004j
+    base = table_from_amplitudes(shape, cpr)
+
+    def truth(t: float) -> np.ndarray:
+        return (0.2 + 0.3 * t + 0.05 * t**2) * base
+
+    tables = np.stack([[truth(t)] * speeds.size for t in torques])
+    for t in torques:
+        assert np.allclose(interpolation_error(tables, torques, speeds, (t, 0.5), H), 0.0, atol=1e-15)
+    for t in (2.0, 4.0):
+        bilinear = np.tensordot(interpolation_weights(torques, speeds, t, 0.75), tables, axes=2)
+        error = interpolation_error(tables, torques, speeds, (t, 0.75), H)
+        assert np.allclose(table_from_amplitudes(error, cpr), truth(t) - bilinear, atol=1e-12)
+        assert np.abs(error).max() > 1e-4  # there is an error to find
+
+
+# ---------------------------------------------------------------- the plan's motor time
+
+
+def test_the_plans_motor_time_is_its_trials_warm_ups_and_revolutions_at_their_speeds(plan):
+    c, warmup = plan.config.campaign, plan.config.grid.warmup_revolutions
+    steps = plan.steps_left([])
+    assert len(steps) == plan.most_remaining([]) == len(plan.grid) + (2 + c.learn_trials) * len(plan.learned) + 2
+    expected = sum((warmup + s.request.revolutions) / s.request.speed_setpoint_hz for s in steps)
+    assert plan.motor_time_s() == pytest.approx(expected)
+    assert list(plan.bench_time_left([])) == ["identify", "compensate", "ilc", "validate"]
+    learning = [s.request.revolutions for s in steps if s.role in ("compensate", "learn")
+                and s.request.torque_setpoint_nm == 2.0]
+    assert learning == sorted(learning) and learning[-1] == plan.config.trial_revolutions((2.0, 0.9))
+    assert {s.request.revolutions for s in steps if s.role == "baseline"} == {c.baseline_revolutions}
+
+
+def test_a_budget_sizes_the_trials_after_the_grid_to_fit_or_says_what_the_shortest_takes(write_config):
+    from campaign_helpers import SMALL_CAMPAIGN, simulator_backend
+
+    cfg = load_config(write_config(SMALL_CAMPAIGN))
+    description = simulator_backend(cfg).describe()
+    full = CampaignPlan.build(cfg, description, 7).motor_time_s()
+    for budget in (0.95 * full, full, 3.0 * full):
+        plan = CampaignPlan.within_budget(cfg, description, 7, budget)
+        assert plan.motor_time_s() <= budget and plan.budget_s == budget
+        longer = CampaignPlan.build(cfg.with_trial_lengths(plan.scale * 2 ** (1 / 8)), description, 7)
+        assert longer.motor_time_s() > budget  # the longest that fits
+    assert CampaignPlan.within_budget(cfg, description, 7, 3.0 * full).scale > 1.0
+    with pytest.raises(ConfigError, match=r"^--budget 0.01 min: the shortest plan of .* takes [\d.]+ min of motor "
+                                          r"time \(identify [\d.]+, compensate"):
+        CampaignPlan.within_budget(cfg, description, 7, 0.6)
+
+
+@pytest.mark.slow
+def test_a_campaign_runs_as_long_as_its_plan_said_and_reports_every_point_against_its_floor(tmp_path, write_config):
+    """The small campaign on the simulator: the motor time summary.json gives per phase is the plan's, trial by
+    trial; every point has a floor, and the learned points end within 1.5x of theirs, the validation point 2x."""
+    from campaign_helpers import SMALL_CAMPAIGN
+
+    import ilcpmac.campaign
+
+    cfg = load_config(write_config(SMALL_CAMPAIGN))
+    result = ilcpmac.campaign.run(cfg, out=tmp_path / "run", seed=7)
+    motor = result.summary["motor_time_s"]
+    assert motor["all"] == pytest.approx(result.plan.motor_time_s())
+    assert {k: v for k, v in motor.items() if k != "all"} == pytest.approx(result.plan.bench_time_left([]))
+    assert all(r.motor_time_s == pytest.approx(result.plan.bench_seconds(result.plan.base_request(
+        r.point, 0, json.loads((tmp_path / "run" / "states" / f"trial_{r.index:03d}.json").read_text())
+        ["request"]["revolutions"]))) for r in result.records)
+    points = result.summary["points"]
+    assert len(points) == len(result.plan.learned) + len(result.plan.validated)
+    for p in points:
+        for kind in ("measured", "true"):
+            assert 0 < p[f"floor_pp_{kind}"] < p[f"uncompensated_pp_{kind}"]
+        assert p["ripple_pp_true"] <= (1.5 if p["learned"] else 2.0) * p["floor_pp_true"]
+
+
+# ---------------------------------------------------------------- configs that extend others
+
+
+def test_a_config_extends_another_table_by_table_and_a_run_keeps_them_merged(tmp_path):
+    from conftest import SEED_CONFIG
+
+    (tmp_path / "seed.toml").write_text(SEED_CONFIG.read_text())
+    quick = tmp_path / "quick.toml"
+    quick.write_text('extends = "seed.toml"\n[trials]\nrevolutions = 4\n[campaign]\nlearn_trials = 2\n')
+    cfg = load_config(quick)
+    seed = load_config(tmp_path / "seed.toml")
+    assert cfg.grid.revolutions == 4 and cfg.grid.speed_setpoints_hz == seed.grid.speed_setpoints_hz
+    assert cfg.campaign.learn_trials == 2 and cfg.campaign.learn_revolutions == seed.campaign.learn_revolutions
+    assert cfg.model == seed.model
+    kept = tmp_path / "kept.toml"
+    kept.write_text(config_text(cfg))
+    assert config_tables(kept) == config_tables(quick) and load_config(kept).grid == cfg.grid
+    assert config_text(seed) == SEED_CONFIG.read_text()  # a config that extends nothing is kept as written
+
+
+@pytest.mark.parametrize("text, message", [
+    ('extends = "loop.toml"\n', r"loop.toml: extends: 'loop.toml' extends itself"),
+    ('extends = 3\n', r"loop.toml: extends: a config's file name, relative to .*, got 3"),
+    ('extends = "missing.toml"\n', r"missing.toml: no such file"),
+])
+def test_a_config_that_extends_wrongly_is_one_line(tmp_path, text, message):
+    path = tmp_path / "loop.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(path)
+
+
+def test_the_quick_preset_is_the_seed_bench_with_a_shorter_campaign():
+    from conftest import SEED_CONFIG
+
+    quick = load_config(SEED_CONFIG.parent / "quick.toml")
+    seed = load_config(SEED_CONFIG)
+    assert quick.model == seed.model and quick.bench == seed.bench and quick.limits == seed.limits
+    assert quick.campaign.learn_trials < seed.campaign.learn_trials
