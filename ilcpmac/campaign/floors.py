@@ -7,12 +7,12 @@ Two noises bound what a point ends at:
   synchronous average, of variance v_h per harmonic (its revolution-to-revolution scatter over the number of
   revolutions; `TorqueSpectrum.variance_nm2`); for the true torque on the simulator that is the current sensors'
   noise reaching it through the loop, for the measured one the torque sensor's or the encoder torque's noise;
-- the **learning's noise** (what it can reach): the feed-forward that removes the ripple d_h the model-based
+- the **learning's noise** (what it can reach): the feed-forward that removes the ripple the model-based
   compensation left is estimated from the measured torque of the trials learned from before the final one,
-  no better than the inverse-variance mean of their harmonics, of variance P_h = 1 / sum_k (1 / v_k,h). A
-  harmonic learned keeps an error of variance P_h, one left alone keeps |d_h|^2: the least a learner of each
-  harmonic can leave is min(|d_h|^2, P_h), |d_h|^2 estimated without bias from the compensation trial's
-  measured harmonic e_h and its variance v_h as max(|e_h|^2 - v_h, 0).
+  no better than the inverse-variance mean of their harmonics, of variance P_h = 1 / sum_k (1 / v_k,h), at
+  every harmonic where there was ripple to remove: where the compensation trial's measured harmonic stood out
+  of its noise by `SIGNIFICANCE` standard deviations. (A harmonic below that is left out: a learner may leave
+  it alone, or, where a stage pools it over the points, learn it from more than one point's trials.)
 
 The floor is the expected peak-to-peak of independent harmonics of variance v_h + P_h over the band 1..H
 (`expected_noise_pp`), as a fraction of the mean torque. A validation point learns nothing: its learning part
@@ -34,7 +34,11 @@ from ilcpmac.compensation import interpolation_weights
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
 
-__all__ = ["PointFloor", "PointSpectra", "interpolation_error", "learning_variance", "point_floors"]
+__all__ = ["SIGNIFICANCE", "PointFloor", "PointSpectra", "interpolation_error", "learning_variance", "point_floors"]
+
+#: standard deviations a harmonic of the compensation trial stands out by to count as ripple to learn
+SIGNIFICANCE = 2.0
+
 
 @dataclass(frozen=True)
 class PointSpectra:
@@ -74,13 +78,13 @@ class PointFloor:
 
 
 def learning_variance(compensation: TorqueSpectrum, learned_from: list[TorqueSpectrum]) -> np.ndarray:
-    """min(|d_h|^2, P_h) of the module docstring per harmonic 0..H (0 at h = 0), N m^2: P_h the inverse-variance
-    mean's variance of the spectra ``learned_from``, |d_h|^2 estimated from ``compensation``'s (true units)."""
+    """P_h of the module docstring per harmonic 0..H, N m^2: the inverse-variance mean's variance of the spectra
+    ``learned_from`` where ``compensation``'s harmonic stands out at `SIGNIFICANCE` (true units), 0 elsewhere
+    and at h = 0."""
     information = sum(1.0 / np.maximum(s.variance_nm2, 1e-300) for s in learned_from)
-    ripple2 = np.maximum(np.abs(compensation.harmonics_nm) ** 2 - compensation.variance_nm2, 0.0)
-    least = np.minimum(ripple2, 1.0 / information)
-    least[0] = 0.0
-    return least
+    ripple = np.abs(compensation.harmonics_nm) > SIGNIFICANCE * np.sqrt(compensation.variance_nm2)
+    ripple[0] = False
+    return np.where(ripple, 1.0 / information, 0.0)
 
 
 def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:
