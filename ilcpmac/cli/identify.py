@@ -166,17 +166,22 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
              torque_source: str | None) -> None:
     """Identify the sensors, inertia and cogging torque of BENCH_DIR.
 
-    Estimates delta*eps, delta, eps, alpha, beta, J* and the cogging torque with both methods, writes the
-    result to --output and prints it; with a truth.json in BENCH_DIR (a simulated bench), also each
-    estimate's error. A bench without a torque sensor at one operating point (a rolling drive log) is
-    identified by the acceleration method (docs/sensorless.md): its position-locked torque and friction.
+    Estimates delta*eps, delta, eps, alpha, beta, J* and the cogging torque with both methods, prints them and
+    writes the result to --output (checked writable before the work); with a truth.json in BENCH_DIR (a
+    simulated bench), also each estimate's error. A bench without a torque sensor at one operating point (a
+    rolling drive log) is identified by the acceleration method (docs/sensorless.md): its position-locked
+    torque and friction. An estimate too uncertain to take (`ilcpmac.identify.TOO_UNCERTAIN`) is shown but
+    not taken, and ends the command with an error (exit 2) once the result is written.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import read_bench
     from ilcpmac.bench.standstill import SCAN_FILE, identify_scan
+    from ilcpmac.core.errors import IdentificationError, IlcpmacError
+    from ilcpmac.core.files import atomic_write, check_writable
     from ilcpmac.core.torque_source import TorqueSource
-    from ilcpmac.identify import STEPS, identify_bench
+    from ilcpmac.identify import STEPS, TOO_UNCERTAIN, identify_bench
 
+    check_writable(output, IlcpmacError)
     if (bench_dir / SCAN_FILE).exists():  # a standstill scan folder (docs/standstill.md)
         scan, lines = identify_scan(bench_dir, output)
         for message in scan.messages:
@@ -196,20 +201,26 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
         progress.update(task, description="done", completed=len(STEPS) + 1)
     for message in result.messages:
         console.print(f"[yellow]warning:[/yellow] {message}")
-    output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(result.to_json(), indent=1, allow_nan=False))
+    click.echo()
+    from rich.console import Console
+
+    Console().print(estimates_table(result, truth))  # first: a result that cannot be written is still shown
+    for line in acceleration_lines(result):
+        console.print(line)
+    try:
+        atomic_write(output, json.dumps(result.to_json(), indent=1, allow_nan=False))
+    except OSError as e:
+        raise IlcpmacError(f"{output}: cannot write the result ({e.strerror or e}); the estimates shown above "
+                           "are not saved") from None
     console.print(f"wrote {output}")
     if plots_dir is not None:
         from ilcpmac.identify.plots import write_plots
 
         written = write_plots(result, plots_dir, plot_format)
         console.print(f"wrote {len(written)} figures to {plots_dir}")
-    click.echo()
-    from rich.console import Console
-
-    Console().print(estimates_table(result, truth))
-    for line in acceleration_lines(result):
-        console.print(line)
+    uncertain = result.diagnostics.get(TOO_UNCERTAIN)
+    if uncertain:
+        raise IdentificationError(f"{bench_dir}: {uncertain}")
 
 
 def acceleration_lines(result) -> list[str]:

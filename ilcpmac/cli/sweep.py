@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import click
@@ -76,17 +77,22 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
         check_local_workers(workers)
     spec = load_spec(spec_path, config)
     runner = SweepRunner(spec, out_dir)
-    tasks = runner.prepare(resume)
-    console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'} as each is submitted")
-    if runner.pending(tasks):  # a resumed sweep with nothing left starts no cluster
-        client = local_client(workers) if scheduler is None else remote_client(scheduler, connect_timeout_s)
-        try:
-            with progress_bar() as progress:
-                runner.run(client, tasks, _Progress(progress))
-        finally:
-            client.close()
-            if client.cluster is not None and scheduler is None:
-                client.cluster.close()
+    try:
+        tasks = runner.prepare(resume)
+        console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'} as each is "
+                      "submitted")
+        if runner.pending(tasks):  # a resumed sweep with nothing left starts no cluster
+            client = local_client(workers) if scheduler is None else remote_client(scheduler, connect_timeout_s)
+            try:
+                with progress_bar() as progress:
+                    runner.run(client, tasks, _Progress(progress))
+            finally:
+                client.close()
+                if client.cluster is not None and scheduler is None:
+                    client.cluster.close()
+    except KeyboardInterrupt:  # its finished tasks' results are written: a resume skips them
+        click.echo(f"error: interrupted; continue the sweep with {runner.resume_command()}", err=True)
+        sys.exit(130)
     table_path = combine(out_dir, table_format)
     table = read_results(out_dir)
     summary = summarize(table, spec.kind, len(tasks), runner.rerun_command, worst)

@@ -1,14 +1,16 @@
-"""Reading a file the user names, bounded: a regular file only, and no more bytes than a limit."""
+"""Reading a file the user names, bounded: a regular file only, and no more bytes than a limit; writing one
+atomically, and checking before the work that it can be written."""
 
 from __future__ import annotations
 
 import os
 import stat
+from contextlib import suppress
 from pathlib import Path
 
 from ilcpmac.core.errors import IlcpmacError
 
-__all__ = ["read_bounded"]
+__all__ = ["atomic_write", "check_writable", "read_bounded"]
 
 
 def read_bounded(path: Path, max_bytes: int, error: type[IlcpmacError]) -> bytes:
@@ -41,15 +43,48 @@ def read_bounded(path: Path, max_bytes: int, error: type[IlcpmacError]) -> bytes
     return raw
 
 
+def _temporary(path: Path) -> Path:
+    """The temporary file `atomic_write` writes ``path`` through: PATH.tmp, beside it."""
+    return path.with_name(path.name + ".tmp")
+
+
 def atomic_write(path: Path, data: bytes | str, durable: bool = True) -> None:
     """Write via a temporary file and rename, so a reader never sees half a file.
 
-    ``durable`` also fsyncs before the rename, so the file survives a power cut.
+    ``durable`` also fsyncs before the rename, so the file survives a power cut. On any failure (a full disk,
+    a quota, a read-only place, an interrupt) the temporary file is removed; an `OSError` is raised again
+    with ``path`` as its file name (the one the CLI names), its errno and reason kept.
     """
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data.encode() if isinstance(data, str) else data)
-        if durable:
-            f.flush()
-            os.fsync(f.fileno())
-    os.replace(tmp, path)
+    tmp = _temporary(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+            if durable:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException as e:
+        with suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        if isinstance(e, OSError):
+            raise OSError(e.errno, e.strerror or str(e), str(path)) from None
+        raise
+
+
+def check_writable(path: Path, error: type[IlcpmacError]) -> None:
+    """Check, before the work that makes its contents, that `atomic_write` can write ``path``; else raise
+    ``error`` naming it.
+
+    Its folder is made, and its temporary file created and removed there; a folder, FIFO or device at ``path``
+    is refused (a rename would replace it).
+    """
+    if path.exists() and not path.is_file():
+        raise error(f"{path}: not a regular file (a folder, FIFO or device is refused)")
+    tmp = _temporary(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb"):
+            pass
+        tmp.unlink()
+    except OSError as e:
+        raise error(f"{path}: cannot be written ({e.strerror or e})") from None

@@ -54,8 +54,8 @@ from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gai
 from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
-__all__ = ["IdentificationDetails", "IdentificationResult", "Identifier", "MethodEstimates", "corrected_calibration",
-           "identify_bench"]
+__all__ = ["TOO_UNCERTAIN", "IdentificationDetails", "IdentificationResult", "Identifier", "MethodEstimates",
+           "corrected_calibration", "identify_bench"]
 
 #: the steps reported to ``progress``
 STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-sensor gain (ch. 3)",
@@ -71,6 +71,13 @@ NOT_IDENTIFIED_WITHOUT_SENSOR = (
     "Coulomb friction: not identified - the encoder sees b Omega + C only (the mean torque): taken as 0 in each "
     "trial's brake b = mean torque / Omega",
 )
+#: the diagnostics' key of the one line naming the estimates too uncertain to take (`_certain`), when any is
+TOO_UNCERTAIN = "too_uncertain"
+#: the largest standard error of an estimate the result takes, relative to its size (a gain's value, an offset's
+#: reference currents' RMS): beyond it, 2 standard errors reach past zero and the estimate tells nothing
+MAX_RELATIVE_STD = 0.5
+#: the estimates so judged: the current sensors' gains and offsets, which the calibration corrects
+JUDGED = ("epsilon", "alpha", "beta")
 #: what the acceleration method does not give beyond what needs a sensor
 ACCELERATION_NOT_IDENTIFIED = ("current sensors (eps, alpha, beta), current loop, encoder error: not identified - "
                                "the acceleration method at one speed gives the position-locked torque and the friction")
@@ -253,8 +260,20 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
         joint_estimates = _without_sensor(_joint_method(joint, _UNIT_SENSOR, bench.motor.counts_per_rev))
     report = _finite_estimates(report, "report method", messages)
     joint_estimates = _finite_estimates(joint_estimates, "joint method", messages)
-    best = {name: getattr(joint_estimates, name) if getattr(joint_estimates, name) is not None
-            else getattr(report, name) for name in MethodEstimates.__dataclass_fields__}
+    current_rms_a = float(np.sqrt(np.mean([np.mean(t.i_ref_table_a**2) for t in tables.trials])))
+    (joint_taken, joint_left), (report_taken, report_left) = (_certain(m, current_rms_a)
+                                                              for m in (joint_estimates, report))
+    best = {name: getattr(joint_taken, name) if getattr(joint_taken, name) is not None
+            else getattr(report_taken, name) for name in MethodEstimates.__dataclass_fields__}
+    untaken = [f"{method} method's {text}" for method, left in (("joint", joint_left), ("report", report_left))
+               for name, text in left if best[name] is None]
+    too_uncertain = None
+    if untaken:
+        too_uncertain = (f"too uncertain to take (a standard error beyond {MAX_RELATIVE_STD:g} of the size): "
+                         f"{'; '.join(untaken)} - the trials' torque noise hides the currents' part of the torque"
+                         f"{'' if joint is not None else ' and the joint fit failed (see the warnings)'}: more "
+                         "revolutions per trial, or more excitation, narrow it")
+        messages.append(too_uncertain)
     calibration = None
     delta = 1.0 if encoder is not None else best["delta"]
     if bench.sensors is not None and delta is not None and all(best[k] is not None
@@ -271,6 +290,8 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
     diagnostics = _diagnostics(tables, system, joint, sensor)
     if encoder is not None:
         diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
+    if too_uncertain is not None:
+        diagnostics[TOO_UNCERTAIN] = too_uncertain
     result = IdentificationResult(
         **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
         messages=tuple(messages), diagnostics=diagnostics,
@@ -373,6 +394,25 @@ def _finite_estimates(estimates: MethodEstimates, method: str, messages: list) -
     messages.append(f"{method}: {', '.join(bad)} not finite (degenerate data or a single set point) - "
                     "reported as null")
     return replace(estimates, **dict.fromkeys(bad))
+
+
+def _certain(estimates: MethodEstimates, current_rms_a: float) -> tuple[MethodEstimates, list[tuple[str, str]]]:
+    """``estimates`` without those of `JUDGED` whose standard error is beyond `MAX_RELATIVE_STD` of their size
+    (a gain's value; beta's ``current_rms_a``, the reference currents' RMS), and (name, what it is) of each."""
+    left: list[tuple[str, str]] = []
+    out: dict[str, None] = {}
+    for name in JUDGED:
+        value, std = getattr(estimates, name), getattr(estimates, name + "_std")
+        if value is None or std is None:
+            continue
+        size = np.full(np.shape(value), current_rms_a) if name == "beta" else np.abs(value)
+        worst = int(np.argmax(np.atleast_1d(std / np.maximum(size, np.finfo(float).tiny))))
+        value, std, size = (float(np.atleast_1d(v)[worst]) for v in (value, std, size))
+        if std > MAX_RELATIVE_STD * size:
+            out |= {name: None, name + "_std": None}
+            left.append((name, f"{name} {value:.3g} ± {std:.2g} A against reference currents of {size:.2g} A RMS"
+                         if name == "beta" else f"{name} {value:.3g} ± {std:.2g}"))
+    return replace(estimates, **out), left
 
 
 def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: JointEstimate | None,

@@ -1025,7 +1025,7 @@ def _check_excitation(problem: _JointProblem) -> None:
             "position-locked torque (cogging and the rest) by trials with different excitation")
     total = problem.amplitudes(np.sum(problem.i_ref * problem.backemf, axis=2)[:, :, None])[:, :, 0]
     varying = total - total.mean(axis=0, keepdims=True)
-    if np.sqrt(np.mean(np.abs(varying) ** 2)) < 3.0 * np.sqrt(problem.variance.mean()):
+    if np.sqrt(np.mean(np.abs(varying) ** 2)) < 3.0 * np.sqrt(problem.variance_at(problem.sets.fit).mean()):
         raise IdentificationError(
             "total system gain (joint fit): no excitation - the current references do not ripple beyond "
             "what every trial shares, and the piezo sensor cannot see the mean torque")

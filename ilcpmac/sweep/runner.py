@@ -10,13 +10,17 @@ Results are written as tasks finish (`ilcpmac.sweep.results`); a failing task is
 
 from __future__ import annotations
 
+import asyncio
 import hashlib
 import os
+import shlex
+import signal
 import tempfile
 from pathlib import Path
 from typing import Protocol
 
 from distributed import Client, LocalCluster, WorkerPlugin, as_completed
+from distributed.comm import connect, get_address_host_port
 from filelock import FileLock
 
 from ilcpmac.config import packaged_config
@@ -44,10 +48,10 @@ TASKS_IN_FLIGHT_PER_THREAD = 2
 WARMUP_CHANGES: dict[str, dict[str, object]] = {
     "bench": {"counts_per_rev": 512},
     "excitation": {"harmonics": 60},
-    "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 2},
-    "campaign": {"learn_torques_nm": [2.0, 4.0], "learn_speeds_hz": [0.9], "learn_revolutions": [2],
+    "trials": {"torque_setpoints_nm": [2.0, 4.0], "speed_setpoints_hz": [0.6, 0.9], "revolutions": 3},
+    "campaign": {"learn_torques_nm": [2.0, 4.0], "learn_speeds_hz": [0.9], "learn_revolutions": [3],
                  "learn_trials": 2, "ripple_harmonics": 60, "validate_torques_nm": [3.0],
-                 "validate_speeds_hz": [0.9], "validate_revolutions": 2},
+                 "validate_speeds_hz": [0.9], "validate_revolutions": 3},
     "stages": {"ilc": {"q_cutoff_harmonic": 60}},
 }
 
@@ -105,20 +109,61 @@ def check_local_workers(workers: int) -> None:
 
 def local_client(workers: int | None = None) -> Client:
     """A client of a local cluster of ``workers`` single-threaded worker processes (default: one per core;
-    `check_local_workers`)."""
+    `check_local_workers`).
+
+    The worker processes start with SIGINT ignored (they inherit it): Ctrl-C reaches the whole process group,
+    and the sweep, not each worker with its traceback, handles it by closing the cluster. Called from the main
+    thread (the only one that may set a signal's handler).
+    """
     workers = workers or os.cpu_count() or 1
     check_local_workers(workers)
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     return Client(cluster)
 
 
+async def _identity(address: str, timeout_s: float) -> object:
+    """The answer of the server at ``address`` to Dask's handshake and "identity" request (a scheduler's: a dict
+    with "type": "Scheduler")."""
+    comm = await connect(address, timeout=timeout_s)
+    try:
+        await comm.write({"op": "identity", "reply": True})
+        return await comm.read()
+    finally:
+        comm.abort()
+
+
 def remote_client(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Client:
-    """A client of the Dask scheduler at ``address`` (tcp://HOST:PORT); an address it cannot parse, or no
-    answer within ``timeout_s``, raises `SweepRunError` naming the address."""
+    """A client of the Dask scheduler at ``address`` (tcp://HOST:PORT), or `SweepRunError` naming the address:
+    one it cannot parse, no answer within ``timeout_s``, or a server that is no Dask scheduler.
+
+    Before the client connects, one request, all of it within ``timeout_s``, asks the server what it is
+    (`_identity`): Dask's own handshake waits for an answer without a limit, and reads any server's first 8
+    bytes as the length of a message to allocate (an HTTP server's "HTTP/1.1" asks for 3 EiB). Any failure
+    of that request past the connection (a garbled answer, an echo of the request) is one line.
+    """
+    try:
+        get_address_host_port(address)
+    except (ValueError, NotImplementedError) as e:
+        raise SweepRunError(f"--scheduler {address}: not a scheduler's address, tcp://HOST:PORT ({e})") from None
+    try:
+        answer = asyncio.run(asyncio.wait_for(_identity(address, timeout_s), timeout_s))
+    except (OSError, TimeoutError) as e:
+        reason = " ".join(str(e).split()) or type(e).__name__
+        raise SweepRunError(f"--scheduler {address}: no scheduler answered within {timeout_s:g} s ({reason})") \
+            from None
+    except Exception:  # whatever a garbled answer makes of Dask's protocol: it is not a scheduler's
+        raise SweepRunError(f"--scheduler {address}: not a Dask scheduler (its answer is not Dask's protocol)") \
+            from None
+    if not (isinstance(answer, dict) and answer.get("type") == "Scheduler"):
+        kind = answer.get("type") if isinstance(answer, dict) and isinstance(answer.get("type"), str) else None
+        raise SweepRunError(f"--scheduler {address}: not a Dask scheduler (it answered Dask's identity request "
+                            f"{f'as a {kind}' if kind else 'with no scheduler identity'})")
     try:
         return Client(address, timeout=timeout_s)
-    except ValueError as e:
-        raise SweepRunError(f"--scheduler {address}: not a scheduler's address, tcp://HOST:PORT ({e})") from None
     except (OSError, TimeoutError) as e:
         reason = " ".join(str(e).split()) or type(e).__name__
         raise SweepRunError(f"--scheduler {address}: no scheduler answered within {timeout_s:g} s ({reason})") \
@@ -193,6 +238,11 @@ class SweepRunner:
         """The command that reruns task ``index`` alone (`SweepTask.rerun_command`)."""
         return SweepTask(index, self.spec.draw(index).seed, self.spec.kind, "", str(self.config_path(index)),
                          ()).rerun_command()
+
+    def resume_command(self) -> str:
+        """The command that continues this sweep in its folder (after a crash or Ctrl-C)."""
+        config, spec, out = (shlex.quote(str(p)) for p in (self.spec.config.path, self.spec.path, self.out_dir))
+        return f"ilcpmac sweep {config} --spec {spec} --out {out} --resume"
 
     def pending(self, draws: list[TaskDraw]) -> list[TaskDraw]:
         """The tasks the folder has no result of."""

@@ -66,6 +66,11 @@ _TABLES: dict[str, type] = {"bench": BenchSettings, "bench.backemf": BackEmf, "b
                             **{f"simulator.{name}": cls for name, cls in SIMULATOR_SECTIONS.items()}}
 #: where the magnets' temperature acts: the true back-EMF's scale
 BACKEMF_SCALE_KEY = "simulator.winding.backemf_scale"
+#: [magnets] coefficient_per_k's range, per K: a magnet's remanence falls as it warms (NdFeB about -0.001, SmCo
+#: -0.0003, ferrite -0.002)
+COEFFICIENT_RANGE_PER_K = (-0.005, 0.0)
+#: the range of the back-EMF's scale the magnets' temperature may make, 1 + coefficient_per_k x rise
+TEMPERATURE_SCALE_RANGE = (0.5, 1.5)
 
 
 class SweepSpecError(ConfigError):
@@ -364,10 +369,17 @@ def _magnets(table, path: Path) -> MagnetTemperature:
         raise SweepSpecError(f"{path}: [magnets] temperature_rise_k: expected [low, high] in K, low <= high, "
                              f"got {shown(rise)}")
     coefficient = _numbers(table["coefficient_per_k"], 1, path, "[magnets] coefficient_per_k")[0]
+    low, high = COEFFICIENT_RANGE_PER_K
+    if not low <= coefficient <= high:
+        raise SweepSpecError(f"{path}: [magnets] coefficient_per_k: {coefficient:g} per K is out of range: the "
+                             f"back-EMF's relative change per K, within [{low:g}, {high:g}] (NdFeB about -0.001)")
     magnets = MagnetTemperature((float(rise[0]), float(rise[1])), coefficient)
-    if not all(magnets.factor(r) > 0 for r in rise):
-        raise SweepSpecError(f"{path}: [magnets]: coefficient_per_k {coefficient:g} over temperature_rise_k "
-                             f"{shown(rise)} makes the back-EMF vanish")
+    low, high = TEMPERATURE_SCALE_RANGE
+    for r in rise:  # the scale is linear in the rise: its extremes are at the ends
+        if not low <= magnets.factor(r) <= high:
+            raise SweepSpecError(f"{path}: [magnets] temperature_rise_k: {r:g} K makes the back-EMF's scale "
+                                 f"{magnets.factor(r):.4g} (1 + coefficient_per_k x rise), out of [{low:g}, "
+                                 f"{high:g}]")
     return magnets
 
 
