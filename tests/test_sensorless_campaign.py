@@ -197,14 +197,17 @@ def test_the_fusion_is_no_worse_than_either_alone_on_known_data():
 
     assert mse(both) < 0.75 * min(mse(sensor), mse(encoder))
     assert mse(both) == pytest.approx(np.mean(both.variance_nm2[1:]), rel=0.1)
-    assert np.all(both.variance_nm2[1:] <= np.minimum(vs, ve)[1:])
+    assert np.all(both.variance_nm2[1:] <= vs[1:])
+    # below both but where the two disagree beyond DISAGREEMENT times their noise by chance (e^-4 of them)
+    assert np.mean(both.variance_nm2[1:] <= np.minimum(vs, ve)[1:]) > 0.97
     assert both.harmonics_nm[0] == encoder.harmonics_nm[0] and both.rest_rms_nm == 0.1
 
 
 def test_a_bounded_encoder_bias_leaves_the_fusion_no_worse_than_either_alone():
     """A bias that repeats (no scatter shows it) on a fifth of the encoder's harmonics, 3-30 times the sensor's
-    standard deviation: weighted by variance alone, the fusion follows the encoder there and is worse than the
-    sensor; with the bound (here the bias itself) in its mean-square error, it is below each alone again."""
+    standard deviation: weighted by variance alone, the fusion would follow the encoder there and be worse than
+    the sensor (before: 3x the sensor's mean-square error); the disagreement between the two bounds the bias, and
+    with the bound given (here the bias itself) too, the fusion is below each alone."""
     rng = np.random.default_rng(12)
     n = 2001
     truth = rng.normal(size=n) + 1j * rng.normal(size=n)
@@ -220,10 +223,9 @@ def test_a_bounded_encoder_bias_leaves_the_fusion_no_worse_than_either_alone():
     def mse(s):
         return float(np.mean(np.abs(s.harmonics_nm[1:] - truth[1:]) ** 2))
 
-    assert mse(fused(sensor, encoder)) > mse(sensor)
+    assert mse(fused(sensor, encoder)) < 0.75 * mse(sensor)
     both = fused(sensor, encoder, bias)
     assert mse(both) < 0.75 * min(mse(sensor), mse(encoder))
-    assert mse(both) == pytest.approx(np.mean(both.variance_nm2[1:]), rel=0.1)
 
 
 def test_both_fuses_the_sensor_brought_to_true_torque_by_its_response_with_the_encoder(bench):
@@ -238,7 +240,10 @@ def test_both_fuses_the_sensor_brought_to_true_torque_by_its_response_with_the_e
     sensor = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, COUNTS_PER_REV, H).divided_by(response)
     encoder = dataclasses.replace(both, source=TorqueSource.ENCODER).encoder_spectrum(trial, COUNTS_PER_REV, H)
     np.testing.assert_allclose(analysis.measured.harmonics_nm, fused(sensor, encoder).harmonics_nm, rtol=1e-9)
-    assert np.all(analysis.measured.variance_nm2[1:] < np.minimum(sensor.variance_nm2, encoder.variance_nm2)[1:])
+    assert np.all(analysis.measured.variance_nm2[1:] < sensor.variance_nm2[1:])
+    # below both but where the encoder disagrees with the sensor beyond their noise (10 % of harmonics here)
+    assert np.mean(analysis.measured.variance_nm2[1:] < np.minimum(sensor.variance_nm2, encoder.variance_nm2)[1:]) \
+        > 0.85
     assert abs(analysis.measured.harmonics_nm[48] - analysis.true.harmonics_nm[48]) < 0.01 * 0.5
 
 
@@ -313,9 +318,10 @@ def test_a_small_campaign_without_a_torque_sensor_reduces_the_true_ripple(tmp_pa
 
 
 @pytest.mark.parametrize("source, asked", [("encoder", [TorqueSource.ENCODER]),
-                                           ("both", [None, TorqueSource.ENCODER])])
+                                           ("both", [None])])
 def test_a_resumed_campaign_measures_as_it_did(tmp_path: Path, source, asked):
-    """"both" identifies on the sensor and takes the encoder's graduation error from the encoder's."""
+    """"both" identifies on the sensor and measures the encoder's graduation error against it (a perfect
+    encoder here: none)."""
     cfg = small_config(tmp_path, torque_source=source, learn_trials=1, validate_torques_nm=[])
     sim = simulator_backend(cfg)
     identify = SourceTruth(sim)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import os
+import typing
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from typing import Callable
@@ -64,11 +65,12 @@ from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import ConfigError, IdentificationError, IlcpmacError
 from ilcpmac.core.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.core.torque_source import TorqueSource
-from ilcpmac.identify import Identifier
+from ilcpmac.identify import Identifier, encoder_error_fields
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline
 from ilcpmac.pipeline.safety import identified_truth
+from ilcpmac.signals.encoder_torque import encoder_error_table, significant_encoder_error
 from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
 from ilcpmac.stages.registry import build_stages, stage_needs
@@ -315,11 +317,12 @@ class CampaignRunner:
         bench = self._grid_bench(grid_trials)
         result = (self.identify(bench) if self.torque_source.reads_sensor
                   else self.identify(bench, torque_source=TorqueSource.ENCODER))
-        if self.torque_source.fuses:  # the sensor's estimates, and the encoder's graduation error
-            encoder = self.identify(bench, torque_source=TorqueSource.ENCODER)
-            result = replace(result, **{name: getattr(encoder, name) for _, name in ENCODER_ERROR_KEYS})
-        self.identification_json = result.to_json()
+        if self.torque_source.fuses:  # the sensor's estimates, and the encoder's graduation error against it
+            unknown: dict[str, typing.Any] = dict.fromkeys(name for _, name in ENCODER_ERROR_KEYS)
+            self._set_identified(replace(result, **unknown))
+            result = self._with_graduation_error(result, grid_trials)
         self._set_identified(result)
+        self.identification_json = result.to_json()
         cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
         # the sensor's spectrum is its torque column's, before the identification as after it
         spectra = [self._grid_spectra[i] if not self.torque_source.reads_encoder and i in self._grid_spectra else
@@ -332,6 +335,22 @@ class CampaignRunner:
         self.run_dir.write_summary(self.summary())
         if all(s is not None for s in spectra):
             self.events.message(self._floors_expected([s for s in spectra if s is not None]))
+
+    def _with_graduation_error(self, result: IdentificationResult, grid_trials: list[TrialData]
+                               ) -> IdentificationResult:
+        """``result`` with the encoder's graduation error measured against the torque sensor over the grid
+        (`TorqueMeasurement.graduation_error`: no model of the torque, which a grid of few speeds and
+        revolutions does not pin down), only what stands out of its noise (`significant_encoder_error`)."""
+        assert self.measurement is not None
+        cpr = self.description.motor.counts_per_rev
+        trials = [replace(trial, request=request) for trial, request in zip(grid_trials, self.grid)]
+        estimate, variance = self.measurement.graduation_error(trials, cpr, cpr // 2 - 1)
+        applied = significant_encoder_error(estimate, variance)
+        fields = encoder_error_fields(encoder_error_table(applied, cpr), applied, variance)
+        return replace(result, **fields, messages=(*result.messages, (
+            f"encoder error (the encoder against the torque sensor over the grid): once per revolution "
+            f"{fields['encoder_eccentricity_counts']:.3g} +- {fields['encoder_eccentricity_std_counts']:.2g} counts, "
+            f"line to line {fields['encoder_line_rms_counts']:.3g} counts RMS (what stands out of the noise)")))
 
     def _floors_expected(self, spectra: list[TorqueSpectrum]) -> FloorsExpected:
         """`FloorsExpected` from the grid's measured ``spectra`` (in the measurement's units) and true ones."""

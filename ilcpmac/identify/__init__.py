@@ -55,7 +55,7 @@ from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gai
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
 __all__ = ["TOO_UNCERTAIN", "IdentificationDetails", "IdentificationResult", "Identifier", "MethodEstimates",
-           "corrected_calibration", "identify_bench"]
+           "corrected_calibration", "encoder_error_fields", "identify_bench"]
 
 #: the steps reported to ``progress``
 STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-sensor gain (ch. 3)",
@@ -348,14 +348,20 @@ def _encoder_tables(bench: Bench) -> EncoderIdentification:
 
 
 def _encoder_error_fields(encoder: EncoderIdentification | None) -> dict:
-    """The `IdentificationResult` fields of the encoder error (none without one): what is applied, its phase None
-    where its once-per-revolution part is 0 (no phase to tell)."""
+    """The `IdentificationResult` fields of the encoder error (none without one) (`encoder_error_fields`)."""
     if encoder is None:
         return {}
     applied, error, variance = (encoder.line_errors_counts, encoder.encoder_error_counts,
                                 encoder.encoder_error_variance_counts2)
     if applied is None or error is None or variance is None:
         return {}
+    return encoder_error_fields(applied, error, variance)
+
+
+def encoder_error_fields(applied: np.ndarray, error: np.ndarray, variance: np.ndarray) -> dict:
+    """The `IdentificationResult` fields of an encoder error: ``applied``, the line errors per count, counts;
+    ``error`` and ``variance``, the harmonics applied (`significant_encoder_error`) and their estimate's
+    variance; the phase None where the once-per-revolution part is 0 (no phase to tell)."""
     amplitude, amplitude_std, phase, line_rms = encoder_error_summary(error, variance)
     std = float(np.sqrt(np.sum(variance[1:]) / 2.0))
     return {"encoder_error_counts": applied,

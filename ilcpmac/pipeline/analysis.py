@@ -17,7 +17,7 @@ harmonic relates to the true torque's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -27,6 +27,7 @@ from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.signals.encoder_torque import (
     EncoderTorqueSpectrum,
     brake_viscous_nm_s,
+    separate_encoder_error,
     with_viscous,
     without_staircase,
 )
@@ -133,6 +134,11 @@ class TorqueSpectrum:
         )
 
 
+#: |e - s|^2 / (v_e + v_s) beyond which "both" takes the encoder's harmonic for biased (`fused`): e^-4 of
+#: harmonics pass it by noise alone (|e - s|^2 / (v_e + v_s) of an unbiased pair is exponential of mean 1)
+DISAGREEMENT = 4.0
+
+
 def fused(sensor: TorqueSpectrum, encoder: TorqueSpectrum, encoder_bias_nm: np.ndarray | None = None
           ) -> TorqueSpectrum:
     """Two spectra of one torque in N m, combined per harmonic by inverse mean-square error; the mean (h = 0),
@@ -140,10 +146,17 @@ def fused(sensor: TorqueSpectrum, encoder: TorqueSpectrum, encoder_bias_nm: np.n
 
     ``encoder_bias_nm`` (shape (H + 1,), N m; None: 0) bounds the encoder's bias per harmonic, which repeats
     trial after trial and no revolution scatter shows: its mean-square error is v_e + bias^2
-    (docs/sensorless.md, "both"). Each harmonic's variance is 1 / (1 / v_s + 1 / (v_e + bias^2)), below either;
-    ``rest_rms_nm`` is the smaller of the two.
+    (docs/sensorless.md, "both"). Where the two disagree beyond their noise (|e - s|^2 above `DISAGREEMENT`
+    times v_e + v_s, which noise alone passes at 1 harmonic in 50), the disagreement bounds it too: bias^2 is
+    at least |e - s|^2 - (v_e + v_s), an unbiased estimate of the encoder's squared bias (the sensor has
+    none), whatever biases the encoder (an encoder error its identification missed, or took for too much).
+    Each harmonic's variance is 1 / (1 / v_s + 1 / (v_e + bias^2)), below either; ``rest_rms_nm`` is the
+    smaller of the two.
     """
-    bias2 = 0.0 if encoder_bias_nm is None else np.abs(encoder_bias_nm) ** 2
+    noise2 = encoder.variance_nm2 + sensor.variance_nm2
+    disagreement2 = np.abs(encoder.harmonics_nm - sensor.harmonics_nm) ** 2
+    bias2 = np.maximum(0.0 if encoder_bias_nm is None else np.abs(encoder_bias_nm) ** 2,
+                       np.where(disagreement2 > DISAGREEMENT * noise2, disagreement2 - noise2, 0.0))
     ws, we = 1.0 / sensor.variance_nm2, 1.0 / (encoder.variance_nm2 + bias2)
     harmonics = (ws * sensor.harmonics_nm + we * encoder.harmonics_nm) / (ws + we)
     variance = 1.0 / (ws + we)
@@ -214,23 +227,58 @@ class TorqueMeasurement:
         scatter and the quantisation floor, eq. 3); ``rest_rms_nm`` the revolution-to-revolution scatter's RMS
         within the band 1..H.
         """
-        return self.encoder_spectrum_and_staircase(trial, counts_per_rev, max_harmonic)[0]
+        return self.encoder_spectrum_and_bias(trial, counts_per_rev, max_harmonic)[0]
 
-    def encoder_spectrum_and_staircase(self, trial: TrialData, counts_per_rev: int, max_harmonic: int
-                                       ) -> tuple[TorqueSpectrum, np.ndarray]:
-        """`encoder_spectrum`, and what eq. 5 took out of it per harmonic 0..H (complex, N m): the bound on its
-        bias that "both" weights it with (`fused`)."""
+    def encoder_spectrum_and_bias(self, trial: TrialData, counts_per_rev: int, max_harmonic: int
+                                  ) -> tuple[TorqueSpectrum, np.ndarray]:
+        """`encoder_spectrum`, and what eq. 5 took out of it per harmonic 0..H (N m): the bound on its bias that
+        "both" weights it with (`fused`)."""
+        spectrum, corrected = self._encoder_spectra(trial, counts_per_rev, max_harmonic)
+        rest = float(np.sqrt(corrected.revolutions * np.sum(corrected.variance_nm2[1:]) / 2.0))
+        return (TorqueSpectrum(corrected.harmonics_nm, corrected.weight_variance_nm2, rest, counts_per_rev),
+                np.abs(spectrum.harmonics_nm - corrected.harmonics_nm))
+
+    def _encoder_spectra(self, trial: TrialData, counts_per_rev: int, max_harmonic: int
+                         ) -> tuple[EncoderTorqueSpectrum, EncoderTorqueSpectrum]:
+        """The encoder-derived torque of ``trial`` (its stamps corrected for `line_errors_counts`, the brake's
+        viscous part added), before and after eq. 5 takes the currents' staircase out."""
         request = trial.requested()
         spectrum = EncoderTorqueSpectrum.of(trial.count, trial.time_s, counts_per_rev, max_harmonic,
                                             self.inertia_kgm2, self.timer_resolution_s, 0.0, self.line_errors_counts)
         spectrum = with_viscous(spectrum, brake_viscous_nm_s(self.mean_torque_nm(request),
                                                              spectrum.speed_harmonics_rad_s[0].real, self.friction_nm))
-        corrected = without_staircase(spectrum, request.torque_reference_nm(),
-                                      self.identified.epsilon_alpha_at(request.calibration),
-                                      self.identified.loop_at(request.calibration))
-        rest = float(np.sqrt(corrected.revolutions * np.sum(corrected.variance_nm2[1:]) / 2.0))
-        return (TorqueSpectrum(corrected.harmonics_nm, corrected.weight_variance_nm2, rest, counts_per_rev),
-                spectrum.harmonics_nm - corrected.harmonics_nm)
+        return spectrum, without_staircase(spectrum, request.torque_reference_nm(),
+                                           self.identified.epsilon_alpha_at(request.calibration),
+                                           self.identified.loop_at(request.calibration))
+
+    def graduation_error(self, trials: list[TrialData], counts_per_rev: int, max_harmonic: int
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The encoder's graduation error e_h, h = 0..H, counts, and its variance, from ``trials`` (their
+        ``request`` set) that both the torque sensor and the encoder read, at two or more speeds.
+
+        The sensor sees no graduation error, and the true torque, whatever ripple it holds at whatever speed or
+        load, is the same in both: per trial k the encoder-derived torque less the sensor's in true units is
+        c_h + m_h,k e_h (eq. 4) plus the two noises, c_h what the two share at every speed (the identified
+        sensor gain's error times a position-fixed ripple, cogging say). `separate_encoder_error` of these
+        differences gives e_h with no model of the torque (the joint identification's separation must assume
+        one: there a torque ripple that changes with speed or load passes for encoder error).
+        """
+        if not self.source.fuses or self.line_errors_counts is not None:
+            raise ValueError("the graduation error is measured against the sensor by a fusing measurement that "
+                             "corrects none yet")
+        h = np.arange(max_harmonic + 1)
+        differences = []
+        for trial in trials:
+            if trial.torque_nm is None:
+                raise ValueError(f"the trial at {trial.torque_setpoint_nm:g} N m has no torque sensor column")
+            raw, encoder = self._encoder_spectra(trial, counts_per_rev, max_harmonic)
+            sensor = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)
+            sensor = sensor.divided_by(self.sensor_response(h, raw.mean_speed_hz, trial.requested().calibration))
+            differences.append(replace(raw, harmonics_nm=encoder.harmonics_nm - sensor.harmonics_nm,
+                                       variance_nm2=encoder.weight_variance_nm2 + sensor.variance_nm2,
+                                       quantisation_variance_nm2=np.zeros(h.size)))
+        separation = separate_encoder_error(differences)
+        return separation.encoder_error_counts, separation.encoder_error_variance_counts2
 
     def in_true_units(self, spectrum: TorqueSpectrum, speed_hz: float, calibration: SensorCalibration
                       ) -> TorqueSpectrum:
@@ -276,7 +324,7 @@ class TrialAnalysis:
             if torques else []
         measured = spectra.pop(0) if sensor and trial.torque_nm is not None else None
         if measurement is not None and measurement.source.reads_encoder:
-            encoder, staircase = measurement.encoder_spectrum_and_staircase(trial, counts_per_rev, max_harmonic)
+            encoder, bias = measurement.encoder_spectrum_and_bias(trial, counts_per_rev, max_harmonic)
             if measurement.source.fuses:
                 if measured is None:
                     raise IlcpmacError(f"torque source {measurement.source.value!r}: the trial at "
@@ -285,7 +333,7 @@ class TrialAnalysis:
                 response = measurement.sensor_response(np.arange(max_harmonic + 1),
                                                        trial.mean_speed_hz(counts_per_rev),
                                                        trial.requested().calibration)
-                encoder = fused(measured.divided_by(response), encoder, staircase)
+                encoder = fused(measured.divided_by(response), encoder, bias)
             measured = encoder
         if trial.torque_true_nm is None:
             return cls(measured)
