@@ -290,6 +290,8 @@ class Stand:
                         data.setdefault(table, {}).setdefault(key, {}).update(value)
                     else:
                         data.setdefault(table, {})[key] = value
+            if "backemf_file" in data["bench"]:  # it replaces the template's [bench.backemf], as the guide says
+                data["bench"].pop("backemf", None)
             data["bench"]["counts_per_rev"] = COUNTS_PER_REV
             path.write_text(toml_text(data))
         elif file.name in MAPPINGS:

@@ -427,6 +427,7 @@ def test_a_run_written_with_csv_trials_resumes_and_goes_on_in_parquet(tmp_path):
         (path / trial_file(i)).unlink()
         write_trial_csv(path / trial_file(i, ".csv"), before.trials[i - 1])
     (path / "bench.toml").write_text((path / "bench.toml").read_text().replace(".parquet", ".csv"))
+    (path / "states" / "run.json").write_text("{}")  # a run begun before Parquet was made before digests too
     run = RunDir.resume(path, DESCRIPTION)
     assert run.completed == 2
     add(run, 3.0)
@@ -463,6 +464,7 @@ def test_a_state_reads_back_to_the_bit_with_its_long_float_lists_packed(tmp_path
     np.testing.assert_array_equal(bits(back.feedforward_nm), bits(table))
     assert RunDir.resume(path, DESCRIPTION).state(1).to_json() == state.to_json()  # as a resume reads it
     (path / "states" / "trial_001.json").write_text(json.dumps(state.to_json()))  # a run written before packing
+    (path / "states" / "run.json").write_text("{}")  # (and before digests)
     assert RunFiles(path).read_state(1).to_json() == state.to_json()
 
 
@@ -479,7 +481,7 @@ def test_a_typed_state_writes_the_same_bytes_it_reads(tmp_path):
     run.add_trial(trial(2.0), state, {})
     run.close()
     written = (path / "states" / "trial_001.json").read_bytes()
-    assert list(json.loads(written)) == ["record", "pipeline", "gains", "guard", "request"]
+    assert list(json.loads(written)) == ["record", "pipeline", "gains", "guard", "request", "trial_sha256", "sha256"]
     again = new_run(tmp_path / "again")
     run = RunDir.resume(again, DESCRIPTION)
     run.add_trial(trial(2.0), RunFiles(path).read_state(1), {})

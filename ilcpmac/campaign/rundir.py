@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import hashlib
 import json
 import math
 import os
@@ -63,6 +64,7 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager, suppress
 from dataclasses import replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +97,14 @@ PACKED_MIN_LENGTH = 32
 PACKED_KEY = "float64_base64"
 #: least time between two writes of summary.json while trials are committed, s
 SUMMARY_INTERVAL_S = 1.0
+#: a state file's and states/identification.json's key holding the SHA-256 of the rest of its JSON text
+DIGEST_KEY = "sha256"
+#: a state file's key holding the SHA-256 of its trial file
+TRIAL_DIGEST_KEY = "trial_sha256"
+#: states/identification.json's key holding the SHA-256 of every trial file committed when it was written
+TRIALS_DIGEST_KEY = "trials_sha256"
+#: states/run.json's key saying the run's states carry digests (a run made before them has none, unchecked)
+SEALED_KEY = "sealed"
 
 
 class RunDirError(IlcpmacError):
@@ -150,25 +160,56 @@ class RunFiles:
         """states/trial_NNN.json, the state saved with trial ``index``."""
         return self.states / f"trial_{index:03d}.json"
 
+    @cached_property
+    def sealed(self) -> bool:
+        """Whether the run's states carry digests (states/run.json says so; a run made before them has none)."""
+        return bool((self.read_json(self.settings) or {}).get(SEALED_KEY))
+
     def read_json(self, path: Path, packed: bool = False) -> dict | None:
         """The JSON object in ``path`` (one of these paths), None when it does not exist; `RunDirError`
-        naming it when it cannot be read. ``packed``: a state file's packed float lists are unpacked."""
+        naming it when it cannot be read or holds NaN or infinity. ``packed``: a state file's packed float
+        lists are unpacked."""
         try:
-            return json.loads(path.read_text(), object_hook=_unpacked if packed else None) if path.is_file() \
-                else None
+            return json.loads(path.read_text(), object_hook=_unpacked if packed else None,
+                              parse_constant=_not_finite) if path.is_file() else None
         except (OSError, ValueError) as e:
             raise RunDirError(f"{path}: unreadable ({e})") from None
 
-    def read_state(self, index: int) -> TrialState:
-        """The state saved with trial ``index``; `RunDirError` when it is missing or unreadable."""
+    def read_sealed(self, path: Path) -> dict | None:
+        """The JSON object in ``path`` without its `DIGEST_KEY`, None when it does not exist; `RunDirError` naming
+        it when it is unreadable or, in a `sealed` run, its digest is missing or differs (edited since written;
+        a run made before digests is not checked)."""
+        data = self.read_json(path)
+        if data is None:
+            return None
+        if not isinstance(data, dict):
+            raise RunDirError(f"{path}: unreadable (not a JSON object)")
+        return self._unsealed(path, data)
+
+    def _unsealed(self, path: Path, data: dict) -> dict:
+        """``data``, the object read from ``path``, without its digest, which must match (`read_sealed`)."""
+        claimed = data.pop(DIGEST_KEY, None)
+        if self.sealed and claimed != _digest(json.dumps(data, allow_nan=False)):
+            raise RunDirError(f"{path}: does not match its {DIGEST_KEY} digest (changed since the run wrote it); "
+                              "the run cannot go on from it")
+        return data
+
+    def read_checked_state(self, index: int) -> tuple[TrialState, str | None]:
+        """The state saved with trial ``index`` (`read_sealed`) and the digest of its trial file it records (None
+        in a run made before digests); `RunDirError` when it is missing or unreadable."""
         path = self.state(index)
-        data = self.read_json(path, packed=True)
+        data = self.read_json(path)
         if data is None:
             raise RunDirError(f"{path}: missing (trial {index} is not complete)")
         try:
-            return TrialState.from_json(data)
+            state = TrialState.from_json(_unpacked_all(data))
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise RunDirError(f"{path}: unreadable ({e!r})") from None
+        return state, self._unsealed(path, data).get(TRIAL_DIGEST_KEY)
+
+    def read_state(self, index: int) -> TrialState:
+        """The state saved with trial ``index`` (`read_checked_state`)."""
+        return self.read_checked_state(index)[0]
 
     def read_learned(self) -> list[LearnedPoint] | None:
         """states/learned.json, None when it does not exist (learning has not ended, or the run was made
@@ -198,6 +239,31 @@ class RunFiles:
                               torque_sensor=torque_sensor)
         except BenchFormatError as e:
             raise RunDirError(str(e)) from None
+
+
+def _not_finite(name: str) -> float:
+    """The ``parse_constant`` of `json.loads`: NaN and infinity are refused."""
+    raise ValueError(f"{name} is not a finite number")
+
+
+def _digest(text: str) -> str:
+    """The SHA-256 of ``text`` (UTF-8), hexadecimal."""
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _file_digest(path: Path) -> str:
+    """The SHA-256 of the file ``path``, hexadecimal; `RunDirError` naming it when it cannot be read."""
+    try:
+        with path.open("rb") as f:
+            return hashlib.file_digest(f, "sha256").hexdigest()
+    except OSError as e:
+        raise RunDirError(f"{path}: unreadable ({e.strerror or e})") from None
+
+
+def _sealed_text(data: dict, target: Path) -> str:
+    """``data`` as JSON for ``target`` (`_json_text`) with `DIGEST_KEY`: the digest of its text without it, which
+    `RunFiles.read_sealed` checks."""
+    return _json_text({**data, DIGEST_KEY: _digest(_json_text(data, target))}, target)
 
 
 def _non_finite(data, where: str = "") -> tuple[str, float] | None:
@@ -256,6 +322,15 @@ def _unpacked(data: dict):
     if not np.isfinite(values).all():
         raise ValueError(f"{PACKED_KEY} holds a non-finite number")
     return values.tolist()
+
+
+def _unpacked_all(data):
+    """``data`` (as `json.loads` gave it) with every packed list given back (`_unpacked` at every depth)."""
+    if isinstance(data, dict):
+        return _unpacked({key: _unpacked_all(value) for key, value in data.items()})
+    if isinstance(data, list):
+        return [_unpacked_all(value) for value in data]
+    return data
 
 
 @contextmanager
@@ -368,6 +443,8 @@ class RunDir:
         self.description = description
         self._entries = entries
         self._states: dict[int, TrialState] = {}
+        #: the digest of each complete trial's file (`TRIAL_DIGEST_KEY`), where the run records them
+        self._trial_digests: dict[int, str] = {}
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rundir")
         self._pending: list[Future] = []
         self._failed = False
@@ -422,7 +499,7 @@ class RunDir:
                 files.states.mkdir(exist_ok=True)
             target = files.settings
             with _writing(target, then):
-                atomic_write(target, _json_text(settings or {}, target))
+                atomic_write(target, _json_text({**(settings or {}), SEALED_KEY: True}, target))
             with _writing(files.backemf, then):
                 write_backemf_csv(files.backemf, description.backemf_nm_per_a)
             with _writing(files.bench, then):
@@ -451,6 +528,7 @@ class RunDir:
                         or not run.files.state(i).is_file():
                     raise RunDirError(f"{path}: trial {i} is listed in {BENCH_FILE} but {name} or its state "
                                       "is missing")
+            run._check_trials()
             with _writing(path, run._resumable):
                 run._remove_incomplete()
         except BaseException:
@@ -458,11 +536,24 @@ class RunDir:
             raise
         return run
 
+    def _check_trials(self) -> None:
+        """Read every complete trial's state (its digest checked) and check its trial file is the one committed
+        with it; `RunDirError` naming the file otherwise (a run made before digests is not checked)."""
+        for i, (name, _, _) in enumerate(self._entries, start=1):
+            self._states[i], recorded = self.files.read_checked_state(i)
+            if not self.files.sealed:
+                continue
+            if recorded != _file_digest(self.path / name):
+                raise RunDirError(f"{self.path / name}: not the file committed with {self.files.state(i)} (its "
+                                  "digest differs: changed, swapped or truncated since); the run cannot resume")
+            self._trial_digests[i] = recorded
+
     @staticmethod
     def read_settings(path: str | Path) -> dict:
-        """The settings a run was created with (states/run.json; empty when there are none)."""
+        """The settings a run was created with (states/run.json, its `SEALED_KEY` aside; empty when there are
+        none)."""
         files = RunFiles(path)
-        return files.read_json(files.settings) or {}
+        return {key: value for key, value in (files.read_json(files.settings) or {}).items() if key != SEALED_KEY}
 
     def _remove_incomplete(self) -> None:
         """Delete what a crash left of a trial that was never committed, and temporary files."""
@@ -531,8 +622,10 @@ class RunDir:
             # currents' sensor noise alone would more than double the run directory)
             with _writing(data, self._resumable):
                 write_trial(data, replace(trial, i_meas_a=None, i_true_a=None, speed_true_rad_s=None))
+            self._trial_digests[index] = _file_digest(data)
             with _writing(state_file, self._resumable):
-                atomic_write(state_file, _json_text(_packed(state.to_json(), state_file), state_file))
+                atomic_write(state_file, _sealed_text({**_packed(state.to_json(), state_file),
+                                                       TRIAL_DIGEST_KEY: self._trial_digests[index]}, state_file))
             with _writing(self.files.bench, self._resumable):
                 self._write_bench_toml(entries)
             if time.monotonic() - self._summary_written_s < SUMMARY_INTERVAL_S:
@@ -550,14 +643,28 @@ class RunDir:
         return self._states[index]
 
     def write_identification(self, data: dict) -> None:
-        """Write states/identification.json atomically."""
+        """Write states/identification.json atomically, with the digests of the trial files committed so far
+        (`flush` first) and its own (not in a run made before digests)."""
+        self.flush()
         target = self.files.identification
+        text = _sealed_text({**data, TRIALS_DIGEST_KEY: [self._trial_digests[i] for i in range(
+            1, self.completed + 1)]}, target) if self.files.sealed else _json_text(data, target)
         with _writing(target, self._resumable):
-            atomic_write(target, _json_text(data, target))
+            atomic_write(target, text)
 
     def read_identification(self) -> dict | None:
-        """states/identification.json, or None when it does not exist."""
-        return self.files.read_json(self.files.identification)
+        """states/identification.json without its digests, or None when it does not exist; `RunDirError` naming it
+        when its digest, or those of the trial files it was identified from, differ (`sealed` runs)."""
+        target = self.files.identification
+        data = self.files.read_sealed(target)
+        recorded = None if data is None else data.pop(TRIALS_DIGEST_KEY, None)
+        if data is None or not self.files.sealed:
+            return data
+        if not isinstance(recorded, list) or recorded != [self._trial_digests.get(i)
+                                                          for i in range(1, len(recorded) + 1)]:
+            raise RunDirError(f"{target}: not identified from the trial files on disk (their digests differ); the "
+                              "run cannot resume")
+        return data
 
     def write_learned(self, points: list[LearnedPoint]) -> None:
         """Write states/learned.json atomically (its long float lists packed, as in a trial's state)."""

@@ -62,18 +62,18 @@ from ilcpmac.campaign.state import LearnedPoint, TrialState
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
-from ilcpmac.core.errors import ConfigError, IdentificationError, IlcpmacError
+from ilcpmac.core.errors import ConfigError, IdentificationError, IlcpmacError, SafetyError
 from ilcpmac.core.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import Identifier, encoder_error_fields
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
-from ilcpmac.pipeline.pipeline import Pipeline
-from ilcpmac.pipeline.safety import identified_truth
+from ilcpmac.pipeline.pipeline import Pipeline, built_stages
+from ilcpmac.pipeline.safety import identified_truth, unconfirmed_scale_violation
 from ilcpmac.signals.encoder_torque import encoder_error_table, significant_encoder_error
 from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
-from ilcpmac.stages.registry import build_stages, stage_needs
+from ilcpmac.stages.registry import stage_needs
 
 __all__ = ["SUMMARY_UNITS", "CampaignRunner", "torque_source"]
 
@@ -152,6 +152,8 @@ class CampaignRunner:
         self.measurement: TorqueMeasurement | None = None
         self.identification_json: dict | None = None
         self._pipeline: Pipeline | None = None
+        #: the stages' state as they started (what a trial after the grid is saved with if they fail on it)
+        self._started: dict | None = None
         #: what the drive applies, built from the pipeline when learning ends
         self.compensation: Compensation | None = None
         self.gains: dict[str, float] = {}
@@ -240,33 +242,61 @@ class CampaignRunner:
     def _run_at_once(self, steps: list[Step], requests: list[TrialRequest]) -> None:
         """Run the ``requests`` of ``steps``, trials whose requests do not depend on one another
         (`CampaignPlan.independent_steps`, `CampaignPlan.learning_round`), in parallel where the backend
-        allows; finish them in the plan's order, as if they had run one by one."""
+        allows; finish them in the plan's order, as if they had run one by one. When the stages fail on a trial
+        (`_finish`), the trials that ran are kept, those not begun never run, and the failure is raised."""
         workers = min(self.backend.max_parallel_trials, os.cpu_count() or 1, len(steps))
         measurement = self.measurement  # fixed until the grid's last trial is finished
+        failure: Exception | None = None
         with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
-            for step, ran, (trial, analysis) in zip(steps, requests,
-                                                    pool.map(self._run, requests, [measurement] * len(steps))):
-                self._finish(step, ran, trial, analysis)
+            runs = [pool.submit(self._run, request, measurement) for request in requests]
+            try:
+                for step, ran, run in zip(steps, requests, runs):
+                    if failure is None:
+                        failure = self._finish(step, ran, *run.result())
+                        if failure is not None:
+                            pool.shutdown(wait=False, cancel_futures=True)
+                    elif not run.cancelled():
+                        self._finish(step, ran, *run.result(), teach=False)
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)  # no trial begins after an error
+                raise
+        if failure is not None:
+            raise failure
 
-    def _finish(self, step: Step, ran: TrialRequest, trial: TrialData, analysis: TrialAnalysis) -> None:
+    def _finish(self, step: Step, ran: TrialRequest, trial: TrialData, analysis: TrialAnalysis,
+                teach: bool = True) -> Exception | None:
         """Teach the pipeline from a finished trial (which ran ``ran``, the step's request as shaped) and its
-        analysis, record its ripple, persist it, tell the user."""
+        analysis, record its ripple, persist it, tell the user.
+
+        The trial is persisted whatever the stages do: when teaching them (their learning, the guard, their state)
+        fails, or with ``teach`` False (a trial that ran beside one they failed on), it is saved with the stages'
+        state before it (`_stages_before`), which a resumed run goes on from; the failure is returned, for the
+        caller to raise once the trials that ran are kept.
+        """
         request = step.request
         key = request.setpoint_key
         record = TrialRecord(len(self.records) + 1, step.phase, step.role, request.torque_setpoint_nm,
                              request.speed_setpoint_hz, true=self._true_figures(analysis),
                              motor_time_s=self.plan.bench_seconds(ran))
-        if record.learns:
-            self.pipeline.learn(trial, self.gains.get(key, 1.0), analysis.measured)
         if self.identified is not None:
             record = replace(record, measured=self._measured_figures(ran, analysis.measured))
             self._spectra[record.index] = self._point_spectra(ran, analysis)
         if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)
-        guard = self._guard(record.point, key) if step.role == "learn" else None
-        state = TrialState(record, None if self._pipeline is None else self._pipeline.state(), dict(self.gains),
-                           guard, ran.calibration, ran.feedforward_nm, request.revolutions, request.seed)
+        gains, guard, stages, failure = dict(self.gains), None, None, None
+        if self._pipeline is not None and teach:
+            try:
+                if record.learns:
+                    self._pipeline.learn(trial, self.gains.get(key, 1.0), analysis.measured)
+                guard = self._guard(record.point, key) if step.role == "learn" else None
+                stages = self._pipeline.state()
+            except Exception as e:  # the trial ran: kept all the same, then the failure raised
+                failure, guard, self.gains = e, None, gains
+        if self._pipeline is not None and stages is None:
+            stages = self._stages_before(record.index)
+        state = TrialState(record, stages, dict(self.gains), guard, ran.calibration, ran.feedforward_nm,
+                           request.revolutions, request.seed)
         self.run_dir.add_trial(trial, state, self.summary())
         if step.role == "grid":
             self._grid_data[record.index] = trial
@@ -276,6 +306,16 @@ class CampaignRunner:
             if len(self.records) == len(self.grid):
                 self._identify(self._grid_trials())
         self.events.trial(record, self.records)
+        return failure
+
+    def _stages_before(self, index: int) -> dict:
+        """The stages' state before trial ``index`` taught them: saved with the trial before it, or as they
+        started when that one ran before them."""
+        saved = self.run_dir.state(index - 1).pipeline
+        if saved is not None:
+            return saved
+        assert self._started is not None
+        return self._started
 
     def _with_reductions(self, record: TrialRecord) -> TrialRecord:
         """``record`` with its reduction factors against its operating point's uncompensated trial."""
@@ -396,6 +436,8 @@ class CampaignRunner:
 
         Raises `IdentificationError` when it lacks an estimate the pipeline (`PIPELINE_NEEDS`, or
         `SENSORLESS_PIPELINE_NEEDS` on the encoder) or a configured stage (its factory's ``needs``) needs.
+        Raises `SafetyError` when, with no back-EMF table in the config to confirm the bench's, it would move a
+        current scale beyond the trust region (`unconfirmed_scale_violation`).
         """
         pipeline = PIPELINE_NEEDS if self.torque_source.reads_sensor else SENSORLESS_PIPELINE_NEEDS
         needs = {"the pipeline": pipeline, **{f"stage {name!r}": needed for name, needed in stage_needs(
@@ -406,7 +448,13 @@ class CampaignRunner:
             why = "; ".join(result.messages) or "no reason given"
             wanted = "; ".join(f"{who} needs {', '.join(names)}" for who, names in missing.items())
             raise IdentificationError(f"{wanted}, which the identification could not estimate ({why})")
-        self.identified = Identified.from_result(result, self.description.calibration)
+        identified = Identified.from_result(result, self.description.calibration)
+        bench = self.config.bench
+        untrusted = unconfirmed_scale_violation(identified, self.plan.limits) \
+            if bench.backemf is None and bench.backemf_file is None else None
+        if untrusted is not None:
+            raise SafetyError(f"{self.config.path}: {untrusted}")
+        self.identified = identified
         self.backend.truth = identified_truth(self.identified)
         if not self.torque_source.reads_encoder:
             self.measurement = TorqueMeasurement(self.identified)
@@ -416,16 +464,18 @@ class CampaignRunner:
             timer_resolution_s(self._grid_bench(self._grid_trials())), result.encoder_error_counts)
 
     def _start_pipeline(self) -> None:
-        """Build the stages from the identification; `RuntimeError` before it."""
+        """Build the stages from the identification (`built_stages`: a failing factory is a `StageError`); keep
+        their state as they start. `RuntimeError` before the identification."""
         identified = self.identified
         if identified is None:
             raise RuntimeError("the pipeline starts from the identification")
         names = list(self.config.pipeline.stages)
         setups = {name: StageSetup(self.description, identified, self.config.campaign.ripple_harmonics,
                                    self.config.stage_options.get(name, {})) for name in names}
-        stages = build_stages(names, setups, self.extra_stages)
+        stages = built_stages(names, setups, self.extra_stages)
         self._pipeline = Pipeline(stages, self.description, identified, self.plan.limits,
                                   self.config.campaign.ripple_harmonics, self._pipeline_note, self.measurement)
+        self._started = self._pipeline.state()
 
     def _pipeline_note(self, text: str) -> None:
         self.events.message(PipelineNote(text))
@@ -470,16 +520,17 @@ class CampaignRunner:
         """What each stage feeds forward at each learned point as the point's last trial left the stages
         (states/learned.json, which ``ilcpmac report`` draws): the stages, restored from that trial's state, shape
         in turn a one-revolution request at the point with the calibration that trial ran with
-        (`LearnedPoint.of`); then they are put back as they were."""
+        (`LearnedPoint.of`, through the pipeline's bounds); then they are put back as they were."""
         cpr = self.description.motor.counts_per_rev
         now = self.pipeline.state()
+        stages: list[Stage] = list(self.pipeline.bounded)
         points = []
         for point in self.plan.learned:
             last = records_at(self.records, point, ("compensate", "learn"))[-1]
             saved = self.run_dir.state(last.index)
             self.pipeline.restore(saved.stages)
             request = TrialRequest(point[0], point[1], 1, np.zeros(cpr), np.zeros(cpr), saved.calibration)
-            points.append(LearnedPoint.of(last.index, self.pipeline.stages, request))
+            points.append(LearnedPoint.of(last.index, stages, request))
         self.pipeline.restore(now)
         return points
 

@@ -30,3 +30,7 @@ class BackendError(IlcpmacError):
 
 class SafetyError(IlcpmacError):
     """A request would break the safety limits, or a stage produced an invalid one; nothing was sent."""
+
+
+class StageError(IlcpmacError):
+    """A stage raised, returned something the pipeline refuses, or did not return in time; the message names it."""

@@ -37,6 +37,13 @@ MAX_SPEED_HZ = 1e3
 CURRENTS_FROM_PHASES, CURRENTS_FROM_I_Q = "phases", "from_i_q"
 MAX_CALIBRATION = 1e9
 
+
+def frozen(values: ArrayLike) -> np.ndarray:
+    """A read-only float copy of ``values``: what is shared with every stage cannot be changed in place."""
+    array = np.array(values, float)
+    array.setflags(write=False)
+    return array
+
 @dataclass(frozen=True)
 class MotorInfo:
     """The [motor] table of bench.toml.
@@ -119,6 +126,10 @@ class SensorCalibration:
         object.__setattr__(self, "current_offset", np.asarray(current_offset, float).reshape(3))
         object.__setattr__(self, "torque_gain", float(torque_gain))
 
+    def read_only(self) -> "SensorCalibration":
+        """This calibration with read-only copies of its arrays (`frozen`), to share with the stages."""
+        return SensorCalibration(frozen(self.current_scale), frozen(self.current_offset), self.torque_gain)
+
     def to_json(self) -> dict:
         """``{"current_scale": [3], "current_offset": [3], "torque_gain": float}`` (bench.toml's [sensors] keys)."""
         return {"current_scale": self.current_scale.tolist(), "current_offset": self.current_offset.tolist(),
@@ -158,6 +169,9 @@ class BenchDescription:
     backemf_nm_per_a: np.ndarray
     calibration: SensorCalibration
     limits: BenchLimits
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "backemf_nm_per_a", frozen(self.backemf_nm_per_a))
 
 
 @dataclass(frozen=True)

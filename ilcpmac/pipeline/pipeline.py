@@ -12,16 +12,25 @@ The measured harmonics relate to the true torque through the measurement's respo
 (`TorqueMeasurement.response`: the sensor's delta, high-pass and delay, or 1 for the encoder-derived
 torque in N m): the fit divides out its shape per harmonic and keeps its scalar gain (delta, or 1),
 which the stages see as `Frame.delta`. The stages never know which source measured the torque.
+
+Every call into a stage goes through `BoundedStage`: in a thread of the stages' for at most `STAGE_CALL_S`, given
+read-only views of the trial and request (a stage cannot change the data it learns from), its columns and its
+state checked (`MAX_COLUMNS`, `MAX_STATE_BYTES`). Whatever else it raises, SystemExit included, and a call that
+does not return in time are a `StageError` naming the stage (docs/writing-a-stage.md, "What the pipeline bounds").
 """
 
 from __future__ import annotations
 
-from typing import Callable
+import math
+import queue
+import threading
+from dataclasses import fields, replace
+from typing import Any, Callable, TypeVar
 
 import numpy as np
 
-from ilcpmac.core.errors import IlcpmacError
-from ilcpmac.core.records import BenchDescription, TrialData, TrialRequest
+from ilcpmac.core.errors import IlcpmacError, StageError
+from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.regression import Regression
 from ilcpmac.pipeline.safety import (
@@ -37,7 +46,240 @@ from ilcpmac.pipeline.safety import (
     torque_violation,
 )
 from ilcpmac.signals.harmonics import harmonic_amplitudes
-from ilcpmac.stages.base import Frame, Identified, Stage, StageSetup
+from ilcpmac.stages.base import Block, Frame, Identified, Stage, StageSetup
+from ilcpmac.stages.registry import build_stages
+
+#: the wall time a call into a stage may take, s. On the seed bench the slowest is the current-sensor stage's factory
+#: (1.2 s, importing its estimators cold), a call after a trial 46 ms at most (the ilc stage's state), growing with
+#: the trial's samples to about 0.2 s at [limits] max_samples_per_trial: 30 s leaves a loaded machine 25 times the
+#: slowest, and a hang stops the run within a trial or two
+STAGE_CALL_S = 30.0
+#: the JSON text a stage's state may take, bytes: it is saved with every trial (states/trial_NNN.json). The ilc
+#: stage's counts 0.25 MB on the seed bench (nine points, H = 150); 32 MiB holds 130 times that (some 1200 points, or
+#: nine at H = 15 000), while a hundred trials at the bound would write 3 GiB of states
+MAX_STATE_BYTES = 32 << 20
+#: a float's JSON text at its longest, separator included ("-2.2250738585072014e-308, "): the state's size is
+#: counted so, without writing each float as text, which would take as long as encoding it
+FLOAT_JSON_BYTES = 26
+#: the columns a stage's ``columns`` may return: the fit's information is K x K over all stages' columns and each
+#: block's marginal information inverts the others' (O(K^3)). The built-ins return 6 (current-sensor) and 2 per
+#: cogging harmonic, and the fit tells apart at most 2 per harmonic it compares (36 on the seed bench, H = 150)
+MAX_COLUMNS = 512
+
+T = TypeVar("T")
+
+
+class _StageThread:
+    """A daemon thread that makes the stage calls of one calling thread, one at a time: a thread per call would
+    cost about a millisecond each on a loaded machine, and a campaign makes some twenty a trial."""
+
+    def __init__(self) -> None:
+        self.calls: queue.SimpleQueue = queue.SimpleQueue()
+        self.outcomes: queue.SimpleQueue = queue.SimpleQueue()
+        threading.Thread(target=self._serve, name="ilcpmac stages", daemon=True).start()
+
+    def _serve(self) -> None:
+        while True:
+            call, args = self.calls.get()
+            try:
+                self.outcomes.put((True, call(*args)))
+            except BaseException as e:  # reported by `bounded`, SystemExit and all
+                self.outcomes.put((False, e))
+
+
+#: each calling thread's `_StageThread`, replaced after a call it abandoned
+_stage_threads = threading.local()
+
+
+def bounded(stage: str, what: str, call: Callable[..., T], *args: Any) -> T:
+    """``call(*args)``, stage ``stage``'s ``what``, in a thread of the stages' (`_StageThread`), waited for at most
+    `STAGE_CALL_S`.
+
+    An `IlcpmacError` (a stage's own one-line error, such as a `ConfigError` of its options) and a
+    KeyboardInterrupt are raised as they are.
+
+    Raises
+    ------
+    StageError
+        Naming the stage and ``what``, for anything else the call raised (SystemExit included), and when it has
+        not returned in time: Python cannot stop a thread, so the call is abandoned in its thread (a daemon, which
+        the process's exit ends; later calls get a new one) and the run stops.
+    """
+    worker = getattr(_stage_threads, "worker", None) or _StageThread()
+    _stage_threads.worker = worker
+    worker.calls.put((call, args))
+    try:
+        returned, value = worker.outcomes.get(timeout=STAGE_CALL_S)
+    except queue.Empty:
+        _stage_threads.worker = None
+        raise StageError(f"stage {stage!r}: {what} did not return within {STAGE_CALL_S:g} s (STAGE_CALL_S); "
+                         "abandoned in its thread") from None
+    if returned:
+        return value
+    if isinstance(value, KeyboardInterrupt | IlcpmacError):
+        raise value
+    text = " ".join(str(value).split())[:200]
+    raise StageError(f"stage {stage!r}: {what} raised {type(value).__name__}{': ' if text else ''}{text}") from value
+
+
+def built_stages(names: list[str], setups: dict[str, StageSetup],
+                 extra: dict[str, Callable[[StageSetup], Stage]] | None = None) -> list[Stage]:
+    """`build_stages`, each stage's factory called as `bounded` calls a stage."""
+    return [bounded(name, "its factory", build_stages, [name], {name: setups[name]}, extra)[0] for name in names]
+
+
+def _readonly(array: np.ndarray) -> np.ndarray:
+    """A view of ``array`` that cannot be written through."""
+    view = array.view()
+    view.setflags(write=False)
+    return view
+
+
+def _readonly_request(request: TrialRequest) -> TrialRequest:
+    """``request`` with read-only views of its tables and calibration."""
+    cal = request.calibration
+    return replace(request, feedforward_nm=_readonly(request.feedforward_nm),
+                   excitation_nm=_readonly(request.excitation_nm),
+                   calibration=SensorCalibration(_readonly(cal.current_scale), _readonly(cal.current_offset),
+                                                 cal.torque_gain))
+
+
+def _thawed(request: Any) -> Any:
+    """A stage's output with a writeable copy of each read-only array in it (the views of the request it was given,
+    or its setup's): what follows, the simulator's kernel included, takes a request's arrays writeable. Anything but
+    a `TrialRequest` as it is (`Pipeline.checked` refuses it)."""
+    if not isinstance(request, TrialRequest):
+        return request
+
+    def own(array: Any) -> Any:
+        return array.copy() if isinstance(array, np.ndarray) and not array.flags.writeable else array
+
+    cal = request.calibration
+    if isinstance(cal, SensorCalibration):
+        cal = replace(cal, current_scale=own(cal.current_scale), current_offset=own(cal.current_offset))
+    return replace(request, feedforward_nm=own(request.feedforward_nm), excitation_nm=own(request.excitation_nm),
+                   calibration=cal)
+
+
+def _readonly_trial(trial: TrialData) -> TrialData:
+    """``trial`` with read-only views of its columns and its request's."""
+    arrays: dict[str, Any] = {f.name: _readonly(value) for f in fields(trial)
+                              if isinstance(value := getattr(trial, f.name), np.ndarray)}
+    return replace(trial, **arrays, request=None if trial.request is None else _readonly_request(trial.request))
+
+
+def _json_copy(state: Any, stage: str) -> dict:
+    """A copy of ``state`` as JSON holds it: objects with text keys, lists, text, finite numbers (integers within
+    64 bits), booleans, null.
+
+    Raises `StageError` naming the stage where it is not, or when its JSON text passes `MAX_STATE_BYTES`: counted
+    as it is copied, before anything is encoded, each float at its longest (`FLOAT_JSON_BYTES`).
+    """
+    room = MAX_STATE_BYTES
+
+    def take(size: int) -> None:
+        nonlocal room
+        room -= size
+        if room < 0:
+            raise StageError(f"stage {stage!r}: state is more than {MAX_STATE_BYTES / 2**20:g} MiB of JSON text "
+                             "(MAX_STATE_BYTES)")
+
+    def copy(value: Any, where: str) -> Any:
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                raise StageError(f"stage {stage!r}: state {where} is {value}, not a finite number")
+            take(FLOAT_JSON_BYTES)
+            return float(value)
+        if isinstance(value, bool) or value is None:
+            take(6)
+            return value
+        if isinstance(value, int):
+            if value.bit_length() > 64:
+                raise StageError(f"stage {stage!r}: state {where} is an integer beyond 64 bits")
+            take(22)  # 20 digits and a sign at most, and its separator
+            return int(value)
+        if isinstance(value, str):
+            take(len(value) + 4)
+            return value
+        if isinstance(value, list | tuple):
+            take(2 * len(value))
+            if all(type(item) is float for item in value):  # a table, the common case: at once
+                if not all(map(math.isfinite, value)):
+                    bad = next(i for i, item in enumerate(value) if not math.isfinite(item))
+                    raise StageError(f"stage {stage!r}: state {where}.{bad} is {value[bad]}, not a finite number")
+                take(FLOAT_JSON_BYTES * len(value))
+                return list(value)
+            return [copy(item, f"{where}.{i}") for i, item in enumerate(value)]
+        if isinstance(value, dict):
+            take(4 * len(value))
+            if not all(isinstance(key, str) for key in value):
+                raise StageError(f"stage {stage!r}: state is not JSON: {where or 'it'} has a key that is not text")
+            return {key: copy(item, f"{where}.{key}" if where else key) for key, item in value.items()}
+        raise StageError(f"stage {stage!r}: state is not JSON: {where or 'it'} holds {type(value).__name__}")
+
+    if not isinstance(state, dict):
+        raise StageError(f"stage {stage!r}: state returned {type(state).__name__}, not a dict")
+    try:
+        return copy(state, "")
+    except RecursionError:
+        raise StageError(f"stage {stage!r}: state is not JSON: nested too deeply") from None
+
+
+class BoundedStage:
+    """A stage as the pipeline calls it: each call `bounded`, given read-only views of the trial and request,
+    its columns and state checked.
+
+    Parameters
+    ----------
+    stage : the stage.
+    counts_per_rev : the bench's encoder counts per revolution (the columns' rows).
+    """
+
+    def __init__(self, stage: Stage, counts_per_rev: int) -> None:
+        self.stage = stage
+        self.name = stage.name
+        self.counts_per_rev = counts_per_rev
+
+    def columns(self, trial: TrialData) -> np.ndarray | None:
+        """The stage's regressors, checked: real, finite, shape (counts_per_rev, k) with k <= `MAX_COLUMNS`."""
+        table = bounded(self.name, "columns", self.stage.columns, _readonly_trial(trial))
+        if table is None:
+            return None
+        cpr, name = self.counts_per_rev, self.name
+        if not isinstance(table, np.ndarray) or table.dtype.kind not in "fiu":
+            raise StageError(f"stage {name!r}: columns returned {type(table).__name__}"
+                             f"{' of ' + str(table.dtype) if isinstance(table, np.ndarray) else ''}, not an array "
+                             "of real numbers")
+        if table.ndim != 2 or table.shape[0] != cpr or table.shape[1] > MAX_COLUMNS:
+            raise StageError(f"stage {name!r}: columns returned {table.shape}, not ({cpr}, k) with k <= "
+                             f"{MAX_COLUMNS}")
+        if not np.isfinite(table).all():
+            raise StageError(f"stage {name!r}: columns returned NaN or infinity")
+        return table
+
+    def shape(self, request: TrialRequest) -> TrialRequest:
+        """The stage's request (`Pipeline.checked` checks it), given a read-only ``request``."""
+        return bounded(self.name, "shape", lambda given: _thawed(self.stage.shape(given)), _readonly_request(request))
+
+    def learn(self, trial: TrialData, frame: Frame) -> None:
+        """The stage learns from ``trial``."""
+        bounded(self.name, "learn", self.stage.learn, _readonly_trial(trial), frame)
+
+    def state(self) -> dict[str, Any]:
+        """A copy of the stage's state, checked (`_json_copy`)."""
+        return _json_copy(bounded(self.name, "state", self.stage.state), self.name)
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """The stage restores ``state``."""
+        bounded(self.name, "restore", self.stage.restore, state)
+
+    def revert(self, state: dict[str, Any], key: str) -> None:
+        """The stage's own ``revert`` of set point ``key``, or its whole `restore` when it has none."""
+        revert = getattr(self.stage, "revert", None)
+        if revert is None:
+            self.restore(state)
+        else:
+            bounded(self.name, "revert", revert, state, key)
 
 
 class Pipeline:
@@ -45,7 +287,7 @@ class Pipeline:
 
     Parameters
     ----------
-    stages : list of Stage, in the config's order.
+    stages : list of Stage, in the config's order; the pipeline calls each through a `BoundedStage` (``bounded``).
     description : the bench.
     identified : the identification the stages start from.
     limits : the safety limits every request obeys.
@@ -59,6 +301,8 @@ class Pipeline:
                  measurement: TorqueMeasurement | None = None) -> None:
         self.measurement = measurement or TorqueMeasurement(identified)
         self.stages = stages
+        #: the stages as the pipeline calls them (`BoundedStage`)
+        self.bounded = [BoundedStage(stage, description.motor.counts_per_rev) for stage in stages]
         self.description = description
         self.identified = identified
         self.limits = limits
@@ -70,7 +314,7 @@ class Pipeline:
     def shape(self, request: TrialRequest) -> TrialRequest:
         """Pass ``request`` through every stage, each output checked (`checked`), then clip the
         feed-forward to the limits (`enforce_limits`)."""
-        for stage in self.stages:
+        for stage in self.bounded:
             request = self.checked(stage.shape(request), stage.name)
         flowing = FlowingCurrent.at(request.calibration, self._truth)
         return enforce_limits(request, self.description.backemf_nm_per_a, self.limits, flowing)
@@ -129,35 +373,33 @@ class Pipeline:
         h = self.claimed_harmonics()
         u = harmonic_amplitudes(request.feedforward_nm)[h]
         known = gain * self._response(h, speed_hz, request.calibration) * u
-        blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.stages
+        blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.bounded
                   if (table := s.columns(trial)) is not None}
         regression = Regression(mean[h] - known, variance[h], blocks)
-        return Frame({name: regression.block(name) for name in blocks}, true.harmonics_nm, true.variance_nm2, gain,
-                     speed_hz, learning_gain)
+        fitted = {name: regression.block(name) for name in blocks}
+        return Frame({name: Block(_readonly(b.estimate), _readonly(b.information)) for name, b in fitted.items()},
+                     _readonly(true.harmonics_nm), _readonly(true.variance_nm2), gain, speed_hz, learning_gain)
 
     def learn(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
-        """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame (`frame`)."""
+        """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame (`frame`), whose
+        arrays, as the trial's, the stages see read-only."""
         frame = self.frame(trial, learning_gain, spectrum)
-        for stage in self.stages:
+        for stage in self.bounded:
             stage.learn(trial, frame)
         return frame
 
     def state(self) -> dict:
-        """Every stage's state, by name."""
-        return {stage.name: stage.state() for stage in self.stages}
+        """Every stage's state, by name, each a checked copy (`BoundedStage.state`)."""
+        return {stage.name: stage.state() for stage in self.bounded}
 
     def restore(self, state: dict) -> None:
         """Restore every stage from `state`."""
-        for stage in self.stages:
+        for stage in self.bounded:
             stage.restore(state[stage.name])
 
     def revert(self, state: dict, key: str) -> None:
         """Go back to `state` (an earlier `state`) at set point ``key`` only: a stage with the optional
         ``revert`` reverts that key and keeps what it learned at other set points; any other is restored
         whole."""
-        for stage in self.stages:
-            revert = getattr(stage, "revert", None)
-            if revert is None:
-                stage.restore(state[stage.name])
-            else:
-                revert(state[stage.name], key)
+        for stage in self.bounded:
+            stage.revert(state[stage.name], key)

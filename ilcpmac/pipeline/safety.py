@@ -125,6 +125,24 @@ def identified_truth(identified: Identified) -> SensorCalibration:
                              identified.torque_gain_v_per_nm)
 
 
+def unconfirmed_scale_violation(identified: Identified, limits: SafetyLimits) -> str | None:
+    """Why identified sensors that rest on an unconfirmed back-EMF table may not bound the flowing current, or
+    None when they keep every current scale within max_scale_deviation of the bench's calibration.
+
+    epsilon is the true torque over the one the bench's table predicts: a table k times too large gives
+    epsilon / k, a current scale k times too large and k times the current the bound believes. Only a table
+    the config confirms ([bench.backemf] or backemf_file) makes a larger change something the data show.
+    """
+    change = identified_truth(identified).current_scale / identified.calibration.current_scale
+    if np.all(np.abs(change - 1.0) <= limits.max_scale_deviation * (1.0 + ROUNDING)):
+        return None
+    return (f"the identified epsilon {identified.epsilon:.3g} puts the current scales at {change.min():.3g}x to "
+            f"{change.max():.3g}x the bench's calibration's, beyond {100 * limits.max_scale_deviation:g} % "
+            f"([limits] max_scale_deviation): the bench's back-EMF table is wrong, {1.0 / identified.epsilon:.3g}x "
+            "its true one if its calibration is right (phase vs line-to-line is 1.73x, peak vs RMS 1.41x); "
+            "confirm the table with [bench.backemf] or backemf_file (docs/safety.md)")
+
+
 def trust_edges(limits: SafetyLimits) -> list[FlowingCurrent]:
     """The currents at the edge of the trust region around the true sensors that bound every other:
     epsilon alpha = 1 + max_scale_deviation with beta = +-max_offset_deviation_a (none if unbounded)."""

@@ -17,14 +17,21 @@ refuses to start the stages when the identification could not estimate one.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import ConfigError, IdentificationError
-from ilcpmac.core.records import BenchDescription, IdentificationResult, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.records import (
+    BenchDescription,
+    IdentificationResult,
+    SensorCalibration,
+    TrialData,
+    TrialRequest,
+    frozen,
+)
 from ilcpmac.core.schema import shown
 from ilcpmac.core.torque_sensor import harmonic_response
 
@@ -59,6 +66,15 @@ class Identified:
     current_loop: CurrentLoop = field(default_factory=CurrentLoop)
     sensor_highpass_hz: float = 0.0
     sensor_delay_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        """Every array read-only (`frozen`): each stage shares them."""
+        for name in ("alpha", "beta_a", "cogging_nm", "alpha_std", "beta_std_a"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, frozen(getattr(self, name)))
+        object.__setattr__(self, "current_loop", CurrentLoop(frozen(self.current_loop.time_constant_s),
+                                                             self.current_loop.delay_s))
+        object.__setattr__(self, "calibration", self.calibration.read_only())
 
     @classmethod
     def from_result(cls, result: IdentificationResult | dict, calibration: SensorCalibration) -> Identified:
@@ -139,6 +155,12 @@ class StageSetup:
     max_harmonic: int
     options: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        """The stage's bench with a read-only calibration (`SensorCalibration.read_only`; its back-EMF table and
+        the identification are read-only already)."""
+        object.__setattr__(self, "description", replace(self.description,
+                                                        calibration=self.description.calibration.read_only()))
+
     def torque_response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration,
                         loop_scale: float = 1.0) -> np.ndarray:
         """Torque reference to true torque at mechanical harmonics h, while the controller uses
@@ -208,6 +230,10 @@ class Stage(Protocol):
     returned after an earlier trial) for set point ``key`` only; what was learned at other set points
     stays (a set point ``state`` does not know is unlearned). The guard uses it through
     `ilcpmac.pipeline.pipeline.Pipeline.revert`; a stage without it is restored whole (`restore`).
+
+    The pipeline makes each call in a thread of the stages' for a bounded time, gives it read-only arrays (the
+    trial, the request, the frame) and checks what it returns (`ilcpmac.pipeline.pipeline.BoundedStage`); a
+    failure stops the run with one line naming the stage (docs/writing-a-stage.md, "What the pipeline bounds").
     """
 
     name: str
