@@ -183,3 +183,17 @@ def test_the_quick_preset_is_the_seed_bench_with_a_shorter_campaign():
     seed = load_config(SEED_CONFIG)
     assert quick.model == seed.model and quick.bench == seed.bench and quick.limits == seed.limits
     assert quick.campaign.learn_trials < seed.campaign.learn_trials
+
+
+def test_the_final_lines_give_each_set_of_points_against_its_floor_and_the_motor_time():
+    from ilcpmac.report.table import final_lines
+
+    points = [{"learned": True, "ripple_pp_true": 0.0009, "floor_pp_true": 0.0009},
+              {"learned": True, "ripple_pp_true": 0.0006, "floor_pp_true": 0.0005},
+              {"learned": False, "ripple_pp_true": 0.0017, "floor_pp_true": 0.0013}]
+    summary = {"final": {"ripple_pp_true": 0.0009}, "validation": [{"ripple_pp_true": 0.0017}], "points": points,
+               "motor_time_s": {"identify": 132.0, "ilc": 708.0, "all": 840.0}}
+    assert final_lines(summary) == [
+        "learned: true ripple 0.0900 % of mean torque; 1.00-1.20x its floor",
+        "validation: true ripple 0.170 % of mean torque; 1.31-1.31x its floor",
+        "motor time: 14.0 min (identify 2.2, ilc 11.8 min; warm-ups included)"]

@@ -200,7 +200,7 @@ def final_lines(summary: dict) -> list[str]:
                       if p["learned"] == (where == "learned") and f"floor_pp_{kind}" in p
                       and p[f"floor_pp_{kind}"] > 0]
             if ratios:
-                words += f"; {significant(min(ratios))}-{significant(max(ratios))}x its noise floor"
+                words += f"; {significant(min(ratios))}-{significant(max(ratios))}x its floor"
             lines.append(words)
     motor = summary.get("motor_time_s")
     if motor:
