@@ -394,3 +394,35 @@ def test_ilcpmac_run_ends_with_what_it_wrote_and_the_next_command(write_config, 
     assert (point["torque_setpoint"], point["speed_setpoint"], point["learned"]) == (3.0, SMALL_SPEED_HZ, False)
     assert {k for k, v in point.items() if isinstance(v, float)} <= set(summary["units"])
     assert set(summary["compensation"]) - {"file"} <= set(summary["units"])
+
+
+def test_the_live_display_never_grows_taller_than_the_terminal(plan):
+    """At 80 x 24 a run of 80 trials: the display keeps the grid row and the latest trials that fit with the status
+    line, and says how many it left out (before: every trial, the header repeated in the scrollback at each
+    refresh, 1784 lines for a default run); on a file or pipe every trial is shown."""
+    records = [record(k + 1, "grid" if k < 4 else "learn", 2.0 if k % 2 else 4.0) for k in range(80)]
+    for terminal, height in ((True, 24), (False, 24), (True, 200)):
+        console = Console(file=io.StringIO(), width=80, height=height, force_terminal=terminal, color_system=None,
+                          record=True)
+        view = CampaignView(console, plan, "ilcpmac run  runs/seed-bench", records, Clock())
+        console.print(view)
+        lines = console.export_text().rstrip("\n").splitlines()
+        shown = [line for line in lines if re.match(r"^│ +\d+ ", line)]
+        if terminal and height == 24:
+            assert len(lines) <= 24
+            assert any("left out to fit the terminal" in line for line in lines)
+            assert shown[-1].split()[1] == "80"  # the latest trial is shown
+        else:
+            assert len(shown) == 76 and not any("left out" in line for line in lines)
+
+
+def test_a_message_on_a_file_or_pipe_is_one_line_however_long(plan):
+    console = Console(file=io.StringIO(), width=80, force_terminal=False)
+    view = CampaignView(console, plan, "run", [], Clock())
+
+    class Long:
+        text = "guard: the ripple at 2 N m, 0.9 Hz grew twice in a row: reverted to the correction of trial 67, " \
+               "learning gain halved to 0.5"
+
+    view.message(Long())  # type: ignore[arg-type]
+    assert console.file.getvalue() == Long.text + "\n"

@@ -81,8 +81,9 @@ class CampaignView:
             self.fraction = fraction
 
     def message(self, message: CampaignMessage) -> None:
-        """Say ``message`` above the display."""
-        self.console.print(Text(message.text, style="bold"))
+        """Say ``message`` above the display; unwrapped where the console is no terminal (a file, a pipe), so that
+        no line breaks mid-sentence at a width nobody reads it at."""
+        self.console.print(Text(message.text, style="bold"), soft_wrap=not self.console.is_terminal)
 
     def end(self, how: str) -> None:
         """The campaign is over ("done", "stopped"): the status line says so from now on."""
@@ -154,8 +155,20 @@ class CampaignView:
         # imported when the command runs (ilcpmac.cli's docstring says why)
         from ilcpmac.report.table import trials_table
 
-        yield trials_table(self.records or [], options.max_width, self.title, self.source)
-        yield Text(self.status(options.max_width))
+        records, width = self.records or [], options.max_width
+
+        def table(hidden: int):
+            return trials_table(records, width, self.title, self.source, hidden)
+
+        shown, hidden = table(0), 0
+        if console.is_terminal:  # never taller than the terminal: a taller live display floods the scrollback
+            room, rows = console.height - 1, sum(r.role != "grid" for r in records)  # the status line below
+            # every row is one line (no cell wraps); leaving rows out adds to the caption: measured again
+            while (excess := len(console.render_lines(shown, options, pad=False)) - room) > 0 and hidden < rows:
+                hidden = min(hidden + excess, rows)
+                shown = table(hidden)
+        yield shown
+        yield Text(self.status(width))
 
 
 def files_written(path: Path) -> tuple[int, int]:

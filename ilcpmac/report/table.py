@@ -126,17 +126,23 @@ SOURCE_CAPTIONS = {"encoder": "meas: estimated from the encoder's time stamps",
                    "both": "meas: the torque sensor and the encoder's time stamps fused"}
 
 
-def trials_table(records: list[TrialRecord], width: int, title: str | None = None, source: str = "sensor") -> Table:
+def trials_table(records: list[TrialRecord], width: int, title: str | None = None, source: str = "sensor",
+                 hidden: int = 0) -> Table:
     """The live table, for a console ``width`` characters wide: per trial its phase, set point, measured and true
     ripple, harmonic amplitudes and reduction factors, as many columns as fit. The identification grid is one row
-    (its trials' range, set points and largest figures). The measured figures are estimated from ``source``
-    ([campaign] torque_source; the caption names it unless it is the torque sensor); the true ones are the
-    simulator's."""
+    (its trials' range, set points and largest figures), then a row per trial but the first ``hidden`` after the
+    grid (left out to fit a terminal's height; the caption says so). The measured figures are estimated from
+    ``source`` ([campaign] torque_source; the caption names it unless it is the torque sensor); the true ones are
+    the simulator's."""
     rows = _rows(records)
+    grid = int(bool(rows) and rows[0][0].role == "grid")
+    rows = rows[:grid] + rows[grid + hidden:]
     columns = _fit([(c, [c.cell(row) for row in rows]) for c in _COLUMNS], width)
     notes = [SOURCE_CAPTIONS[source]] if source in SOURCE_CAPTIONS else []
     if any(r.role == "grid" for r in records):
         notes.append("grid row: the largest figure over its trials")
+    if hidden:
+        notes.append(f"{hidden} trials after the grid left out to fit the terminal (all in summary.json)")
     caption = "\n".join(notes) or None
     return _table([(c.header, c.justify, cells) for c, cells in columns], title=title, caption=caption)
 
