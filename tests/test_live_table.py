@@ -426,3 +426,17 @@ def test_a_message_on_a_file_or_pipe_is_one_line_however_long(plan):
 
     view.message(Long())  # type: ignore[arg-type]
     assert console.file.getvalue() == Long.text + "\n"
+
+
+def test_ctrl_c_in_a_run_names_the_folder_to_resume(tmp_path, write_config, monkeypatch):
+    """Before: "a run directory can be continued with ilcpmac run --resume", which folder unsaid."""
+    from ilcpmac.campaign.runner import CampaignRunner
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(CampaignRunner, "run", interrupted)
+    out = tmp_path / "my run"
+    done = CliRunner().invoke(main, ["run", str(write_config(SMALL_CAMPAIGN)), "--out", str(out)])
+    assert done.exit_code == 130
+    assert done.output.strip().splitlines()[-1] == f"error: interrupted; continue with ilcpmac run --resume '{out}'"

@@ -47,9 +47,8 @@ class _Group(click.Group):
                 raise
             click.echo(f"error: {e.filename}: {e.strerror}" if e.filename else f"error: {e.strerror}", err=True)
             sys.exit(2)
-        except KeyboardInterrupt:
-            click.echo("error: interrupted (a run directory can be continued with ilcpmac run --resume)",
-                       err=True)
+        except KeyboardInterrupt:  # a command that can be continued says how itself (run, sweep)
+            click.echo("error: interrupted", err=True)
             sys.exit(130)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import shlex
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -203,8 +204,11 @@ class LiveCampaign:
 
     def __init__(self, console: Console) -> None:
         self.console = console
+        #: the run directory, once the campaign starts
+        self.path: Path | None = None
 
     def start(self, start: CampaignStart) -> None:
+        self.path = start.path
         self.view = CampaignView(self.console, start.plan, f"ilcpmac run  {start.path}",
                                  None if start.resumed else [], source=start.torque_source.value)
         self.live = LiveTable(self.view, console=self.console, refresh_per_second=REFRESH_HZ,
@@ -254,9 +258,17 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     import ilcpmac.campaign
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
-    result = ilcpmac.campaign.run(config, out=out_dir, backend=backend_kind, address=address, trials=trials,
-                                  seed=seed, budget_min=budget_min, resume=resume_dir,
-                                  events=LiveCampaign(console))
+    events = LiveCampaign(console)
+    try:
+        result = ilcpmac.campaign.run(config, out=out_dir, backend=backend_kind, address=address, trials=trials,
+                                      seed=seed, budget_min=budget_min, resume=resume_dir, events=events)
+    except KeyboardInterrupt:
+        if events.path is None:
+            raise
+        # every finished trial is on disk: the run goes on from the next
+        click.echo(f"error: interrupted; continue with ilcpmac run --resume {shlex.quote(str(events.path))}",
+                   err=True)
+        sys.exit(130)
     console.print(Text(SUMMARY_TITLE))
     floors = {(p["torque_setpoint"], p["speed_setpoint"]): p for p in result.summary.get("points", [])}
     console.print(summary_table(result.records, result.plan.learned, result.plan.validated, floors,
