@@ -683,3 +683,26 @@ def test_one_minimum_copper_loss_law_for_the_references_and_the_limits():
     peak = np.abs(current_references(np.ones(64), backemf)).max(axis=1)
     np.testing.assert_allclose(high[live], 0.5 / peak[live], rtol=1e-12)
     assert low[7] == high[7] == 0.0
+
+
+def test_a_plugin_stages_stale_option_is_refused_before_the_first_trial(tmp_path, write_config):
+    """Before: [stages.two-harmonics] unknown key 'estimation' stopped a run after its 30 grid trials; a factory
+    that declares ``option_defaults`` has its options checked with the config's."""
+    from campaign_helpers import SMALL_CAMPAIGN
+
+    import ilcpmac.campaign
+    from ilcpmac.core.errors import ConfigError
+
+    class Declared:
+        name = "declared"
+        option_defaults = {"orders": [1]}
+
+        def __init__(self, setup):
+            raise AssertionError("never built: the options are refused first")
+
+    config = write_config({**SMALL_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "cogging", "ilc", "declared"]},
+                           "stages.declared": {"orders": [2], "estimation": "kalman"}})
+    with pytest.raises(ConfigError, match=r"campaign.toml: \[stages.declared\] unknown key 'estimation' "
+                                          r"\(known: orders\)$"):
+        ilcpmac.campaign.run(config, out=tmp_path / "run", extra_stages={"declared": Declared})
+    assert not (tmp_path / "run").exists()

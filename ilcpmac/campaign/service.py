@@ -30,7 +30,7 @@ from ilcpmac.config import CampaignConfig, check_config, config_text, load_confi
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import BenchDescription, IdentificationResult, TrialData
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
-from ilcpmac.stages.registry import check_stage_options, stage_needs
+from ilcpmac.stages.registry import check_stage_options
 
 if TYPE_CHECKING:
     from ilcpmac.identify import Identifier
@@ -68,15 +68,18 @@ class CampaignResult:
         return point_results(self.records, self.plan.learned, self.plan.validated)
 
 
-def check_campaign_config(config: CampaignConfig) -> None:
-    """`check_config` and the built-in stages' options (`check_stage_options`): everything a campaign's config
-    can be refused for before its first trial; call it again after changing a loaded config."""
+def check_campaign_config(config: CampaignConfig,
+                          extra_stages: dict[str, Callable[[StageSetup], Stage]] | None = None) -> None:
+    """`check_config` and the stages' options (`check_stage_options`: every stage whose factory declares them,
+    installed or in ``extra_stages``): everything a campaign's config can be refused for before its first trial;
+    call it again after changing a loaded config."""
     check_config(config)
-    check_stage_options(config)
+    check_stage_options(config, extra_stages)
 
 
 def load_campaign_config(path: str | Path) -> CampaignConfig:
-    """`load_config`, then the built-in stages' options checked: `ConfigError` names the file and key."""
+    """`load_config`, then the stages' options checked (`check_stage_options`): `ConfigError` names the file and
+    key."""
     config = load_config(path)
     check_stage_options(config)
     return config
@@ -138,8 +141,8 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
             cfg = replace(cfg, campaign=replace(cfg.campaign, learn_trials=trials))
         if seed is not None:
             cfg = replace(cfg, grid=replace(cfg.grid, seed=seed))
-        check_campaign_config(cfg)  # the overrides obey the same ranges as the file
-        stage_needs(list(cfg.pipeline.stages), extra_stages)  # an unknown stage stops here, not after the grid
+        # the overrides obey the same ranges as the file; an unknown stage or option stops here, not after the grid
+        check_campaign_config(cfg, extra_stages)
         seed = cfg.grid.seed
         path = resume_dir or out_dir or Path("runs") / f"{cfg.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
         if lock is None:

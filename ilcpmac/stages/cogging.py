@@ -56,6 +56,8 @@ class CoggingFeedForward:
     """
 
     name = "cogging"
+    #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
+    option_defaults, option_ranges = DEFAULTS, RANGES
     needs = ("cogging_nm",)
 
     def __init__(self, setup: StageSetup) -> None:

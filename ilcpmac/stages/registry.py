@@ -11,7 +11,6 @@ from typing import Callable
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.plugins import PluginEntry, installed
-from ilcpmac.stages import cogging, ilc, replay, sensor
 from ilcpmac.stages.base import Stage, StageSetup, check_options
 
 GROUP = "ilcpmac.stages"
@@ -58,24 +57,23 @@ def build_stages(names: list[str], setups: dict[str, StageSetup],
     return stages
 
 
-#: the built-in stages' modules, whose options are declared (DEFAULTS, RANGES) apart from their classes
-_BUILTIN = {"ilc": ilc, "cogging": cogging, "current-sensor": sensor, "replay": replay}
+def check_options_of(name: str, factory: Callable[[StageSetup], Stage], options: dict) -> None:
+    """Check stage ``name``'s ``[stages.NAME]`` ``options`` against what its factory declares, before any stage is
+    built: ``option_defaults`` (a dict of every key's default: an unknown key or a wrong type is refused) and
+    optionally ``option_ranges`` (key -> (check, doc), `check_options`). A factory that declares none checks its
+    options when it is built, after the identification grid."""
+    defaults = getattr(factory, "option_defaults", None)
+    if defaults is not None:
+        check_options(options, defaults, getattr(factory, "option_ranges", {}), name)
 
 
-def check_builtin_options(name: str, options: dict) -> None:
-    """Check the options of stage ``name`` if it is a built-in one, before any stage is built.
-
-    A campaign config is checked when it is read, not after the identification;
-    other stages check their options when they are built.
-    """
-    if name in _BUILTIN:
-        check_options(options, _BUILTIN[name].DEFAULTS, _BUILTIN[name].RANGES, name)
-
-
-def check_stage_options(config: CampaignConfig) -> None:
-    """`check_builtin_options` for every ``[stages.NAME]`` table of ``config``; `ConfigError` names the file."""
-    for name, options in config.stage_options.items():
+def check_stage_options(config: CampaignConfig,
+                        extra: dict[str, Callable[[StageSetup], Stage]] | None = None) -> None:
+    """`check_options_of` every stage of ``config``'s ``[pipeline] stages`` (installed, or in ``extra``);
+    `ConfigError` names the file."""
+    available = installed_stages()
+    for name in config.pipeline.stages:
         try:
-            check_builtin_options(name, options)
+            check_options_of(name, _factory(name, available, extra or {}), config.stage_options.get(name, {}))
         except ConfigError as e:
             raise ConfigError(f"{config.path}: {e}") from None

@@ -30,6 +30,8 @@ class Replay:
     """
 
     name = "replay"
+    #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
+    option_defaults, option_ranges = DEFAULTS, RANGES
     needs = ()
 
     def __init__(self, setup: StageSetup) -> None:

@@ -87,6 +87,8 @@ class CurrentSensorCorrection:
     """
 
     name = "current-sensor"
+    #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
+    option_defaults, option_ranges = DEFAULTS, RANGES
 
     def __init__(self, setup: StageSetup) -> None:
         opts = check_options(setup.options, DEFAULTS, RANGES, self.name)

@@ -28,6 +28,8 @@ class HarmonicCanceller:
     """
 
     name = "harmonic-canceller"
+    #: its options, checked before the campaign's first trial (docs/writing-a-stage.md)
+    option_defaults = DEFAULTS
 
     def __init__(self, setup: StageSetup) -> None:
         opts = read_options(setup.options, DEFAULTS, self.name)
