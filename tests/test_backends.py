@@ -83,11 +83,15 @@ def test_the_built_in_backends_are_entry_points_and_implement_the_protocol(seed_
 def test_ilcpmac_backends_lists_each_with_its_description(plugin):
     done = CliRunner().invoke(main, ["backends"], env={"COLUMNS": "200"})
     assert done.exit_code == 0, done.output
-    lines = {line.split()[1]: line for line in done.output.splitlines() if line.startswith("│")}
-    assert "numba simulator of the config's [bench] and [simulator.*]" in lines["sim"]
-    assert "bench protocol" in lines["remote"]
-    assert "test-backends-plugin" in lines["counting"] and "counting its trials" in lines["counting"]
-    assert "fails to load: ModuleNotFoundError" in lines["missing"]
+    # as ilcpmac stages lists stages: the name and what it does, under it the factory and its distribution
+    rows = {line.split()[0]: (line, below) for line, below in zip(done.output.splitlines(),
+                                                                  done.output.splitlines()[1:])
+            if line.startswith(" ") and line.split() and not line.startswith("  ")}
+    assert "numba simulator of the config's [bench] and [simulator.*]" in rows["sim"][0]
+    assert "(built-in)" in rows["sim"][1]
+    assert "bench protocol" in rows["remote"][0]
+    assert "counting its trials" in rows["counting"][0] and "test-backends-plugin" in rows["counting"][1]
+    assert "fails to load: ModuleNotFoundError" in rows["missing"][0]
 
 
 @pytest.mark.parametrize("name, message", [

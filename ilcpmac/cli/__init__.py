@@ -15,10 +15,14 @@ import threading
 from typing import NoReturn
 
 import click
+from rich import box
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+from rich.text import Text
 
 from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.core.plugins import PluginEntry
 from ilcpmac.core.runtime import tune_process
 
 #: progress and messages go to stderr; results (tables) may go to stdout
@@ -50,6 +54,19 @@ class _Group(click.Group):
         except KeyboardInterrupt:  # a command that can be continued says how itself (run, sweep)
             click.echo("error: interrupted", err=True)
             sys.exit(130)
+
+
+def plugins_table(kind: str, group: str, entries: dict[str, PluginEntry]) -> Table:
+    """The table ``ilcpmac stages`` and ``ilcpmac backends`` print: per installed plugin of entry-point ``group``,
+    its name, what it does and, dimmed under it, its factory and where it comes from."""
+    table = Table(title=f"{kind} (entry-point group {group})", title_justify="left", header_style="bold",
+                  box=box.SIMPLE_HEAD, pad_edge=False)
+    table.add_column(kind.rstrip("s"), no_wrap=True)
+    table.add_column("what it does; factory (distribution)", overflow="fold")
+    for name, entry in sorted(entries.items()):
+        origin = "built-in" if entry.distribution == "ilcpmac" else entry.distribution
+        table.add_row(name, Text.assemble(entry.description(), "\n", (f"{entry.value} ({origin})", "dim")))
+    return table
 
 
 def progress_bar() -> Progress:

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-from rich import box
-from rich.table import Table
-from rich.text import Text
-
-from ilcpmac.cli import main
+from ilcpmac.cli import main, plugins_table
 
 
 @main.command()
@@ -20,11 +16,5 @@ def stages() -> None:
 
     from ilcpmac.stages.registry import GROUP, installed_stages
 
-    table = Table(title=f"stages (entry-point group {GROUP})", title_justify="left", header_style="bold",
-                  box=box.SIMPLE_HEAD, pad_edge=False)
-    table.add_column("stage", no_wrap=True)
-    table.add_column("what it does; factory (distribution)", overflow="fold")
-    for name, entry in sorted(installed_stages().items()):
-        origin = "built-in" if entry.distribution == "ilcpmac" else entry.distribution
-        table.add_row(name, Text.assemble(entry.description(), "\n", (f"{entry.value} ({origin})", "dim")))
+    table = plugins_table("stages", GROUP, installed_stages())
     Console().print(table)
