@@ -92,7 +92,8 @@ class DecouplingEstimate:
         inflated, scatter = _standard_error(y, self.misfit_variance), _standard_error(y)
         seen = scatter > 0  # one set point has no scatter: nothing to inflate
         inflation = float(np.max(inflated[seen] / scatter[seen], initial=1.0))
-        return (f"decoupling (ch. 4): residual chi2/dof up to {worst:.3g} at the electrical harmonics "
+        return (f"decoupling (ch. 4, the report's method, shown beside the joint fit's): "
+                f"residual chi2/dof up to {worst:.3g} at the electrical harmonics "
                 f"{h.min()}-{h.max()} ({int(np.sum(self.chi2_reduced > MISFIT_CHI2))} of {self.chi2_reduced.size} "
                 f"set points) - the model misses structure there; standard errors inflated up to x{inflation:.2g}",)
 

@@ -223,13 +223,15 @@ class SensorGainEstimate:
         out = [] if self.corrected_failure is None else [self.corrected_failure]
         worst = max(self.misfit_per_trial, key=lambda m: m.structure_chi2)
         if self.inflation > 1.2:
-            out.append(f"torque-sensor gain (ch. 3): J* over blocks of harmonics is not constant (chi2/dof up to "
+            out.append(f"torque-sensor gain (ch. 3, the report's method, shown beside the joint fit's): "
+                       f"J* over blocks of harmonics is not constant (chi2/dof up to "
                        f"{worst.structure_chi2:.3g}, residual chi2/dof up to "
                        f"{max(m.chi2_reduced for m in self.misfit_per_trial):.3g}) - the J* s + b* model misses "
                        f"structure there; standard error inflated x{self.inflation:.2g}")
         c = self.corrected
         if c is not None and c.inflation > 1.2:
-            out.append(f"torque-sensor gain (corrected ch. 3): J* not constant (chi2/dof {c.structure_chi2[0]:.3g} "
+            out.append(f"torque-sensor gain (corrected ch. 3, shown beside the joint fit's): "
+                       f"J* not constant (chi2/dof {c.structure_chi2[0]:.3g} "
                        f"over blocks of harmonics, {c.structure_chi2[1]:.3g} over set points, the delay's "
                        f"{c.delay_structure_chi2:.3g} over blocks of harmonics, residual chi2/dof up to "
                        f"{c.chi2_per_trial.max():.3g}) - the model misses structure there; standard error "

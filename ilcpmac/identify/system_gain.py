@@ -91,7 +91,8 @@ class SystemGainEstimate:
             return ()
         h = self.harmonics[self.used]
         over_harmonics, over_set_points = self.structure_chi2
-        return (f"total system gain (ch. 2): |H| over harmonics {h.min()}-{h.max()} is not constant (residue "
+        return (f"total system gain (ch. 2, the report's method, shown beside the joint fit's): "
+                f"|H| over harmonics {h.min()}-{h.max()} is not constant (residue "
                 f"{100 * self.residue:.2g} %, chi2/dof {over_harmonics:.3g} over harmonic blocks, "
                 f"{over_set_points:.3g} over set points) - the constant model misses structure there; standard "
                 f"error inflated x{self.inflation:.2g}",)
