@@ -28,7 +28,34 @@ seed in a temporary folder:
    arguments and sweep folders, run as ``ilcpmac sweep CONFIG --spec SPEC
    --out DIR --workers 1``. A spec must be refused before any cluster starts:
    a spec case is stopped (accepted) once the sweep prints that its tasks are
-   ready, since a cluster and its tasks take longer than the fuzz waits.
+   ready, since a cluster and its tasks take longer than the fuzz waits;
+7. stages (issue 27): the small campaign of tests/campaign_helpers.py with a
+   broken plugin stage after the built-ins (fuzz_targets.BROKEN_STAGES: one
+   that raises in its factory, shape, learn, state or columns, returns NaN or
+   oversized columns, a state that is no JSON, NaN or 64 MiB, writes into its
+   trial or request, raises SystemExit(0) or hangs, STAGE_CALL_S lowered to
+   FUZZ_STAGE_CALL_S), run as ``ilcpmac run CONFIG --out DIR`` in the probe
+   (below): one ``error: stage ...`` line, exit 2, every trial sent on disk;
+8. resume tampering: a finished run of that campaign and one stopped at trial
+   PARTIAL_AT, changed (epsilon / 3 and x 10 in states/identification.json, a
+   NaN in a state, trial files swapped, a grid Parquet truncated, files
+   deleted; and an edit resealed as the run seals it), run as ``ilcpmac run
+   --resume DIR`` in the probe: refused in one line before any trial;
+9. import units and gaps: the drive logs of 4. with the time in ms read as s
+   and in s read as ms, a gap of 10 s, a 1e300 N m or 1e5 A row (also between
+   two counts, at 10 kHz), a ``#`` in a row, backemf_file at /etc/passwd: one
+   line naming the file, exit 2, nothing written and no *.tmp left;
+10. sweep: ``--scheduler`` at TCP ports that are no Dask scheduler (HTTP,
+   echo, silent, closing) and [magnets] out of range: one line, exit 2;
+11. export tables: a run's compensation.json and an identification's
+   result.json with JSON ``true`` in a table, duplicate keys, NaN, 1e400,
+   tables beyond their bounds and of the wrong shape, run as ``ilcpmac export``:
+   one line naming the file, exit 2, nothing written.
+
+Groups 7 to 11 take about 4 minutes on two shared cores. The probe
+(``python benchmarks/fuzz_targets.py probe ... -- ARGS``, fuzz_targets.probe_main)
+runs ``ilcpmac ARGS`` as its executable does, with every simulated trial
+counted and its true phase currents kept (and the broken stage installed).
 
 Every subprocess gets TIMEOUT_S and an address-space cap (RLIMIT_AS of
 MEMORY_CAP_BYTES); its peak RSS comes from wait4's rusage (the emulator's
@@ -43,9 +70,14 @@ whether its input must be rejected, and ends as one of
 - NON-FINITE: NaN or Infinity in a JSON or CSV file written;
 - ACCEPTED-GARBAGE: exit 0 (or an ACCEPT, DESCRIBE or open connection, or a
   sweep whose tasks are ready) on an input that must be rejected, or the
-  contents of a file outside the bench folder echoed.
+  contents of a file outside the bench folder echoed;
+- LIMIT-BREACH: a trial (in the probe) whose true phase current passed
+  [limits] max_current_a by more than BREACH_TOLERANCE_A;
+- WRONG-STATE: a refusal that left the wrong files (a trial that ran missing
+  from the run directory, a trial run on a changed one, an output or a *.tmp
+  written) or whose error line names the wrong thing (`Run.problem`).
 
-The targets are 0, 0, 0, 0 and every process's peak RSS under PEAK_RSS_BOUND_MIB.
+The targets are 0 of each but OK, and every process's peak RSS under PEAK_RSS_BOUND_MIB.
 """
 
 from __future__ import annotations
@@ -75,11 +107,18 @@ REAL_CONFIG = ROOT / "configs" / "real-bench.toml"
 SEED_CONFIG = ROOT / "configs" / "seed-bench.toml"
 TIMEOUT_S = 30.0
 MEMORY_CAP_BYTES = 4 << 30
+#: every case's process under this peak RSS: a small campaign (the stage and resume groups) peaks at about 280 MiB,
+#: an import of 2^22 rows or an export of 4M table values a few hundred; 1 GiB is over 3x the largest expected, what
+#: a laptop running a campaign beside other work can spare; a case above it grows with its hostile input
 PEAK_RSS_BOUND_MIB = 1024
+#: a trial's true phase current may pass [limits] max_current_a by this much, A (docs/safety.md: the current loop's
+#: lag and the sensors' noise, 0.09 A measured at worst; tests/test_limits_property.py allows the same); beyond it is
+#: a LIMIT-BREACH
+BREACH_TOLERANCE_A = 0.25
 JOBS = 2
 #: written into files outside the bench folder; seeing it in any output means their contents leaked
 SECRET = "SECRET-7f3a9c-do-not-echo"
-OUTCOMES = ("OK", "TRACEBACK", "HANG", "NON-FINITE", "ACCEPTED-GARBAGE")
+OUTCOMES = ("OK", "TRACEBACK", "HANG", "NON-FINITE", "ACCEPTED-GARBAGE", "LIMIT-BREACH", "WRONG-STATE")
 #: every case's environment; unbuffered, so that a case stopped at a line of its output (stop_at) sees it at once
 _ENV = {**os.environ, "NO_COLOR": "1", "TERM": "dumb", "COLUMNS": "200", "PYTHONUNBUFFERED": "1"}
 
@@ -101,7 +140,12 @@ class Run:
 
     code: exit status (negative: killed by that signal; None: a process still
     serving). accepted: the input was taken as valid. written: a file or
-    folder the case wrote (scanned for NaN/Infinity).
+    folder the case wrote (scanned for NaN/Infinity). peak_current_a and
+    limit_a: the largest true phase current of any trial that ran and
+    [limits] max_current_a (a case run in the probe; nan: no trial ran).
+    problem: what the case found wrong in what was left (a trial that ran
+    missing from the run directory, a file written or a *.tmp left by a
+    refused input, an error line that names the wrong thing).
     """
 
     code: int | None
@@ -111,6 +155,9 @@ class Run:
     accepted: bool
     written: Path | None = None
     seconds: float = 0.0
+    peak_current_a: float | None = None
+    limit_a: float | None = None
+    problem: str | None = None
 
 
 @dataclass(frozen=True)
@@ -207,6 +254,8 @@ def classify(case: Case, run: Run) -> tuple[str, str]:
 
 
 def _classify(case: Case, run: Run) -> tuple[str, str]:
+    if run.peak_current_a is not None and run.peak_current_a > run.limit_a + BREACH_TOLERANCE_A:
+        return "LIMIT-BREACH", f"a true phase current of {run.peak_current_a:.3g} A, [limits] {run.limit_a:g} A"
     if run.timed_out:
         if run.code is None:
             return "HANG", run.text.strip().splitlines()[-1][:200]
@@ -228,6 +277,8 @@ def _classify(case: Case, run: Run) -> tuple[str, str]:
         return "NON-FINITE", f"NaN or Infinity in {bad}"
     if run.accepted and case.must_reject:
         return "ACCEPTED-GARBAGE", run.text.strip().splitlines()[-1][:200] if run.code is None else "exit 0"
+    if run.problem is not None:
+        return "WRONG-STATE", run.problem[:200]
     if errors or run.code is not None:
         return "OK", errors[0][:200] if errors else ""
     return "OK", run.text.strip().splitlines()[-1][:200]
@@ -651,15 +702,15 @@ RUN_TABLES = ("campaign", "limits", "pipeline", "stages.ilc")
 
 
 def small_config(text: str) -> str:
-    """The seed bench reduced: a 2 x 2 grid, 2 revolutions, 2 learned points of 2 revolutions, one validation
-    point."""
+    """The seed bench reduced: a 2 x 2 grid, 2 revolutions, 2 learned points of 3 revolutions, one validation
+    point of 3 (the fewest [campaign] takes)."""
     for table, name, value in (("trials", "torque_setpoints_nm", "[1.0, 3.0]"),
                                ("trials", "speed_setpoints_hz", "[0.8, 1.0]"), ("trials", "revolutions", "2"),
                                ("campaign", "learn_torques_nm", "[1.0, 3.0]"),
-                               ("campaign", "learn_speeds_hz", "[0.8]"), ("campaign", "learn_revolutions", "[2]"),
+                               ("campaign", "learn_speeds_hz", "[0.8]"), ("campaign", "learn_revolutions", "[3]"),
                                ("campaign", "validate_torques_nm", "[2.0]"),
                                ("campaign", "validate_speeds_hz", "[0.8]"),
-                               ("campaign", "validate_revolutions", "2")):
+                               ("campaign", "validate_revolutions", "3")):
         text = toml_set(text, table, name, value)
     return text
 
@@ -1787,6 +1838,535 @@ def sweep_cases(config: Path) -> list[Case]:
     ]
 
 
+# ---------------------------------------------------------------- 7. plugin stages that break
+
+#: the wall time a stage call may take in the hanging-stage cases, s (STAGE_CALL_S lowered in the probe's process:
+#: 30 s would outlast TIMEOUT_S). It bounds the built-ins' calls too: the slowest, the current-sensor stage's
+#: factory, takes 1.2 s cold (ilcpmac.pipeline.pipeline) and at 1 s it timed out here; 5 s is 4x that
+FUZZ_STAGE_CALL_S = 5.0
+SMALL_CAMPAIGN_TOML, STAGE_CAMPAIGN_TOML = "small-campaign.toml", "stage-campaign.toml"
+
+
+def campaign_toml(changes: dict) -> str:
+    """configs/seed-bench.toml with ``changes`` ({dotted table: {key: value}}, as tests/conftest.py's
+    write_config takes them) as TOML text."""
+    import tomllib
+
+    from ilcpmac.core.schema import toml_text
+
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    for table, values in changes.items():
+        node = data
+        for part in table.split("."):
+            node = node.setdefault(part, {})
+        node.update(values)
+    return toml_text(data)
+
+
+def make_campaign_configs(scratch: Path) -> None:
+    """The small campaign of tests/campaign_helpers.py (1024 counts, a 2 x 2 grid, 18 trials, about 3 s), and
+    the same with two learning trials per point and the broken stage after the built-ins (as
+    tests/test_stage_failures.py runs it), in ``scratch``."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from campaign_helpers import SMALL_CAMPAIGN
+
+    (scratch / SMALL_CAMPAIGN_TOML).write_text(campaign_toml(SMALL_CAMPAIGN))
+    (scratch / STAGE_CAMPAIGN_TOML).write_text(campaign_toml({
+        **SMALL_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "cogging", "ilc", ft.BROKEN_STAGE]},
+        "campaign": {**SMALL_CAMPAIGN["campaign"], "learn_trials": 2}}))
+
+
+_PROBE_LINE = re.compile(rf"{ft.PROBE} requests (\d+) peak_true_current_a (\S+) max_current_a (\S+)")
+
+
+def probe(*args, folder: Path, opts: tuple = (), written: Path | None = None) -> tuple[Run, int | None]:
+    """``ilcpmac ARGS`` in the probe (fuzz_targets.probe_main): the run, with the largest true phase current of
+    any trial and the limit filled in, and the number of trials sent (None: the probe printed nothing)."""
+    run = run_process([sys.executable, str(Path(ft.__file__)), "probe", *map(str, opts), "--", *map(str, args)],
+                      folder, written)
+    found = _PROBE_LINE.search(run.text)
+    if found is None:
+        return run, None
+    run.peak_current_a, run.limit_a = float(found[2]), float(found[3])
+    return run, int(found[1])
+
+
+def trials_on_disk(run_dir: Path) -> tuple[int, int, int]:
+    """(trial files, trial states, [[trials]] listed in bench.toml) of a run directory."""
+    bench = run_dir / "bench.toml"
+    listed = bench.read_text().count("[[trials]]") if bench.is_file() else 0
+    return (len(list(run_dir.glob("trial_*.parquet"))), len(list((run_dir / "states").glob("trial_*.json"))),
+            listed)
+
+
+def stage_case(name: str, config: Path) -> Case:
+    """The small campaign with the broken stage ``name`` (ft.BROKEN_STAGES): one StageError line naming it,
+    exit 2, and every trial sent on disk (its file, its state, listed in bench.toml)."""
+    def run(folder: Path) -> Run:
+        out = folder / "run"
+        opts = ("--stage", name) + (("--stage-call-s", FUZZ_STAGE_CALL_S) if "hangs" in name else ())
+        done, sent = probe("run", config, "--out", out, folder=folder, opts=opts, written=out)
+        errors = _error_lines(done.text)
+        if sent is None:
+            done.problem = "the probe printed no count of the trials sent"
+        elif trials_on_disk(out) != (sent,) * 3:
+            done.problem = f"{sent} trials sent; trial files, states, listed in bench.toml: {trials_on_disk(out)}"
+        elif errors and not errors[0].startswith(f"error: stage '{ft.BROKEN_STAGE}'"):
+            done.problem = f"not a StageError naming the stage: {errors[0][:150]}"
+        return done
+    return Case("stages", name, True, run)
+
+
+def stage_cases(config: Path) -> list[Case]:
+    return [stage_case(name, config) for name in ft.BROKEN_STAGES]
+
+
+# ---------------------------------------------------------------- 8. a run directory changed before --resume
+
+#: a partial run is stopped (Ctrl-C) at this trial: 8 complete (the grid, baselines, compensation, learning)
+PARTIAL_AT = 9
+
+
+def make_runs(config: Path, scratch: Path) -> str | None:
+    """A finished run of the small campaign (scratch/run-finished) and one stopped at trial PARTIAL_AT
+    (scratch/run-partial); a message if either cannot be made."""
+    for name, opts, code in (("run-finished", (), 0), ("run-partial", ("--interrupt-at", PARTIAL_AT), 130)):
+        made, _ = probe("run", config, "--out", scratch / name, folder=scratch, opts=opts)
+        if made.code != code:
+            return f"cannot make the base run {name} (exit {made.code}):\n{made.text[-2000:]}"
+    return None
+
+
+def _identification(fn: Callable[[float], float], reseal: bool = False) -> Callable[[Path], None]:
+    """states/identification.json with epsilon ``fn(epsilon)``; ``reseal``: its sha256 digest recomputed as the
+    run writes it (an edit the digest cannot show)."""
+    import hashlib
+    import json
+
+    def tamper(run: Path) -> None:
+        path = run / "states" / "identification.json"
+        data = json.loads(path.read_text())
+        data["result"]["epsilon"] = fn(data["result"]["epsilon"])
+        if reseal:
+            data.pop("sha256")
+            data["sha256"] = hashlib.sha256(json.dumps(data, allow_nan=False).encode()).hexdigest()
+        path.write_text(json.dumps(data))
+    return tamper
+
+
+def _nan_state(index: int) -> Callable[[Path], None]:
+    import json
+
+    def tamper(run: Path) -> None:
+        path = run / "states" / f"trial_{index:03d}.json"
+        data = json.loads(path.read_text())
+        data["gains"] = {"2@0.9": float("nan")}
+        path.write_text(json.dumps(data))
+    return tamper
+
+
+def _swap(a: str, b: str) -> Callable[[Path], None]:
+    def tamper(run: Path) -> None:
+        (run / a).rename(run / "swap")
+        (run / b).rename(run / a)
+        (run / "swap").rename(run / b)
+    return tamper
+
+
+def _truncate(name: str, n_bytes: int) -> Callable[[Path], None]:
+    return lambda run: (run / name).write_bytes((run / name).read_bytes()[:-n_bytes])
+
+
+def _delete(name: str) -> Callable[[Path], None]:
+    return lambda run: (run / name).unlink()
+
+
+def _both_changes(*changes: Callable[[Path], None]) -> Callable[[Path], None]:
+    return lambda run: [change(run) for change in changes] and None
+
+
+def _unsealed(run: Path) -> None:
+    """states/run.json saying the run was made before digests."""
+    import json
+
+    path = run / "states" / "run.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), "sealed": False}))
+
+
+#: (name, base run "partial" or "finished", must be refused, change) of the run directory changes
+RESUME_CHANGES: list[tuple[str, str, bool, Callable[[Path], None]]] = [
+    ("partial run untouched", "partial", False, lambda run: None),
+    ("finished run untouched", "finished", False, lambda run: None),
+    ("identification epsilon / 3", "partial", True, _identification(lambda e: e / 3)),
+    ("identification epsilon x 10", "partial", True, _identification(lambda e: e * 10)),
+    ("finished: identification epsilon / 3", "finished", True, _identification(lambda e: e / 3)),
+    ("finished: identification epsilon x 10", "finished", True, _identification(lambda e: e * 10)),
+    ("NaN in the state of trial 8", "partial", True, _nan_state(8)),
+    ("finished: NaN in the state of trial 15", "finished", True, _nan_state(15)),
+    ("trial files 7 and 8 swapped", "partial", True, _swap("trial_007.parquet", "trial_008.parquet")),
+    ("finished: trial files 7 and 8 swapped", "finished", True, _swap("trial_007.parquet", "trial_008.parquet")),
+    ("grid trial 2 Parquet truncated by 100 bytes", "partial", True, _truncate("trial_002.parquet", 100)),
+    ("finished: grid trial 2 Parquet truncated", "finished", True, _truncate("trial_002.parquet", 100)),
+    ("state of trial 5 deleted", "partial", True, _delete("states/trial_005.json")),
+    ("finished: state of trial 5 deleted", "finished", True, _delete("states/trial_005.json")),
+    # derived from the grid trials, whose digests are checked: identified again
+    ("states/identification.json deleted", "partial", False, _delete("states/identification.json")),
+    ("grid trial 3 Parquet deleted", "partial", True, _delete("trial_003.parquet")),
+    ("states/run.json deleted", "partial", True, _delete("states/run.json")),
+    # run.json says whether the states carry digests ("sealed"): without it, or with false, none is checked
+    ("states/run.json deleted, then epsilon / 3", "partial", True, _both_changes(
+        _delete("states/run.json"), _identification(lambda e: e / 3))),
+    ('"sealed": false in states/run.json, then epsilon / 3', "partial", True, _both_changes(
+        _unsealed, _identification(lambda e: e / 3))),
+    # beyond what a digest can show: the edit resealed as the run seals it; the limits must hold all the same
+    ("identification epsilon / 3, digest recomputed", "partial", False, _identification(lambda e: e / 3, True)),
+    ("identification epsilon x 10, digest recomputed", "partial", False, _identification(lambda e: e * 10, True)),
+]
+
+
+def resume_case(name: str, base: Path, must_reject: bool, change: Callable[[Path], None]) -> Case:
+    """``ilcpmac run --resume`` of a copy of ``base`` changed: refused in one line before any trial; any trial
+    that runs keeps its true currents within [limits] max_current_a (the probe)."""
+    def run(folder: Path) -> Run:
+        run_dir = folder / "run"
+        shutil.copytree(base, run_dir, symlinks=True)
+        change(run_dir)
+        done, sent = probe("run", "--resume", run_dir, folder=folder, written=None if must_reject else run_dir)
+        if sent is None:
+            done.problem = "the probe printed no count of the trials sent"
+        elif must_reject and sent:
+            done.problem = f"{sent} trials ran on a changed run directory"
+        return done
+    return Case("resume tampering", name, must_reject, run)
+
+
+def resume_cases(scratch: Path) -> list[Case]:
+    return [resume_case(name, scratch / f"run-{base}", must, change) for name, base, must, change in RESUME_CHANGES]
+
+
+# ---------------------------------------------------------------- 9. import: units, gaps, impossible rows
+
+#: log_a's trial at 10 kHz (about 3 rows per count): rows between two counts feed no count's value
+LOG_10K = "log_10k.csv"
+
+
+def make_units_base(bench: Path, folder: Path) -> None:
+    """The import group's logs (make_import_base) and LOG_10K, in ``folder``."""
+    import tomllib
+
+    make_import_base(bench, folder)
+    cpr = tomllib.loads((bench / "bench.toml").read_text())["motor"]["counts_per_rev"]
+    write_phase_log(folder / LOG_10K, bench / LOGGED[LOG_A], cpr, 10_000.0)
+
+
+def _quiet_cell(name: str, value: str, file: str = LOG_10K) -> Callable:
+    """``value`` in column ``name`` of a row whose two neighbouring intervals cross no encoder count."""
+    def mutate(d: Path, rng) -> None:
+        header, rows = read_csv(d / file)
+        count = np.floor(np.array([float(r[header.index("theta")]) for r in rows]) / (2 * np.pi) * 4096)
+        quiet = np.flatnonzero((count[1:-1] == count[:-2]) & (count[1:-1] == count[2:])) + 1
+        rows[int(quiet[len(quiet) // 2])][header.index(name)] = value
+        write_csv(d / file, header, rows)
+    return mutate
+
+
+def _gap(seconds: float, row: int) -> Callable:
+    return column("t", lambda t: t + seconds * (np.arange(t.size) >= row), (LOG_A,))
+
+
+def _passwd_like(d: Path, rng) -> None:
+    """A /etc/passwd-like file holding SECRET outside the logs folder, as the mapping's backemf_file."""
+    path = d.parent / "shadow"
+    path.write_text(f"{SECRET}:x:0:0::/:/bin/sh\ndaemon:{SECRET}:19000:0:99999:7:::\n")
+    mapping("bench", "backemf_file", f'"{path}"')(d, rng)
+
+
+LOG_10K_ARGS: Args = lambda d: [d / LOG_10K, "--map", d / MAP]  # noqa: E731
+
+#: (name, mutation, logs and mapping, the file the error line must name) of the import cases; each must be refused
+UNIT_MUTATIONS: list[tuple[str, Callable, Args, str]] = [
+    ("time in ms read as s", column("t", lambda t: t * 1e3, (LOG_A,)), PHASE_ARGS, LOG_A),
+    ("time in s read as ms (time_s_per_unit 1e-3)", mapping("log", "time_s_per_unit", "1e-3"), PHASE_ARGS, LOG_A),
+    ("time in us read as s", column("t", lambda t: t * 1e6, (LOG_A,)), PHASE_ARGS, LOG_A),
+    ("a 10 s gap in the time column", _gap(10.0, 3000), PHASE_ARGS, LOG_A),
+    ("a 1 s gap in the time column", _gap(1.0, 3000), PHASE_ARGS, LOG_A),
+    ("a 10 s gap at the second row", _gap(10.0, 1), PHASE_ARGS, LOG_A),
+    ("torque 1e300 N m in a row between counts (10 kHz)", _quiet_cell("tq", "1e300"), LOG_10K_ARGS, LOG_10K),
+    ("torque 1e300 N m in a row (2 kHz)", cell(500, "tq", "1e300", LOG_A), PHASE_ARGS, LOG_A),
+    ("current 1e5 A in a row between counts (10 kHz)", _quiet_cell("ia", "1e5"), LOG_10K_ARGS, LOG_10K),
+    ("current 1e5 A in a row (2 kHz)", cell(501, "ib", "1e5", LOG_A), PHASE_ARGS, LOG_A),
+    ("current -1e5 A in a row between counts (10 kHz)", _quiet_cell("ic", "-1e5"), LOG_10K_ARGS, LOG_10K),
+    ("'#' starting a data row", _log_lines(lambda ls: ls[:400] + [b"#" + ls[400]] + ls[401:]), PHASE_ARGS, LOG_A),
+    ("'#' inside a field of a data row", cell(402, "tq", "#0.5", LOG_A), PHASE_ARGS, LOG_A),
+    ("'#' starting a row between counts (10 kHz)", _quiet_cell("t", "#0"), LOG_10K_ARGS, LOG_10K),
+    ("backemf_file = /etc/passwd", mapping("bench", "backemf_file", '"/etc/passwd"'), PHASE_ARGS, MAP),
+    ("backemf_file a passwd-like file outside the folder", _passwd_like, PHASE_ARGS, MAP),
+]
+
+
+def _nothing_written(folder: Path, out: Path) -> str | None:
+    """What a refused case left: a file in ``out``, or a *.tmp anywhere in ``folder``."""
+    tmp = sorted(p.name for p in folder.rglob("*.tmp"))
+    if tmp:
+        return f"left {', '.join(tmp[:3])}"
+    made = sorted(p.name for p in out.rglob("*")) if out.is_dir() else [out.name] if out.exists() else []
+    return f"wrote {', '.join(made[:3])} into the output" if made else None
+
+
+def _refusal_problem(run: Run, names: str) -> str | None:
+    """A refusal's error line that does not name ``names``, or that shows /etc/passwd."""
+    if "root:x:" in run.text or "/bin/bash" in run.text:
+        return "echoed /etc/passwd"
+    errors = _error_lines(run.text)
+    if errors and names not in errors[0]:
+        return f"the error line names no {names}: {errors[0][:150]}"
+    return None
+
+
+def unit_case(base: Path, name: str, mutate: Callable, args: Args, names: str) -> Case:
+    def run(folder: Path) -> Run:
+        d = folder / "logs"
+        shutil.copytree(base, d, symlinks=True)
+        mutate(d, None)
+        out = folder / "out"
+        done = ilcpmac("import", *args(d), "--out", out, folder=folder, written=out)
+        done.problem = _refusal_problem(done, names) or _nothing_written(folder, out)
+        return done
+    return Case("import units & gaps", name, True, run)
+
+
+def hash_in_trial_case(bench: Path) -> Case:
+    """A '#' in a bench folder's trial row (no comment there), identified."""
+    def run(folder: Path) -> Run:
+        d = folder / "bench"
+        shutil.copytree(bench, d, symlinks=True)
+        _log_lines(lambda ls: ls[:3] + [b"#" + ls[3]] + ls[4:], T1)(d, None)
+        out = folder / "result.json"
+        done = ilcpmac("identify", d, "--output", out, folder=folder, written=out)
+        done.problem = _refusal_problem(done, T1) or _nothing_written(folder, out)
+        return done
+    return Case("import units & gaps", "'#' starting a row of a bench folder's trial (identify)", True, run)
+
+
+def unit_cases(base: Path, bench: Path) -> list[Case]:
+    return [unit_case(base, *m) for m in UNIT_MUTATIONS] + [hash_in_trial_case(bench)]
+
+
+# ---------------------------------------------------------------- 10. sweep: schedulers that are none, magnets
+
+
+def scheduler_case(name: str, behaviour: Callable, timeout_s: float | None) -> Callable[[Path], Case]:
+    """``ilcpmac sweep --scheduler`` at a TCP port served by ``behaviour`` (``--connect-timeout timeout_s``, None:
+    its default), run to its end."""
+    def make(config: Path) -> Case:
+        def run(folder: Path) -> Run:
+            (folder / "spec.toml").write_text(toml_set(SWEEP_SPEC, "sweep", "tasks", "1"))
+            target = ft.HostileTarget(behaviour)
+            try:
+                wait = () if timeout_s is None else ("--connect-timeout", timeout_s)
+                done = ilcpmac("sweep", config, "--spec", folder / "spec.toml", "--out", folder / "out",
+                               "--scheduler", f"tcp://{target.address}", *wait, folder=folder, written=folder / "out")
+            finally:
+                target.stop()
+            done.problem = _refusal_problem(done, "--scheduler")
+            return done
+        return Case("sweep: schedulers & magnets", name, True, run)
+    return make
+
+
+SCHEDULERS = [
+    scheduler_case("--scheduler at an HTTP server", ft.http_reply, None),
+    scheduler_case("--scheduler at a TCP echo port", ft.echo, None),
+    scheduler_case("--scheduler at a silent port (default --connect-timeout)", ft.swallow, None),
+    scheduler_case("--scheduler at a silent port, --connect-timeout 0.5", ft.swallow, 0.5),
+    scheduler_case("--scheduler at a port that closes at once", lambda w, stop: None, None),
+]
+
+#: (name, the [magnets] table's lines) of the magnets out of range
+MAGNETS = [
+    ("magnets coefficient 0.0856 per K (backemf x 7.85 at 80 K)", "temperature_rise_k = [0.0, 80.0]\n"
+                                                                   "coefficient_per_k = 0.0856"),
+    ("magnets 150 K at -0.004 per K (scale 0.4)", "temperature_rise_k = [0.0, 150.0]\ncoefficient_per_k = -0.004"),
+    ("magnets -200 K at -0.003 per K (scale 1.6)", "temperature_rise_k = [-200.0, 0.0]\ncoefficient_per_k = -0.003"),
+    ("magnets coefficient -1 per K", "temperature_rise_k = [0.0, 80.0]\ncoefficient_per_k = -1.0"),
+    ("magnets coefficient 1e300", "temperature_rise_k = [0.0, 80.0]\ncoefficient_per_k = 1e300"),
+    ("magnets coefficient inf", "temperature_rise_k = [0.0, 80.0]\ncoefficient_per_k = inf"),
+    ("magnets rise 1e300 K", "temperature_rise_k = [0.0, 1e300]\ncoefficient_per_k = -0.001"),
+]
+
+
+def magnets_case(name: str, table: str, config: Path) -> Case:
+    """A spec with [magnets] ``table``, stopped once its tasks are ready (accepted): refused naming [magnets]."""
+    def run(folder: Path) -> Run:
+        spec = folder / "spec.toml"
+        spec.write_text(f"{SWEEP_SPEC}\n[magnets]\n{table}\n")
+        out = folder / "sweep"
+        done = ilcpmac("sweep", config, "--spec", spec, "--out", out, "--workers", 1, folder=folder, written=out,
+                       stop_at=SWEEP_ACCEPTED)
+        done.problem = _refusal_problem(done, "[magnets]")
+        return done
+    return Case("sweep: schedulers & magnets", name, True, run)
+
+
+def scheduler_cases(config: Path) -> list[Case]:
+    return [make(config) for make in SCHEDULERS] + [magnets_case(name, table, config) for name, table in MAGNETS]
+
+
+# ---------------------------------------------------------------- 11. export: compensation.json and result.json
+
+
+def make_result(bench: Path, scratch: Path) -> str | None:
+    """scratch/result.json: ``ilcpmac identify`` of the base bench; a message if it cannot be made."""
+    made = run_process([ILCPMAC, "identify", str(bench), "--output", str(scratch / "result.json")], scratch)
+    return None if made.code == 0 else f"cannot identify the base bench:\n{made.text[-2000:]}"
+
+
+def _json_edit(fn: Callable[[dict], object]) -> Callable[[str], str]:
+    """The JSON text with its object changed in place by ``fn`` (what it returns is ignored)."""
+    import json
+
+    def change(text: str) -> str:
+        data = json.loads(text)
+        fn(data)
+        return json.dumps(data)
+    return change
+
+
+def _set(path: str, value) -> Callable[[str], str]:
+    """The JSON text with the value at ``path`` ("a.b.0.3") set to ``value``."""
+    def fn(data: dict) -> None:
+        *parents, last = path.split(".")
+        node = data
+        for part in parents:
+            node = node[int(part)] if isinstance(node, list) else node[part]
+        node[int(last) if isinstance(node, list) else last] = value
+    return _json_edit(fn)
+
+
+def _duplicate(key: str, value: str, inside: str = "{") -> Callable[[str], str]:
+    """The JSON text with ``"key": value`` inserted after the first ``inside`` (a key given twice)."""
+    return lambda t: t.replace(inside, f'{inside}"{key}": {value}, ', 1)
+
+
+def _huge_tables(n_torques: int) -> Callable[[str], str]:
+    """``n_torques`` ascending torques, each with a table of zeros: n_torques x 1 x 1024 values."""
+    def fn(data: dict) -> None:
+        data["torques_nm"] = np.linspace(-7.0, 7.0, n_torques).tolist()
+        data["tables_nm"] = [[[0.0] * data["counts_per_rev"]] for _ in range(n_torques)]
+    return _json_edit(fn)
+
+
+def _counts(n: int) -> Callable[[str], str]:
+    """A result whose cogging table has ``n`` counts."""
+    def fn(data: dict) -> None:
+        data["cogging"] = {"count": list(range(n)), "torque": np.sin(np.arange(n) * 2 * np.pi * 48 / n).tolist()}
+    return _json_edit(fn)
+
+
+_WHOLE_FILE = [
+    ("empty file", lambda t: ""),
+    ("null", lambda t: "null"),
+    ("a list", lambda t: "[1, 2, 3]"),
+    ("nested 100000 deep", lambda t: "[" * 100_000 + "]" * 100_000),
+    ("binary", lambda t: b"\xff\xfe\x00" + bytes(range(256)) * 8),
+    ("UTF-16", lambda t: t.encode("utf-16")),
+    ("cut in the middle", lambda t: t[:len(t) // 2]),
+]
+
+#: (name, change of compensation.json's text) of the compensation cases; each must be refused
+COMPENSATION_CHANGES: list[tuple[str, Callable[[str], str | bytes]]] = [
+    ("true in tables_nm", _set("tables_nm.0.0.5", True)),
+    ("false in tables_nm", _set("tables_nm.1.0.0", False)),
+    ("true as counts_per_rev", _set("counts_per_rev", True)),
+    ("true in torques_nm", _set("torques_nm.0", True)),
+    ("true as the torque gain", _set("calibration.torque_gain", True)),
+    ("true in current_scale", _set("calibration.current_scale.1", True)),
+    ("true as fade.full_hz", _set("fade.full_hz", True)),
+    ("text in tables_nm", _set("tables_nm.0.0.7", "0.1")),
+    ("null in tables_nm", _set("tables_nm.0.0.8", None)),
+    ("duplicate key counts_per_rev", _duplicate("counts_per_rev", "2048")),
+    ("duplicate key tables_nm", _duplicate("tables_nm", "[]")),
+    ("duplicate key in calibration", _duplicate("torque_gain", "0.5", '"calibration": {')),
+    ("NaN in tables_nm", _set("tables_nm.0.0.3", float("nan"))),
+    ("Infinity in speeds_hz", _set("speeds_hz.0", float("inf"))),
+    ("-Infinity in current_offset", _set("calibration.current_offset.0", float("-inf"))),
+    ("1e400 (overflows to inf) in tables_nm", lambda t: _set("tables_nm.0.0.4", 12345.678)(t).replace(
+        "12345.678", "1e400", 1)),
+    ("1e308 in tables_nm", _set("tables_nm.0.0.2", 1e308)),
+    ("tables_nm of 4097 x 1 x 1024 values (beyond MAX_TABLE_VALUES)", _huge_tables(4097)),
+    ("torques_nm of 10^6 values", _json_edit(lambda d: d.update(torques_nm=np.linspace(-7, 7, 10**6).tolist()))),
+    ("tables_nm one level short", _json_edit(lambda d: d.update(tables_nm=[t[0] for t in d["tables_nm"]]))),
+    ("tables_nm ragged (a table of 1023 counts)", _json_edit(lambda d: d["tables_nm"][1][0].pop())),
+    ("tables_nm a number", _set("tables_nm", 0.0)),
+    ("tables_nm an object", _set("tables_nm", {"0": [0.0]})),
+    ("torques_nm nested", _json_edit(lambda d: d.update(torques_nm=[d["torques_nm"]]))),
+    ("torques_nm descending", _json_edit(lambda d: d.update(torques_nm=d["torques_nm"][::-1]))),
+    ("current_scale 2 values", _json_edit(lambda d: d["calibration"]["current_scale"].pop())),
+    ("counts_per_rev 2048 over tables of 1024", _set("counts_per_rev", 2048)),
+    ("counts_per_rev 2^62", _set("counts_per_rev", 2**62)),
+    ("format 2", _set("format", 2)),
+    ("unknown key", _json_edit(lambda d: d.update(note=1))),
+    *((f"file {name}", fn) for name, fn in _WHOLE_FILE),
+]
+
+#: (name, change of result.json's text) of the result cases; each must be refused
+RESULT_CHANGES: list[tuple[str, Callable[[str], str | bytes]]] = [
+    ("true in the cogging table", _set("cogging.torque.5", True)),
+    ("true as the cogging table", _set("cogging.torque", True)),
+    ("true as epsilon", _set("epsilon", True)),
+    ("true in alpha", _set("alpha.0", True)),
+    ("true as the calibration", _set("calibration", True)),
+    ("duplicate key cogging", _duplicate("cogging", '{"count": [0], "torque": [1.0]}')),
+    ("duplicate key epsilon", _duplicate("epsilon", "0.5")),
+    ("NaN in the cogging table", _set("cogging.torque.3", float("nan"))),
+    ("Infinity as epsilon", _set("epsilon", float("inf"))),
+    ("1e400 (overflows to inf) in the cogging table", lambda t: _set("cogging.torque.4", 12345.678)(t).replace(
+        "12345.678", "1e400", 1)),
+    ("cogging of 2^22 counts (beyond MAX_RESULT_BYTES)", _counts(2**22)),
+    ("cogging of 2^20 + 1 counts", _counts(2**20 + 1)),
+    ("cogging torque and count lists of unequal length", _json_edit(lambda d: d["cogging"]["count"].pop())),
+    ("cogging table nested", _json_edit(lambda d: d["cogging"].update(torque=[d["cogging"]["torque"]]))),
+    ("cogging table a number", _set("cogging.torque", 0.5)),
+    ("cogging a list", _json_edit(lambda d: d.update(cogging=d["cogging"]["torque"]))),
+    ("cogging table constant", _json_edit(lambda d: d["cogging"].update(torque=[0.1] * len(d["cogging"]["torque"])))),
+    ("alpha 2 values", _json_edit(lambda d: d["alpha"].pop())),
+    *((f"file {name}", fn) for name, fn in _WHOLE_FILE),
+]
+
+
+def export_case(name: str, source: Path, change: Callable[[str], str | bytes], must_reject: bool = True,
+                fmt: str = "json") -> Case:
+    """``ilcpmac export`` of ``source`` (a run's compensation.json, given as its run directory, or a result JSON)
+    changed by ``change``: refused in one line naming it, nothing written."""
+    def run(folder: Path) -> Run:
+        is_run = source.name == "compensation.json"
+        path = folder / ("run" if is_run else "") / source.name
+        path.parent.mkdir(exist_ok=True)
+        text = change(source.read_text())
+        path.write_bytes(text if isinstance(text, bytes) else text.encode())
+        out = folder / "out"
+        done = ilcpmac("export", path.parent if is_run else path, "--format", fmt, "--out", out, folder=folder,
+                       written=out)
+        if must_reject:
+            done.problem = _refusal_problem(done, source.name) or _nothing_written(folder, out)
+        return done
+    return Case("export tables", f"{source.stem}: {name}", must_reject, run)
+
+
+def export_cases(compensation: Path, result: Path) -> list[Case]:
+    return [export_case("as written", compensation, lambda t: t, False),
+            export_case("as written, --format c", compensation, lambda t: t, False, "c"),
+            export_case("as written", result, lambda t: t, False),
+            # a result names no counts_per_rev but by its tables' length: 1023 counts is a valid encoder's
+            export_case("cogging table and counts cut to 1023", result, _json_edit(
+                lambda d: (d["cogging"]["torque"].pop(), d["cogging"]["count"].pop())), False),
+            *(export_case(name, compensation, change) for name, change in COMPENSATION_CHANGES),
+            export_case("true in tables_nm, --format c", compensation, _set("tables_nm.0.0.5", True), fmt="c"),
+            export_case("NaN in tables_nm, --format csv", compensation, _set("tables_nm.0.0.3", float("nan")),
+                        fmt="csv"),
+            *(export_case(name, result, change) for name, change in RESULT_CHANGES)]
+
+
 # ---------------------------------------------------------------- the campaign
 
 
@@ -1814,19 +2394,22 @@ def run_cases(cases: list[Case], scratch: Path) -> list[Verdict]:
 def report(verdicts: list[Verdict], wall: dict[str, float]) -> None:
     mib = lambda kib: kib / 1024  # noqa: E731
     categories = list(dict.fromkeys(v.case.category for v in verdicts))
-    head = f"{'category':<34}{'cases':>6}" + "".join(f"{o:>18}" for o in OUTCOMES) + f"{'peak MiB':>10}{'wall s':>8}"
+    head = (f"{'category':<34}{'cases':>6}" + "".join(f"{o:>{len(o) + 2}}" for o in OUTCOMES)
+            + f"{'peak MiB':>10}{'wall s':>8}")
     print("\n" + head + "\n" + "-" * len(head))
     for cat in categories + ["total"]:
         vs = [v for v in verdicts if cat in ("total", v.case.category)]
         seconds = sum(wall.values()) if cat == "total" else wall.get(cat, 0.0)
-        print(f"{cat:<34}{len(vs):>6}" + "".join(f"{sum(v.outcome == o for v in vs):>18}" for o in OUTCOMES)
+        print(f"{cat:<34}{len(vs):>6}" + "".join(f"{sum(v.outcome == o for v in vs):>{len(o) + 2}}" for o in OUTCOMES)
               + f"{mib(max(v.peak_rss_kib for v in vs)):>10.0f}{seconds:>8.0f}")
     over = [v for v in verdicts if mib(v.peak_rss_kib) > PEAK_RSS_BOUND_MIB]
     peak = max(verdicts, key=lambda v: v.peak_rss_kib)
     print(f"\ntargets: traceback {sum(v.outcome == 'TRACEBACK' for v in verdicts)} (0), "
           f"hang {sum(v.outcome == 'HANG' for v in verdicts)} (0), "
           f"non-finite {sum(v.outcome == 'NON-FINITE' for v in verdicts)} (0), "
-          f"accepted garbage {sum(v.outcome == 'ACCEPTED-GARBAGE' for v in verdicts)} (0); "
+          f"accepted garbage {sum(v.outcome == 'ACCEPTED-GARBAGE' for v in verdicts)} (0), "
+          f"limit breach {sum(v.outcome == 'LIMIT-BREACH' for v in verdicts)} (0), "
+          f"wrong state {sum(v.outcome == 'WRONG-STATE' for v in verdicts)} (0); "
           f"peak RSS {mib(peak.peak_rss_kib):.0f} MiB ({peak.case.name}), bound {PEAK_RSS_BOUND_MIB} MiB: "
           f"{len(over)} over")
     failing = [v for v in verdicts if v.outcome != "OK"] + over
@@ -1838,7 +2421,8 @@ def report(verdicts: list[Verdict], wall: dict[str, float]) -> None:
 
 
 #: the groups of cases ``--only`` picks
-GROUPS = ["bench", "config", "emulator", "targets", "import", "scan", "sweep"]
+GROUPS = ["bench", "config", "emulator", "targets", "import", "scan", "sweep", "stages", "resume", "units",
+          "scheduler", "export"]
 
 
 def make_inputs(only: set[str], scratch: Path, config: Path, base: Path, seed: int) -> str | None:
@@ -1846,6 +2430,18 @@ def make_inputs(only: set[str], scratch: Path, config: Path, base: Path, seed: i
     small ``config``; a message if the scan folders cannot be imported."""
     if "import" in only:
         make_import_base(base, scratch / "import-base")
+    if "units" in only:
+        make_units_base(base, scratch / "units-base")
+    if only & {"stages", "resume", "export"}:
+        make_campaign_configs(scratch)
+    if only & {"resume", "export"}:
+        made = make_runs(scratch / SMALL_CAMPAIGN_TOML, scratch)
+        if made is not None:
+            return made
+    if "export" in only:
+        made = make_result(base, scratch)
+        if made is not None:
+            return made
     if "scan" not in only:
         return None
     logs = scratch / "scan-logs"
@@ -1902,6 +2498,13 @@ def main() -> int:
             ("scan", "standstill scans", lambda: run_cases(pick(scan_cases(
                 scratch / "scan-currents", scratch / "scan-torque", scratch / "scan-logs", args.seed)), scratch)),
             ("sweep", "sweep specs", lambda: run_cases(pick(sweep_cases(config)), scratch)),
+            ("stages", "stages", lambda: run_cases(pick(stage_cases(scratch / STAGE_CAMPAIGN_TOML)), scratch)),
+            ("resume", "resume tampering", lambda: run_cases(pick(resume_cases(scratch)), scratch)),
+            ("units", "import units & gaps", lambda: run_cases(pick(unit_cases(scratch / "units-base", base)),
+                                                               scratch)),
+            ("scheduler", "sweep: schedulers & magnets", lambda: run_cases(pick(scheduler_cases(config)), scratch)),
+            ("export", "export tables", lambda: run_cases(pick(export_cases(
+                scratch / "run-finished" / "compensation.json", scratch / "result.json")), scratch)),
         ]
         for flag, category, stage in stages:
             if flag not in only:

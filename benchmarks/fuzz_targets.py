@@ -689,7 +689,190 @@ IDLE_ATTACKS: tuple[Attack, ...] = (
 )
 
 
+# ---------------------------------------------------------------- TCP ports that are no Dask scheduler
+
+
+def http_reply(w: Wire, stop: threading.Event) -> None:
+    """An HTTP server's answer to whatever comes (its first 8 bytes, read as a length, ask for 3 EiB)."""
+    if w.sock.recv(65536):
+        w.sock.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+
+def echo(w: Wire, stop: threading.Event) -> None:
+    """A TCP echo port: the client's own handshake and request come back instead of an answer."""
+    while data := w.sock.recv(65536):
+        w.sock.sendall(data)
+
+
+def swallow(w: Wire, stop: threading.Event) -> None:
+    """A port that takes everything and answers nothing."""
+    while w.sock.recv(65536):
+        pass
+
+
+# ---------------------------------------------------------------- broken plugin stages
+
+#: the broken stage's name, listed after the built-ins in the stage cases' [pipeline] stages
+BROKEN_STAGE = "fuzz-broken"
+_EVENT = threading.Event()  # never set: the hanging stages wait on it for ever
+
+
+class Inert:
+    """A stage that does nothing; each broken stage breaks one of its calls."""
+
+    name = BROKEN_STAGE
+
+    def __init__(self, setup) -> None:
+        self.counts_per_rev = setup.description.motor.counts_per_rev
+        self.calls = {"learn": 0, "state": 0}
+
+    def columns(self, trial):
+        return None
+
+    def shape(self, request):
+        return request
+
+    def learn(self, trial, frame) -> None:
+        self.calls["learn"] += 1
+
+    def state(self) -> dict:
+        self.calls["state"] += 1
+        return {"learned": self.calls["learn"]}
+
+    def restore(self, state: dict) -> None:
+        pass
+
+
+def _broken(method: str, fn: Callable) -> type:
+    """An `Inert` whose ``method`` is ``fn(self, *args)`` (the factory: ``__init__``)."""
+    return type(f"Broken_{method}", (Inert,), {method: fn})
+
+
+def _raise(exc: BaseException) -> Callable:
+    def call(self, *args):
+        raise exc
+    return call
+
+
+def _after(method: str, n: int, fn: Callable) -> Callable:
+    """``fn`` from the ``n``-th call of ``method`` on (Inert's own before): a failure after some trials ran."""
+    def call(self, *args):
+        value = getattr(Inert, method)(self, *args)
+        return fn(self, *args) if self.calls[method] >= n else value
+    return call
+
+
+def _write_trial(self, trial, frame) -> None:
+    trial.torque_nm[:] = np.nan
+
+
+def _write_request(self, request):
+    request.feedforward_nm[:] = 1e3
+    return request
+
+
+def _hang(self, *args):
+    _EVENT.wait()
+
+
+#: broken stages by case name: (factory, what the case says it does)
+BROKEN_STAGES: dict[str, type] = {
+    "factory raises": _broken("__init__", _raise(RuntimeError("no bench for me"))),
+    "factory hangs": _broken("__init__", _hang),
+    "shape raises": _broken("shape", _raise(ValueError("cannot shape this"))),
+    "learn raises in the first learning round": _broken("learn", _after(
+        "learn", 3, _raise(RuntimeError("diverged")))),
+    "state raises at its 4th call": _broken("state", _after("state", 4, _raise(RuntimeError("lost my memory")))),
+    "columns raises": _broken("columns", _raise(ZeroDivisionError("division by zero"))),
+    "columns NaN": _broken("columns", lambda self, trial: np.full((self.counts_per_rev, 2), np.nan)),
+    "columns inf": _broken("columns", lambda self, trial: np.full((self.counts_per_rev, 2), np.inf)),
+    "columns (counts_per_rev, MAX_COLUMNS + 1)": _broken("columns", lambda self, trial: np.zeros(
+        (self.counts_per_rev, 513))),
+    "columns (10^7, 2) rows": _broken("columns", lambda self, trial: np.zeros((10**7, 2))),
+    "columns a list of text": _broken("columns", lambda self, trial: [["a", "b"]] * self.counts_per_rev),
+    "state not JSON (a set)": _broken("state", lambda self: {"seen": {1, 2}}),
+    "state NaN": _broken("state", lambda self: {"gain": float("nan")}),
+    "state an integer beyond 64 bits": _broken("state", lambda self: {"n": 2**70}),
+    "state 64 MiB of text (2 x MAX_STATE_BYTES)": _broken("state", lambda self: {"memory": "x" * (64 << 20)}),
+    "state a list, not an object": _broken("state", lambda self: [1, 2, 3]),
+    "learn writes NaN into its trial": _broken("learn", _write_trial),
+    "shape writes into its request": _broken("shape", _write_request),
+    "shape raises SystemExit(0)": _broken("shape", _raise(SystemExit(0))),
+    "learn raises SystemExit(0)": _broken("learn", _raise(SystemExit(0))),
+    "learn hangs (blocks on an Event)": _broken("learn", _hang),
+    "shape returns None": _broken("shape", lambda self, request: None),
+}
+
+
+class _Entry:
+    """An installed stage's entry point, as `ilcpmac.stages.registry` loads it."""
+
+    def __init__(self, factory: type) -> None:
+        self.factory = factory
+
+    def load(self) -> type:
+        return self.factory
+
+
+# ---------------------------------------------------------------- the probe: ilcpmac run in a watched process
+
+#: the line the probe prints at its exit: trials sent to the simulator, the largest true phase current, the limit
+PROBE = "fuzz-probe:"
+
+
+def probe_main(argv: list[str]) -> None:
+    """``ilcpmac ARGS`` run in this process as its executable runs it (`ilcpmac.cli.entry_point`), watched.
+
+    argv: ``[--stage NAME] [--stage-call-s S] [--interrupt-at N] -- ARGS``. ``--stage``: the broken stage
+    `BROKEN_STAGES` [NAME] installed as `BROKEN_STAGE`; ``--stage-call-s``: `STAGE_CALL_S` lowered to S;
+    ``--interrupt-at``: Ctrl-C at the N-th trial (a run stopped part way). Every trial on the simulator is
+    counted and its true phase currents kept; at exit a `PROBE` line on stdout gives the trials sent, the largest
+    |i_true| and the simulator's max_current_a ([limits], the smaller of it and the bench's).
+    """
+    import atexit
+
+    import ilcpmac.backends.simulated as simulated
+    import ilcpmac.pipeline.pipeline as pipeline
+    import ilcpmac.stages.registry as registry
+
+    split = argv.index("--")
+    opts, args = dict(zip(argv[:split:2], argv[1:split:2])), argv[split + 1:]
+    seen = {"requests": 0, "peak_a": 0.0, "limit_a": float("nan")}
+    lock = threading.Lock()
+    run_trial = simulated.SimulatorBackend.run_trial
+    interrupt_at = int(opts.get("--interrupt-at", 0))
+
+    def watched(self, request):
+        with lock:
+            seen["requests"] += 1
+            n = seen["requests"]
+        if n == interrupt_at:
+            raise KeyboardInterrupt
+        trial = run_trial(self, request)
+        peak = float(np.abs(trial.i_true_a).max()) if trial.i_true_a is not None else float("inf")
+        with lock:
+            seen["peak_a"] = max(seen["peak_a"], peak)
+            seen["limit_a"] = self.limits.max_current_a
+        return trial
+
+    simulated.SimulatorBackend.run_trial = watched
+    if "--stage" in opts:
+        installed = registry.installed_stages
+        factory = BROKEN_STAGES[opts["--stage"]]
+        registry.installed_stages = lambda: {**installed(), BROKEN_STAGE: _Entry(factory)}
+    if "--stage-call-s" in opts:
+        pipeline.STAGE_CALL_S = float(opts["--stage-call-s"])
+    atexit.register(lambda: print(f"{PROBE} requests {seen['requests']} peak_true_current_a {seen['peak_a']!r} "
+                                  f"max_current_a {seen['limit_a']!r}", flush=True))
+    from ilcpmac.cli import entry_point
+
+    sys.argv = ["ilcpmac", *args]
+    entry_point()
+
+
 if __name__ == "__main__":
+    if len(sys.argv) >= 3 and sys.argv[1] == "probe":
+        probe_main(sys.argv[2:])
     if len(sys.argv) != 4 or sys.argv[1] != "client":
-        sys.exit("usage: python benchmarks/fuzz_targets.py client HOST:PORT OUT.json")
+        sys.exit("usage: python benchmarks/fuzz_targets.py client HOST:PORT OUT.json | probe [OPTIONS] -- ARGS")
     sys.exit(client_main(sys.argv[2], sys.argv[3]))

@@ -231,8 +231,13 @@ class Compensation:
         """The feed-forward per count at a torque and a speed set point, shape (counts_per_rev,), N m."""
         if math.isnan(torque_nm) or math.isnan(speed_hz):
             raise ValueError(f"the feed-forward needs a torque and a speed, got {torque_nm!r} N m, {speed_hz!r} Hz")
-        weights = interpolation_weights(self.torques_nm, self.speeds_hz, torque_nm, speed_hz)
-        return np.tensordot(weights, self.tables_nm, axes=2) * self.fade.factor(speed_hz)
+        # the weights of `interpolation_weights`, applied elementwise: the same sums in the same order in any process
+        # (a BLAS product's order depends on its thread count, and a campaign's CLI and API runs must agree)
+        i, j, u = _bracket(self.torques_nm, torque_nm)
+        k, m, v = _bracket(self.speeds_hz, speed_hz)
+        t = self.tables_nm
+        lower, upper = (1.0 - v) * t[i, k] + v * t[i, m], (1.0 - v) * t[j, k] + v * t[j, m]
+        return ((1.0 - u) * lower + u * upper) * self.fade.factor(speed_hz)
 
     def apply(self, request: TrialRequest) -> TrialRequest:
         """``request`` with this calibration and this feed-forward added to its own."""

@@ -197,3 +197,38 @@ def test_the_final_lines_give_each_set_of_points_against_its_floor_and_the_motor
         "learned: true ripple 0.0900 % of mean torque; 1.00-1.20x its floor",
         "validation: true ripple 0.170 % of mean torque; 1.31-1.31x its floor",
         "motor time: 14.0 min (identify 2.2, ilc 11.8 min; warm-ups included)"]
+
+
+@pytest.mark.slow
+def test_the_readmes_figures_are_what_the_default_campaign_prints(tmp_path):
+    """The README's main job (trials, motor minutes, MB) and its ripple row (the worst learned and validation
+    points, their range against the floors) against a fresh default run: they drifted before (12 s, 121 trials,
+    160 MB said; 46 s, 113 trials, 147 MB printed)."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    # as the README's command runs it: a process of its own (the identification's last bits, and so what the
+    # campaign's discrete decisions make of them, depend on the process's numerical libraries' threads)
+    done = subprocess.run([sys.executable, "-m", "ilcpmac", "run", "--out", str(tmp_path / "run")],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-500:]
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    job = re.search(r"(\d+) trials, ([\d.]+) min of the motor's\s+running time on a real bench, about \d+ s on the "
+                    r"simulator, (\d+) MB", readme)
+    assert job is not None
+    size_mb = sum(p.stat().st_size for p in (tmp_path / "run").rglob("*") if p.is_file()) / 1e6
+    assert int(job[1]) == len(summary["trials"])
+    assert float(job[2]) == round(summary["motor_time_s"]["all"] / 60, 1)
+    assert abs(int(job[3]) - size_mb) < 1.0
+    row = re.search(r"true ripple <= ([\d.]+) % pp at the 9 learned points .*?, <= ([\d.]+) % at 6 points never "
+                    r"learned, each ([\d.]+)-([\d.]+)x its noise floor, in ([\d.]+) min", readme)
+    assert row is not None
+    points = summary["points"]
+    worst = [max(100 * p["ripple_pp_true"] for p in points if p["learned"] == learned) for learned in (True, False)]
+    ratios = [p["ripple_pp_true"] / p["floor_pp_true"] for p in points]
+    assert [float(row[1]), float(row[2])] == [round(w, 3) for w in worst]
+    assert [float(row[3]), float(row[4])] == [round(min(ratios), 2), round(max(ratios), 2)]
+    assert float(row[5]) == float(job[2])
