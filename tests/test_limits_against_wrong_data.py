@@ -163,3 +163,35 @@ def test_an_untouched_run_directory_and_one_made_before_digests_resume_to_the_sa
                     data.pop(key, None)
                 path.write_text(json.dumps(data))
         assert campaign.run(resume=run, backend=Bench(config)).summary == reference, name
+
+
+@pytest.mark.parametrize("unseal", ["resealed", "run.json deleted", "every digest stripped"])
+def test_an_identification_edited_behind_the_digests_is_refused_on_resume(config, tmp_path, unseal):
+    """Before (benchmarks/fuzz.py): epsilon / 3 with its digest recomputed, or with states/run.json deleted or every
+    digest stripped, resumed and drove 39.7 A against 30 A. The saved identification is checked against the grid
+    trials' identified again, and a run whose states carry digests stays sealed without run.json."""
+    import hashlib
+
+    run = stopped(config, tmp_path / "run", 8)
+    path = run / "states" / "identification.json"
+    data = json.loads(path.read_text())
+    data["result"]["epsilon"] /= 3
+    if unseal == "resealed":
+        data.pop("sha256")
+        data["sha256"] = hashlib.sha256(json.dumps(data, allow_nan=False).encode()).hexdigest()
+        path.write_text(json.dumps(data))
+    else:
+        data.pop("sha256", None)
+        path.write_text(json.dumps(data))
+        (run / "states" / "run.json").unlink()
+        if unseal == "every digest stripped":
+            for state in (run / "states").glob("trial_*.json"):
+                saved = json.loads(state.read_text())
+                for key in ("sha256", "trial_sha256"):
+                    saved.pop(key, None)
+                state.write_text(json.dumps(saved))
+    bench = Bench(config)
+    with pytest.raises(RunDirError, match=r"states/identification.json: (epsilon .* is not what the grid trials on "
+                                          r"disk give|does not match its sha256 digest)"):
+        campaign.run(resume=run, backend=bench)
+    assert bench.calls == 0

@@ -162,8 +162,12 @@ class RunFiles:
 
     @cached_property
     def sealed(self) -> bool:
-        """Whether the run's states carry digests (states/run.json says so; a run made before them has none)."""
-        return bool((self.read_json(self.settings) or {}).get(SEALED_KEY))
+        """Whether the run's states carry digests: states/run.json says so, or its first trial's state has one (a
+        run made before them has none; run.json deleted or edited does not unseal a run that has them)."""
+        if (self.read_json(self.settings) or {}).get(SEALED_KEY):
+            return True
+        first = self.read_json(self.state(1))
+        return isinstance(first, dict) and DIGEST_KEY in first
 
     def read_json(self, path: Path, packed: bool = False) -> dict | None:
         """The JSON object in ``path`` (one of these paths), None when it does not exist; `RunDirError`

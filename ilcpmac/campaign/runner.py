@@ -57,7 +57,7 @@ from ilcpmac.campaign.events import (
 from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
 from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
-from ilcpmac.campaign.rundir import RunDir
+from ilcpmac.campaign.rundir import RunDir, RunDirError
 from ilcpmac.campaign.state import LearnedPoint, TrialState
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
@@ -90,6 +90,11 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                  "motor_time_s": "s (the motor's running time: warm-up and recorded revolutions; per phase, and all)",
                  "fade_full_hz": "Hz (the feed-forward applies fully up to this speed; null: always)",
                  "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
+
+
+#: how far an identified estimate saved in the run directory may lie from the grid's identified again on resume,
+#: relative: the numerical libraries' threads move the last bits, an edit far more
+IDENTIFIED_RTOL = 1e-6
 
 
 def torque_source(config: CampaignConfig, description: BenchDescription) -> TorqueSource:
@@ -350,10 +355,8 @@ class CampaignRunner:
         mean = measurement.gain(request.calibration) * measurement.mean_torque_nm(request)
         return spectrum.figures(mean, m.pole_pairs, m.cogging_order)
 
-    def _identify(self, grid_trials: list[TrialData]) -> None:
-        """Identify from the grid; measured ripple of the grid trials follows from it."""
-        self.events.message(Identifying())
-        n = len(grid_trials)
+    def _identification(self, grid_trials: list[TrialData]) -> IdentificationResult:
+        """The identification of the grid trials (with "both", the graduation error measured against the sensor)."""
         bench = self._grid_bench(grid_trials)
         result = (self.identify(bench) if self.torque_source.reads_sensor
                   else self.identify(bench, torque_source=TorqueSource.ENCODER))
@@ -361,6 +364,13 @@ class CampaignRunner:
             unknown: dict[str, typing.Any] = dict.fromkeys(name for _, name in ENCODER_ERROR_KEYS)
             self._set_identified(replace(result, **unknown))
             result = self._with_graduation_error(result, grid_trials)
+        return result
+
+    def _identify(self, grid_trials: list[TrialData]) -> None:
+        """Identify from the grid; measured ripple of the grid trials follows from it."""
+        self.events.message(Identifying())
+        n = len(grid_trials)
+        result = self._identification(grid_trials)
         self._set_identified(result)
         self.identification_json = result.to_json()
         cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
@@ -592,6 +602,7 @@ class CampaignRunner:
             if saved is None:
                 self._identify(self._grid_trials())
             else:
+                self._check_identification(saved["result"])
                 self.identification_json = saved["result"]
                 self._set_identified(IdentificationResult.from_json(saved["result"]))
                 self.records[: len(self.grid)] = [TrialRecord.from_json(r) for r in saved["grid_records"]]
@@ -601,6 +612,18 @@ class CampaignRunner:
             self._start_pipeline()
             self.pipeline.restore(last.pipeline)
         self.events.message(Resumed(done, self.run_dir.path))
+
+    def _check_identification(self, saved: dict) -> None:
+        """The saved identification against the grid trials' on disk, identified again: the current the stages may
+        set flows through it (`LimitGuard`), so a file edited, resealed or copied from another run must not stand
+        in for the data. `RunDirError` naming the file where an estimate differs beyond `IDENTIFIED_RTOL`."""
+        fresh = self._identification(self._grid_trials()).to_json()
+        for key in ("total_system_gain", "torque_sensor_gain", "epsilon", "alpha", "beta"):
+            a, b = saved.get(key), fresh.get(key)
+            if (a is None) != (b is None) or (a is not None and not np.allclose(
+                    np.asarray(a, float), np.asarray(b, float), rtol=IDENTIFIED_RTOL, atol=0.0)):
+                raise RunDirError(f"{self.run_dir.files.identification}: {key} {a} is not what the grid trials on "
+                                  f"disk give ({b}); the run cannot go on from it")
 
     def summary(self) -> dict:
         """summary.json: the units of its figures, every trial, the identification, the final figures of the
