@@ -554,10 +554,15 @@ class RunDir:
 
     @staticmethod
     def read_settings(path: str | Path) -> dict:
-        """The settings a run was created with (states/run.json, its `SEALED_KEY` aside; empty when there are
-        none)."""
+        """The settings a run was created with (states/run.json, its `SEALED_KEY` aside; empty in a run made
+        before them). `RunDirError` when a run whose states carry digests (`RunFiles.sealed`) has lost the file:
+        its seed and overrides would fall back to the config's, and the run go on as another."""
         files = RunFiles(path)
-        return {key: value for key, value in (files.read_json(files.settings) or {}).items() if key != SEALED_KEY}
+        settings = files.read_json(files.settings)
+        if settings is None and files.sealed:
+            raise RunDirError(f"{files.settings}: missing (the run's seed and overrides); the run cannot go on "
+                              "without it")
+        return {key: value for key, value in (settings or {}).items() if key != SEALED_KEY}
 
     def _remove_incomplete(self) -> None:
         """Delete what a crash left of a trial that was never committed, and temporary files."""
