@@ -43,8 +43,10 @@ from ilcpmac.core.records import (
     MAX_TORQUE_NM,
     MOTOR_RANGES,
     IdentificationResult,
+    ResultKeyError,
     SensorCalibration,
     TrialRequest,
+    boolean_problem,
 )
 from ilcpmac.core.schema import coerce_value, section_problem, shown, unique_keys
 from ilcpmac.signals.harmonics import harmonic_amplitudes
@@ -378,6 +380,8 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
             result = IdentificationResult.from_json(data)
             table = result.cogging_nm if content == "cogging" else result.position_torque_nm
             order, calibration = None, result.calibration
+    except ResultKeyError as e:
+        raise BenchFormatError(f"{path}: {e}") from None
     except (KeyError, TypeError, ValueError) as e:
         raise BenchFormatError(f"{path}: not a result of ilcpmac identify ({type(e).__name__}: {e})") from None
     if table is None and content != "cogging":
@@ -447,6 +451,9 @@ def _array(value, ndim: int, source: str, key: str) -> np.ndarray:
     wrong = f"{source}: key {key!r}: must be {'a list' if ndim == 1 else f'{ndim} nested lists'} of numbers"
     if not isinstance(value, list):
         raise BenchFormatError(f"{wrong}, got {_shown(value)}")
+    problem = boolean_problem(value)
+    if problem is not None:
+        raise BenchFormatError(f"{source}: key {key!r}: {problem}")
     try:
         a = np.asarray(value)
     except (ValueError, TypeError, OverflowError):

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ilcpmac.core.current_loop import CurrentLoop
-from ilcpmac.core.schema import finite_json
+from ilcpmac.core.schema import finite_json, shown
 from ilcpmac.core.torque_source import TorqueSource
 
 #: The range of each [motor] quantity of a bench, one for configs, bench folders and the protocol's
@@ -303,11 +303,68 @@ def _json_value(value):
     return float(value)
 
 
-def _from_json_value(value, vector: bool):
-    """A float or a float array from JSON; None stays None."""
+class ResultKeyError(ValueError):
+    """A key of a result JSON holds what docs/bench-format.md does not allow; the message names the key."""
+
+
+def boolean_problem(value) -> str | None:
+    """What is wrong with the first JSON true or false in ``value`` (a number or nested lists), e.g.
+    ``"value [0, 2] is true, not a number"``; None when it holds none. A bool is an int to Python and numpy
+    makes it 1.0 or 0.0: every reader of numbers from JSON asks this first (`IdentificationResult.from_json`,
+    ``ilcpmac.compensation``)."""
+    stack: list[tuple[tuple[int, ...], object]] = [((), value)]
+    while stack:  # depth first, in order; not recursive: the JSON may nest as deep as its parser allows
+        at, v = stack.pop()
+        if isinstance(v, (bool, np.bool_)):
+            return f"{f'value {list(at)} is' if at else 'is'} {str(bool(v)).lower()}, not a number"
+        if isinstance(v, (list, tuple)) and any(isinstance(x, (bool, np.bool_, list, tuple)) for x in v):
+            stack.extend(((*at, i), x) for i, x in reversed(list(enumerate(v))))
+    return None
+
+
+def _from_json_value(value, vector: bool, key: str, size: int | None = None):
+    """A number as a float or a list of numbers as a 1-D float array (of ``size`` values, when given) from JSON;
+    None stays None; anything else raises `ResultKeyError` naming ``key``."""
     if value is None:
         return None
-    return np.asarray(value, float) if vector else float(value)
+    problem = boolean_problem(value)
+    if problem is not None:
+        raise ResultKeyError(f"key {key!r}: {problem}")
+    if not vector:
+        if not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ResultKeyError(f"key {key!r}: must be a number or null, got {shown(value)}")
+        return float(value)
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError, OverflowError):  # rows of unequal lengths
+        a = None
+    if a is None or a.ndim != 1 or a.dtype.kind not in "iuf":
+        raise ResultKeyError(f"key {key!r}: must be a list of numbers or null, got {shown(value)}")
+    if size is not None and a.size != size:
+        raise ResultKeyError(f"key {key!r}: needs {size} values (phases a, b, c), got {a.size}")
+    return a.astype(float)
+
+
+def _counted(table, key: str, vectors: tuple[str, ...]) -> dict:
+    """The vectors ``vectors`` of the result JSON's object ``table`` under ``key`` (an absent one is None), one
+    value per count: of one length n, and its "count" (when given) the counts 0 .. n - 1."""
+    if not isinstance(table, dict):
+        raise ResultKeyError(f"key {key!r}: must be an object or null, got {shown(table)}")
+    out = {name: _from_json_value(table.get(name), True, f"{key}.{name}") for name in vectors}
+    sizes = {name: a.size for name, a in out.items() if a is not None}
+    if len(set(sizes.values())) > 1:
+        raise ResultKeyError(f"key {key!r}: its lists differ in length ("
+                             + ", ".join(f"{name}: {n}" for name, n in sizes.items()) + ")")
+    if "count" in table and sizes:
+        n, count = next(iter(sizes.values())), table["count"]
+        problem = boolean_problem(count)
+        if problem is not None:
+            raise ResultKeyError(f"key '{key}.count': {problem}")
+        if not isinstance(count, list) or count != list(range(n)):
+            got = f"{len(count)} values" if isinstance(count, list) and len(count) != n else shown(count)
+            raise ResultKeyError(f"key '{key}.count': must be the counts 0 .. {n - 1}, one per value of "
+                                 f"'{key}.{next(iter(sizes))}', got {got}")
+    return out
 
 
 @dataclass(frozen=True)
@@ -353,15 +410,24 @@ class MethodEstimates:
         return out
 
     @staticmethod
-    def fields_from_json(data: dict) -> dict:
-        """The estimates' fields from the keys `to_json` writes (a missing key is None)."""
+    def fields_from_json(data: dict, prefix: str = "") -> dict:
+        """The estimates' fields from the keys `to_json` writes (a missing key is None); a wrong value raises
+        `ResultKeyError` naming its key (after ``prefix``)."""
+        if not isinstance(data, dict):
+            raise ResultKeyError(f"key {prefix[:-1]!r}: must be an object, got {shown(data)}")
         out = {}
         for key, name in RESULT_KEYS:
             vector = name in ("alpha", "beta")
-            out[name] = _from_json_value(data.get(key), vector)
-            out[name + "_std"] = _from_json_value(data.get(key + "_std"), vector)
+            size = 3 if vector else None
+            out[name] = _from_json_value(data.get(key), vector, prefix + key, size)
+            out[name + "_std"] = _from_json_value(data.get(key + "_std"), vector, prefix + key + "_std", size)
         cogging = data.get("cogging")
-        out["cogging_nm"] = None if cogging is None else np.asarray(cogging["torque"], float)
+        if cogging is not None:
+            if not isinstance(cogging, dict) or cogging.get("torque") is None:
+                raise ResultKeyError(f"key '{prefix}cogging': must be an object with a list 'torque' or null, "
+                                     f"got {shown(cogging)}")
+            cogging = _counted(cogging, prefix + "cogging", ("torque",))["torque"]
+        out["cogging_nm"] = cogging
         return out
 
     @classmethod
@@ -490,15 +556,24 @@ class IdentificationResult(MethodEstimates):
         encoder = data.get("encoder_error") or {}
         diagnostics = data.get("diagnostics") or {}
         joint = diagnostics.get("joint") or {}
-        position = data.get("position_torque") or {}
+        encoder_vectors = _counted(encoder, "encoder_error",
+                                   tuple(key for key, _ in ENCODER_ERROR_KEYS if key.startswith("error")))
+        position = _counted(data.get("position_torque") or {}, "position_torque", ("torque", "std"))
+        methods = data.get("methods") or {}
+        if not isinstance(methods, dict):
+            raise ResultKeyError(f"key 'methods': must be an object or null, got {shown(methods)}")
         return cls(**cls.fields_from_json(data), current_loop=loop,
-                   methods={name: MethodEstimates.from_json(m) for name, m in (data.get("methods") or {}).items()},
-                   calibration=None if calibration is None else SensorCalibration.from_json(calibration),
+                   methods={name: MethodEstimates(**MethodEstimates.fields_from_json(m, f"methods.{name}."))
+                            for name, m in methods.items()},
+                   calibration=None if calibration is None else SensorCalibration(
+                       _from_json_value(calibration["current_scale"], True, "calibration.current_scale", 3),
+                       _from_json_value(calibration["current_offset"], True, "calibration.current_offset", 3),
+                       _from_json_value(calibration["torque_gain"], False, "calibration.torque_gain")),
                    messages=tuple(data.get("messages") or ()), diagnostics=diagnostics,
                    torque_source=TorqueSource(data.get("torque_source") or TorqueSource.SENSOR.value),
                    torque_sensor_highpass_hz=joint.get("torque_sensor_highpass_hz"),
                    torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
-                   **{name: _from_json_value(encoder.get(key), key.startswith("error"))
+                   **{name: encoder_vectors[key] if key in encoder_vectors else
+                      _from_json_value(encoder.get(key), False, "encoder_error." + key)
                       for key, name in ENCODER_ERROR_KEYS},
-                   position_torque_nm=_from_json_value(position.get("torque"), True),
-                   position_torque_std_nm=_from_json_value(position.get("std"), True))
+                   position_torque_nm=position["torque"], position_torque_std_nm=position["std"])

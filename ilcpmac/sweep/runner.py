@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Protocol
 
 from distributed import Client, LocalCluster, WorkerPlugin, as_completed
-from distributed.comm import connect, get_address_host_port
+from distributed.comm import CommClosedError, connect, get_address_host_port
 from filelock import FileLock
 
 from ilcpmac.config import packaged_config
@@ -136,6 +136,15 @@ async def _identity(address: str, timeout_s: float) -> object:
         comm.abort()
 
 
+def _no_answer(address: str, timeout_s: float, e: BaseException) -> SweepRunError:
+    """What stopped the server at ``address`` answering: it closed the connection, or said nothing in time."""
+    reason = " ".join(str(e).split()) or type(e).__name__
+    if isinstance(e, CommClosedError):
+        return SweepRunError(f"--scheduler {address}: the server closed the connection before answering "
+                             f"Dask's identity request ({reason})")
+    return SweepRunError(f"--scheduler {address}: no scheduler answered within {timeout_s:g} s ({reason})")
+
+
 def remote_client(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Client:
     """A client of the Dask scheduler at ``address`` (tcp://HOST:PORT), or `SweepRunError` naming the address:
     one it cannot parse, no answer within ``timeout_s``, or a server that is no Dask scheduler.
@@ -152,9 +161,7 @@ def remote_client(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Client:
     try:
         answer = asyncio.run(asyncio.wait_for(_identity(address, timeout_s), timeout_s))
     except (OSError, TimeoutError) as e:
-        reason = " ".join(str(e).split()) or type(e).__name__
-        raise SweepRunError(f"--scheduler {address}: no scheduler answered within {timeout_s:g} s ({reason})") \
-            from None
+        raise _no_answer(address, timeout_s, e) from None
     except Exception:  # whatever a garbled answer makes of Dask's protocol: it is not a scheduler's
         raise SweepRunError(f"--scheduler {address}: not a Dask scheduler (its answer is not Dask's protocol)") \
             from None
@@ -165,9 +172,7 @@ def remote_client(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Client:
     try:
         return Client(address, timeout=timeout_s)
     except (OSError, TimeoutError) as e:
-        reason = " ".join(str(e).split()) or type(e).__name__
-        raise SweepRunError(f"--scheduler {address}: no scheduler answered within {timeout_s:g} s ({reason})") \
-            from None
+        raise _no_answer(address, timeout_s, e) from None
 
 
 class SweepEvents(Protocol):
