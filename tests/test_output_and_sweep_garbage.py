@@ -338,3 +338,18 @@ def test_identify_of_a_result_too_uncertain_writes_it_and_exits_2(joint_fit_fail
     assert json.loads((tmp_path / "r.json").read_text())["alpha"] is None
     alpha_rows = [line for line in result.output.splitlines() if line.startswith("│ alpha")]
     assert len(alpha_rows) == 3 and not any("*" in row for row in alpha_rows)
+
+
+@pytest.mark.parametrize(("kind", "name"), [("grid", "truth.json"), ("log", "mapping.toml"), ("log", "truth.json")])
+def test_simulate_on_a_full_disk_names_its_other_files_too(write_config, tmp_path, monkeypatch, kind, name):
+    """Before: truth.json and mapping.toml were written with write_text: a full disk left half a file and an
+    error without its name."""
+    config = write_config({**SMALL_CAMPAIGN, "trials": {**SMALL_CAMPAIGN["trials"], "revolutions": 2}})
+    out = tmp_path / "bench"
+    full_disk(monkeypatch, name)
+    args = ["--kind", kind] + (["--duration-s", "4"] if kind == "log" else [])
+    result = CliRunner().invoke(main, ["simulate", str(config), "--out", str(out), *args])
+    assert result.exit_code == 2, result.output
+    assert result.output.splitlines()[-1].startswith(f"error: {out}") and \
+        result.output.splitlines()[-1].endswith(f"{name}: No space left on device")
+    assert not (out / name).exists() and not list(out.rglob("*.tmp"))

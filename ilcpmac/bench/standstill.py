@@ -520,7 +520,7 @@ def identify_scan(folder: str | Path, output: str | Path) -> tuple[ScanResult, l
     truth_nm = _truth_tables(folder)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    output.write_text(json.dumps(result.to_json(), indent=1, allow_nan=False))
+    atomic_write(output, json.dumps(result.to_json(), indent=1, allow_nan=False))
     r = result
     lines = [f"standstill scan ({r.source}): {r.samples[0]} forward, {r.samples[1]} reverse samples",
              f"scatter of one sample: {r.noise_std_nm:.3g} N m",

@@ -28,6 +28,7 @@ from ilcpmac.campaign.rundir import RunDir, RunFiles
 from ilcpmac.campaign.validation import PointResult, point_results
 from ilcpmac.config import CampaignConfig, check_config, config_text, load_config, packaged_config
 from ilcpmac.core.errors import ConfigError
+from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import BenchDescription, IdentificationResult, TrialData
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan
 from ilcpmac.stages.registry import check_stage_options
@@ -248,5 +249,5 @@ def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None
     bench, truth = simulated_bench(config, seed, revolutions, on_done, torque_sensor)
     out_dir = Path(out_dir)
     write_bench(out_dir, bench)
-    (out_dir / "truth.json").write_text(json.dumps(truth, indent=1))
+    atomic_write(out_dir / "truth.json", json.dumps(truth, indent=1))
     return bench

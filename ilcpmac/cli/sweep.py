@@ -66,6 +66,7 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
     from rich.table import Table
 
     from ilcpmac.core.errors import ConfigError
+    from ilcpmac.core.files import atomic_write
     from ilcpmac.sweep.plots import write_plots
     from ilcpmac.sweep.results import SUMMARY_FILE, combine, read_results, summarize
     from ilcpmac.sweep.runner import SweepRunner, check_local_workers, local_client, remote_client
@@ -111,7 +112,7 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
         for case in summary.worst:
             console.print(f"worst {column} {_percent(column, case.detail)}: task {case.task} (seed {case.seed})\n"
                           f"  rerun: {case.rerun}", soft_wrap=True)
-    (out_dir / SUMMARY_FILE).write_text(json.dumps(summary.to_json(), indent=1))
+    atomic_write(out_dir / SUMMARY_FILE, json.dumps(summary.to_json(), indent=1))
     plots = write_plots(table, column, out_dir / "plots", plot_format) if column is not None else []
     console.print(f"wrote {table_path}, {out_dir / SUMMARY_FILE} and {len(plots)} plots in {out_dir / 'plots'}",
                   soft_wrap=True)

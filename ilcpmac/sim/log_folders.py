@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 from ilcpmac.bench.format import write_backemf_csv
+from ilcpmac.core.files import atomic_write
 from ilcpmac.core.schema import toml_text
 from ilcpmac.sim.drive_log import LogPlan, write_drive_log
 from ilcpmac.sim.simulator import Simulator
@@ -39,8 +40,8 @@ def _bench_table(simulator: Simulator) -> dict:
 
 def _write(out: Path, simulator: Simulator, mapping: dict, truth: dict) -> None:
     write_backemf_csv(out / "backemf.csv", simulator.backemf_counts)
-    (out / MAPPING).write_text(toml_text(mapping))
-    (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    atomic_write(out / MAPPING, toml_text(mapping))
+    atomic_write(out / "truth.json", json.dumps(truth, indent=1))
 
 
 def write_simulated_scan(out: str | Path, simulator: Simulator, plan: ScanPlan) -> dict:
