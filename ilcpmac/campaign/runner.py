@@ -576,13 +576,9 @@ class CampaignRunner:
         needed = [i for indices in learned.values() for i in indices] + list(validated.values())
         missing = [i for i in needed if i not in self._spectra]
         for index, trial in zip(missing, self.run_dir.read_trials(missing)):
-            saved = self.run_dir.state(index)
-            record = saved.record
-            cpr = self.description.motor.counts_per_rev
-            ran = TrialRequest(record.torque_setpoint_nm, record.speed_setpoint_hz, saved.revolutions, np.zeros(cpr),
-                               saved.feedforward_nm, saved.calibration, seed=saved.seed)
-            analysis = TrialAnalysis.of(replace(trial, request=ran), cpr, self.config.campaign.ripple_harmonics,
-                                        self.measurement)
+            ran = self.run_dir.state(index).ran()
+            analysis = TrialAnalysis.of(replace(trial, request=ran), self.description.motor.counts_per_rev,
+                                        self.config.campaign.ripple_harmonics, self.measurement)
             self._spectra[index] = self._point_spectra(ran, analysis)
         compensation = self._compensation()
         return point_floors({p: [self._spectra[i] for i in indices] for p, indices in learned.items() if indices},

@@ -54,6 +54,13 @@ class TrialState:
             raise ValueError(f"trial {self.record.index} ran before the pipeline started: no stage states")
         return self.pipeline
 
+    def ran(self) -> TrialRequest:
+        """The request the trial ran, as saved: its set point, revolutions, seed, calibration and feed-forward (its
+        excitation zero, which a trial after the grid's is)."""
+        record = self.record
+        return TrialRequest(record.torque_setpoint_nm, record.speed_setpoint_hz, self.revolutions,
+                            np.zeros_like(self.feedforward_nm), self.feedforward_nm, self.calibration, seed=self.seed)
+
     def to_json(self) -> dict:
         """The object of states/trial_NNN.json."""
         return {"record": self.record.to_json(), "pipeline": self.pipeline, "gains": self.gains,
