@@ -96,7 +96,7 @@ def scan_path(config: Path, tmp: Path, seed: int) -> tuple[dict, dict, Path]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", type=Path, default=ROOT / "ilcpmac" / "configs" / "seed-bench.toml")
+    parser.add_argument("--config", type=Path, default=ROOT / "src" / "ilcpmac" / "configs" / "seed-bench.toml")
     parser.add_argument("--seed", type=int, default=2009)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp_name:

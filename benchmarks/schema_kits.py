@@ -216,7 +216,7 @@ def main() -> None:
         ms = import_ms(statement, "ilcpmac.core.schema" if module is None else None)
         print(f"\n{name}: import {ms:.1f} ms; declarations "
               f"{code_lines(*classes)} lines; kit "
-              f"{f'{kit_lines} lines (ilcpmac/core/schema.py)' if module is None else 'the library'}")
+              f"{f'{kit_lines} lines (src/ilcpmac/core/schema.py)' if module is None else 'the library'}")
         for table, cases in CASES.items():
             for case, change in cases.items():
                 data = (MOTOR if table == "motor" else {}) | change

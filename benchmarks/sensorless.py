@@ -17,7 +17,7 @@ eps within 2 % given J, the encoder error's once-per-revolution amplitude within
   average (`RippleFigures.rms_repeatable`): near that floor the pp of one trial scatters by about +-12 % from
   trial to trial (1 N m, 0.5 Hz).
 
-Then the floor the time stamps imply (eq. 3 of ilcpmac/signals/encoder_torque.py, `quantisation_variance_nm2`,
+Then the floor the time stamps imply (eq. 3 of src/ilcpmac/signals/encoder_torque.py, `quantisation_variance_nm2`,
 the RMS over harmonics 1..H of the last trial's revolutions and speed, b included) against the true RMS ripple
 the encoder campaign reached. ``--encoder-error`` gives the simulated encoder [simulator.encoder]
 eccentricity_counts = 0.05 and line_std_counts = 0.01 (the identification must then identify it: needs

@@ -2,7 +2,7 @@
 
     python benchmarks/sensorless_floor.py
 
-Eq. (3) of ilcpmac/signals/encoder_torque.py on the seed bench (4096 counts per
+Eq. (3) of src/ilcpmac/signals/encoder_torque.py on the seed bench (4096 counts per
 revolution, time stamps to 1 us, J = 0.01056 kg m^2, b = 0) for a trial of 64
 whole revolutions: per speed and harmonic, the peak-to-peak ripple that the
 quantisation alone leaves in the estimate of one harmonic, 2 sqrt(E|dtau_h|^2),

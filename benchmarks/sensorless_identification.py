@@ -10,7 +10,7 @@ encoder's time stamps (J given). Targets (issue 12): cogging within 3 % RMS,
 eps within 2 %, the encoder error's once-per-revolution amplitude within 10 %.
 ``--eccentricity 0 --line-std 0``: a perfect encoder, where the error applied
 must be 0. Last row: what the error applied leaves in a campaign's trial
-through eq. 4 of ilcpmac/signals/encoder_torque.py (the applied table less the
+through eq. 4 of src/ilcpmac/signals/encoder_torque.py (the applied table less the
 truth, harmonics 1..[campaign] ripple_harmonics, at 1 N m and 0.5, 1 and
 1.5 Hz), peak to peak, % of 1 N m.
 """

@@ -60,7 +60,8 @@ BEFORE_FIGURES = {"identify CSV s": 3.86, "identify Parquet s": 3.74, "campaign 
 
 def seed_config(tree: Path) -> Path:
     """The seed-bench config of the source tree ``tree`` (packaged, or in configs/ in older trees)."""
-    for path in (tree / "ilcpmac" / "configs" / "seed-bench.toml", tree / "configs" / "seed-bench.toml"):
+    for path in (tree / "src" / "ilcpmac" / "configs" / "seed-bench.toml",
+                 tree / "ilcpmac" / "configs" / "seed-bench.toml", tree / "configs" / "seed-bench.toml"):
         if path.is_file():
             return path
     sys.exit(f"{tree}: no seed-bench.toml")

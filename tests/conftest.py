@@ -21,7 +21,7 @@ from ilcpmac.sim.simulator import Simulator
 settings.register_profile("seeded", derandomize=True, database=None)
 settings.load_profile("seeded")
 
-SEED_CONFIG = Path(__file__).resolve().parents[1] / "ilcpmac" / "configs" / "seed-bench.toml"
+SEED_CONFIG = Path(__file__).resolve().parents[1] / "src" / "ilcpmac" / "configs" / "seed-bench.toml"
 REAL_BENCH_CONFIG = SEED_CONFIG.with_name("real-bench.toml")
 #: encoder resolution of the fast test model (the seed bench has 4096)
 COUNTS_PER_REV = 1024

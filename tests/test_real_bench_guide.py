@@ -5,7 +5,7 @@ The stand-in: `ilcpmac emulate` of the small seed bench (1024 counts, the small 
 bench target at both the rehearsal's 127.0.0.1:5025 and "your bench" at 10.0.0.5:5025; ``configs/`` holds the seed
 and real-bench configs made small the same way; the voltages of ``emf_log.csv``, the trials of ``my-bench``, the
 logs ``run_2nm.csv``, ``run_4nm.csv``, the grid's logs without torque ``grid_log_*.csv`` and the standstill scan
-``scan_log.csv`` (ilcpmac/sim/standstill.py) are simulated; the rolling log of the offline path is the guide's own
+``scan_log.csv`` (src/ilcpmac/sim/standstill.py) are simulated; the rolling log of the offline path is the guide's own
 ``ilcpmac simulate --kind log``. The guide's files (```python and ```toml blocks whose first line is ``# NAME``) are
 written as shown, except ``counts_per_rev``, kept at the stand-in's; a second ``my-motor.toml`` block adds its keys
 to the first. Only the commands of NOT_RUN are not run.

@@ -351,7 +351,7 @@ def config_reference() -> str:
               "trials": TrialGrid, "excitation": Excitation, **RUN_SECTIONS}
     parts = ["# Campaign config reference", "",
              "Every table and key of a campaign config (configs/seed-bench.toml is a complete one), generated from "
-             "the declarations in ilcpmac/config.py and ilcpmac/model/motor.py by "
+             "the declarations in src/ilcpmac/config.py and src/ilcpmac/model/motor.py by "
              "`ilcpmac.config.config_reference()`; tests/test_config.py checks that this file is up to date. "
              "Options of a stage go in `[stages.NAME]` (docs/writing-a-stage.md).", ""]
     parts += [key_table(cls, name) for name, cls in tables.items()]
