@@ -95,7 +95,7 @@ def test_the_plans_motor_time_is_its_trials_warm_ups_and_revolutions_at_their_sp
     assert len(steps) == plan.most_remaining([]) == len(plan.grid) + (2 + c.learn_trials) * len(plan.learned) + 2
     expected = sum((warmup + s.request.revolutions) / s.request.speed_setpoint_hz for s in steps)
     assert plan.motor_time_s() == pytest.approx(expected)
-    assert list(plan.bench_time_left([])) == ["identify", "compensate", "ilc", "validate"]
+    assert list(plan.bench_time_left([])) == ["identify", "compensate", "learn", "validate"]
     learning = [s.request.revolutions for s in steps if s.role in ("compensate", "learn")
                 and s.request.torque_setpoint_nm == 2.0]
     assert learning == sorted(learning) and learning[-1] == plan.config.trial_revolutions((2.0, 0.9))
@@ -192,11 +192,11 @@ def test_the_final_lines_give_each_set_of_points_against_its_floor_and_the_motor
               {"learned": True, "ripple_pp_true": 0.0006, "floor_pp_true": 0.0005},
               {"learned": False, "ripple_pp_true": 0.0017, "floor_pp_true": 0.0013}]
     summary = {"final": {"ripple_pp_true": 0.0009}, "validation": [{"ripple_pp_true": 0.0017}], "points": points,
-               "motor_time_s": {"identify": 132.0, "ilc": 708.0, "all": 840.0}}
+               "motor_time_s": {"identify": 132.0, "learn": 708.0, "all": 840.0}}
     assert final_lines(summary) == [
         "learned: true ripple 0.0900 % of mean torque; 1.00-1.20x its floor",
         "validation: true ripple 0.170 % of mean torque; 1.31-1.31x its floor",
-        "motor time: 14.0 min (identify 2.2, ilc 11.8 min; warm-ups included)"]
+        "motor time: 14.0 min (identify 2.2, learn 11.8 min; warm-ups included)"]
 
 
 @pytest.mark.slow

@@ -62,7 +62,7 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
     assert set(roles[8:-2]) == {"learn"} and 2 <= roles.count("learn") <= 8
     assert roles[-2:] == ["baseline", "validate"]
     assert [r["phase"] for r in records[:6]] == ["identify"] * 6
-    assert {r["phase"] for r in records[8:-2]} == {"ilc"}  # named for the stage that learns
+    assert {r["phase"] for r in records[8:-2]} == {"learn"}  # one name, whatever stage learns
     assert [r["phase"] for r in records[-2:]] == ["validate"] * 2
     assert [(r["torque_setpoint"], r["speed_setpoint"]) for r in records[-2:]] == [(3.0, 0.9)] * 2
     for r in records:

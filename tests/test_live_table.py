@@ -58,7 +58,7 @@ def campaign_records() -> list[TrialRecord]:
     for torque, speed in LEARNED:
         for k in range(10):
             pp = 8e-3 / torque / (k + 1)
-            add("ilc", "learn", torque, speed, pp, 2e-6, 2.39 / torque / pp)
+            add("learn", "learn", torque, speed, pp, 2e-6, 2.39 / torque / pp)
     for torque, speed in VALIDATED:
         add("validate", "baseline", torque, speed, 2.39 / torque, 0.24)
         add("validate", "validate", torque, speed, 2e-3 / torque, 5e-6, 2.39 / 2e-3)
@@ -89,7 +89,7 @@ def test_the_live_table_fits_80_and_100_columns_with_no_cell_or_header_cut(width
     text = render(table, width=width)
     assert_nothing_cut(table, text, width)
     headers = [str(c.header) for c in table.columns]
-    for needed in ("#", "phase", "torque\nN m", "meas pp\n%", "true pp\n%", "reduction\nmeas"):
+    for needed in ("#", "role", "torque\nN m", "meas pp\n%", "true pp\n%", "reduction\nmeas"):
         assert needed in headers
     assert len(headers) < ALL_COLUMNS
     assert re.search(r"│ +1-30 │ grid +│ +1-5 │", text)  # the grid in one row
@@ -165,7 +165,7 @@ def test_no_summary_figure_of_any_size_is_cut_at_80_or_100_columns(rows, width):
     """Per point a baseline and its last trial, learned and validation points alternating."""
     records = []
     for k, (torque, speed, before, after, after_true, f, f_true) in enumerate(rows):
-        phase, role = ("ilc", "learn") if k % 2 else ("validate", "validate")
+        phase, role = ("learn", "learn") if k % 2 else ("validate", "validate")
         records.append(TrialRecord(len(records) + 1, "identify", "baseline", torque, speed, ripple(before, 1.0)))
         records.append(TrialRecord(len(records) + 1, phase, role, torque, speed, ripple(after, 1.0),
                                    ripple(after_true, 1.0), f, f_true))
@@ -232,7 +232,7 @@ def test_summary_json_units_cover_every_number_of_a_trial_a_validation_point_and
 
 def record(index: int, role: str, torque: float, pp: float = 0.01) -> TrialRecord:
     """A trial of SMALL_CAMPAIGN after the grid, at its one learned speed."""
-    phase = {"grid": "identify", "baseline": "identify", "learn": "ilc"}.get(role, role)
+    phase = {"grid": "identify", "baseline": "identify", "learn": "learn"}.get(role, role)
     return TrialRecord(index, phase, role, torque, SMALL_SPEED_HZ, ripple(pp, 1e-3))
 
 

@@ -477,7 +477,7 @@ def test_a_typed_state_writes_the_same_bytes_it_reads(tmp_path):
     """Read back and written again, a state file is byte for byte the one the run wrote: the typed record
     keeps every key, its order and every number."""
     ripple = RippleFigures(0.012, 0.004, 0.001, 0.0035, 1e-3, 2e-4, 3e-4, 1e-5)
-    record = TrialRecord(1, "ilc", "learn", 2.0, 0.9, ripple, ripple, 3.25, 4.5)
+    record = TrialRecord(1, "learn", "learn", 2.0, 0.9, ripple, ripple, 3.25, 4.5)
     table = np.random.default_rng(3).normal(size=CPR) * 1e-3
     state = TrialState(record, {"ilc": {"2@0.9": {"u": table.tolist(), "trials": 2}}, "current-sensor": {}},
                        {"2@0.9": 0.5}, GuardEvent("2@0.9", 1, 0.5), DESCRIPTION.calibration, table, 6, 12345)
@@ -492,6 +492,13 @@ def test_a_typed_state_writes_the_same_bytes_it_reads(tmp_path):
     run.add_trial(trial(2.0), RunFiles(path).read_state(1), {})
     run.close()
     assert (again / "states" / "trial_001.json").read_bytes() == written
+
+
+def test_the_learning_phase_has_one_name_in_records_of_earlier_releases_too():
+    """Earlier releases named the learning phase "ilc" when the ilc stage ran (issue 26, item 6)."""
+    ripple = RippleFigures(0.012, 0.004, 0.001, 0.0035, 1e-3, 2e-4, 3e-4, 1e-5)
+    earlier = {**TrialRecord(9, "learn", "learn", 2.0, 0.9, ripple).to_json(), "phase": "ilc"}
+    assert TrialRecord.from_json(earlier).phase == "learn"
 
 
 @pytest.mark.parametrize("damage", [{"record": None}, {"guard": {"set_point": "1@0.5"}}, {"pipeline": [1]},

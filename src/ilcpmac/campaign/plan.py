@@ -13,14 +13,14 @@ import numpy as np
 
 from ilcpmac.bench.format import check_bench
 from ilcpmac.campaign.grid import grid_plan, grid_requests
-from ilcpmac.campaign.record import Point, TrialRecord
+from ilcpmac.campaign.record import LEARN_PHASE, Point, TrialRecord
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import BenchDescription, TrialRequest
 from ilcpmac.core.seeds import trial_seed
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan, torque_violation, trust_edges
 
-__all__ = ["INDEPENDENT_ROLES", "CampaignPlan", "Step", "learning_phase", "records_at"]
+__all__ = ["INDEPENDENT_ROLES", "CampaignPlan", "Step", "records_at"]
 
 #: roles of trials that neither learn nor depend on learning (the campaign runs them at once)
 INDEPENDENT_ROLES = ("grid", "baseline", "validate")
@@ -40,9 +40,6 @@ def records_at(records: list[TrialRecord], point: Point, roles: tuple[str, ...])
     return [r for r in records if r.role in roles and r.point == point]
 
 
-def learning_phase(stages: tuple[str, ...]) -> str:
-    """The learning phase's name for what runs in it: "ilc" when the ``ilc`` stage does, else "learn"."""
-    return "ilc" if "ilc" in stages else "learn"
 
 
 @dataclass(frozen=True)
@@ -129,11 +126,6 @@ class CampaignPlan:
     def motor_time_s(self) -> float:
         """The motor's running time of the whole plan, s (`bench_time_left` from the start)."""
         return sum(self.bench_time_left([]).values())
-
-    @property
-    def learning_phase(self) -> str:
-        """The learning phase's name (`learning_phase`)."""
-        return learning_phase(self.config.pipeline.stages)
 
     def base_request(self, point: Point, seed: int, revolutions: int | None = None) -> TrialRequest:
         """An uncompensated request at ``point``, with the bench's own calibration, of ``revolutions`` (None: the
@@ -266,7 +258,7 @@ class CampaignPlan:
         learning = {p: n for p, n in counts.items() if p not in finished and n < self.config.campaign.learn_trials}
         if learning:
             point = min(learning, key=learning.__getitem__)  # the first of the fewest: dicts keep the plan's order
-            return self.step(records, self.learning_phase, "learn", point, seed)
+            return self.step(records, LEARN_PHASE, "learn", point, seed)
         for point in self.validated:
             for role in ("baseline", "validate"):
                 if not records_at(records, point, (role,)):

@@ -6,7 +6,12 @@ from dataclasses import dataclass
 
 from ilcpmac.signals.harmonics import RippleFigures
 
-__all__ = ["FIGURE_KEYS", "Point", "TrialRecord", "records_of"]
+__all__ = ["FIGURE_KEYS", "LEARN_PHASE", "Point", "TrialRecord", "records_of"]
+
+#: the learning phase's name, whatever stages learn in it
+LEARN_PHASE = "learn"
+#: its name in records of earlier releases when the ``ilc`` stage ran
+_EARLIER_LEARN_PHASE = "ilc"
 
 #: an operating point: (torque set point N m, speed set point Hz)
 Point = tuple[float, float]
@@ -36,8 +41,8 @@ class TrialRecord:
     index : int
         1-based, in the order trials ran.
     phase : str
-        "identify", "compensate", the learning phase ("ilc" when the ilc stage runs, else "learn") or
-        "validate".
+        "identify", "compensate", "learn" or "validate" (records of earlier releases that named the learning
+        phase "ilc" are read as "learn").
     role : str
         "grid", "baseline" (uncompensated, at a learned or a validation point), "compensate", "learn" or
         "validate" (the final compensation, no learning).
@@ -99,8 +104,9 @@ class TrialRecord:
     @classmethod
     def from_json(cls, data: dict) -> TrialRecord:
         """The record `to_json` wrote."""
-        return cls(int(data["index"]), str(data["phase"]), str(data["role"]), float(data["torque_setpoint"]),
-                   float(data["speed_setpoint"]), _figures_from_json("measured", data),
+        phase = str(data["phase"])
+        return cls(int(data["index"]), LEARN_PHASE if phase == _EARLIER_LEARN_PHASE else phase, str(data["role"]),
+                   float(data["torque_setpoint"]), float(data["speed_setpoint"]), _figures_from_json("measured", data),
                    _figures_from_json("true", data), data.get("reduction_factor"), data.get("reduction_factor_true"),
                    data.get("motor_time_s"))
 

@@ -56,7 +56,7 @@ from ilcpmac.campaign.events import (
 )
 from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
 from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
-from ilcpmac.campaign.record import FIGURE_KEYS, Point, TrialRecord
+from ilcpmac.campaign.record import FIGURE_KEYS, LEARN_PHASE, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir, RunDirError
 from ilcpmac.campaign.state import LearnedPoint, TrialState
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
@@ -522,7 +522,7 @@ class CampaignRunner:
                                              fade_out(self._results()))
             self.run_dir.write_learned(self._learned_points())
             self.run_dir.write_compensation(self.compensation.to_json())
-            self.events.message(CompensationWritten(self.plan.learning_phase, len(torques), len(speeds),
+            self.events.message(CompensationWritten(LEARN_PHASE, len(torques), len(speeds),
                                                     self.run_dir.files.compensation.name))
         return self.compensation
 

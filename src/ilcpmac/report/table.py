@@ -71,7 +71,7 @@ def _figure(header: str, rank: int, kind: str, name: str, scale: float) -> _Colu
 #: the live table's columns in display order; ripple in % of mean torque, amplitudes in mN m
 _COLUMNS = (
     _Column("#", 0, _index),
-    _Column("phase", 0, lambda rows: rows[0].role, "left"),
+    _Column("role", 0, lambda rows: rows[0].role, "left"),
     _Column("torque\nN m", 0, lambda rows: _span([r.torque_setpoint_nm for r in rows])),
     _Column("speed\nHz", 1, lambda rows: _span([r.speed_setpoint_hz for r in rows])),
     _figure("meas pp\n%", 0, "measured", "pp", 100),
