@@ -96,11 +96,16 @@ def busy_s() -> float:
     return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
 
 
+def python_path(tree: Path) -> str:
+    """The folder of ``tree`` that holds the package: src/ in a src layout, the tree itself before."""
+    return str(tree / "src" if (tree / "src" / "ilcpmac").is_dir() else tree)
+
+
 def ilcpmac(tree: Path, args: list[str], cache: Path, bytecode: Path | None) -> tuple[float, float]:
     """Run ``ilcpmac ARGS`` from the source tree ``tree`` with the numba cache ``cache`` and Python's bytecode
     cache under ``bytecode`` (None: as this environment runs Python); return its wall time and the CPU time
     other processes used meanwhile, s."""
-    env = dict(os.environ, PYTHONPATH=str(tree), NUMBA_CACHE_DIR=str(cache))
+    env = dict(os.environ, PYTHONPATH=python_path(tree), NUMBA_CACHE_DIR=str(cache))
     if bytecode is not None:
         env.pop("PYTHONDONTWRITEBYTECODE", None)
         env["PYTHONPYCACHEPREFIX"] = str(bytecode)
@@ -163,8 +168,9 @@ def prepare(subject: Subject) -> tuple[dict, dict]:
     code = ("import sys; from ilcpmac.bench.format import convert_bench; "
             "convert_bench(sys.argv[1], sys.argv[2], '.parquet')")
     converted = work / "bench-parquet"
-    has_parquet = subprocess.run([sys.executable, "-c", code, str(bench), str(converted)], cwd=tree,
-                                 env=dict(os.environ, PYTHONPATH=str(tree)), capture_output=True).returncode == 0
+    env = dict(os.environ, PYTHONPATH=python_path(tree))
+    has_parquet = subprocess.run([sys.executable, "-c", code, str(bench), str(converted)], cwd=tree, env=env,
+                                 capture_output=True).returncode == 0
     figures, commands = {"label": subject.label, "bench": {}}, {}
     for kind, folder in (("CSV", bench), ("Parquet", converted if has_parquet else None)):
         if folder is not None:

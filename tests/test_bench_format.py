@@ -375,34 +375,35 @@ def test_csv_to_parquet_and_back_gives_the_same_files(tmp_path, small_simulator,
                   None, tuple(trials), ("sub/t.csv",))
     write_bench(tmp_path / "csv", bench)
     convert_bench(tmp_path / "csv", tmp_path / "parquet", ".parquet")
+    # every column of a simulated trial, noise in most: doubles take about half the CSV's bytes
     assert (tmp_path / "parquet" / "sub" / "t.parquet").stat().st_size < (tmp_path / "csv" / "sub" / "t.csv").stat(
-        ).st_size / 4
+        ).st_size * 0.6
     convert_bench(tmp_path / "parquet", tmp_path / "back", ".csv")
     for name in ("bench.toml", "backemf.csv", "sub/t.csv"):
         assert (tmp_path / "back" / name).read_bytes() == (tmp_path / "csv" / name).read_bytes(), name
 
 
-def test_parquet_trials_are_int64_decimals_every_reader_takes_as_decimals(tmp_path):
-    """Required DECIMAL(18, d) in INT64 as docs/bench-format.md says, without an Arrow schema that would name the
-    decimal64 the writer hands over: Arrow reads decimal128, as it always has."""
+def test_parquet_trials_are_doubles_every_reader_takes_as_float64(tmp_path):
+    """Required DOUBLE columns (count: INT64, no logical type) as docs/bench-format.md says, without an Arrow
+    schema: Arrow reads float64 and int64, and the numbers are the CSV's."""
     folder = write_folder(tmp_path / "csv")
     convert_bench(folder, tmp_path / "parquet", ".parquet")
     path = tmp_path / "parquet" / "trial_01.parquet"
     f = pq.ParquetFile(path)
     columns = {f.schema.column(i).name: f.schema.column(i) for i in range(len(f.schema))}
     assert columns["count"].physical_type == "INT64" and columns["count"].logical_type.type == "NONE"
-    for name, scale in (("time", 7), ("i_ref_a", 6), ("torque", 6)):
-        assert (columns[name].physical_type, columns[name].logical_type.type) == ("INT64", "DECIMAL")
-        assert (columns[name].precision, columns[name].scale) == (18, scale)
-        assert f.schema_arrow.field(name).type == pa.decimal128(18, scale)
+    assert f.schema_arrow.field("count").type == pa.int64()
+    for name in ("time", "i_ref_a", "i_ref_b", "i_ref_c", "torque"):
+        assert (columns[name].physical_type, columns[name].logical_type.type) == ("DOUBLE", "NONE")
+        assert f.schema_arrow.field(name).type == pa.float64()
     assert all(column.max_definition_level == 0 for column in columns.values())  # required: never null
     assert b"ARROW:schema" not in (f.metadata.metadata or {})
     assert_trials_equal(read_bench(tmp_path / "parquet").trials[0], read_bench(folder).trials[0])
 
 
-@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf, 1e12, -1e12])
-def test_parquet_writer_refuses_what_18_digits_cannot_hold(value):
-    with pytest.raises(ValueError, match=r"^cannot write NaN, infinite values or values beyond 18 digits$"):
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_parquet_writer_refuses_nan_and_infinite_values(value):
+    with pytest.raises(ValueError, match=r"^cannot write NaN or infinite values$"):
         parquet.table_bytes(["count", "x"], [np.arange(3), np.array([0.5, value, 1.0])], [0, 6])
 
 

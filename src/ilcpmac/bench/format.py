@@ -70,6 +70,9 @@ def _column_names(prefix: str, width: int) -> list[str]:
 #: every column a reader takes from a trial file
 _KNOWN_COLUMNS = frozenset(TRIAL_COLUMNS + tuple(
     n for prefix, (_, width) in EXTRA_COLUMNS.items() for n in _column_names(prefix, width)))
+#: the unit of every column a trial file may have (docs/bench-format.md), by the unit of its TrialData attribute
+COLUMN_UNITS = {name: {"count": "encoder count (unwrapped)", "time": "s", "torque": "N m", "speed_true": "rad/s"}.get(
+    name, "N m" if name.startswith("torque") else "A") for name in sorted(_KNOWN_COLUMNS)}
 #: the TrialData attribute of each quantity of three phases and its file columns
 _PHASE_COLUMNS = {"i_ref_a": [f"i_ref_{ph}" for ph in _PHASES]} | {
     attr: _column_names(prefix, width) for prefix, (attr, width) in EXTRA_COLUMNS.items() if width == 3}
@@ -718,6 +721,12 @@ def _trial_table(trial: TrialData) -> tuple[list[str], list[np.ndarray], list[in
     return header, columns, decimals
 
 
+def file_columns(trial: TrialData) -> dict[str, np.ndarray]:
+    """The columns of ``trial`` as its file names them (units: `COLUMN_UNITS`), each 1-D."""
+    header, columns, _ = _trial_table(trial)
+    return dict(zip(header, columns))
+
+
 def write_trial(path: Path, trial: TrialData) -> None:
     """Write one trial file atomically: Parquet when its name ends in .parquet, else CSV; both hold the
     same numbers (`as_written`), with the simulator's extra columns when present."""
@@ -735,18 +744,13 @@ def write_trial_csv(path: Path, trial: TrialData) -> None:
 def as_written(trial: TrialData) -> TrialData:
     """``trial`` exactly as `write_trial` then `read_trial` would give it back, in either format.
 
-    Each value v becomes round(v 10^d) / 10^d, the double nearest to its
-    d-decimal text (CSV) or decimal (Parquet), so a campaign that learns from
-    this and one resumed from the files learn from identical numbers.
+    Each value v becomes round(v 10^d) / 10^d (`parquet.rounded`), the double
+    nearest to its d-decimal text, which the CSV holds and the Parquet file
+    stores, so a campaign that learns from this and one resumed from the files
+    learn from identical numbers.
     """
-    changes = {}
-    for _, attr, d in _trial_columns(trial):
-        if attr != "count":
-            scale = 10.0**d
-            value = getattr(trial, attr) * scale  # the one new array; the rest in place
-            np.rint(value, out=value)  # np.round to 0 decimals, half to even
-            value /= scale
-            changes[attr] = value
+    changes: dict = {attr: parquet.rounded(getattr(trial, attr), d) for _, attr, d in _trial_columns(trial)
+                     if attr != "count"}
     return replace(trial, **changes)
 
 

@@ -1,10 +1,12 @@
-"""Trial files in Parquet (docs/bench-format.md): the trial CSV's columns and numbers, a tenth of its bytes.
+"""Trial files in Parquet (docs/bench-format.md): the trial CSV's columns and numbers, as float64 columns.
 
-Each value is stored as the CSV writes it, a decimal with a fixed number of
-decimals: Parquet DECIMAL(18, d) in 64-bit integers, delta-encoded and
-zstd-compressed. Reading a Parquet trial therefore gives exactly the doubles
-reading its CSV gives. pandas, polars, DuckDB and Arrow read the file as it
-is (decimals as decimal numbers).
+Each value is stored as the double the CSV's text of it parses to (the value
+rounded to the column's decimals, `rounded`): a Parquet DOUBLE (``count``: an
+INT64), so pandas, polars and Arrow read every column as float64 (int64) with
+no conversion, and reading a Parquet trial gives exactly the doubles reading
+its CSV gives. Each column is zstd-compressed in the encoding `_encoding`
+picks for it (a dictionary, byte-stream-split or plain). Files of earlier
+versions store DECIMAL(18, d) columns, which read as before.
 """
 
 from __future__ import annotations
@@ -19,60 +21,81 @@ import pyarrow.parquet as pq
 from ilcpmac.core.errors import BenchFormatError
 
 SUFFIX = ".parquet"
-#: decimal digits of a stored decimal (its 64-bit integer holds any value the CSV writer accepts up to 9e17)
+#: decimal digits a DECIMAL column (files of earlier versions, other writers) may have: a 64-bit integer's
 PRECISION = 18
 #: bytes a numeric column may take per row once decompressed (a 16-byte decimal), and per column chunk besides
 _COLUMN_ROW_BYTES = 16
 _COLUMN_SLACK_BYTES = 1 << 20
-#: integers up to this magnitude are exact in a double (2^53)
-_EXACT = 2**53
+#: zstd's level for every column (docs/bench-format.md: sizes and times at other levels)
+ZSTD_LEVEL = 4
+#: a float column whose distinct values number at most this share of its rows is dictionary-encoded
+_DICTIONARY_SHARE = 0.5
+#: the encodings tried for any other float column, on its first _SAMPLE_ROWS values
+_ENCODINGS = ("BYTE_STREAM_SPLIT", "PLAIN")
+_SAMPLE_ROWS = 16384
+#: `_file`'s name for a dictionary (Parquet's RLE_DICTIONARY, with a PLAIN dictionary page)
+DICTIONARY = "RLE_DICTIONARY"
 
 
-def _scaled(values: np.ndarray, d: int) -> np.ndarray:
-    """round(``values`` 10^d) (half to even, through a double) as int64; int64 values at d = 0 that a double
-    holds exactly as they are.
+def rounded(values: np.ndarray, d: int) -> np.ndarray:
+    """round(``values`` 10^d) / 10^d (half to even, through a double) as a new float64 array: each value the
+    double nearest to its text with ``d`` decimals, the number the CSV writer writes and its reader reads."""
+    scale = 10.0**d
+    out = np.multiply(values, scale, dtype=np.float64)
+    np.rint(out, out=out)
+    out /= scale
+    return out
 
-    Raises
-    ------
-    ValueError
-        For a non-finite value or one beyond 18 digits at ``d`` decimals.
-    """
-    if d == 0 and values.dtype == np.int64 and values.size and -_EXACT <= values.min() and values.max() <= _EXACT:
-        return np.ascontiguousarray(values)
-    scaled = np.multiply(values, 10.0**d, dtype=np.float64)
-    np.rint(scaled, out=scaled)
-    if scaled.size and not (-(10.0**PRECISION) < scaled.min() and scaled.max() < 10.0**PRECISION):
-        raise ValueError("cannot write NaN, infinite values or values beyond 18 digits")
-    return scaled.astype(np.int64)
+
+def _file(header: list[str], arrays: list[pa.Array], encodings: list[str]) -> bytes:
+    """A Parquet file of ``arrays``, column c named ``header[c]`` in the encoding ``encodings[c]`` (DICTIONARY:
+    a dictionary), zstd-compressed, required (no value is ever null, so no definition levels), without statistics
+    (no reader of a trial filters on them) and without an Arrow schema (a reader needs none)."""
+    schema = pa.schema([pa.field(name, array.type, nullable=False) for name, array in zip(header, arrays)])
+    sink = pa.BufferOutputStream()
+    pq.write_table(pa.Table.from_arrays(arrays, schema=schema), sink, compression="zstd",
+                   compression_level=ZSTD_LEVEL,
+                   use_dictionary=[name for name, e in zip(header, encodings) if e == DICTIONARY],
+                   column_encoding={name: e for name, e in zip(header, encodings) if e != DICTIONARY},
+                   store_schema=False, write_statistics=False)
+    return sink.getvalue().to_pybytes()
+
+
+def _encoding(name: str, array: pa.Array, values: np.ndarray) -> str:
+    """The encoding of the float64 column ``values`` (``array`` over it): a dictionary when its values repeat
+    (at most `_DICTIONARY_SHARE` of them distinct), else whichever of byte-stream-split and plain makes the smaller
+    file of its first `_SAMPLE_ROWS` values (byte-stream-split for a slowly changing value, plain for noise about
+    zero, whose sign and exponent change from row to row)."""
+    if values.size and np.unique(values).size <= _DICTIONARY_SHARE * values.size:
+        return DICTIONARY
+    sample = array.slice(0, _SAMPLE_ROWS)
+    return min(_ENCODINGS, key=lambda e: len(_file([name], [sample], [e])))
 
 
 def table_bytes(header: list[str], columns: list[np.ndarray], decimals: list[int]) -> bytes:
-    """A Parquet file holding ``columns`` (1-D), column c as a decimal rounded to ``decimals[c]`` decimals.
+    """A Parquet file holding ``columns`` (1-D), column c rounded to ``decimals[c]`` decimals (`rounded`).
 
-    A column of 0 decimals is stored as int64. The decimals reach the writer as
-    Arrow decimal64 over the scaled int64 values themselves (no copy: decimal128
-    costs the writer as much again to narrow to int64), and the Arrow schema is
-    not stored, so every reader sees the file's DECIMAL(18, d) as it always has
-    (Arrow: decimal128). Columns are required (no value is ever null, so no
-    definition levels), and carry no statistics (no reader of a trial filters
-    on them).
+    A column of integers is stored as it is, as INT64 (delta-encoded), any
+    other as DOUBLE in the encoding `_encoding` picks: the doubles the CSV's
+    text gives, which any reader gives back bit for bit, as float64.
 
     Raises
     ------
     ValueError
-        For a non-finite value or one beyond 18 digits at its decimals.
+        For a NaN or infinite value.
     """
-    fields, arrays = [], []
+    arrays, encodings = [], []
     for name, values, d in zip(header, columns, decimals):
-        ints = _scaled(values, d)
-        arrays.append(pa.array(ints) if d == 0 else
-                      pa.Array.from_buffers(pa.decimal64(PRECISION, d), ints.size, [None, pa.py_buffer(ints)]))
-        fields.append(pa.field(name, arrays[-1].type, nullable=False))
-    sink = pa.BufferOutputStream()
-    pq.write_table(pa.Table.from_arrays(arrays, schema=pa.schema(fields)), sink, compression="zstd",
-                   use_dictionary=False, store_decimal_as_integer=True, column_encoding="DELTA_BINARY_PACKED",
-                   store_schema=False, write_statistics=False)
-    return sink.getvalue().to_pybytes()
+        if values.dtype.kind in "iu":
+            arrays.append(pa.array(values, pa.int64()))
+            encodings.append("DELTA_BINARY_PACKED")
+            continue
+        values = rounded(values, d)
+        if values.size and not (np.isfinite(values.min()) and np.isfinite(values.max())):
+            raise ValueError("cannot write NaN or infinite values")
+        arrays.append(pa.array(values))
+        encodings.append(_encoding(name, arrays[-1], values))
+    return _file(header, arrays, encodings)
 
 
 def _one_line(e: Exception) -> str:
