@@ -75,26 +75,26 @@ def reproduction_figures(result: IdentificationResult, truth: dict) -> dict[str,
     """Our figures of the report's ch. 2-4 (`ilcpmac.identify.plots`) with the report's numbers and the truth
     drawn on them, by file name."""
     figures = build_figures(result, SIGNAL_FIGURES | IDENTIFICATION_FIGURES)
-    if "fig2_5_harmonic_response_fit" in figures:
-        top = figures["fig2_5_harmonic_response_fit"].axes[0]
+    if "system_gain_fitted_harmonics" in figures:
+        top = figures["system_gain_fitted_harmonics"].axes[0]
         _mark(top, REPORT["delta_epsilon"], f"report (fig. 2.5): delta*eps = {REPORT['delta_epsilon']}", REPORT_STYLE)
         _mark(top, truth["total_system_gain"], f"truth: delta*eps = {truth['total_system_gain']:.4f}", TRUTH_STYLE)
-    if "fig3_3_inertia_per_setpoint" in figures:
-        axis = figures["fig3_3_inertia_per_setpoint"].axes[0]
+    if "inertia_per_setpoint" in figures:
+        axis = figures["inertia_per_setpoint"].axes[0]
         _mark(axis, REPORT["inertia_mean_fig"],
               f"report (fig. 3.3): J_mean = {REPORT['inertia_mean_fig']} kg m², sigma = 2.4 %", REPORT_STYLE)
         _mark(axis, truth["inertia_estimate"], f"truth: delta J = {truth['inertia_estimate']:.5f} kg m²",
               TRUTH_STYLE)
-    if "fig4_2_cogging_per_setpoint" in figures:
-        axis = figures["fig4_2_cogging_per_setpoint"].axes[0]
+    if "cogging_per_setpoint" in figures:
+        axis = figures["cogging_per_setpoint"].axes[0]
         cogging = np.asarray(truth["cogging"]["torque"])
         motor = result.details.tables.motor
         counts = np.arange(motor.counts_per_rev // motor.pole_pairs)
         axis.plot(plotting.mechanical_degrees(counts, motor.counts_per_rev), cogging[counts], label="truth",
                   **TRUTH_STYLE)
         plotting.legend(axis, ncol=2)
-    if "fig4_3_cogging_error" in figures:
-        axis = figures["fig4_3_cogging_error"].axes[0]
+    if "cogging_spread_per_setpoint" in figures:
+        axis = figures["cogging_spread_per_setpoint"].axes[0]
         peak = 100 * REPORT["cogging_error_peak"]
         _mark(axis, peak, f"report (sec. 4.1): peaks up to {peak:g} %", REPORT_STYLE)
         axis.axhline(-peak, **REPORT_STYLE)
@@ -170,7 +170,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 2.1: torque references",
         "",
-        _figure("fig2_1_torque_reference", "fig. 2.1"),
+        _figure("torque_reference", "fig. 2.1"),
         f"Agrees: {len(torques)} torque set points from {torques[0]:g} to {torques[-1]:g} N m with induced "
         f"harmonics on top, used at {len(speeds)} equally spaced speeds from {speeds[0]:g} to {speeds[-1]:g} Hz "
         "(report, sec. 2.4); differs: ours is the torque the references ask for, sum_p K_p I*_p, from the "
@@ -179,7 +179,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 2.2: current references",
         "",
-        _figure("fig2_2_current_reference", "fig. 2.2"),
+        _figure("current_references", "fig. 2.2"),
         "Agrees: three phase references per torque set point, shaped by the back-EMF and computed with the "
         "controller's initial calibration (G*_s, o*_s, as in the report); differs in amplitude and shape because "
         f"the seed bench's back-EMF ({model.backemf.amplitudes_nm_per_a[0]:g} N m/A fundamental with harmonics "
@@ -187,7 +187,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 2.3: measured torque ripple",
         "",
-        _figure("fig2_3_measured_ripple", "fig. 2.3"),
+        _figure("measured_ripple_per_setpoint", "fig. 2.3"),
         f"Agrees: the ripple of all {len(trials)} set points, scaled with the initial torque-sensor gain and "
         f"dominated by the cogging harmonic ({motor.cogging_order} per revolution); ours spans "
         f"{ripple_pp.min():.2f} to {ripple_pp.max():.2f} N m peak to peak over a revolution, within the report's "
@@ -197,7 +197,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 2.4: frequency response and coherence, all harmonics",
         "",
-        _figure("fig2_4_harmonic_response", "fig. 2.4"),
+        _figure("system_gain_all_harmonics", "fig. 2.4"),
         "Agrees: |H| is about constant apart from peaks, and the largest peaks are at multiples of the "
         f"{motor.pole_pairs} pole pairs (ours, largest first: harmonics {_list(peaks)}), the "
         "current sensors' offsets and scale errors and the cogging, as the report says; differs: ours also peaks "
@@ -206,7 +206,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 2.5: the constant fit, delta*eps",
         "",
-        _figure("fig2_5_harmonic_response_fit", "fig. 2.5"),
+        _figure("system_gain_fitted_harmonics", "fig. 2.5"),
         "| | report | ours (report's method) | joint fit | truth |",
         "|---|---|---|---|---|",
         f"| delta*eps | {REPORT['delta_epsilon']} (fig. 2.5; 0.56 in sec. 2.4) | {report.delta_epsilon:.5f} "
@@ -230,7 +230,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 3.1: torque over angular velocity and coherence",
         "",
-        _figure("fig3_1_torque_speed_response", "fig. 3.1"),
+        _figure("torque_over_speed_response", "fig. 3.1"),
         "Agrees: the magnitude is flat at low frequencies and rises one decade per decade above the corner "
         f"b*/(2 pi J*) ({corner_hz.min():.1f} to {corner_hz.max():.1f} Hz over the set points, as the eddy-current "
         "brake's b* changes), the two regimes of eq. (3.2) (the report gives the slope as -1 between about 10 and "
@@ -243,7 +243,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 3.2: least-squares fit of J* s + b*",
         "",
-        _figure("fig3_2_inertia_fit", "fig. 3.2"),
+        _figure("inertia_fit", "fig. 3.2"),
         "Agrees: J* s + b* follows every set point's response (the report fitted it with frsfit, ours by weighted "
         "least squares over the harmonics with coherence of at least 0.8); differs only in direction (the report's "
         "slope is -1 and its phase lies between 0 and -90 deg, ours is tau*_m / omega with slope +1 and phase "
@@ -252,7 +252,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 3.3: J* per set point",
         "",
-        _figure("fig3_3_inertia_per_setpoint", "fig. 3.3"),
+        _figure("inertia_per_setpoint", "fig. 3.3"),
         "| | report | ours (report's method) | joint fit | truth (delta J) |",
         "|---|---|---|---|---|",
         f"| J* (kg m²) | {REPORT['inertia_mean_fig']} (fig. 3.3), {REPORT['inertia_text']} (sec. 3.2) | "
@@ -292,7 +292,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 4.1: decoupling of the pulsating torque",
         "",
-        _figure("fig4_1_decoupling", "fig. 4.1"),
+        _figure("ripple_split_currents_cogging", "fig. 4.1"),
         f"Agrees: for a representative set point ({trials[k].torque_setpoint_nm:g} N m at "
         f"{trials[k].speed_setpoint_hz:g} Hz) the measured torque splits into X y and a residual z whose cogging "
         "harmonics are the cogging torque, with a small rest (RMS over a revolution: tau*_p "
@@ -305,7 +305,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 4.2: cogging torque per set point",
         "",
-        _figure("fig4_2_cogging_per_setpoint", "fig. 4.2"),
+        _figure("cogging_per_setpoint", "fig. 4.2"),
         "Agrees: one cogging curve per set point over one electrical revolution, close to each other, with a peak "
         f"of {np.abs(cogging.mean(axis=0)).max():.3f} N m for their mean against {np.abs(true_cogging).max():.3f} "
         "N m true (the report's axis spans about ±0.6 N m); differs: the report sees two periods per electrical "
@@ -315,7 +315,7 @@ def reproduction_markdown(result: IdentificationResult, truth: dict, model: Moto
         "",
         "### Figure 4.3: cogging torque error per set point",
         "",
-        _figure("fig4_3_cogging_error", "fig. 4.3"),
+        _figure("cogging_spread_per_setpoint", "fig. 4.3"),
         f"Agrees: each set point deviates from the mean by a few per cent, the report's peaks reaching "
         f"{100 * REPORT['cogging_error_peak']:.0f} % and ours {error.max():.1f} %; differs: ours is largest at the "
         f"largest torque ({', '.join(f'{e:.1f} % at {t:g} N m' for t, e in error_per_torque.items())}) because "

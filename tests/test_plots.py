@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from identify_helpers import identified, other_bench
+from matplotlib.collections import LineCollection, PolyCollection
 from PIL import Image
 
 from ilcpmac import plotting
@@ -97,7 +98,7 @@ def test_identification_figures_have_units_and_legends(figures, name):
 def test_lines_of_many_set_points_are_grouped_by_torque(small, figures):
     """Fig. 4.2 draws one line per set point (6) and names the 3 torque set points once each."""
     result, _ = small
-    axis = figures["fig4_2_cogging_per_setpoint"].axes[0]
+    axis = figures["cogging_per_setpoint"].axes[0]
     texts = [t.get_text() for t in axis.get_legend().get_texts()]
     torques = sorted({t.torque_setpoint_nm for t in result.details.tables.trials})
     assert len(_data_lines(axis)) == len(result.details.tables.trials) + 1
@@ -108,8 +109,8 @@ def test_positions_are_in_mechanical_degrees(small, figures):
     """Figs. 4.1-4.3 and 2.1-2.3 span one electrical revolution: 360 / pole pairs degrees, not counts."""
     result, _ = small
     span = 360.0 / result.details.tables.motor.pole_pairs
-    for name in ("fig2_1_torque_reference", "fig2_3_measured_ripple", "fig4_1_decoupling",
-                 "fig4_2_cogging_per_setpoint", "fig4_3_cogging_error"):
+    for name in ("torque_reference", "measured_ripple_per_setpoint", "ripple_split_currents_cogging",
+                 "cogging_per_setpoint", "cogging_spread_per_setpoint"):
         axis = figures[name].axes[-1]
         assert axis.get_xlabel() == plotting.ANGLE_LABEL
         assert axis.get_xlim() == (0.0, span)
@@ -125,11 +126,11 @@ def test_reproduction_figures_show_the_reports_numbers_and_the_truth(reproductio
     def legend_text(name: str, index: int = 0) -> str:
         return " ".join(t.get_text() for t in reproduction[name].axes[index].get_legend().get_texts())
 
-    assert "report (fig. 2.5): delta*eps = 0.56285" in legend_text("fig2_5_harmonic_response_fit")
-    assert "truth" in legend_text("fig2_5_harmonic_response_fit")
-    assert "report (fig. 3.3): J_mean = 0.00821" in legend_text("fig3_3_inertia_per_setpoint")
-    assert "truth" in legend_text("fig4_2_cogging_per_setpoint")
-    assert "up to 8 %" in legend_text("fig4_3_cogging_error")
+    assert "report (fig. 2.5): delta*eps = 0.56285" in legend_text("system_gain_fitted_harmonics")
+    assert "truth" in legend_text("system_gain_fitted_harmonics")
+    assert "report (fig. 3.3): J_mean = 0.00821" in legend_text("inertia_per_setpoint")
+    assert "truth" in legend_text("cogging_per_setpoint")
+    assert "up to 8 %" in legend_text("cogging_spread_per_setpoint")
 
 
 def test_the_committed_reproduction_shows_every_figure_and_table_of_chapters_2_to_4():
@@ -146,14 +147,14 @@ def test_the_committed_reproduction_shows_every_figure_and_table_of_chapters_2_t
 
 @pytest.mark.parametrize("fmt", plotting.FORMATS)
 def test_save_writes_each_format(tmp_path, figures, fmt):
-    path = plotting.save(figures["fig3_3_inertia_per_setpoint"], tmp_path / "fig", fmt)
+    path = plotting.save(figures["inertia_per_setpoint"], tmp_path / "fig", fmt)
     assert path == tmp_path / f"fig.{fmt}"
     magic = {"png": b"\x89PNG", "svg": b"<?xml", "pdf": b"%PDF"}[fmt]
     assert path.read_bytes().startswith(magic)
 
 
 def test_a_compact_png_has_a_small_palette(tmp_path, figures):
-    fig = figures["fig4_3_cogging_error"]
+    fig = figures["cogging_spread_per_setpoint"]
     full = plotting.save(fig, tmp_path / "full", "png")
     compact = plotting.save(fig, tmp_path / "compact", "png", compact=True)
     with Image.open(compact) as image:
@@ -164,7 +165,7 @@ def test_a_compact_png_has_a_small_palette(tmp_path, figures):
 
 def test_an_unknown_format_is_one_line_naming_the_file(tmp_path, figures):
     with pytest.raises(plotting.PlotError, match=r"fig: unknown figure format 'jpg' \(one of png, svg, pdf\)$"):
-        plotting.save(figures["fig3_3_inertia_per_setpoint"], tmp_path / "fig", "jpg")
+        plotting.save(figures["inertia_per_setpoint"], tmp_path / "fig", "jpg")
 
 
 def test_cli_writes_the_figures_in_the_format_asked(tmp_path):
@@ -225,8 +226,8 @@ def report_figures(run_report):
 
 
 #: SMALL_CAMPAIGN's figures: per learned point (2 and 4 N m at 0.9 Hz), and the operating range
-REPORT_FIGURES = ["ripple_per_trial", "before_after_2Nm_0.9Hz", "before_after_4Nm_0.9Hz", "operating_range",
-                  "learned_2Nm_0.9Hz", "learned_4Nm_0.9Hz"]
+REPORT_FIGURES = ["ripple_per_trial", "before_after_2Nm_0.9Hz", "before_after_4Nm_0.9Hz", "before_after_3Nm_0.9Hz",
+                  "operating_range", "learned_2Nm_0.9Hz", "learned_4Nm_0.9Hz"]
 
 
 def _legend_texts(axis) -> list[str]:
@@ -249,7 +250,7 @@ def test_ripple_per_trial_marks_set_points_and_phases(run_report, report_figures
     assert axis.get_yscale() == "log"
     texts = _legend_texts(axis)
     assert {"2 N m set point", "3 N m set point", "4 N m set point", "measured", "true (simulator)"} <= set(texts)
-    assert [t.get_text() for t in axis.texts] == ["identify", "compensate", "ilc", "validate"]
+    assert [t.get_text() for t in axis.texts] == ["identify", "compensate", "learn", "validate"]
     assert len(axis.patches) == 4  # one band per phase
     markers = {(line.get_marker(), tuple(line.get_color())) for line in _data_lines(axis)
                if line.get_marker() != "None"}
@@ -264,7 +265,7 @@ def test_ripple_per_trial_phase_names_do_not_overlap():
     from ilcpmac.report.plots import ripple_per_trial
     from ilcpmac.signals.harmonics import RippleFigures
 
-    runs = [("identify", 39), ("compensate", 9), ("ilc", 53), ("validate", 12)]
+    runs = [("identify", 39), ("compensate", 9), ("learn", 53), ("validate", 12)]
     phases = [phase for phase, n in runs for _ in range(n)]
     ripple = RippleFigures(0.01, *(1e-3,) * 7)
     records = [TrialRecord(i, phase, "learn", 1.0, 0.5, ripple, ripple) for i, phase in enumerate(phases, 1)]
@@ -280,31 +281,105 @@ def test_ripple_per_trial_phase_names_do_not_overlap():
             assert not box.overlaps(other_box), (name, other)
 
 
+def _spectrum_panels(fig) -> list:
+    return [axis for axis in fig.axes if axis.get_xlabel() == plotting.HARMONIC_LABEL]
+
+
 def test_before_after_shows_measured_and_true_torque_over_one_revolution(report_figures):
     fig = report_figures["before_after_2Nm_0.9Hz"]
-    top, middle, spectrum = fig.axes
-    for axis, when in ((top, "uncompensated"), (middle, "final")):
-        assert axis.get_title().startswith(f"2 N m at 0.9 Hz, {when} (trial ")
+    top, middle, sensor, true = fig.axes
+    assert fig.get_suptitle().startswith("2 N m at 0.9 Hz, learned point: ")
+    for axis, when in ((top, "uncompensated"), (middle, "compensated")):
+        assert axis.get_title().startswith(f"{when} (trial ")
         assert axis.get_ylabel() == "torque (mN m)"
         assert axis.get_xlabel() == plotting.ANGLE_LABEL and axis.get_xlim() == (0.0, 360.0)
         assert _legend_texts(axis) == ["torque sensor", "true"]
-    assert spectrum.get_xlabel() == "harmonic (per mechanical revolution)"
-    assert spectrum.get_ylabel() == "amplitude (mN m)" and spectrum.get_yscale() == "log"
-    assert _legend_texts(spectrum) == ["uncompensated, torque sensor", "uncompensated, true",
-                                       "final, torque sensor", "final, true"]
+    for axis, kind in ((sensor, "torque sensor"), (true, "true")):
+        assert axis.get_xlabel() == "harmonic (per mechanical revolution)"
+        assert axis.get_ylabel() == "amplitude (mN m)" and axis.get_yscale() == "log"
+        assert kind in axis.get_title()
+        assert _legend_texts(axis) == ["uncompensated", "compensated", "noise of the compensated trial (1 std. error)"]
 
 
-def test_learned_shows_each_stage_per_point_as_spectrum_and_over_a_cogging_period(run_report, report_figures):
-    motor = run_report.description.motor
+def test_spectra_are_stems_with_no_line_from_one_harmonic_to_the_next(report_figures):
+    """Every spectrum (before/after and learned) draws each harmonic as a stem or a dot: no line joins adjacent
+    harmonics, and the series drawn first is the wider, so the one over it leaves it visible."""
+    for name in ("before_after_2Nm_0.9Hz", "learned_2Nm_0.9Hz"):
+        for axis in _spectrum_panels(report_figures[name]):
+            for line in _data_lines(axis):
+                assert line.get_linestyle() == "None", (name, line.get_label())
+            stems = [c for c in axis.collections if isinstance(c, LineCollection)]
+            assert len(stems) == 2, name
+            widths = [float(c.get_linewidth()[0]) for c in stems]
+            assert widths[0] > widths[1], name
+            for collection in stems:
+                for segment in collection.get_segments():
+                    assert segment[0, 0] == segment[1, 0], name  # vertical: one harmonic each
+
+
+def test_before_after_spectra_show_the_compensated_trials_noise_as_a_band(report_figures):
+    for axis in _spectrum_panels(report_figures["before_after_2Nm_0.9Hz"]):
+        bands = [c for c in axis.collections if isinstance(c, PolyCollection)]
+        assert [b.get_label() for b in bands] == ["noise of the compensated trial (1 std. error)"]
+
+
+def test_validation_points_have_their_before_and_after(run_report, report_figures):
+    """The validation point (3 N m at 0.9 Hz): its baseline trial against its validation trial."""
+    fig = report_figures["before_after_3Nm_0.9Hz"]
+    assert fig.get_suptitle().startswith("3 N m at 0.9 Hz, validation point (never learned): ")
+    at = [r for r in run_report.records if r.point == (3.0, 0.9)]
+    baseline = next(r for r in at if r.role == "baseline")
+    validation = next(r for r in at if r.role == "validate")
+    top, middle = fig.axes[:2]
+    assert top.get_title().startswith(f"uncompensated (trial {baseline.index}, baseline)")
+    assert middle.get_title().startswith(f"compensated (trial {validation.index}, validate)")
+    assert len(_spectrum_panels(fig)) == 2
+
+
+def test_learned_shows_each_stage_per_point_as_spectrum_and_over_a_whole_revolution(run_report, report_figures):
+    H = run_report.max_harmonic
     for torque in (2, 4):
-        top, bottom = report_figures[f"learned_{torque}Nm_0.9Hz"].axes
+        fig = report_figures[f"learned_{torque}Nm_0.9Hz"]
+        top, *stages = fig.axes
         assert top.get_yscale() == "log" and top.get_xlabel() == "harmonic (per mechanical revolution)"
+        assert top.get_xlim() == (0.0, H + 1.0)
         assert _legend_texts(top) == ["cogging", "ilc"]
-        assert "current-sensor: no feed-forward" in top.get_title()
-        assert top.get_title().startswith(f"{torque} N m at 0.9 Hz: ")
-        assert bottom.get_xlim() == (0.0, 360.0 / motor.cogging_order)
-        assert bottom.get_ylabel() == "feed-forward torque (mN m)"
-        assert _legend_texts(bottom) == ["cogging", "ilc", "sum"]
+        assert "current-sensor: none" in fig.get_suptitle()
+        assert fig.get_suptitle().startswith(f"{torque} N m at 0.9 Hz: ")
+        assert [axis.get_title().split(":")[0] for axis in stages] == ["cogging", "ilc"]
+        for axis in stages:
+            assert axis.get_xlim() == (0.0, 360.0)
+            assert axis.get_ylabel() == "feed-forward torque (mN m)"
+            (line,) = _data_lines(axis)
+            assert line.get_xdata()[-1] > 359.0
+
+
+def test_learned_spectrum_names_the_harmonics_each_stage_learned_most(run_report, report_figures):
+    """The ILC's largest harmonics, wherever they lie in 1..H (not only within one cogging period), are drawn and
+    named by their order."""
+    from ilcpmac.report.plots import NAMED_HARMONICS, learned_feedforward
+    from ilcpmac.signals.harmonics import harmonic_amplitudes
+
+    item = learned_feedforward(run_report)[0]
+    amplitude = np.abs(harmonic_amplitudes(item.tables_nm["ilc"], run_report.max_harmonic)[1:])
+    largest = {int(k) + 1 for k in np.argsort(amplitude)[::-1][:NAMED_HARMONICS]}
+    top = report_figures[f"learned_{item.record.point[0]:g}Nm_0.9Hz"].axes[0]
+    assert largest <= {int(t.get_text()) for t in top.texts}
+    ilc = next(line for line in _data_lines(top) if line.get_label() == "ilc")
+    assert largest <= set(ilc.get_xdata().astype(int))
+
+
+@pytest.mark.parametrize("name", ["operating_range", "ripple_per_trial"])
+def test_percentages_read_as_plain_percent(report_figures, name):
+    """The colour bars and the ripple axis read "0.2 %", not 2x10^-1."""
+    fig = report_figures[name]
+    fig.canvas.draw()
+    axes = [a for a in fig.axes if a.get_label() == "<colorbar>"] if name == "operating_range" else fig.axes
+    for axis in axes:
+        texts = [t.get_text() for t in axis.yaxis.get_ticklabels() if t.get_text()]
+        assert texts, name
+        for text in texts:
+            assert re.fullmatch(r"\d+(\.\d+)? %", text), (name, text)
 
 
 def _rebuilt(report, index: int) -> dict[str, np.ndarray]:
@@ -338,8 +413,8 @@ def test_each_stage_learned_part_adds_up_to_the_next_requests_feedforward(run_re
     round began) ran with."""
     records = run_report.records
     assert [(r.index, r.phase, r.role, r.point) for r in records[8:12]] == [
-        (9, "ilc", "learn", (2.0, 0.9)), (10, "ilc", "learn", (4.0, 0.9)),
-        (11, "ilc", "learn", (2.0, 0.9)), (12, "ilc", "learn", (4.0, 0.9))]
+        (9, "learn", "learn", (2.0, 0.9)), (10, "learn", "learn", (4.0, 0.9)),
+        (11, "learn", "learn", (2.0, 0.9)), (12, "learn", "learn", (4.0, 0.9))]
     tables = _rebuilt(run_report, 10)
     assert list(tables) == ["current-sensor", "cogging", "ilc"] and not tables["current-sensor"].any()
     applied = run_report.files.read_state(12).feedforward_nm
@@ -388,7 +463,7 @@ def test_a_run_without_what_the_stages_learned_is_reported_without_its_figures(r
 def test_report_cli_writes_every_figure_in_the_format_asked(run_dir, tmp_path):
     out = CliRunner().invoke(main, ["report", str(run_dir), "--out", str(tmp_path / "plots"), "--format", "svg"])
     assert out.exit_code == 0, out.output
-    assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == sorted(f"{n}.svg" for n in REPORT_FIGURES)
+    assert sorted(p.name for p in (tmp_path / "plots").glob("*.svg")) == sorted(f"{n}.svg" for n in REPORT_FIGURES)
 
 
 def test_report_cli_refuses_an_unknown_format(run_dir, tmp_path):
@@ -408,7 +483,7 @@ def test_a_stage_that_is_not_installed_where_the_report_runs_leaves_out_nothing(
     out = CliRunner().invoke(main, ["report", str(copy), "--format", "pdf"])
     assert out.exit_code == 0, out.output
     assert "warning" not in out.output
-    assert sorted(p.name for p in (copy / "plots").iterdir()) == sorted(f"{n}.pdf" for n in REPORT_FIGURES)
+    assert sorted(p.name for p in (copy / "plots").glob("*.pdf")) == sorted(f"{n}.pdf" for n in REPORT_FIGURES)
 
 
 def test_report_of_a_folder_without_a_run_is_one_error_line(tmp_path):
@@ -431,7 +506,8 @@ def test_operating_range_shows_learned_and_validation_points_measured_and_true(r
     panels = _panels(fig)
     assert [a.get_label() for a in fig.axes].count("<colorbar>") == len(panels) == 2
     bars = [a for a in fig.axes if a.get_label() == "<colorbar>"]
-    assert [bar.get_ylabel() for bar in bars] == [f"{kind} pp (% of mean)" for kind in ("measured", "true")]
+    assert [bar.get_ylabel() for bar in bars] == [f"{kind} ripple pp (% of mean torque)"
+                                                  for kind in ("measured", "true")]
     for axis, kind in zip(panels, ("measured", "true")):
         assert axis.get_xlabel() == "speed (Hz, mechanical)"
         assert axis.get_ylabel() == "torque set point (N m)"

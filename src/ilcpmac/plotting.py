@@ -1,4 +1,5 @@
-"""The one matplotlib set-up of every plot: figures, colours per set point, angle axes, saving as PNG, SVG or PDF.
+"""The one matplotlib set-up of every plot: figures, colours per set point, angle axes, percent and count ticks,
+spectra as stems, saving as PNG, SVG or PDF.
 
 Figures are `matplotlib.figure.Figure` objects made without pyplot: no global
 backend or figure registry is touched (PNG is drawn by Agg), nothing has to be
@@ -16,14 +17,17 @@ from typing import Any
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.axes import Axes
+from matplotlib.axis import Axis
 from matplotlib.figure import Figure
 from matplotlib.legend import Legend
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 from PIL import Image
 
 from ilcpmac.core.errors import IlcpmacError
 
-__all__ = ["ANGLE_LABEL", "FORMATS", "PlotError", "angle_axis", "check_format", "figure", "group_colours", "legend",
-           "mechanical_degrees", "plot_groups", "save"]
+__all__ = ["ANGLE_LABEL", "FORMATS", "HARMONIC_LABEL", "PlotError", "angle_axis", "check_format", "count_ticks",
+           "figure", "group_colours", "harmonic_stems", "legend", "mechanical_degrees", "percent_text", "percent_ticks",
+           "plot_groups", "save"]
 
 #: the formats `save` writes
 FORMATS = ("png", "svg", "pdf")
@@ -35,8 +39,15 @@ WIDTH_IN = 8.0
 COMPACT_COLOURS = 64
 #: the label of every position axis
 ANGLE_LABEL = "position (mechanical deg)"
+#: the label of every harmonic axis
+HARMONIC_LABEL = "harmonic (per mechanical revolution)"
 #: font size of legends
 LEGEND_FONT_SIZE = 7
+#: spectrum amplitudes below this fraction of a figure's largest are numerical zeros and not drawn
+SPECTRUM_FLOOR = 1e-6
+#: width of the last series' stems in `harmonic_stems`, points; each series before it is `STEM_STEP_PT` wider
+STEM_WIDTH_PT = 1.0
+STEM_STEP_PT = 2.5
 
 
 class PlotError(IlcpmacError):
@@ -141,3 +152,64 @@ def plot_groups(axis: Axes, x: np.ndarray | Sequence[np.ndarray], ys: Sequence[n
         labelled.add(key)
         draw(xi, y, color=colours[key], label=name, **style)
     return colours
+
+
+def percent_text(value: float) -> str:
+    """A percentage as a reader writes it, to 3 significant digits: ``"0.4 %"``, ``"0.05 %"``, ``"120 %"``."""
+    return f"{float(f'{value:.3g}'):g} %"
+
+
+def percent_ticks(axis: Axis, low: float, high: float) -> None:
+    """Tick a log-scaled ``axis`` (an axes' x or y axis, or a colour bar's) holding percentages from ``low`` to
+    ``high`` with plain labels ("0.1 %", "0.4 %", not 4x10^-1): ticks at 1, 2, 3, 5 and 7 of a decade over less
+    than one decade, 1, 2 and 5 over less than three, else at the decades; minor ticks unlabelled."""
+    decades = np.log10(max(high, low) / low) if low > 0 else np.inf
+    subs = (1.0, 2.0, 3.0, 5.0, 7.0) if decades < 1 else (1.0, 2.0, 5.0) if decades < 3 else (1.0,)
+    axis.set_major_locator(LogLocator(subs=subs))
+    axis.set_major_formatter(FuncFormatter(lambda value, _: percent_text(value)))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def count_ticks(axis: Axis) -> None:
+    """Tick ``axis`` at whole numbers only (a count of tasks, trials): no 2.5 tasks."""
+    axis.set_major_locator(MaxNLocator(integer=True))
+
+
+def harmonic_stems(axis: Axes, series: dict[str, tuple[np.ndarray, np.ndarray]], colours: Sequence[Any],
+                   scale: float = 1.0, stemmed: dict[str, np.ndarray] | None = None) -> float:
+    """Spectra as stems on a log amplitude axis: per series a vertical line from the bottom of the axes to the
+    amplitude of each harmonic, with a dot on top, and no line from one harmonic to the next; returns the
+    bottom of the axes.
+
+    The first series' stems are the widest and each later one's narrower (`STEM_WIDTH_PT`, `STEM_STEP_PT`),
+    so a series drawn over another at the same harmonic leaves it visible around it. Amplitudes below
+    `SPECTRUM_FLOOR` of the largest are numerical zeros and left out.
+
+    Parameters
+    ----------
+    axis : the axes (set to a log y scale, its y limits from a decade below the least amplitude drawn to above
+        the largest).
+    series : label -> (harmonics, amplitudes, in the unit of the axis before ``scale``).
+    colours : one colour per series, in order.
+    scale : the factor from the amplitudes' unit to the axis's (1000: N m drawn as mN m).
+    stemmed : label -> which of its harmonics get a stem (those that stand out of their noise, say); the others
+        a dot alone. Default: all.
+    """
+    largest = max((float(np.max(a, initial=0.0)) for _, a in series.values()), default=0.0)
+    kept = {name: a > SPECTRUM_FLOOR * largest for name, (_, a) in series.items()}
+    shown = {name: (h[kept[name]], scale * a[kept[name]]) for name, (h, a) in series.items()}
+    stems = {name: np.ones(a.size, bool)[kept[name]] if stemmed is None else stemmed[name][kept[name]]
+             for name, (_, a) in series.items()}
+    values = np.concatenate([a for _, a in shown.values()] + [np.zeros(0)])
+    if not values.size:
+        return 1.0
+    bottom = 10.0 ** np.floor(np.log10(values.min()) - 0.3)
+    axis.set_yscale("log")
+    axis.set_ylim(bottom, 2.0 * values.max())
+    for i, ((name, (harmonics, amplitudes)), colour) in enumerate(zip(shown.items(), colours)):
+        width = STEM_WIDTH_PT + STEM_STEP_PT * (len(shown) - 1 - i)
+        axis.vlines(harmonics[stems[name]], bottom, amplitudes[stems[name]], color=colour, lw=width,
+                    alpha=0.45 if i < len(shown) - 1 else 1.0)
+        axis.plot(harmonics, amplitudes, "o", color=colour, ms=2 + width / 2, ls="none", label=name)
+    axis.set_xlabel(HARMONIC_LABEL)
+    return float(bottom)

@@ -1,10 +1,11 @@
-"""The identification's figures, like the report's (Grassens 2009): 2.1-2.5, 3.1-3.3 and 4.1-4.3.
+"""The identification's figures, each named and labelled for what it shows; the report's (Grassens 2009) figure
+each one redraws is named in its builder's docstring (figs. 2.1-2.5, 3.1-3.3 and 4.1-4.3).
 
 Each builder takes an `IdentificationResult` and returns a matplotlib
 `Figure` (`ilcpmac.plotting`); lines of many set points are coloured by
 torque set point with one legend entry per torque, position is in mechanical
-degrees. `write_plots` writes the figures of the estimates (2.4-4.3, the
-``--plots`` of ``ilcpmac identify``); `SIGNAL_FIGURES` (2.1-2.3: references and
+degrees. `write_plots` writes the figures of the estimates (`IDENTIFICATION_FIGURES`, the
+``--plots`` of ``ilcpmac identify``); `SIGNAL_FIGURES` (the references and the
 measured ripple) are drawn by benchmarks/reproduce_report.py as well.
 """
 
@@ -87,7 +88,7 @@ def _slowest_per_torque(result: IdentificationResult) -> list[int]:
 
 
 def torque_reference(result: IdentificationResult) -> Figure:
-    """Fig. 2.1: the torque the current references ask for, sum_p K_p I*_p, over one electrical revolution."""
+    """The torque the current references ask for, sum_p K_p I*_p, over one electrical revolution (report fig. 2.1)."""
     counts, degrees, span = _electrical_revolution(result)
     pick = _slowest_per_torque(result)
     theory = theoretical_torque_tables(_tables(result))
@@ -95,15 +96,15 @@ def torque_reference(result: IdentificationResult) -> Figure:
     fig, (axis,) = plotting.figure(1, 3.5)
     plotting.plot_groups(axis, degrees, [theory[k, counts] for k in pick], [_torques(result)[k] for k in pick],
                          _torque, lw=0.8)
-    axis.set_title(f"torque reference with the multisine, {speed:g} Hz (eq. 1.3 with ideal sensors)")
-    axis.set_ylabel("sum_p K_p I*_p (N m)")
+    axis.set_title(f"torque the current references ask for, multisine included, {speed:g} Hz")
+    axis.set_ylabel("torque the references ask for (N m)")
     plotting.angle_axis(axis, span)
     plotting.legend(axis)
     return fig
 
 
 def current_reference(result: IdentificationResult) -> Figure:
-    """Fig. 2.2: the current references I*_p of each phase over one electrical revolution."""
+    """The current references I*_p of each phase over one electrical revolution (report fig. 2.2)."""
     counts, degrees, span = _electrical_revolution(result)
     pick = _slowest_per_torque(result)
     trials = _tables(result).trials
@@ -112,7 +113,7 @@ def current_reference(result: IdentificationResult) -> Figure:
         column = "abc".index(phase)
         plotting.plot_groups(axis, degrees, [trials[k].i_ref_table_a[counts, column] for k in pick],
                              [trials[k].torque_setpoint_nm for k in pick], _torque, lw=0.8)
-        axis.set_ylabel(f"I*_{phase} (A)")
+        axis.set_ylabel(f"phase {phase} reference (A)")
         plotting.legend(axis, ncol=2)
     axes[0].set_title(f"current references, {trials[pick[0]].speed_setpoint_hz:g} Hz")
     plotting.angle_axis(axes[-1], span)
@@ -120,20 +121,21 @@ def current_reference(result: IdentificationResult) -> Figure:
 
 
 def measured_ripple(result: IdentificationResult) -> Figure:
-    """Fig. 2.3: the measured torque ripple (synchronous average less its mean) of every set point."""
+    """The measured torque ripple (synchronous average less its mean) of every set point (report fig. 2.3)."""
     counts, degrees, span = _electrical_revolution(result)
     tables = [t.torque_table_nm - t.torque_table_nm.mean() for t in _tables(result).trials]
     fig, (axis,) = plotting.figure(1, 3.5)
     plotting.plot_groups(axis, degrees, [t[counts] for t in tables], _torques(result), _per_torque, lw=0.6)
     axis.set_title("measured torque ripple per set point (torque sensor's initial gain)")
-    axis.set_ylabel("tau*_p (N m)")
+    axis.set_ylabel("measured torque ripple (N m)")
     plotting.angle_axis(axis, span)
     plotting.legend(axis)
     return fig
 
 
 def harmonic_response(result: IdentificationResult, kept_only: bool) -> Figure:
-    """Figs. 2.4 (all harmonics) and 2.5 (``kept_only``: the fitted ones): |H| and coherence per set point."""
+    """The measured torque over the torque asked for, |H|, and its coherence per set point and harmonic: all
+    harmonics, or (``kept_only``) the fitted ones (report figs. 2.4 and 2.5)."""
     system = _system(result)
     motor = _tables(result).motor
     h = system.harmonics
@@ -143,14 +145,14 @@ def harmonic_response(result: IdentificationResult, kept_only: bool) -> Figure:
     plotting.plot_groups(top, h[mask], list(np.abs(system.response_per_trial[:, mask])), torques, _per_torque,
                          lw=0.6, alpha=0.7)
     top.axhline(system.delta_epsilon, color="k", lw=1.5,
-                label=f"report's method: delta*eps = {system.delta_epsilon:.4f} "
+                label=f"system gain, report's method: {system.delta_epsilon:.4f} "
                       f"(residue {100 * system.residue:.1f} %)")
     joint = result.methods["joint"].delta_epsilon
     if joint is not None:
-        top.axhline(joint, color="C3", ls="--", label=f"joint fit: delta*eps = {joint:.4f}")
+        top.axhline(joint, color="C3", ls="--", label=f"system gain, joint fit: {joint:.4f}")
     what = "pole-pair and cogging multiples left out" if kept_only else "all harmonics"
-    top.set_title(f"torque reference to measured torque ({what})")
-    top.set_ylabel("|H| (N m / N m)")
+    top.set_title(f"measured torque over the torque asked for, per harmonic ({what})")
+    top.set_ylabel("measured over asked torque (N m / N m)")
     plotting.legend(top, ncol=2)
     plotting.plot_groups(bottom, h[mask], list(system.coherence_per_trial[:, mask]), torques, _per_torque,
                          lw=0.6, alpha=0.7)
@@ -162,15 +164,15 @@ def harmonic_response(result: IdentificationResult, kept_only: bool) -> Figure:
 
 
 def torque_speed_response(result: IdentificationResult) -> Figure:
-    """Fig. 3.1: measured torque over angular velocity and its coherence, per set point."""
+    """The measured torque over angular velocity and its coherence, per set point (report fig. 3.1)."""
     responses = _sensor(result).responses
     torques = _torques(result)
     frequencies = [r.frequency_hz for r in responses]
     fig, (top, bottom) = plotting.figure(2)
     plotting.plot_groups(top, frequencies, [20 * np.log10(np.abs(r.response)) for r in responses], torques,
                          _per_torque, method="semilogx", lw=0.6, alpha=0.7)
-    top.set_title("measured torque over angular velocity, per set point (eq. 3.2)")
-    top.set_ylabel("|tau*_m / omega| (dB re 1 N m s/rad)")
+    top.set_title("measured torque over angular velocity, per set point")
+    top.set_ylabel("torque over speed (dB re 1 N m s/rad)")
     plotting.legend(top)
     plotting.plot_groups(bottom, frequencies, [r.coherence for r in responses], torques, _per_torque,
                          method="semilogx", lw=0.6, alpha=0.7)
@@ -183,7 +185,7 @@ def torque_speed_response(result: IdentificationResult) -> Figure:
 
 
 def inertia_fit(result: IdentificationResult) -> Figure:
-    """Fig. 3.2: the response per set point (dots) and its least-squares fit J* s + b* (lines)."""
+    """The response per set point (dots) and its least-squares fit J* s + b* (lines) (report fig. 3.2)."""
     sensor = _sensor(result)
     torques = _torques(result)
     frequencies = [r.frequency_hz for r in sensor.responses]
@@ -198,7 +200,7 @@ def inertia_fit(result: IdentificationResult) -> Figure:
                              method="semilogx", lw=0.8)
         axis.plot([], [], "k.", label="measured")
         plotting.legend(axis, ncol=2)
-    top.set_title("least-squares fit of J* s + b* per set point (lines) to the measured response (dots)")
+    top.set_title("inertia and damping fitted per set point (lines) to the measured response (dots)")
     top.set_ylabel("magnitude (dB re 1 N m s/rad)")
     bottom.set_ylabel("phase (deg)")
     bottom.set_xlabel("frequency (Hz)")
@@ -206,7 +208,7 @@ def inertia_fit(result: IdentificationResult) -> Figure:
 
 
 def inertia_per_setpoint(result: IdentificationResult) -> Figure:
-    """Fig. 3.3: J* per set point with its standard error, and their mean."""
+    """The inertia J* per set point with its standard error, and their mean (report fig. 3.3)."""
     sensor = _sensor(result)
     trials = _tables(result).trials
     fig, (axis,) = plotting.figure(1, 3.5)
@@ -216,33 +218,36 @@ def inertia_per_setpoint(result: IdentificationResult) -> Figure:
         axis.errorbar([trials[i].speed_setpoint_hz for i in pick], sensor.inertia_per_trial[pick],
                       yerr=sensor.inertia_std_per_trial[pick], fmt="o-", ms=3, color=colour, label=f"{torque:g} N m")
     spread = 100 * sensor.inertia_per_trial.std(ddof=1) / sensor.inertia
-    axis.axhline(sensor.inertia, color="k", lw=1, label=f"mean J* = {sensor.inertia:.5f} kg m², sigma = {spread:.1f} %")
+    axis.axhline(sensor.inertia, color="k", lw=1, label=f"mean {sensor.inertia:.5f} kg m², spread {spread:.1f} %")
     axis.set_xlabel("speed set point (Hz)")
-    axis.set_ylabel("J* (kg m²)")
-    axis.set_title("J* per set point")
+    axis.set_ylabel("inertia (kg m²)")
+    axis.set_title("inertia identified per set point, with its standard error")
     plotting.legend(axis, ncol=2)
     return fig
 
 
 def _representative(result: IdentificationResult) -> int:
-    """The set point fig. 4.1 shows: the middle one of the list."""
+    """The set point `decoupling` shows: the middle one of the list."""
     return len(_tables(result).trials) // 2
 
 
 def decoupling(result: IdentificationResult) -> Figure:
-    """Fig. 4.1: the decoupling (eqs. 1.12, 1.13) of a representative set point, one electrical revolution."""
+    """The measured ripple of a representative set point split into the current sensors' part (X y), the residual
+    (z), its cogging harmonics (tau*_c) and the rest, over one electrical revolution (report fig. 4.1, eqs. 1.12,
+    1.13)."""
     estimate = _decoupling(result)
     counts, degrees, span = _electrical_revolution(result)
     k = _representative(result)
     trial = _tables(result).trials[k]
     fig, axes = plotting.figure(3, 2.4)
-    axes[0].plot(degrees, estimate.measured_nm[k, counts], lw=0.8, label="tau*_p less delta*eps sum_p K_p I*_p")
-    axes[1].plot(degrees, estimate.explained_nm[k, counts], lw=0.8, label="X y (currents)")
-    axes[1].plot(degrees, estimate.residual_nm[k, counts], lw=0.8, label="z (residual)")
-    axes[2].plot(degrees, estimate.cogging_nm[k, counts], lw=0.8, label="tau*_c (cogging harmonics of z)")
-    axes[2].plot(degrees, estimate.rest_nm[k, counts], lw=0.8, label="rest")
-    axes[0].set_title(f"decoupling of the pulsating torque (eqs. 1.12, 1.13), {trial.torque_setpoint_nm:g} N m at "
-                      f"{trial.speed_setpoint_hz:g} Hz")
+    axes[0].plot(degrees, estimate.measured_nm[k, counts], lw=0.8, label="measured torque less the torque asked for")
+    axes[1].plot(degrees, estimate.explained_nm[k, counts], lw=0.8, label="from the current sensors' errors")
+    axes[1].plot(degrees, estimate.residual_nm[k, counts], lw=0.8, label="residual torque")
+    axes[2].plot(degrees, estimate.cogging_nm[k, counts], lw=0.8, label="cogging torque (the residual's cogging "
+                 "harmonics)")
+    axes[2].plot(degrees, estimate.rest_nm[k, counts], lw=0.8, label="rest of the residual")
+    axes[0].set_title(f"measured ripple split: current sensors' part, cogging, rest ({trial.torque_setpoint_nm:g} N m "
+                      f"at {trial.speed_setpoint_hz:g} Hz)", fontsize=10)
     for axis in axes:
         axis.set_ylabel("torque (N m)")
         plotting.legend(axis, loc="upper right")
@@ -256,7 +261,7 @@ def _cogging_per_setpoint(result: IdentificationResult) -> np.ndarray:
 
 
 def cogging_per_setpoint(result: IdentificationResult) -> Figure:
-    """Fig. 4.2: the cogging torque of each set point over one electrical revolution, and the result's."""
+    """The cogging torque of each set point over one electrical revolution, and the result's (report fig. 4.2)."""
     counts, degrees, span = _electrical_revolution(result)
     cogging = _cogging_per_setpoint(result)
     fig, (axis,) = plotting.figure(1, 3.5)
@@ -264,7 +269,7 @@ def cogging_per_setpoint(result: IdentificationResult) -> Figure:
     if result.cogging_nm is not None:  # in the coordinates of the set points' (a mirrored bench's: the mirror's)
         axis.plot(degrees, in_mirror_coordinates(result, result.cogging_nm)[counts], "k", lw=1.2,
                   label="result (joint fit)")
-    axis.set_title("cogging torque per set point (report's decoupling), one electrical revolution")
+    axis.set_title("cogging torque per set point (each split on its own), one electrical revolution")
     axis.set_ylabel("cogging torque (N m)")
     plotting.angle_axis(axis, span)
     plotting.legend(axis, ncol=2)
@@ -272,14 +277,14 @@ def cogging_per_setpoint(result: IdentificationResult) -> Figure:
 
 
 def cogging_error(result: IdentificationResult) -> Figure:
-    """Fig. 4.3: each set point's cogging less their mean, relative to the mean's peak."""
+    """Each set point's cogging less their mean, relative to the mean's peak (report fig. 4.3)."""
     counts, degrees, span = _electrical_revolution(result)
     cogging = _cogging_per_setpoint(result)
     mean = cogging.mean(axis=0)
     error = 100 * (cogging - mean)[:, counts] / np.abs(mean).max()
     fig, (axis,) = plotting.figure(1, 3.5)
     plotting.plot_groups(axis, degrees, list(error), _torques(result), _per_torque, lw=0.6, alpha=0.7)
-    axis.set_title("cogging torque error per set point, relative to the peak of their mean")
+    axis.set_title("each set point's cogging torque less their mean, relative to the mean's peak")
     axis.set_ylabel("error (% of the mean's peak)")
     plotting.angle_axis(axis, span)
     plotting.legend(axis, ncol=2)
@@ -313,7 +318,7 @@ def acceleration_method(result: IdentificationResult) -> Figure:
             bottom.semilogy(h[mask], amplitude[mask], style, ms=4, label=label)
     bottom.semilogy(h, sigma, "0.5", lw=0.8, label="standard error")
     bottom.set_xlabel("harmonic of a revolution")
-    bottom.set_ylabel("|tau_h| (N m)")
+    bottom.set_ylabel("harmonic amplitude (N m)")
     plotting.legend(bottom)
     return fig
 
@@ -322,20 +327,20 @@ def acceleration_method(result: IdentificationResult) -> Figure:
 ACCELERATION_FIGURE = ("acceleration_position_torque", acceleration_method)
 #: file name -> (the detail it needs, builder): the figures of the estimates
 IDENTIFICATION_FIGURES = {
-    "fig2_4_harmonic_response": ("system", partial(harmonic_response, kept_only=False)),
-    "fig2_5_harmonic_response_fit": ("system", partial(harmonic_response, kept_only=True)),
-    "fig3_1_torque_speed_response": ("sensor", torque_speed_response),
-    "fig3_2_inertia_fit": ("sensor", inertia_fit),
-    "fig3_3_inertia_per_setpoint": ("sensor", inertia_per_setpoint),
-    "fig4_1_decoupling": ("decoupling", decoupling),
-    "fig4_2_cogging_per_setpoint": ("decoupling", cogging_per_setpoint),
-    "fig4_3_cogging_error": ("decoupling", cogging_error),
+    "system_gain_all_harmonics": ("system", partial(harmonic_response, kept_only=False)),
+    "system_gain_fitted_harmonics": ("system", partial(harmonic_response, kept_only=True)),
+    "torque_over_speed_response": ("sensor", torque_speed_response),
+    "inertia_fit": ("sensor", inertia_fit),
+    "inertia_per_setpoint": ("sensor", inertia_per_setpoint),
+    "ripple_split_currents_cogging": ("decoupling", decoupling),
+    "cogging_per_setpoint": ("decoupling", cogging_per_setpoint),
+    "cogging_spread_per_setpoint": ("decoupling", cogging_error),
 }
 #: the same for the signals the estimates come from
 SIGNAL_FIGURES = {
-    "fig2_1_torque_reference": ("tables", torque_reference),
-    "fig2_2_current_reference": ("tables", current_reference),
-    "fig2_3_measured_ripple": ("tables", measured_ripple),
+    "torque_reference": ("tables", torque_reference),
+    "current_references": ("tables", current_reference),
+    "measured_ripple_per_setpoint": ("tables", measured_ripple),
 }
 
 

@@ -2,13 +2,16 @@
 
 - ``ripple_per_trial``: peak-to-peak ripple of every trial, coloured by torque set point, the campaign's
   phases as bands;
-- ``before_after_<T>Nm_<S>Hz``: per learned operating point, the torque sensor's and (simulator) true torque
-  ripple over one revolution before compensation and after the last trial, and their spectra;
+- ``before_after_<T>Nm_<S>Hz``: per learned and per validation operating point, the torque sensor's and
+  (simulator) true torque ripple over one revolution uncompensated (the point's baseline trial) and compensated
+  (a learned point's last trial, a validation point's validation trial), and per torque their spectra as stems,
+  uncompensated against compensated, with the compensated trial's noise;
 - ``learned_<T>Nm_<S>Hz``: per learned point, the feed-forward each stage has learned by the last trial, as
-  a spectrum and over one cogging period;
+  a spectrum over every harmonic of the campaign's band and over a whole revolution, one panel per stage;
 - ``operating_range``: the final ripple over torque x speed at the learned and the validation points.
 
-Each builder returns a `matplotlib.figure.Figure`; `write_report` writes them all.
+Each builder returns a `matplotlib.figure.Figure`; `write_report` writes them all. Percentages are labelled as
+such ("0.4 %"), amplitudes in mN m, harmonics per mechanical revolution.
 """
 
 from __future__ import annotations
@@ -25,7 +28,6 @@ from matplotlib.figure import Figure
 
 from ilcpmac import plotting
 from ilcpmac.bench.format import read_bench_head
-from ilcpmac.campaign.plan import records_at
 from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import point_results
@@ -35,19 +37,24 @@ from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
 __all__ = ["LearnedFeedForward", "RunReport", "before_after", "build_figures", "learned_feedforward",
-           "learned_figure", "operating_range", "ripple_per_trial", "write_report"]
+           "learned_figure", "operating_range", "ripple_per_trial"]
 
 #: the shade of each phase's band in the ripple plot
-PHASE_SHADES = {"identify": "0.85", "compensate": "tab:orange", "ilc": "tab:blue", "learn": "tab:blue",
-                "validate": "tab:green"}
+PHASE_SHADES = {"identify": "0.85", "compensate": "tab:orange", "learn": "tab:blue", "validate": "tab:green"}
 #: the height of a line of phase names over the per-trial ripple, points
 PHASE_LINE_PT = 9
 #: the ripple figure everything aims below, % of the mean torque
 TARGET_PERCENT = 0.1
-#: spectrum amplitudes below this fraction of a figure's largest are numerical zeros and not drawn
-SPECTRUM_FLOOR = 1e-6
 TORQUE_LABEL = "torque (mN m)"
-HARMONIC_LABEL = "harmonic (per mechanical revolution)"
+AMPLITUDE_LABEL = "amplitude (mN m)"
+#: the colours of a point's spectra: uncompensated, compensated
+BEFORE_AFTER_COLOURS = ("tab:red", "tab:blue")
+#: the shade of the compensated trial's noise in a spectrum
+NOISE_SHADE = "0.75"
+#: standard errors by which a harmonic stands out of its trial's noise to be drawn as a stem, not a dot alone
+SIGNIFICANCE = 2.0
+#: the harmonics of a stage's feed-forward named by their order in its spectrum, the largest first
+NAMED_HARMONICS = 4
 
 
 @dataclass(frozen=True)
@@ -92,6 +99,10 @@ class RunReport:
         """The operating points the pipeline learned at, in order."""
         return sorted({r.point for r in self.records if r.learns})
 
+    def validated_points(self) -> list[Point]:
+        """The operating points the compensation was validated at (never learned), in order."""
+        return sorted({r.point for r in self.records if r.role == "validate"})
+
 
 def _point_name(point: Point) -> str:
     return f"{point[0]:g}Nm_{point[1]:g}Hz"
@@ -125,6 +136,7 @@ def ripple_per_trial(records: list[TrialRecord]) -> Figure:
     _legend_proxy(axis, "kx", "true (simulator)")
     axis.axhline(TARGET_PERCENT, color="k", lw=0.8, ls=":", label=f"{TARGET_PERCENT:g} %")
     axis.set_yscale("log")
+    plotting.percent_ticks(axis.yaxis, *axis.get_ylim())
     axis.set_title("ripple per trial (bands: the campaign's phases)", pad=6 + 2 * PHASE_LINE_PT)
     axis.set_xlabel("trial (index)")
     axis.set_ylabel("ripple peak-to-peak (% of mean torque)")
@@ -145,44 +157,54 @@ def _spectra(trial, counts_per_rev: int, max_harmonic: int) -> dict[str, TorqueS
     return out
 
 
-def _spectrum_points(axis: Axes, amplitudes_nm: dict[str, np.ndarray], **style) -> None:
-    """Amplitude per harmonic 1..H on a log scale, one series per name; numerical zeros left out."""
-    largest = max((float(np.max(a)) for a in amplitudes_nm.values()), default=0.0)
-    for name, amplitude in amplitudes_nm.items():
-        shown = np.where(amplitude > SPECTRUM_FLOOR * largest, 1000 * amplitude, np.nan)
-        axis.semilogy(np.arange(1, amplitude.size + 1), shown, label=name, **style)
-    axis.set_xlabel(HARMONIC_LABEL)
-    axis.set_ylabel("amplitude (mN m)")
+def _noise_band(axis: Axes, spectrum: TorqueSpectrum, bottom: float, label: str) -> None:
+    """Shade, under the stems, the noise of ``spectrum``'s harmonics 1..H (one standard error each, mN m): what
+    its trial cannot tell from zero."""
+    harmonics = np.arange(1, spectrum.max_harmonic + 1)
+    axis.fill_between(harmonics, bottom, 1000 * np.sqrt(spectrum.variance_nm2[1:]), step="mid", color=NOISE_SHADE,
+                      alpha=0.6, lw=0, zorder=0.5, label=label)
 
 
 def before_after(report: RunReport) -> dict[str, Figure]:
-    """Per learned point: the torque sensor's and the true torque ripple over one revolution, uncompensated
-    (baseline) and after the last trial, and their spectra; by file name."""
+    """Per learned and per validation point: the torque sensor's and the true torque ripple over one revolution,
+    uncompensated (the point's baseline trial) and compensated (a learned point's last trial, a validation
+    point's validation trial), and per torque the two spectra as stems over the compensated trial's noise; by
+    file name."""
     cpr, H = report.description.motor.counts_per_rev, report.max_harmonic
     degrees = plotting.mechanical_degrees(np.arange(cpr), cpr)
+    harmonics = np.arange(1, H + 1)
     figures = {}
-    for point in report.learned_points():
-        base = records_at(report.records, point, ("baseline",))
-        if not base:
-            continue
-        final = records_at(report.records, point, ("compensate", "learn"))[-1]
-        fig, axes = plotting.figure(3, 2.8, sharex=False)
-        amplitudes = {}
-        for axis, record, when in zip(axes, (base[0], final), ("uncompensated", "final")):
-            trial = report.files.read_trial(record.index, record.torque_setpoint_nm, record.speed_setpoint_hz,
-                                             report.description.motor.torque_sensor)
-            for kind, spectrum in _spectra(trial, cpr, H).items():
+    for result in point_results(report.records, report.learned_points(), report.validated_points()):
+        records = {"uncompensated": result.before, "compensated": result.after}
+        spectra = {when: _spectra(report.files.read_trial(r.index, r.torque_setpoint_nm, r.speed_setpoint_hz,
+                                                           report.description.motor.torque_sensor), cpr, H)
+                   for when, r in records.items()}
+        kinds = [kind for kind in spectra["uncompensated"] if kind in spectra["compensated"]]
+        fig, axes = plotting.figure(2 + len(kinds), 2.6, sharex=False)
+        where = "learned point" if result.learned else "validation point (never learned)"
+        fig.suptitle(f"{result.point[0]:g} N m at {result.point[1]:g} Hz, {where}: torque ripple before and after "
+                     "compensation", fontsize=10)
+        for axis, (when, record) in zip(axes, records.items()):
+            for kind, spectrum in spectra[when].items():
                 axis.plot(degrees, 1000 * spectrum.ripple_table(), lw=0.8, label=kind)
-                amplitudes[f"{when}, {kind}"] = np.abs(spectrum.harmonics_nm[1:])
-            axis.set_title(f"{point[0]:g} N m at {point[1]:g} Hz, {when} (trial {record.index}): torque ripple, "
-                           f"harmonics 1..{H}", fontsize=9)
+            axis.set_title(f"{when} (trial {record.index}, {record.role}): ripple over one revolution, harmonics "
+                           f"1..{H}", fontsize=9)
             axis.set_ylabel(TORQUE_LABEL)
             plotting.angle_axis(axis)
             plotting.legend(axis, loc="upper right")
-        _spectrum_points(axes[2], amplitudes, marker=".", ms=3, ls="none")
-        axes[2].set_title("spectrum of the torque ripple")
-        plotting.legend(axes[2], ncol=2)
-        figures[f"before_after_{_point_name(point)}"] = fig
+        for axis, kind in zip(axes[2:], kinds):
+            amplitudes = {when: np.abs(spectra[when][kind].harmonics_nm[1:]) for when in records}
+            standing_out = {when: a > SIGNIFICANCE * np.sqrt(spectra[when][kind].variance_nm2[1:])
+                            for when, a in amplitudes.items()}
+            bottom = plotting.harmonic_stems(axis, {when: (harmonics, a) for when, a in amplitudes.items()},
+                                             BEFORE_AFTER_COLOURS, scale=1000, stemmed=standing_out)
+            _noise_band(axis, spectra["compensated"][kind], bottom, "noise of the compensated trial (1 std. error)")
+            axis.set_xlim(0, H + 1)
+            axis.set_ylabel(AMPLITUDE_LABEL)
+            axis.set_title(f"spectrum of the ripple, {kind} (stems: out of the noise by {SIGNIFICANCE:g} std. errors)",
+                           fontsize=9)
+            plotting.legend(axis, ncol=3, loc="upper right")
+        figures[f"before_after_{_point_name(result.point)}"] = fig
     return figures
 
 
@@ -219,31 +241,38 @@ def learned_feedforward(report: RunReport) -> list[LearnedFeedForward] | None:
 
 
 def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
-    """What each stage learned at one learned point: its feed-forward's spectrum and its first cogging period."""
+    """What each stage learned at one learned point: the spectrum of each stage's feed-forward over every
+    harmonic of the campaign's band as stems, its largest harmonics (`NAMED_HARMONICS`) named by their order,
+    and each stage's feed-forward over a whole revolution, one panel per stage on its own scale."""
     motor, H = report.description.motor, report.max_harmonic
     record = learned.record
     feeding = {name: table for name, table in learned.tables_nm.items() if np.any(table)}
     silent = [name for name in learned.tables_nm if name not in feeding]
-    fig, (top, bottom) = plotting.figure(2, 3.0, sharex=False)
-    _spectrum_points(top, {name: np.abs(harmonic_amplitudes(table)[1 : H + 1]) for name, table in feeding.items()},
-                     marker=".", ms=4, lw=0.5)
-    note = f"; {', '.join(silent)}: no feed-forward" if silent else ""
-    top.set_title(f"{record.torque_setpoint_nm:g} N m at {record.speed_setpoint_hz:g} Hz: feed-forward each stage "
-                  f"learned by trial {record.index}{note}", fontsize=9)
-    span = 360.0 / motor.cogging_order
+    fig, axes = plotting.figure(1 + len(feeding), 2.6, sharex=False)
+    top = axes[0]
+    harmonics = np.arange(1, H + 1)
+    colours = [f"C{i}" for i in range(len(feeding))]
+    amplitudes = {name: np.abs(harmonic_amplitudes(table, H)[1:]) for name, table in feeding.items()}
+    plotting.harmonic_stems(top, {name: (harmonics, a) for name, a in amplitudes.items()}, colours, scale=1000)
+    for amplitude, colour in zip(amplitudes.values(), colours):
+        for k in np.argsort(amplitude)[::-1][:NAMED_HARMONICS]:
+            top.annotate(f"{harmonics[k]}", (harmonics[k], 1000 * amplitude[k]), xytext=(2, 2),
+                         textcoords="offset points", fontsize=7, color=colour)
+    top.set_xlim(0, H + 1)
+    top.set_xlabel(plotting.HARMONIC_LABEL)
+    top.set_ylabel(AMPLITUDE_LABEL)
+    note = f" ({', '.join(silent)}: none)" if silent else ""
+    fig.suptitle(f"{record.torque_setpoint_nm:g} N m at {record.speed_setpoint_hz:g} Hz: the feed-forward each stage "
+                 f"learned by trial {record.index}{note}", fontsize=10)
+    top.set_title(f"spectrum, harmonics 1..{H} (numbers: each stage's {NAMED_HARMONICS} largest)", fontsize=9)
+    if feeding:
+        plotting.legend(top, ncol=2, loc="upper right")
     degrees = plotting.mechanical_degrees(np.arange(motor.counts_per_rev), motor.counts_per_rev)
-    period = degrees <= span
-    for name, table in feeding.items():
-        bottom.plot(degrees[period], 1000 * table[period], lw=0.9, label=name)
-    if len(feeding) > 1:
-        total = sum(feeding.values(), np.zeros(motor.counts_per_rev))
-        bottom.plot(degrees[period], 1000 * total[period], "k", lw=0.6, ls="--", label="sum")
-    bottom.set_title(f"over the first cogging period (1/{motor.cogging_order} revolution)", fontsize=9)
-    bottom.set_ylabel(f"feed-forward {TORQUE_LABEL}")
-    plotting.angle_axis(bottom, span)
-    for axis in (top, bottom):
-        if feeding:
-            plotting.legend(axis, ncol=2)
+    for axis, (name, table), colour in zip(axes[1:], feeding.items(), colours):
+        axis.plot(degrees, 1000 * table, color=colour, lw=0.8)
+        axis.set_title(f"{name}: its feed-forward over one revolution", fontsize=9)
+        axis.set_ylabel(f"feed-forward {TORQUE_LABEL}")
+        plotting.angle_axis(axis)
     return fig
 
 
@@ -269,12 +298,15 @@ def operating_range(records: list[TrialRecord], learned: list[Point], validated:
                                  label=label)
             for r, p in chosen:
                 reduction = getattr(r.after, factor)
-                text = f"{p:.3g} %"
+                text = plotting.percent_text(p)
                 if reduction is not None:
                     text += f"\n{reduction:.0f}x" if reduction >= 100 else f"\n{reduction:.2g}x"
                 axis.annotate(text, (r.point[1], r.point[0]), xytext=(9, -4), textcoords="offset points",
                               fontsize=7)
-        fig.colorbar(shown, ax=axis, label=f"{kind} pp (% of mean)")
+        bar = fig.colorbar(shown, ax=axis)
+        bar.set_label(f"{kind} ripple pp (% of mean torque)", fontsize=8)
+        if positive:
+            plotting.percent_ticks(bar.ax.yaxis, min(positive), max(positive))
         axis.set_title(f"final {kind} ripple, % of mean torque, over the operating range (labels: ripple, "
                        "reduction)", fontsize=9, pad=20)
         axis.set_xlabel("speed (Hz, mechanical)")
@@ -295,8 +327,7 @@ def build_figures(report: RunReport) -> tuple[dict[str, Figure], str | None]:
     """Every figure of the run by file name (without suffix), and why the learned feed-forward is not drawn
     (the run directory has no states/learned.json), or None."""
     figures = {"ripple_per_trial": ripple_per_trial(report.records), **before_after(report)}
-    learned = report.learned_points()
-    validated = sorted({r.point for r in report.records if r.role == "validate"})
+    learned, validated = report.learned_points(), report.validated_points()
     if point_results(report.records, learned, validated):
         figures["operating_range"] = operating_range(report.records, learned, validated)
     feedforwards = learned_feedforward(report)
@@ -306,12 +337,3 @@ def build_figures(report: RunReport) -> tuple[dict[str, Figure], str | None]:
     for item in feedforwards:
         figures[f"learned_{_point_name(item.record.point)}"] = learned_figure(item, report)
     return figures, None
-
-
-def write_report(report: RunReport, out_dir: Path, fmt: str = "png") -> tuple[list[Path], str | None]:
-    """Write every figure (`build_figures`) as ``fmt`` into ``out_dir``; returns the paths and why the learned
-    feed-forward was not drawn, or None."""
-    plotting.check_format(fmt, out_dir)
-    figures, why = build_figures(report)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    return [plotting.save(fig, out_dir / name, fmt) for name, fig in figures.items()], why
