@@ -1,4 +1,4 @@
-"""``ilcpmac report``: the figures of a run directory."""
+"""``ilcpmac report``: the figures of a run directory, and its report as one HTML page."""
 
 from __future__ import annotations
 
@@ -12,28 +12,34 @@ from ilcpmac.cli import FIGURE_FORMATS, console, main
 @main.command()
 @click.argument("run_dir", type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Where to write the figures (default RUN_DIR/plots).")
+              help="Where to write the figures and report.html (default RUN_DIR/plots).")
 @click.option("--format", "fmt", type=click.Choice(FIGURE_FORMATS), default="png", show_default=True,
-              help="File format of the figures.")
+              help="File format of the figures (report.html embeds them as PNG).")
 def report(run_dir: Path, out_dir: Path | None, fmt: str) -> None:
-    """Plot the run in RUN_DIR.
+    """Plot the run in RUN_DIR and write its report as one HTML page.
 
     Ripple per trial; per set point, the torque before and after compensation with its spectrum, and
-    what each stage learned.
+    what each stage learned. report.html holds them with the plan and motor time, the ripple per operating
+    point beside its floor, the identification with its standard errors and the export commands; it is
+    self-contained, to open offline in any browser (docs/report.md).
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.markup import escape
+    from rich.text import Text
 
     from ilcpmac.campaign.rundir import RunDirError
-    from ilcpmac.report.plots import RunReport, write_report
+    from ilcpmac.report.html import write_report
+    from ilcpmac.report.plots import RunReport
 
     run = RunReport.read(run_dir)
     out_dir = out_dir or run.files.plots
     try:
-        written, why = write_report(run, out_dir, fmt)
+        written = write_report(run, out_dir, fmt)
     except OSError as e:
         raise RunDirError(f"{e.filename or out_dir}: {e.strerror or e}") from None
-    if why is not None:
-        console.print(f"[yellow]warning:[/yellow] what each stage learned is not drawn: {escape(why)}")
-    for path in written:
+    if written.why is not None:
+        console.print(f"[yellow]warning:[/yellow] what each stage learned is not drawn: {escape(written.why)}")
+    for path in written.figures.values():
         console.print(f"wrote {escape(str(path))}")
+    # not wrapped: the path stays whole, to copy
+    console.print(Text(f"wrote {written.page} (the report as one page: open it in a browser)"), soft_wrap=True)
