@@ -2,32 +2,20 @@
 
     python examples/api_tour.py [WORK_DIR]
 
-Writes a small config, runs a campaign on the simulator, loads its results,
-simulates and identifies a bench, imports a simulated drive log and exports
-the compensation, all into WORK_DIR (default: a temporary folder, removed at
-the end), printing a few figures of each step.
+With ``ilcpmac.api`` alone: writes a small config, runs a campaign on the
+simulator, loads its results and a trial's spectrum, simulates and identifies a
+bench, imports a simulated drive log and exports the compensation (C) and the
+cogging (CSV, moteus), all into WORK_DIR (default: a temporary folder, removed
+at the end), printing a few figures of each step.
 """
 
-import json
 import sys
 import tempfile
-import tomllib
 from pathlib import Path
 
 import numpy as np
 
-import ilcpmac.campaign
-from ilcpmac.bench.format import read_bench
-from ilcpmac.bench.importer import import_logs, read_mapping
-from ilcpmac.campaign.rundir import RunFiles
-from ilcpmac.compensation import Compensation, read_position_table
-from ilcpmac.config import load_config, packaged_config
-from ilcpmac.core.schema import toml_text
-from ilcpmac.export import export
-from ilcpmac.identify import identify_bench
-from ilcpmac.sim.drive_log import LogPlan
-from ilcpmac.sim.log_folders import DRIVE_LOG, MAPPING, write_simulated_log
-from ilcpmac.sim.simulator import Simulator
+import ilcpmac.api as ilc
 
 #: the seed bench shrunk (as tests/campaign_helpers.py SMALL_CAMPAIGN): 1024 counts, a 2 x 2 grid, two learned
 #: points at one speed, one validated point, few trials
@@ -44,67 +32,62 @@ SMALL = {
 
 def small_config(folder: Path) -> Path:
     """The packaged seed-bench.toml with the `SMALL` tables merged in, written to ``folder``: its path."""
-    data = tomllib.loads(packaged_config("seed-bench.toml").read_text())
-    for table, values in SMALL.items():
-        for key, value in values.items():
-            if isinstance(value, dict):
-                data[table][key].update(value)
-            else:
-                data[table][key] = value
-    path = folder / "small.toml"
-    path.write_text(toml_text(data))
-    return path
+    return ilc.write_config(folder / "small.toml", SMALL)
 
 
 def tour(work: Path) -> None:
     config_path = small_config(work)
 
-    # 1. a campaign on the simulator: identify, learn, validate
-    result = ilcpmac.campaign.run(config_path, out=work / "run", seed=3)
-    print(f"campaign: {len(result.records)} trials in {result.path}")
-    for point in result.points:
-        torque_setpoint_nm, speed_setpoint_hz = point.point
-        print(f"  {torque_setpoint_nm:g} N m, {speed_setpoint_hz:g} Hz ({'learned' if point.learned else 'validated'}):"
-              f" ripple {100 * point.before.measured.pp:.3g} % pp -> {100 * point.after.measured.pp:.3g} % pp")
+    # 1. a campaign on the simulator: identify, learn, validate (on_event=ilc.print_event shows it live)
+    run = ilc.run(config_path, out=work / "run", seed=3)
+    print(f"campaign: {len(run.records)} trials in {run.path}")
 
-    # 2. its results from the files: summary.json (units named) and the trials as arrays
-    summary = json.loads((result.path / "summary.json").read_text())
-    units = summary["units"]
-    for p in summary["points"]:
-        print(f"  summary: {p['torque_setpoint']:g} {units['torque_setpoint']}: ripple {p['ripple_pp_measured']:.3g}, "
-              f"floor {p['floor_pp_measured']:.3g} ({units['ripple_pp_measured']})")
-    motor_time_s = summary["motor_time_s"]  # per phase, and "all"
-    print(f"motor time: {motor_time_s['all']:.1f} s, of which learning {motor_time_s['ilc']:.1f} s")
-    trial = read_bench(result.path).trials[0]
-    print(f"trial 1: {trial.n_samples} samples, i_ref_a {trial.i_ref_a.shape}, "
-          f"torque {trial.torque_nm.std() if trial.torque_nm is not None else float('nan'):.3g} N m RMS about its mean")
+    # 2. its results: every point's final ripple against its noise floor (% of the mean torque), the motor time
+    run = ilc.load_run(work / "run")  # the same, read back from the run directory
+    for p in run.points:
+        print(f"  {p.torque_setpoint_nm:g} N m, {p.speed_setpoint_hz:g} Hz ({'learned' if p.learned else 'validated'}):"
+              f" ripple {p.uncompensated_pp_percent:.3g} % pp -> {p.ripple_pp_percent:.3g} % pp, "
+              f"floor {p.floor_pp_percent:.3g} %")
+    phases = ", ".join(f"{phase} {t:.1f} s" for phase, t in run.motor_time_s.items())
+    print(f"motor time: {run.motor_time_total_s:.1f} s ({phases})")
 
-    # 3. a simulated bench, identified
-    config = load_config(config_path)
-    ilcpmac.campaign.simulate_bench(config, work / "bench", seed=3)
-    identification = identify_bench(read_bench(work / "bench"))
-    truth = json.loads((work / "bench" / "truth.json").read_text())
-    print(f"identified: epsilon {identification.epsilon:.4f} (truth {truth['epsilon']:.4f}), "
-          f"delta {identification.delta:.4f} (truth {truth['torque_sensor_gain']:.4f})")
-    result_json = work / "result.json"
-    result_json.write_text(json.dumps(identification.to_json()))
+    # 3. a trial as columns (float64 arrays, one value per encoder count) and the spectrum of its torque
+    trial = run.trial(1)
+    count, torque_nm = trial.columns["count"], trial.columns["torque"]
+    print(f"trial 1: {count.size} samples, columns {', '.join(trial.columns)}")
+    counts_per_rev = SMALL["bench"]["counts_per_rev"]
+    revolutions = count.size // counts_per_rev
+    ripple_nm = torque_nm[:revolutions * counts_per_rev] - torque_nm.mean()
+    amplitude_nm = 2 * np.abs(np.fft.rfft(ripple_nm)) / ripple_nm.size  # per revolution harmonic k at k * revolutions
+    per_rev = amplitude_nm[::revolutions][1:]
+    top = np.argsort(per_rev)[::-1][:3] + 1
+    print("  largest revolution harmonics: " + ", ".join(f"{k}x {1000 * per_rev[k - 1]:.3g} mN m" for k in top))
+    # with pandas installed, the same as a DataFrame: run.trial_frame(1)
 
-    # 4. a drive log (here simulated, as ilcpmac simulate --kind log), imported and identified
-    (work / "log").mkdir()
-    write_simulated_log(work / "log", Simulator(config.simulated_model()), LogPlan(seed=3, duration_s=10.0))
-    imported = import_logs([work / "log" / DRIVE_LOG], read_mapping(work / "log" / MAPPING), work / "imported")
-    lap = imported[0].laps[0]
-    print(f"imported: {len(imported[0].bench.trials)} trial(s), interpolation error {lap.error.current_a:.3g} A")
-    from_log = identify_bench(imported[0].bench)
-    assert from_log.position_torque_nm is not None
+    # 4. a simulated bench, identified against its truth
+    simulated = ilc.simulate_bench(config_path, work / "bench", seed=3)
+    identification = ilc.identify(simulated.folder, output=work / "result.json")
+    truth = simulated.truth
+    print(f"identified: epsilon {identification.epsilon:.4f} (truth {truth.epsilon:.4f}), "
+          f"delta {identification.delta:.4f} (truth {truth.delta:.4f})")
+
+    # 5. a drive log (here simulated, as ilcpmac simulate --kind log), imported and identified
+    log = ilc.simulate_log(config_path, work / "log", seed=3, duration_s=10.0)
+    (imported, *_) = ilc.import_logs(log.log, log.mapping, work / "imported")
+    lap = imported.laps[0]
+    print(f"imported: {len(imported.bench.trials)} trial(s), interpolation error {lap.error.current_a:.3g} A")
+    from_log = ilc.identify(imported.folder)
     print(f"from the log: position torque {np.ptp(from_log.position_torque_nm):.3g} N m pp")
 
-    # 5. exports: the campaign's compensation as C, the identification's cogging as CSV
-    exported = export(Compensation.read(RunFiles(result.path).compensation), work / "firmware", "c")
-    assert exported.residual is not None
+    # 6. exports: the campaign's compensation as C, the identification's cogging as CSV and for moteus
+    exported = ilc.export(run.path, "c", work / "firmware")
     print(f"exported {', '.join(p.name for p in exported.files)}: {exported.residual.rms_nm:.3g} N m RMS residual")
-    cogging = export(read_position_table(result_json), work / "cogging", "csv")
+    cogging = ilc.export(work / "result.json", "csv", work / "cogging")
     print(f"exported {', '.join(p.name for p in cogging.files)}")
+    k_q = ilc.torque_constant_nm_per_a(simulated.folder)
+    moteus = ilc.export(work / "result.json", "moteus", work / "moteus", torque_constant_nm_per_a=k_q)
+    print(f"exported {', '.join(p.name for p in moteus.files)} at k_q {k_q:.4g} N m / A")
+    print(f"  {moteus.residual.line('moteus')}")
 
 
 def main() -> None:

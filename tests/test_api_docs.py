@@ -32,7 +32,8 @@ def test_the_tour_runs_and_prints_its_figures(tmp_path):
     out = done.stdout
     for figure in ("campaign: 18 trials", "learned): ripple", "validated): ripple", "floor", "motor time:",
                    "trial 1: 3072 samples", "identified: epsilon", "imported: 1 trial(s)", "from the log:",
-                   "exported ilcpmac_compensation.h", "exported calibration.csv"):
+                   "exported ilcpmac_compensation.h", "exported calibration.csv", "largest revolution harmonics",
+                   "exported moteus_cogging.txt"):
         assert figure in out, out
     assert (tmp_path / "tour" / "run" / "summary.json").is_file()
 

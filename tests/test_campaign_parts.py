@@ -52,9 +52,9 @@ def test_a_trial_record_round_trips_through_its_json(index, role, torque, speed,
 
 
 def test_a_trial_record_writes_the_summary_keys_of_docs_campaign():
-    record = TrialRecord(3, "ilc", "learn", 1.0, 0.75, figures(1.0), figures(2.0), 10.0, 20.0)
+    record = TrialRecord(3, "learn", "learn", 1.0, 0.75, figures(1.0), figures(2.0), 10.0, 20.0)
     assert record.to_json() == {
-        "index": 3, "phase": "ilc", "role": "learn", "torque_setpoint": 1.0, "speed_setpoint": 0.75,
+        "index": 3, "phase": "learn", "role": "learn", "torque_setpoint": 1.0, "speed_setpoint": 0.75,
         "ripple_pp_true": 2.0, "ripple_rms_true": 4.0, "rest_rms_true": 6.0, "ripple_rms_repeatable_true": 8.0,
         "amp_1x_true_nm": 10.0, "amp_2x_true_nm": 12.0, "amp_cogging_true_nm": 14.0, "amp_rest_true_nm": 16.0,
         "ripple_pp_measured": 1.0, "ripple_rms_measured": 2.0, "rest_rms_measured": 3.0,
@@ -68,7 +68,7 @@ def test_a_trial_record_writes_the_summary_keys_of_docs_campaign():
 
 
 def done(index: int, role: str, torque: float, repeatable: float = 0.01, speed: float = 0.9) -> TrialRecord:
-    phase = {"grid": "identify", "baseline": "identify", "learn": "ilc"}.get(role, role)
+    phase = {"grid": "identify", "baseline": "identify", "learn": "learn"}.get(role, role)
     return TrialRecord(index, phase, role, torque, speed, dataclasses.replace(figures(1.0), rms_repeatable=repeatable))
 
 
@@ -98,7 +98,7 @@ def test_the_plan_orders_grid_baselines_compensation_learning_then_validation_fr
                           ("compensate", "compensate", 2.0), ("compensate", "compensate", 4.0)]
     # a flat repeatable ripple stops improving: patience trials of learning at each point, in rounds
     patience = plan.config.campaign.patience
-    assert steps[8:-2] == [("ilc", "learn", 2.0), ("ilc", "learn", 4.0)] * patience
+    assert steps[8:-2] == [("learn", "learn", 2.0), ("learn", "learn", 4.0)] * patience
     assert steps[-2:] == [("validate", "baseline", 3.0), ("validate", "validate", 3.0)]
     assert len(records_at(records, (2.0, 0.9), ("compensate", "learn"))) == patience + 1
 
@@ -113,12 +113,15 @@ def test_learning_goes_on_while_the_ripple_improves_up_to_learn_trials(plan):
         assert len(records_at(records, point, ("learn",))) == plan.config.campaign.learn_trials
 
 
-def test_the_learning_phase_is_named_for_what_learns():
-    from ilcpmac.campaign.plan import learning_phase
-
-    assert learning_phase(("current-sensor", "cogging", "ilc")) == "ilc"
-    assert learning_phase(("current-sensor", "cogging")) == "learn"
-    assert learning_phase(("harmonic-canceller",)) == "learn"
+def test_the_learning_phase_has_one_name_whatever_stage_learns(plan):
+    """Issue 26, item 6: it was "ilc" in the records and the plot bands when the ilc stage ran, "learn" else."""
+    records: list[TrialRecord] = []
+    phases = set()
+    while (step := plan.next_step(records)) is not None:
+        phases.add(step.phase)
+        request = step.request
+        records.append(done(len(records) + 1, step.role, request.torque_setpoint_nm, speed=request.speed_setpoint_hz))
+    assert "ilc" in plan.config.pipeline.stages and phases == {"identify", "compensate", "learn", "validate"}
 
 
 def test_the_plan_ends_only_after_the_validation_and_bounds_every_trial_on_the_way(plan):
@@ -150,7 +153,7 @@ def test_the_plan_ends_only_after_the_validation_and_bounds_every_trial_on_the_w
 def point_trial(index: int, role: str, point: tuple[float, float], pp: float, true_pp: float | None = None,
                 factor: float | None = None) -> TrialRecord:
     """A trial at ``point`` of measured peak-to-peak ripple ``pp`` (and true ``true_pp``)."""
-    phase = {"baseline": "identify", "learn": "ilc"}.get(role, role)
+    phase = {"baseline": "identify", "learn": "learn"}.get(role, role)
     true = None if true_pp is None else dataclasses.replace(figures(1.0), pp=true_pp)
     return TrialRecord(index, phase, role, *point, dataclasses.replace(figures(1.0), pp=pp), true, factor,
                        None if true_pp is None else factor)

@@ -31,3 +31,10 @@ def test_every_module_of_the_package_lies_in_exactly_one_layer():
 
 def test_the_core_is_the_lowest_layer():
     assert layers()[-1] == ["ilcpmac.core"]
+
+
+def test_the_api_is_the_layer_right_below_the_cli():
+    """ilcpmac.api, the public facade, may import every layer but the CLI's; only the CLI may import it
+    (docs/architecture.md)."""
+    names = [layer[0] for layer in layers()]
+    assert names.index("ilcpmac.api") == names.index("ilcpmac.cli") + 1

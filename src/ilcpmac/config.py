@@ -302,6 +302,17 @@ class CampaignConfig:
         shrink = c.learn_growth ** max(c.learn_trials - learned, 0)
         return max(MIN_REVOLUTIONS, math.ceil(last / shrink - 1e-9))
 
+    def with_grid(self, seed: int | None = None, revolutions: int | None = None) -> CampaignConfig:
+        """This config with [trials] ``seed`` and ``revolutions`` where given (``ilcpmac simulate --seed
+        --revolutions``), checked (`check_config`: `ConfigError` naming the key)."""
+        if seed is None and revolutions is None:
+            return self
+        grid = dataclasses.replace(self.grid, seed=self.grid.seed if seed is None else seed,
+                                   revolutions=self.grid.revolutions if revolutions is None else revolutions)
+        config = dataclasses.replace(self, grid=grid)
+        check_config(config)
+        return config
+
     def with_trial_lengths(self, factor: float) -> CampaignConfig:
         """This config with [campaign] learn_revolutions and validate_revolutions ``factor`` times as many
         (rounded up, at least `MIN_REVOLUTIONS`): the trials after the grid, as ``--budget`` sizes them."""

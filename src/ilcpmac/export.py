@@ -15,6 +15,8 @@
   ``motor.cogging_dq_scale`` and 1024 int8 ``motor.cogging_dq_comp`` entries, q-axis amperes.
 
 Every export states its `Residual`: the table as the target reproduces it per count, against the table.
+`export_source` exports what a path holds (`read_source`: a run directory, a compensation.json or a result JSON), as
+``ilcpmac export`` and ``ilcpmac.api.export`` do.
 """
 
 from __future__ import annotations
@@ -29,14 +31,15 @@ from string import Template
 
 import numpy as np
 
-from ilcpmac.compensation import COMPENSATION_FILE, Compensation, PositionTable
-from ilcpmac.core.errors import IlcpmacError
+from ilcpmac.compensation import COMPENSATION_FILE, Compensation, PositionTable, read_position_table
+from ilcpmac.core.errors import BenchFormatError, IlcpmacError
 from ilcpmac.core.records import SensorCalibration
 from ilcpmac.model.tables import mechanical_angles_rad
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
 __all__ = ["C_TYPES", "FORMATS", "INT16_FULL_SCALE", "MOTEUS_INT8_MAX", "MOTEUS_TABLE_SIZE", "POSITION_FORMATS",
-           "Exported", "Int16Tables", "MoteusTable", "Residual", "export", "feedforward_column", "write_c",
+           "Exported", "Int16Tables", "MoteusTable", "Residual", "export", "export_source", "feedforward_column",
+           "read_source", "write_c",
            "write_csv", "write_harmonics", "write_json", "write_moteus"]
 
 #: what ``ilcpmac export --format`` writes
@@ -587,3 +590,51 @@ def export(record: Record, out_dir: Path, fmt: str, c_type: str = "int16", sourc
     assert exported.rendered_nm is not None
     residual = Residual.of(tables_of(record), exported.rendered_nm, rated_torque_nm)
     return dataclasses.replace(exported, residual=residual)
+
+
+def read_source(source: str | Path, content: str | None = None) -> tuple[Record, Path]:
+    """What ``ilcpmac export SOURCE`` exports, and the file it was read from.
+
+    Parameters
+    ----------
+    source : str or Path
+        A folder holding compensation.json (a run directory of ``ilcpmac run``), a file named compensation.json,
+        or a result JSON of ``ilcpmac identify`` (a bench's or a standstill scan's).
+    content : str or None
+        Of a result: "cogging" (None: the default) or "position-torque" (`ilcpmac.compensation.CONTENTS`).
+
+    Returns
+    -------
+    record : Compensation or PositionTable
+        The campaign's compensation, or the result's position table (`read_position_table`).
+    path : Path
+        The file it was read from.
+
+    Raises
+    ------
+    BenchFormatError
+        A folder without compensation.json, or a file that cannot be read as what it is taken for (one line
+        naming the file and key).
+    IlcpmacError
+        ``content`` given for a compensation.
+    """
+    path = Path(source)
+    if path.is_dir():
+        path = path / COMPENSATION_FILE
+        if not path.exists():
+            raise BenchFormatError(f"{source} has no {path.name} (a campaign writes it when its learning phase ends)")
+    elif path.name != COMPENSATION_FILE:
+        return read_position_table(path, content or "cogging"), path
+    if content is not None:
+        raise IlcpmacError(f"--content selects what of a result to export; {path} is a campaign's compensation")
+    return Compensation.read(path), path
+
+
+def export_source(source: str | Path, out_dir: str | Path, fmt: str, c_type: str = "int16",
+                  content: str | None = None, torque_constant_nm_per_a: float | None = None,
+                  rated_torque_nm: float | None = None) -> Exported:
+    """``ilcpmac export SOURCE``: `export` of what ``source`` holds (`read_source`: a run directory, a
+    compensation.json or a result JSON) into ``out_dir``; the arguments and errors are `read_source`'s and
+    `export`'s."""
+    record, path = read_source(source, content)
+    return export(record, Path(out_dir), fmt, c_type, str(path), torque_constant_nm_per_a, rated_torque_nm)

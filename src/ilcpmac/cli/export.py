@@ -44,31 +44,16 @@ def export(source: Path, fmt: str, out_dir: Path, c_type: str, content: str | No
            rated_torque: float | None) -> None:
     """Export a compensation for a drive's firmware.
 
-    A run directory: its compensation.json, which a campaign writes (current-sensor calibration, torque gain,
-    torque feed-forward per encoder count over the learned torque x speed points). A result JSON of ilcpmac
+    A run directory, or its compensation.json: the compensation a campaign writes (current-sensor calibration,
+    torque gain, torque feed-forward per encoder count over the learned torque x speed points). A result JSON of ilcpmac
     identify (a bench's or a standstill scan's): the position torque feed-forward, which applies at every
     torque and speed, and the identified calibration. Writes into --out and prints the residual ripple the
     format leaves (docs/export.md).
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
-    from ilcpmac.campaign.rundir import RunFiles
-    from ilcpmac.compensation import Compensation, PositionTable, read_position_table
-    from ilcpmac.core.errors import BenchFormatError, IlcpmacError
-    from ilcpmac.export import export as write
+    from ilcpmac.export import export_source
 
-    record: Compensation | PositionTable
-    if source.is_dir():
-        path = RunFiles(source).compensation
-        if not path.exists():
-            raise BenchFormatError(f"{source} has no {path.name} (a campaign writes it when its learning "
-                                   "phase ends)")
-        if content is not None:
-            raise IlcpmacError(f"--content selects what of a result to export; {path} is a campaign's compensation")
-        record = Compensation.read(path)
-    else:
-        path = source
-        record = read_position_table(path, content or "cogging")
-    exported = write(record, out_dir, fmt, c_type, str(path), torque_constant, rated_torque)
+    exported = export_source(source, out_dir, fmt, c_type, content, torque_constant, rated_torque)
     width = max(len(p.name) for p in exported.files)
     lines = [f"  {p.name:<{width}}  {_size(p.stat().st_size)}" for p in exported.files]
     total = sum(p.stat().st_size for p in exported.files)

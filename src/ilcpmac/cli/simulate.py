@@ -4,15 +4,12 @@ log (a standstill scan, a rolling log) with its import mapping."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import click
 
 from ilcpmac.cli import console, main, progress_bar
-from ilcpmac.core.errors import IlcpmacError
-
-if TYPE_CHECKING:
-    from ilcpmac.config import CampaignConfig
+from ilcpmac.core.errors import IlcpmacError, OptionError
 
 #: the options of one kind only, by kind (--seed serves every kind)
 _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revolutions", "rate_hz"),
@@ -58,9 +55,9 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
     simulate").
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
-    import dataclasses
-
-    from ilcpmac.config import check_config, load_config
+    from ilcpmac import api
+    from ilcpmac.config import load_config
+    from ilcpmac.sim.log_folders import DRIVE_LOG, MAPPING, SCAN_LOG
 
     given = {"revolutions": revolutions, "no_torque_sensor": no_torque_sensor or None, **log_options}
     for name, value in given.items():
@@ -68,63 +65,27 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
             raise IlcpmacError(f"--{name.replace('_', '-')}: not for --kind {kind}")
     cfg = load_config(config)
     if kind == "grid":
-        if seed is not None or revolutions is not None:
-            grid = cfg.grid
-            cfg = dataclasses.replace(cfg, grid=dataclasses.replace(
-                grid, seed=grid.seed if seed is None else seed,
-                revolutions=grid.revolutions if revolutions is None else revolutions))
-            check_config(cfg)
-        _simulate_grid(cfg, out_dir, no_torque_sensor)
+        cfg = cfg.with_grid(seed, revolutions)
+        out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the progress bar
+        n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
+        with progress_bar() as progress:
+            task = progress.add_task("simulating trials", total=n)
+            bench = api.simulate_bench(cfg, out_dir, torque_sensor=not no_torque_sensor,
+                                       on_trial=lambda i, trial: progress.advance(task)).bench
+        samples = sum(t.n_samples for t in bench.trials)
+        console.print(f"wrote {len(bench.trials)} trials ({samples} samples) and truth.json to {out_dir}")
         return
-    _simulate_log(cfg, out_dir, kind, cfg.grid.seed if seed is None else seed, revolutions, log_options)
-
-
-def _simulate_grid(cfg: CampaignConfig, out_dir: Path, no_torque_sensor: bool) -> None:
-    """The set-point grid as a bench folder with truth.json."""
-    from ilcpmac.campaign import simulate_bench
-
-    out_dir.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the trials run
-    n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
-    with progress_bar() as progress:
-        task = progress.add_task("simulating trials", total=n)
-        bench = simulate_bench(cfg, out_dir, on_done=lambda i, trial: progress.advance(task),
-                               torque_sensor=not no_torque_sensor)
-    samples = sum(t.n_samples for t in bench.trials)
-    console.print(f"wrote {len(bench.trials)} trials ({samples} samples) and truth.json to {out_dir}")
-
-
-def _simulate_log(cfg: CampaignConfig, out_dir: Path, kind: str, seed: int, revolutions: int | None,
-                  options: dict[str, Any]) -> None:
-    """A standstill scan or a rolling log, with its mapping, backemf.csv and truth.json."""
-    from ilcpmac.sim.drive_log import LogPlan
-    from ilcpmac.sim.log_folders import DRIVE_LOG, MAPPING, SCAN_LOG, write_simulated_log, write_simulated_scan
-    from ilcpmac.sim.simulator import Simulator
-
-    simulator = Simulator(cfg.simulated_model())
-    chosen: dict[str, Any] = {name: value for name, value in options.items() if value is not None}
-    if kind == "scan":
-        from ilcpmac.sim.standstill import ScanPlan
-
-        if revolutions is not None:
-            chosen["revolutions"] = revolutions
-        plan = ScanPlan(seed=seed, **chosen)
-        _check(plan.problem(simulator.model.encoder.counts_per_rev))
-        out_dir.mkdir(parents=True, exist_ok=True)
-        write_simulated_scan(out_dir, simulator, plan)
-        console.print(f"wrote {SCAN_LOG} (a standstill scan, {plan.revolutions} revolution(s) each way), {MAPPING}, "
-                      f"backemf.csv and truth.json to {out_dir}")
-        return
-    log_plan = LogPlan(seed=seed, **chosen)
-    _check(log_plan.problem(simulator))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    truth = write_simulated_log(out_dir, simulator, log_plan)
-    console.print(f"wrote {DRIVE_LOG} ({log_plan.loop} loop, {log_plan.duration_s:g} s at {log_plan.rate_hz:g} Hz, "
-                  f"K_t = {truth['torque_constant_nm_per_a']:.4g} N m / A), {MAPPING}, backemf.csv and truth.json "
+    chosen: dict[str, Any] = {name: value for name, value in given.items() if value is not None}
+    try:
+        if kind == "scan":
+            scan = api.simulate_scan(cfg, out_dir, seed=seed, **chosen)
+            console.print(f"wrote {SCAN_LOG} (a standstill scan, {scan.plan.revolutions} revolution(s) each way), "
+                          f"{MAPPING}, backemf.csv and truth.json to {out_dir}")
+            return
+        log = api.simulate_log(cfg, out_dir, seed=seed, **chosen)
+    except OptionError as e:
+        raise IlcpmacError(f"--{e.name.replace('_', '-')}: {e.why}") from None
+    plan = log.plan
+    console.print(f"wrote {DRIVE_LOG} ({plan.loop} loop, {plan.duration_s:g} s at {plan.rate_hz:g} Hz, "
+                  f"K_t = {log.truth['torque_constant_nm_per_a']:.4g} N m / A), {MAPPING}, backemf.csv and truth.json "
                   f"to {out_dir}")
-
-
-def _check(problem: str | None) -> None:
-    """A plan's problem ("name: why") as the option's error, before anything is written."""
-    if problem is not None:
-        name, _, why = problem.partition(": ")
-        raise IlcpmacError(f"--{name.replace('_', '-')}: {why}")

@@ -32,5 +32,13 @@ class SafetyError(IlcpmacError):
     """A request would break the safety limits, or a stage produced an invalid one; nothing was sent."""
 
 
+class OptionError(IlcpmacError):
+    """An option of a simulated log or scan is unknown or out of its range: ``name``, ``why``."""
+
+    def __init__(self, name: str, why: str) -> None:
+        super().__init__(f"{name}: {why}")
+        self.name, self.why = name, why
+
+
 class StageError(IlcpmacError):
     """A stage raised, returned something the pipeline refuses, or did not return in time; the message names it."""
