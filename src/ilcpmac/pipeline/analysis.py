@@ -33,6 +33,7 @@ from ilcpmac.signals.encoder_torque import (
 )
 from ilcpmac.signals.harmonics import (
     RippleFigures,
+    harmonic_amplitudes,
     linear_trend,
     revolution_table,
     table_from_amplitudes,
@@ -231,12 +232,18 @@ class TorqueMeasurement:
 
     def encoder_spectrum_and_bias(self, trial: TrialData, counts_per_rev: int, max_harmonic: int
                                   ) -> tuple[TorqueSpectrum, np.ndarray]:
-        """`encoder_spectrum`, and what eq. 5 took out of it per harmonic 0..H (N m): the bound on its bias that
-        "both" weights it with (`fused`)."""
+        """`encoder_spectrum`, and the bound on its bias per harmonic 0..H that "both" weights it with (`fused`),
+        N m: what eq. 5 took out of it plus what the identified graduation error took out, |m_h e_h| (eq. 4): an
+        applied correction is known no better than its own size (a graduation error detected where there is
+        none, from the noise of a few harmonics, would otherwise pass into the fused torque as m_h e_h, which
+        grows as h^2)."""
         spectrum, corrected = self._encoder_spectra(trial, counts_per_rev, max_harmonic)
         rest = float(np.sqrt(corrected.revolutions * np.sum(corrected.variance_nm2[1:]) / 2.0))
-        return (TorqueSpectrum(corrected.harmonics_nm, corrected.weight_variance_nm2, rest, counts_per_rev),
-                np.abs(spectrum.harmonics_nm - corrected.harmonics_nm))
+        bias = np.abs(spectrum.harmonics_nm - corrected.harmonics_nm)
+        if self.line_errors_counts is not None:
+            error_counts = harmonic_amplitudes(self.line_errors_counts, max_harmonic)
+            bias = bias + np.abs(corrected.encoder_error_gain() * error_counts)
+        return TorqueSpectrum(corrected.harmonics_nm, corrected.weight_variance_nm2, rest, counts_per_rev), bias
 
     def _encoder_spectra(self, trial: TrialData, counts_per_rev: int, max_harmonic: int
                          ) -> tuple[EncoderTorqueSpectrum, EncoderTorqueSpectrum]:
