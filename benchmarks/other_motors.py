@@ -7,7 +7,10 @@ with the torque source left to its default (the sensor: their encoders are not p
 stated and the run motor time, and per point the final true ripple against its floor (target: learned points
 within 1.5x, validation points within 2x).
 
-Usage: python benchmarks/other_motors.py [--out DIR]
+With ``--seeds``, each motor (and the seed bench) runs once per seed (``ilcpmac run --seed``: other noise,
+other grid excitation), and a last table counts the points above their targets over all runs.
+
+Usage: python benchmarks/other_motors.py [--out DIR] [--seeds N [N ...]]
 """
 
 from __future__ import annotations
@@ -85,21 +88,54 @@ def stated_s(path: Path) -> float:
     return CampaignPlan.build(cfg, description, cfg.grid.seed).motor_time_s()
 
 
+def run(config_path: Path, run_dir: Path, seed: int | None) -> dict:
+    """summary.json of ``ilcpmac run CONFIG`` into ``run_dir`` (reused when it is there)."""
+    if not (run_dir / "summary.json").exists():
+        command = [sys.executable, "-m", "ilcpmac", "run", str(config_path), "--out", str(run_dir)]
+        done = subprocess.run(command + ([] if seed is None else ["--seed", str(seed)]), cwd=ROOT,
+                              capture_output=True, text=True)
+        if done.returncode != 0:
+            sys.exit(f"{run_dir.name} failed ({done.returncode}): {done.stderr.strip()[-400:]}")
+    return json.loads((run_dir / "summary.json").read_text())
+
+
+def ratios(summary: dict) -> tuple[list[float], list[float]]:
+    """Each learned and each validation point's final true ripple over its floor."""
+    learned, validated = [], []
+    for p in summary["points"]:
+        (learned if p["learned"] else validated).append(p["ripple_pp_true"] / p["floor_pp_true"])
+    return learned, validated
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="where the runs go (default: a temp dir)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None,
+                        help="run every motor once per seed and count the points above target over all runs")
     args = parser.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="other_motors-"))
     out.mkdir(parents=True, exist_ok=True)
+    if args.seeds:
+        rows = [("seed bench", SEED)] + [(f"motor {k}", config(changes, out / f"motor{k}.toml"))
+                                         for k, changes in enumerate(MOTORS.values(), start=1)]
+        print(f"{'':<12}{'seed':>6}  {'learned / floor':>16}  {'validation / floor':>18}  {'worst learned':>13}  "
+              f"{'worst valid.':>12}")
+        above = below = points = 0
+        for name, path in rows:
+            for seed in args.seeds:
+                summary = run(path, out / f"{name.replace(' ', '')}-s{seed}", seed)
+                learned, validated = ratios(summary)
+                above += sum(r > 1.5 for r in learned) + sum(r > 2.0 for r in validated)
+                below += sum(r < 1.0 for r in learned + validated)
+                points += len(learned) + len(validated)
+                worst = [100 * max(p["ripple_pp_true"] for p in summary["points"] if p["learned"] == kind)
+                         for kind in (True, False)]
+                print(f"{name:<12}{seed:>6}  {min(learned):>7.2f}-{max(learned):<8.2f}  "
+                      f"{min(validated):>9.2f}-{max(validated):<8.2f}  {worst[0]:>11.3f} %  {worst[1]:>10.3f} %")
+        print(f"points above target (learned 1.5x, validation 2x): {above} of {points}; below their floor: {below}")
+        return
     for k, (name, changes) in enumerate(MOTORS.items(), start=1):
-        run_dir = out / f"motor{k}"
-        if not (run_dir / "summary.json").exists():
-            done = subprocess.run([sys.executable, "-m", "ilcpmac", "run",
-                                   str(config(changes, out / f"motor{k}.toml")), "--out", str(run_dir)],
-                                  cwd=ROOT, capture_output=True, text=True)
-            if done.returncode != 0:
-                sys.exit(f"motor {k} failed ({done.returncode}): {done.stderr.strip()[-400:]}")
-        summary = json.loads((run_dir / "summary.json").read_text())
+        summary = run(config(changes, out / f"motor{k}.toml"), out / f"motor{k}", None)
         print(f"motor {k}: {name}")
         print(f"  motor time {summary['motor_time_s']['all'] / 60:.2f} min, the plan stated "
               f"{stated_s(out / f'motor{k}.toml') / 60:.2f} min")

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from ilcpmac.campaign.floors import SIGNIFICANCE, interpolation_error, learning_variance
+from ilcpmac.campaign.floors import SIGNIFICANCE, PointSpectra, interpolation_error, learning_variance, shared_harmonics
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.compensation import interpolation_weights
 from ilcpmac.config import config_tables, config_text, load_config
@@ -57,13 +57,34 @@ def spectrum(harmonics: np.ndarray, variance: np.ndarray) -> TorqueSpectrum:
     return TorqueSpectrum(np.asarray(harmonics, complex), np.asarray(variance, float), 0.0, 256)
 
 
-def test_the_learning_floor_is_the_inverse_variance_mean_where_there_was_ripple_to_learn():
+def test_the_learning_floor_is_the_inverse_variance_mean_where_a_trial_learned_from_showed_ripple():
+    """Harmonic 3 stands out in the longer trial only: the learning found ripple there and its noise counts
+    (issue 25: counting the compensation trial's harmonics alone left out the broadband ripple that only the
+    longer learning trials resolve, which the learning then learned with its noise: 2-3.4x "floors")."""
     v = np.full(6, 1e-6)
     ripple = np.array([1.0, 0.01, SIGNIFICANCE * 0.999e-3, 0.0, SIGNIFICANCE * 1.001e-3, 0.5])
-    compensation = spectrum(ripple, v)
-    learned_from = [spectrum(np.zeros(6), v), spectrum(np.zeros(6), 3 * v)]
-    P = 1.0 / (1.0 / 1e-6 + 1.0 / 3e-6)
-    assert learning_variance(compensation, learned_from) == pytest.approx([0.0, P, 0.0, 0.0, P, P])
+    later = np.array([0.0, 0.0, 0.0, SIGNIFICANCE * 1.001e-3 * np.sqrt(0.25), 0.0, 0.0])
+    learned_from = [spectrum(ripple, v), spectrum(later, 0.25 * v)]
+    P = 1.0 / (1.0 / 1e-6 + 1.0 / 0.25e-6)
+    assert learning_variance(learned_from) == pytest.approx([0.0, P, 0.0, P, P, P])
+
+
+def test_where_the_points_share_their_ripple_the_learning_floor_pools_every_points_trials():
+    """Harmonic 1: the same ripple at every point (within its noise): shared, its floor the variance of all the
+    points' trials pooled, as a learner that pools them reaches it (the ilc stage); harmonic 2: one point's
+    ripple 10 standard deviations off the others': each point's own."""
+    v = np.full(3, 1e-6)
+    rng = np.random.default_rng(25)
+    learned = {}
+    for k in range(5):
+        noise = (rng.normal(size=3) + 1j * rng.normal(size=3)) * np.sqrt(v / 2)
+        ripple = np.array([0.0, 0.01, 0.02 + (10e-3 if k == 0 else 0.0)]) + noise
+        learned[(float(k + 1), 1.0)] = [PointSpectra(spectrum(ripple, v), 1.0), PointSpectra(spectrum(0 * v, v), 1.0),
+                                        PointSpectra(spectrum(0 * v, v), 1.0)]
+    shared, pooled = shared_harmonics(learned)
+    assert shared.tolist() == [True, True, False]
+    assert pooled[1:] == pytest.approx(1e-6 / 10)  # 5 points x 2 trials learned from
+    assert not shared_harmonics(dict(list(learned.items())[:2]))[0].any()  # two points pool nothing
 
 
 def test_the_interpolation_error_is_zero_where_learned_and_exact_for_a_quadratic_in_torque():

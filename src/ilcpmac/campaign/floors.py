@@ -10,9 +10,11 @@ Two noises bound what a point ends at:
 - the **learning's noise** (what it can reach): the feed-forward that removes the ripple the model-based
   compensation left is estimated from the measured torque of the trials learned from before the final one,
   no better than the inverse-variance mean of their harmonics, of variance P_h = 1 / sum_k (1 / v_k,h), at
-  every harmonic where there was ripple to remove: where the compensation trial's measured harmonic stood out
-  of its noise by `SIGNIFICANCE` standard deviations. (A harmonic below that is left out: a learner may leave
-  it alone, or, where a stage pools it over the points, learn it from more than one point's trials.)
+  every harmonic where there was ripple to remove: where the measured harmonic of one of those trials stood
+  out of its noise by `SIGNIFICANCE` standard deviations (the compensation trial shows the large ripple, the
+  longer learning trials what is smaller). A harmonic no trial shows is left out: a learner may leave it alone.
+  Where the learned points share their ripple (`shared_harmonics`), a learner that pools the points (the ilc
+  stage) learns it from every point's trials: there P_h is that of all of them pooled.
 
 The floor is the expected peak-to-peak of independent harmonics of variance v_h + P_h over the band 1..H
 (`expected_noise_pp`), as a fraction of the mean torque. A validation point learns nothing: its learning part
@@ -36,8 +38,13 @@ from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
 
 __all__ = ["SIGNIFICANCE", "PointFloor", "PointSpectra", "interpolation_error", "learning_variance", "point_floors"]
 
-#: standard deviations a harmonic of the compensation trial stands out by to count as ripple to learn
+#: standard deviations a harmonic of a trial learned from stands out by to count as ripple to learn
 SIGNIFICANCE = 2.0
+#: learned points from which on the points' shared ripple is learned pooled (`shared_harmonics`; the ilc
+#: stage's `POOLED_MIN`)
+POOLED_POINTS = 3
+#: the chance that points sharing a harmonic's ripple are taken for differing there (`shared_harmonics`)
+SHARED_FALSE_ALARM = 0.01
 
 
 @dataclass(frozen=True)
@@ -77,14 +84,40 @@ class PointFloor:
         return out
 
 
-def learning_variance(compensation: TorqueSpectrum, learned_from: list[TorqueSpectrum]) -> np.ndarray:
+def learning_variance(learned_from: list[TorqueSpectrum]) -> np.ndarray:
     """P_h of the module docstring per harmonic 0..H, N m^2: the inverse-variance mean's variance of the spectra
-    ``learned_from`` where ``compensation``'s harmonic stands out at `SIGNIFICANCE` (true units), 0 elsewhere
+    ``learned_from`` (true units) where the harmonic of one of them stands out at `SIGNIFICANCE`, 0 elsewhere
     and at h = 0."""
     information = sum(1.0 / np.maximum(s.variance_nm2, 1e-300) for s in learned_from)
-    ripple = np.abs(compensation.harmonics_nm) > SIGNIFICANCE * np.sqrt(compensation.variance_nm2)
+    ripple = np.any([np.abs(s.harmonics_nm) > SIGNIFICANCE * np.sqrt(s.variance_nm2) for s in learned_from], axis=0)
     ripple[0] = False
     return np.where(ripple, 1.0 / information, 0.0)
+
+
+def shared_harmonics(learned: dict[Point, list[PointSpectra]]) -> tuple[np.ndarray, np.ndarray]:
+    """Where the learned points share their ripple, and the learning variance there with every point's trials
+    pooled (a learner that pools the points, as the ilc stage does, reaches it), N m^2, per harmonic 0..H.
+
+    Shared: the compensation trials' harmonics (what each point had to learn) agree across the points within
+    their noise, sum_p |c_p - c|^2 / v_p (c their inverse-variance mean) within the 1 - `SHARED_FALSE_ALARM`
+    quantile of its Gamma(k - 1) law for k points that share it. Fewer than `POOLED_POINTS` points share
+    nothing.
+    """
+    from scipy.special import gammaincinv  # deferred: scipy.special costs the campaign's import
+
+    first = next(iter(learned.values()))[0].measured if learned else None
+    if first is None or len(learned) < POOLED_POINTS:
+        size = 0 if first is None else first.variance_nm2.size
+        return np.zeros(size, bool), np.zeros(size)
+    compensation = [trials[0].measured for trials in learned.values()]
+    c = np.array([s.harmonics_nm for s in compensation])
+    w = 1.0 / np.maximum(np.array([s.variance_nm2 for s in compensation]), 1e-300)
+    mean = (w * c).sum(axis=0) / w.sum(axis=0)
+    spread = (w * np.abs(c - mean) ** 2).sum(axis=0)
+    shared = spread <= gammaincinv(len(learned) - 1, 1.0 - SHARED_FALSE_ALARM)
+    pooled = 1.0 / sum(1.0 / np.maximum(t.measured.variance_nm2, 1e-300) for trials in learned.values()
+                       for t in trials[:-1])
+    return shared, pooled
 
 
 def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:
@@ -124,10 +157,12 @@ def point_floors(learned: dict[Point, list[PointSpectra]], validated: dict[Point
     """
     learning = {}
     floors = []
+    shared, pooled = shared_harmonics(learned)
     for point, trials in learned.items():
         *before, final = trials
-        learning[point] = learning_variance(trials[0].measured, [t.measured for t in before]) if before else \
+        learning[point] = learning_variance([t.measured for t in before]) if before else \
             np.zeros_like(final.measured.variance_nm2)
+        learning[point] = np.where(shared & (learning[point] > 0), pooled, learning[point])
         floors.append(_point(point, True, final, learning[point], None))
     for point, trial in validated.items():
         weights = interpolation_weights(torques_nm, speeds_hz, *point)

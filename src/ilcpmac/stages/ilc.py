@@ -34,6 +34,15 @@ uncertainty, d^ max(0, 1 - significance^2 P / |d^|^2): harmonics that do not
 stand out of their noise are not learned, and none switches on and off. ``estimation = "fixed"``
 gives the classical fixed-gain ILC on the raw e_j, for comparison.
 
+Pooled over the set points (``pooling = "points"``, the default): part of the ripple is the same at every
+set point (what is locked to the position whatever the torque and speed: an encoder's line errors through
+the cogging's slope, say), and one set point's trials see it only at their own noise, a few standard
+deviations of a harmonic spread over a hundred. So each estimate is shrunk toward what the set points share
+rather than toward zero: s^ = the inverse-variance mean of the learned set points' d^ (variance 1 / sum 1/P,
+about P over their number), itself shrunk by its uncertainty, and d^ - s^ shrunk by P as above. Where a set
+point's ripple stands out of the shared part, the set point's own estimate is learned; where it does not, the
+shared estimate, with the information of every set point. ``pooling = "none"`` shrinks toward zero.
+
 Before learning, the monotonic-convergence condition |1 - L G| < 1 / |Q| is
 checked on the identified response within its uncertainty.
 """
@@ -55,6 +64,7 @@ DEFAULTS = {
     "process_noise_nm": 1e-5,
     "significance": 2.0,
     "model_uncertainty": 0.2,
+    "pooling": "points",
 }
 #: each option's range (q_cutoff_harmonic is also checked against the encoder's Nyquist limit)
 RANGES = {
@@ -65,7 +75,12 @@ RANGES = {
     "process_noise_nm": (in_range(0.0, 1e3), "N m per trial, within [0, 1e3]"),
     "significance": (in_range(0.0, 100.0), "standard deviations, within [0, 100]"),
     "model_uncertainty": (in_range(0.0, 1.0, high_open=True), "relative, within [0, 1)"),
+    "pooling": (lambda x: x in ("points", "none"), '"points" (shrink toward what the set points share) or "none"'),
 }
+
+
+#: set points learned before their estimates are pooled (`IterativeLearningControl._shared`)
+POOLED_MIN = 3
 
 
 def q_filter(harmonics: np.ndarray, cutoff: int) -> np.ndarray:
@@ -192,13 +207,24 @@ class IterativeLearningControl:
             m["P"] = np.where(first, var, (1.0 - gain) * prior)
             # shrink each estimate by its uncertainty (positive-part James-Stein): what does not stand
             # out of its noise is not fed forward, and nothing switches on and off between trials
-            threshold2 = self.options["significance"] ** 2 * m["P"]
-            shrink = np.maximum(0.0, 1.0 - threshold2 / np.maximum(np.abs(m["d"]) ** 2, 1e-300))
-            ripple = shrink * m["d"] + G * u
+            significance2 = self.options["significance"] ** 2
+            shared = _shrunk(*self._shared(), significance2) if self.options["pooling"] == "points" else 0.0
+            ripple = shared + _shrunk(m["d"] - shared, m["P"], significance2) + G * u
         m["u_applied"] = u
         # remembered as the torque it delivers at the set point's speed, as `shape` reads it back
         m["t"] = self.plant(request, request.speed_setpoint_hz) * self._q * (u - gamma * ripple / G)
         self._trials[key] = self._trials.get(key, 0) + 1
+
+    def _shared(self) -> tuple[np.ndarray, np.ndarray]:
+        """What the set points share: the inverse-variance mean of every learned set point's estimate d^ per
+        harmonic, and its variance (infinite before `POOLED_MIN` set points have learned)."""
+        learned = [e for e in self._memory.values() if np.all(np.isfinite(e["P"]))]
+        if len(learned) < POOLED_MIN:
+            n = self._h.size
+            return np.zeros(n, complex), np.full(n, np.inf)
+        weights = np.array([1.0 / e["P"] for e in learned])
+        information = weights.sum(axis=0)
+        return (weights * np.array([e["d"] for e in learned])).sum(axis=0) / information, 1.0 / information
 
     def state(self) -> dict:
         def pack(m: dict[str, np.ndarray]) -> dict:
@@ -220,6 +246,11 @@ class IterativeLearningControl:
         if key in state:
             self._memory[key] = _unpack(state[key])
             self._trials[key] = state[key]["trials"]
+
+
+def _shrunk(d: np.ndarray, P: np.ndarray, significance2: float) -> np.ndarray:
+    """``d`` shrunk by its uncertainty ``P`` (positive-part James-Stein): max(0, 1 - significance^2 P / |d|^2) d."""
+    return np.maximum(0.0, 1.0 - significance2 * P / np.maximum(np.abs(d) ** 2, 1e-300)) * d
 
 
 def _unpack(s: dict) -> dict[str, np.ndarray]:

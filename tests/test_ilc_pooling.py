@@ -1,0 +1,88 @@
+"""The ILC's pooling over set points (issue 25: a ripple every set point shares, each set point seeing it only at
+its own noise, as an encoder's line errors leave it through the cogging's slope), against a known truth.
+
+The plant is the stage's own model (G = G^), so what is left after learning is what the estimates miss: the
+true ripple d, the learned feed-forward u, and the residual d + G u per harmonic, at every set point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ilcpmac.backends.base import BenchDescription, BenchLimits
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.signals.harmonics import harmonic_amplitudes
+from ilcpmac.stages.base import Frame, Identified, StageSetup
+from ilcpmac.stages.ilc import IterativeLearningControl
+
+CPR = 1024
+H = 150
+POINTS = [(t, s) for t in (1.0, 3.0, 5.0) for s in (0.5, 1.0, 1.5)]
+CALIBRATION = SensorCalibration(np.full(3, 14.0), np.zeros(3), 0.9)
+#: the variance of each harmonic of one trial's synchronous average, N m^2 (0.2 mN m standard deviation)
+VARIANCE_NM2 = 0.2e-3**2
+
+
+def stage(pooling: str) -> IterativeLearningControl:
+    description = BenchDescription(MotorInfo(8, 48, CPR, 0.01), np.ones((CPR, 3)), CALIBRATION,
+                                   BenchLimits(30.0, 8.0, 1.5))
+    identified = Identified(1.0, 1.0, np.ones(3), np.zeros(3), np.zeros(CPR), CALIBRATION)
+    return IterativeLearningControl(StageSetup(description, identified, H, {"pooling": pooling}))
+
+
+def residuals(ilc: IterativeLearningControl, ripple_nm: dict, trials: int, seed: int) -> dict:
+    """``trials`` rounds of one trial at every set point of ``ripple_nm`` (harmonics 1..H of d, N m); the
+    residual d + G u per set point after the last."""
+    rng = np.random.default_rng(seed)
+
+    def request(point) -> TrialRequest:
+        plain = TrialRequest(*point, 4, np.zeros(CPR), np.zeros(CPR), CALIBRATION)
+        return ilc.shape(plain)
+
+    def left(point) -> np.ndarray:
+        r = request(point)
+        G = ilc.plant(r, point[1])
+        return ripple_nm[point] + G * harmonic_amplitudes(r.feedforward_nm)[1: H + 1]
+
+    for _ in range(trials):
+        for point in ripple_nm:
+            noise = rng.normal(size=H) + 1j * rng.normal(size=H)
+            measured = np.concatenate([[0.0], left(point) + noise * np.sqrt(VARIANCE_NM2 / 2)])
+            trial = TrialData(*point, np.arange(CPR), np.zeros(CPR), np.zeros((CPR, 3)), np.zeros(CPR),
+                              request=request(point))
+            ilc.learn(trial, Frame({}, measured, np.full(H + 1, VARIANCE_NM2), 1.0, point[1]))
+    return {point: left(point) for point in ripple_nm}
+
+
+def shared_ripple(seed: int) -> np.ndarray:
+    """A ripple over every harmonic at about 0.6 standard deviations of one trial (1.2 of a set point's four):
+    no set point's trials show a harmonic of it, the nine set points' together do."""
+    rng = np.random.default_rng(seed)
+    return 0.6 * np.sqrt(VARIANCE_NM2 / 2) * (rng.normal(size=H) + 1j * rng.normal(size=H))
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_pooling_learns_a_ripple_the_set_points_share_below_each_ones_noise(seed):
+    d = shared_ripple(seed)
+    truth = {point: d for point in POINTS}
+    pooled = residuals(stage("points"), truth, 4, seed)
+    alone = residuals(stage("none"), truth, 4, seed)
+    power = float(np.sum(np.abs(d) ** 2))
+    left_pooled = np.mean([np.sum(np.abs(r) ** 2) for r in pooled.values()])
+    left_alone = np.mean([np.sum(np.abs(r) ** 2) for r in alone.values()])
+    assert left_alone > 0.6 * power  # alone, each set point leaves most of it (75 % measured)
+    assert left_pooled < 0.25 * power  # pooled, 16 % measured
+    assert left_pooled < 0.3 * left_alone
+
+
+def test_a_ripple_of_one_set_point_stays_there():
+    """What one set point has and the others do not is learned where it is, and not fed forward elsewhere."""
+    own = np.zeros(H, complex)
+    own[[19, 35, 99]] = 5e-3  # 25 standard deviations of one trial: plain to see
+    truth = {point: own if point == (5.0, 1.0) else np.zeros(H, complex) for point in POINTS}
+    left = residuals(stage("points"), truth, 4, 5)
+    assert np.sum(np.abs(left[(5.0, 1.0)]) ** 2) < 0.01 * np.sum(np.abs(own) ** 2)
+    for point in POINTS:
+        if point != (5.0, 1.0):
+            assert np.abs(left[point][[19, 35, 99]]).max() < 3 * np.sqrt(VARIANCE_NM2)
