@@ -2,7 +2,8 @@
 
     python benchmarks/reproduce_report.py [--bench DIR] [--out docs]
 
-Simulates the seed bench (configs/seed-bench.toml, its seed) into a temporary
+Simulates the seed bench (configs/seed-bench.toml, its seed) on the report's
+grid (`REPORT_GRID`: the campaign's own grid is shorter) into a temporary
 folder, or reads DIR (a bench folder with the simulator's truth.json),
 identifies it, and writes OUT/reproduction.md and OUT/reproduction/*.png:
 every figure and table of the report's chapters 2-4 with ours, the report's
@@ -14,6 +15,7 @@ output; do not edit it by hand.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -25,7 +27,7 @@ from matplotlib.figure import Figure
 from ilcpmac import plotting
 from ilcpmac.bench.format import read_bench
 from ilcpmac.campaign.service import simulate_bench
-from ilcpmac.config import load_config
+from ilcpmac.config import check_config, load_config
 from ilcpmac.core.records import IdentificationResult
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.plots import IDENTIFICATION_FIGURES, SIGNAL_FIGURES, build_figures
@@ -33,6 +35,9 @@ from ilcpmac.model.motor import MotorModel
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "configs" / "seed-bench.toml"
+#: the report's set-point grid (sec. 2.4): 5 torques x 6 speeds from 0.5 to 1 Hz, 8 revolutions each
+REPORT_GRID = {"torque_setpoints_nm": (1.0, 2.0, 3.0, 4.0, 5.0),
+               "speed_setpoints_hz": (0.5, 0.6, 0.7, 0.8, 0.9, 1.0), "revolutions": 8}
 
 #: the report's numbers, quoted (figure, table or section in the key's comment)
 REPORT = {
@@ -60,7 +65,10 @@ def identified_seed_bench(bench_dir: Path | None) -> tuple[IdentificationResult,
     with tempfile.TemporaryDirectory() as tmp:
         folder = bench_dir if bench_dir is not None else Path(tmp)
         if bench_dir is None:
-            simulate_bench(load_config(CONFIG), folder)
+            config = load_config(CONFIG)
+            config = dataclasses.replace(config, grid=dataclasses.replace(config.grid, **REPORT_GRID))
+            check_config(config)
+            simulate_bench(config, folder)
         truth = json.loads((folder / "truth.json").read_text())
         result = identify_bench(read_bench(folder))
     return result, truth
