@@ -118,7 +118,6 @@ def test_a_result_with_its_own_numbers_still_reads(tmp_path):
 def test_a_scheduler_port_that_closes_at_once_is_said_to_close_not_to_time_out():
     import socket
     import threading
-    import time
 
     from ilcpmac.sweep.runner import SweepRunError, remote_client
 
@@ -135,10 +134,8 @@ def test_a_scheduler_port_that_closes_at_once_is_said_to_close_not_to_time_out()
 
     threading.Thread(target=close_each, daemon=True).start()
     try:
-        start = time.monotonic()
         with pytest.raises(SweepRunError) as e:
-            remote_client(address, 10.0)
-        assert time.monotonic() - start < 10.0
+            remote_client(address, 60.0)  # far beyond the close, even on a loaded machine: what is said is checked
     finally:
         server.close()
     message = str(e.value)

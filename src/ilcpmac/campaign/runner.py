@@ -70,7 +70,7 @@ from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline, built_stages
 from ilcpmac.pipeline.safety import identified_truth, unconfirmed_scale_violation
-from ilcpmac.signals.encoder_torque import encoder_error_table, significant_encoder_error
+from ilcpmac.signals.encoder_torque import AGAINST_SENSOR_FALSE_ALARM, encoder_error_table, significant_encoder_error
 from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
 from ilcpmac.stages.registry import stage_needs
@@ -390,12 +390,13 @@ class CampaignRunner:
                                ) -> IdentificationResult:
         """``result`` with the encoder's graduation error measured against the torque sensor over the grid
         (`TorqueMeasurement.graduation_error`: no model of the torque, which a grid of few speeds and
-        revolutions does not pin down), only what stands out of its noise (`significant_encoder_error`)."""
+        revolutions does not pin down), only what stands out of its noise (`significant_encoder_error` at
+        `AGAINST_SENSOR_FALSE_ALARM`)."""
         assert self.measurement is not None
         cpr = self.description.motor.counts_per_rev
         trials = [replace(trial, request=request) for trial, request in zip(grid_trials, self.grid)]
         estimate, variance = self.measurement.graduation_error(trials, cpr, cpr // 2 - 1)
-        applied = significant_encoder_error(estimate, variance)
+        applied = significant_encoder_error(estimate, variance, AGAINST_SENSOR_FALSE_ALARM)
         fields = encoder_error_fields(encoder_error_table(applied, cpr), applied, variance)
         return replace(result, **fields, messages=(*result.messages, (
             f"encoder error (the encoder against the torque sensor over the grid): once per revolution "
