@@ -8,7 +8,15 @@ import json
 import numpy as np
 import pytest
 
-from ilcpmac.campaign.floors import SIGNIFICANCE, PointSpectra, interpolation_error, learning_variance, shared_harmonics
+from ilcpmac.campaign.floors import (
+    SIGNIFICANCE,
+    PointFloor,
+    PointSpectra,
+    floors_of,
+    interpolation_error,
+    learning_variance,
+    shared_harmonics,
+)
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.compensation import interpolation_weights
 from ilcpmac.config import config_tables, config_text, load_config
@@ -85,6 +93,15 @@ def test_where_the_points_share_their_ripple_the_learning_floor_pools_every_poin
     assert shared.tolist() == [True, True, False]
     assert pooled[1:] == pytest.approx(1e-6 / 10)  # 5 points x 2 trials learned from
     assert not shared_harmonics(dict(list(learned.items())[:2]))[0].any()  # two points pool nothing
+
+
+def test_summary_json_floors_read_back_as_written_and_entries_without_one_have_none():
+    floors = [PointFloor((1.0, 0.5), True, 0.004, 0.001), PointFloor((2.0, 1.0), False, 0.003, None)]
+    points = [{"torque_setpoint": f.point[0], "speed_setpoint": f.point[1], "learned": f.learned, **f.to_json()}
+              for f in floors]
+    earlier = {"torque_setpoint": 3.0, "speed_setpoint": 1.0, "learned": True}
+    assert floors_of({"points": [*points, earlier]}) == {f.point: f for f in floors}
+    assert floors[0].pp("true") == 0.001 and floors[1].pp("true") is None
 
 
 def test_the_interpolation_error_is_zero_where_learned_and_exact_for_a_quadratic_in_torque():
@@ -209,9 +226,11 @@ def test_the_quick_preset_is_the_seed_bench_with_a_shorter_campaign():
 def test_the_final_lines_give_each_set_of_points_against_its_floor_and_the_motor_time():
     from ilcpmac.report.table import final_lines
 
-    points = [{"learned": True, "ripple_pp_true": 0.0009, "floor_pp_true": 0.0009},
-              {"learned": True, "ripple_pp_true": 0.0006, "floor_pp_true": 0.0005},
-              {"learned": False, "ripple_pp_true": 0.0017, "floor_pp_true": 0.0013}]
+    # summary.json's entries as the campaign writes them (`PointFloor.to_json` always holds the measured floor)
+    points = [{"torque_setpoint": t, "speed_setpoint": 1.0, "learned": learned, "ripple_pp_true": ripple,
+               "floor_pp_measured": 0.004, "floor_pp_true": floor}
+              for t, learned, ripple, floor in ((1.0, True, 0.0009, 0.0009), (3.0, True, 0.0006, 0.0005),
+                                                (2.0, False, 0.0017, 0.0013))]
     summary = {"final": {"ripple_pp_true": 0.0009}, "validation": [{"ripple_pp_true": 0.0017}], "points": points,
                "motor_time_s": {"identify": 132.0, "learn": 708.0, "all": 840.0}}
     assert final_lines(summary) == [

@@ -39,6 +39,7 @@ from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
 from ilcpmac.bench.standstill import SCAN_FILE, TRUTH_FILE, ScanData, ScanResult, read_scan, reduce_scan
 from ilcpmac.campaign import service
 from ilcpmac.campaign.events import CampaignMessage, CampaignStart, NoEvents
+from ilcpmac.campaign.floors import PointFloor
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.config import CampaignConfig, load_config, packaged_config
@@ -124,15 +125,17 @@ class PointSummary:
     @classmethod
     def from_json(cls, data: dict) -> PointSummary:
         """The point of summary.json's ``points`` list ``data`` (its fractions of the mean torque as %)."""
-        def percent(key: str) -> float | None:
-            return None if data.get(key) is None else 100.0 * float(data[key])
+        def percent(fraction: float | None) -> float | None:
+            return None if fraction is None else 100.0 * float(fraction)
 
-        ripple, uncompensated = percent("ripple_pp_measured"), percent("uncompensated_pp_measured")
+        ripple, uncompensated = percent(data.get("ripple_pp_measured")), percent(data.get("uncompensated_pp_measured"))
         if ripple is None or uncompensated is None:
             raise KeyError("ripple_pp_measured" if ripple is None else "uncompensated_pp_measured")
+        floor = PointFloor.from_json(data)
         return cls(float(data["torque_setpoint"]), float(data["speed_setpoint"]), bool(data["learned"]), ripple,
-                   uncompensated, percent("floor_pp_measured"), percent("ripple_pp_true"),
-                   percent("uncompensated_pp_true"), percent("floor_pp_true"), data.get("reduction_factor"),
+                   uncompensated, None if floor is None else percent(floor.measured_pp),
+                   percent(data.get("ripple_pp_true")), percent(data.get("uncompensated_pp_true")),
+                   None if floor is None else percent(floor.true_pp), data.get("reduction_factor"),
                    data.get("reduction_factor_true"), bool(data["worse_than_uncompensated"]),
                    int(data["uncompensated_trial"]), int(data["compensated_trial"]))
 

@@ -36,7 +36,8 @@ from ilcpmac.compensation import interpolation_weights
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
 
-__all__ = ["SIGNIFICANCE", "PointFloor", "PointSpectra", "interpolation_error", "learning_variance", "point_floors"]
+__all__ = ["SIGNIFICANCE", "PointFloor", "PointSpectra", "floors_of", "interpolation_error", "learning_variance",
+           "point_floors", "shared_harmonics"]
 
 #: standard deviations a harmonic of a trial learned from stands out by to count as ripple to learn
 SIGNIFICANCE = 2.0
@@ -77,11 +78,30 @@ class PointFloor:
     true_pp: float | None
 
     def to_json(self) -> dict:
-        """Its keys in summary.json's ``validation`` entry of the point."""
+        """Its keys in summary.json's ``points`` entry of the point."""
         out = {"floor_pp_measured": self.measured_pp}
         if self.true_pp is not None:
             out["floor_pp_true"] = self.true_pp
         return out
+
+    @classmethod
+    def from_json(cls, data: dict) -> PointFloor | None:
+        """The floor in summary.json's ``points`` entry ``data`` (`to_json` beside the point's results); None in
+        an entry without one (a run of an earlier release)."""
+        if "floor_pp_measured" not in data:
+            return None
+        true = data.get("floor_pp_true")
+        return cls((float(data["torque_setpoint"]), float(data["speed_setpoint"])), bool(data["learned"]),
+                   float(data["floor_pp_measured"]), None if true is None else float(true))
+
+    def pp(self, kind: str) -> float | None:
+        """`measured_pp` or `true_pp` by name ("measured", "true")."""
+        return {"measured": self.measured_pp, "true": self.true_pp}[kind]
+
+
+def floors_of(summary: dict) -> dict[Point, PointFloor]:
+    """The floor of every point of summary.json ``summary`` that has one, by point (`PointFloor.from_json`)."""
+    return {floor.point: floor for p in summary.get("points", []) if (floor := PointFloor.from_json(p)) is not None}
 
 
 def learning_variance(learned_from: list[TorqueSpectrum]) -> np.ndarray:

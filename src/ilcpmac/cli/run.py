@@ -265,6 +265,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     import ilcpmac.campaign
+    from ilcpmac.campaign.floors import floors_of
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
     events = LiveCampaign(console)
@@ -279,9 +280,8 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
                    err=True)
         sys.exit(130)
     console.print(Text(SUMMARY_TITLE))
-    floors = {(p["torque_setpoint"], p["speed_setpoint"]): p for p in result.summary.get("points", [])}
-    console.print(summary_table(result.records, result.plan.learned, result.plan.validated, floors,
-                                console.width))
+    console.print(summary_table(result.records, result.plan.learned, result.plan.validated,
+                                floors_of(result.summary), console.width))
     lines = final_lines(result.summary)
     if lines:
         console.print(Text("\n  ".join([FINAL_TITLE, *lines])))

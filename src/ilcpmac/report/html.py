@@ -29,6 +29,7 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from ilcpmac import plotting
+from ilcpmac.campaign.floors import PointFloor, floors_of
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDirError
 from ilcpmac.campaign.validation import PointResult, point_results
@@ -240,16 +241,16 @@ def _plan(report: RunReport) -> str:
     return listing + table + note
 
 
-def _points(results: list[PointResult], floors: Mapping[Point, dict]) -> str:
-    """Per point its final ripple beside its floor (``floors``: summary.json's ``points`` entries by point)."""
+def _points(results: list[PointResult], floors: Mapping[Point, PointFloor]) -> str:
+    """Per point its final ripple beside its floor (``floors``: by point, `floors_of`)."""
     if not results:
         return '<p class="note">No operating point has its final trial yet.</p>'
     rows = []
     for result in results:
-        floor = floors.get(result.point, {})
+        floor = floors.get(result.point)
         cells = ["learned" if result.learned else "validation", f"{result.point[0]:g}", f"{result.point[1]:g}"]
         for kind, factor in (("measured", "reduction_factor"), ("true", "reduction_factor_true")):
-            after, below = result.after.figures(kind), floor.get(f"floor_pp_{kind}")
+            after, below = result.after.figures(kind), None if floor is None else floor.pp(kind)
             ratio = after.pp / below if after is not None and below else None
             reduction = getattr(result.after, factor)
             cells += [_percent(None if after is None else after.pp), _percent(below), _times(ratio), _times(reduction)]
@@ -371,7 +372,7 @@ def page(report: RunReport, images: Mapping[str, bytes], why: str | None = None)
     """
     summary = report.files.read_summary()
     try:
-        floors = {(float(p["torque_setpoint"]), float(p["speed_setpoint"])): p for p in summary.get("points", [])}
+        floors = floors_of(summary)
         identification = summary.get("identification")
         result = None if identification is None else IdentificationResult.from_json(identification)
         in_words = _results(summary)

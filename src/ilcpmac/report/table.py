@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from rich.console import JustifyMethod
 from rich.table import Table
 
+from ilcpmac.campaign.floors import PointFloor
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.validation import point_results
 
@@ -152,13 +153,13 @@ SUMMARY_TITLE = "summary per operating point (ripple peak-to-peak after, % of me
 
 
 def summary_table(records: list[TrialRecord], learned: list[Point], validated: list[Point],
-                  floors: dict[Point, dict] | None = None, width: int = 80) -> Table:
-    """Per learned, then validation point: the final ripple beside its floor (``floors``: summary.json's
-    ``points`` entries by point, when known), the reduction factors against the uncompensated trial there, and
+                  floors: dict[Point, PointFloor] | None = None, width: int = 80) -> Table:
+    """Per learned, then validation point: the final ripple beside its floor (``floors``: by point, when known,
+    `floors_of`), the reduction factors against the uncompensated trial there, and
     the learning trials used (`SUMMARY_TITLE`); the columns that fit ``width``, as the live table's."""
     floors = floors or {}
     results = point_results(records, learned, validated)
-    rows = [(result, floors.get(result.point, {}),
+    rows = [(result, floors.get(result.point),
              sum(r.role == "learn" and r.point == result.point for r in records)) for result in results]
     columns = [
         (_Column("torque\nN m", 0, str), [f"{r.point[0]:.4g}" for r, _, _ in rows]),
@@ -177,8 +178,8 @@ def summary_table(records: list[TrialRecord], learned: list[Point], validated: l
     return _table([(c.header, c.justify, cells) for c, cells in _fit(columns, width)])
 
 
-def _floor(point: dict, kind: str) -> str:
-    value = point.get(f"floor_pp_{kind}")
+def _floor(floor: PointFloor | None, kind: str) -> str:
+    value = None if floor is None else floor.pp(kind)
     return "-" if value is None else significant(100 * value)
 
 
@@ -202,9 +203,9 @@ def final_lines(summary: dict) -> list[str]:
             words = f"{where}: {kind} ripple {significant(100 * figures[f'ripple_pp_{kind}'])} % of mean torque"
             if factor in figures:
                 words += f", {significant(figures[factor])}x below uncompensated"
-            ratios = [p[f"ripple_pp_{kind}"] / p[f"floor_pp_{kind}"] for p in summary.get("points", [])
-                      if p["learned"] == (where == "learned") and f"floor_pp_{kind}" in p
-                      and p[f"floor_pp_{kind}"] > 0]
+            ratios = [p[f"ripple_pp_{kind}"] / below for p in summary.get("points", [])
+                      if (floor := PointFloor.from_json(p)) is not None and floor.learned == (where == "learned")
+                      and (below := floor.pp(kind)) is not None and below > 0]
             if ratios:
                 words += f"; {significant(min(ratios))}-{significant(max(ratios))}x its floor"
             lines.append(words)
