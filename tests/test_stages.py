@@ -412,6 +412,8 @@ def test_ilc_convergence_check_depends_on_the_model_uncertainty(fast):
     ({"estimation": "adaptive"}, "estimation"),
     ({"q_cutoff_harmonic": 0}, "q_cutoff_harmonic"),
     ({"q_cutoff_harmonic": 512}, "q_cutoff_harmonic"),
+    ({"pooling": "torques"}, "pooling"),
+    ({"pooling": True}, "pooling"),
 ])
 def test_ilc_rejects_bad_options_naming_the_key(fast, options, key):
     with pytest.raises(ConfigError, match=re.escape("[stages.ilc]") + r".*" + re.escape(key)):
