@@ -494,6 +494,16 @@ def test_a_typed_state_writes_the_same_bytes_it_reads(tmp_path):
     assert (again / "states" / "trial_001.json").read_bytes() == written
 
 
+def test_the_request_a_state_says_ran_carries_its_feed_forward_as_the_feed_forward():
+    """A resumed run analyses the trials before the resume with the request their state saved; it took the
+    feed-forward for the excitation (found by the floors, which subtract what the feed-forward delivered: a
+    resumed run's floors differed from the uninterrupted run's)."""
+    table = np.random.default_rng(4).normal(size=CPR) * 1e-3
+    ran = state_of(2.0, table).ran()
+    np.testing.assert_array_equal(ran.feedforward_nm, table)
+    assert not np.any(ran.excitation_nm) and ran.revolutions == 3 and ran.torque_setpoint_nm == 2.0
+
+
 def test_the_learning_phase_has_one_name_in_records_of_earlier_releases_too():
     """Earlier releases named the learning phase "ilc" when the ilc stage ran (issue 26, item 6)."""
     ripple = RippleFigures(0.012, 0.004, 0.001, 0.0035, 1e-3, 2e-4, 3e-4, 1e-5)

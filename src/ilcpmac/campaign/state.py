@@ -59,7 +59,8 @@ class TrialState:
         excitation zero, which a trial after the grid's is)."""
         record = self.record
         return TrialRequest(record.torque_setpoint_nm, record.speed_setpoint_hz, self.revolutions,
-                            np.zeros_like(self.feedforward_nm), self.feedforward_nm, self.calibration, seed=self.seed)
+                            feedforward_nm=self.feedforward_nm, excitation_nm=np.zeros_like(self.feedforward_nm),
+                            calibration=self.calibration, seed=self.seed)
 
     def to_json(self) -> dict:
         """The object of states/trial_NNN.json."""
