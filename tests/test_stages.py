@@ -277,7 +277,9 @@ def test_cogging_amplitude_error_is_learned_in_compensation_trials(fine):
     pipeline = make_pipeline(fine, ["current-sensor", "cogging"], ident)
     start = cogging_error_nm(fine, pipeline)
     trials = run_trials(fine, pipeline, 6, seed=108)
-    assert cogging_error_nm(fine, pipeline) < start / 8
+    # 1/6.3-1/8.7 of the start over seeds 108-508 (1/6.2-1/11.5 while the trials' variances, of 4 degrees of
+    # freedom each, overstated their information about twice: `pooled_variance`)
+    assert cogging_error_nm(fine, pipeline) < start / 6
     assert true_harmonics(fine, trials[-1])[48] < true_harmonics(fine, trials[0])[48] / 10
 
 

@@ -35,6 +35,7 @@ from ilcpmac.signals.harmonics import (
     RippleFigures,
     harmonic_amplitudes,
     linear_trend,
+    pooled_variance,
     revolution_table,
     table_from_amplitudes,
     table_harmonics,
@@ -88,6 +89,7 @@ class TorqueSpectrum:
         detrended = torque - linear_trend(time_s, torque)
         table = revolution_table(count, detrended, counts_per_rev)
         harmonics, variance = table_harmonics(table, max_harmonic)
+        variance = pooled_variance(variance, table.shape[-2])
         ripple = _ripple_table(harmonics.T, counts_per_rev).T
         if table[0].size == count.size:  # the table holds exactly the samples
             rest = table - ripple[:, None, :]

@@ -197,6 +197,51 @@ def table_harmonics(table: np.ndarray, max_harmonic: int) -> tuple[np.ndarray, n
     return mean, variance
 
 
+#: harmonics on each side whose revolution-to-revolution scatter `pooled_variance` pools with a harmonic's own
+POOL_HALF_WINDOW = 5
+#: the chance that a harmonic whose noise is its neighbours' keeps its own scatter (`pooled_variance`)
+OWN_SCATTER_FALSE_ALARM = 1e-3
+
+
+def pooled_variance(variance: np.ndarray, n_revs: int, half_window: int = POOL_HALF_WINDOW) -> np.ndarray:
+    """The variance of each harmonic 1..H of a synchronous average (`table_harmonics`) pooled with its neighbours'.
+
+    Over ``n_revs`` revolutions a harmonic's scatter has only k = 2 (n_revs - 1) degrees of freedom (4 over three
+    revolutions): E[1 / v^] = k / (k - 2) / v, twice the information there is, so a weighting or a test by it
+    trusts the harmonics whose scatter happened to be low. The noise's spectrum is smooth in the harmonic, so
+    log v^ is fitted by a line over the 2 ``half_window`` + 1 harmonics around each (fewer at the ends), its
+    chi-squared bias E[log(chi2_k / k)] = psi(k/2) - log(k/2) removed; a harmonic keeps its own scatter where
+    that stands out of the fit's at `OWN_SCATTER_FALSE_ALARM` (ripple whose amplitude varies from revolution to
+    revolution). Harmonic 0, and spectra of fewer than three harmonics, keep their own. Along the last axis.
+    """
+    from scipy.special import gammaincinv  # deferred: scipy.special costs the campaign's import
+
+    variance = np.asarray(variance, float)
+    H = variance.shape[-1] - 1
+    if H < 3 or n_revs < 2:
+        return variance
+    k = 2 * (n_revs - 1)
+    log_bias = -np.euler_gamma + sum(1.0 / j for j in range(1, k // 2)) - np.log(k / 2)  # psi(k/2) - log(k/2)
+    own = variance[..., 1:]
+    y = np.log(np.maximum(own, np.finfo(float).tiny))
+    x = np.arange(1.0, H + 1)
+    lo = np.maximum(np.arange(H) - half_window, 0)
+    hi = np.minimum(np.arange(H) + half_window + 1, H)
+
+    def window_sum(values: np.ndarray) -> np.ndarray:
+        cumulative = np.concatenate([np.zeros(values.shape[:-1] + (1,)), np.cumsum(values, axis=-1)], axis=-1)
+        return cumulative[..., hi] - cumulative[..., lo]
+
+    s0, sx, sxx = (window_sum(np.broadcast_to(x**p, y.shape)) for p in (0, 1, 2))
+    sy, sxy = window_sum(y), window_sum(x * y)
+    slope = (s0 * sxy - sx * sy) / (s0 * sxx - sx**2)
+    fit = np.exp((sy + slope * (s0 * x - sx)) / s0 - log_bias)
+    stands_out = own > fit * gammaincinv(k / 2.0, 1.0 - OWN_SCATTER_FALSE_ALARM) / (k / 2.0)
+    pooled = variance.copy()
+    pooled[..., 1:] = np.where(stands_out | (own == 0.0), own, fit)
+    return pooled
+
+
 def revolution_harmonics(count: np.ndarray, values: np.ndarray, counts_per_rev: int,
                          max_harmonic: int) -> tuple[np.ndarray, np.ndarray]:
     """`table_harmonics` of ``values`` (shape (n,)) over the whole revolutions of ``count``."""
