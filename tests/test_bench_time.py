@@ -9,20 +9,19 @@ import numpy as np
 import pytest
 
 from ilcpmac.campaign.floors import (
-    SIGNIFICANCE,
     PointFloor,
     PointSpectra,
+    RippleEstimate,
     floors_of,
     interpolation_error,
-    learning_variance,
-    shared_harmonics,
+    learning_floors,
 )
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.compensation import interpolation_weights
 from ilcpmac.config import config_tables, config_text, load_config
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.pipeline.analysis import TorqueSpectrum
-from ilcpmac.signals.harmonics import expected_noise_pp, table_from_amplitudes
+from ilcpmac.signals.harmonics import expected_noise_pp, pooled_variance, table_from_amplitudes, table_harmonics
 
 # ---------------------------------------------------------------- the noise floor's estimators
 
@@ -61,38 +60,90 @@ def test_the_floor_of_a_noisy_trial_is_the_peak_to_peak_its_noise_leaves_in_the_
     assert np.mean(predicted) == pytest.approx(np.mean(observed), rel=0.05)
 
 
+def test_a_short_trials_noise_is_pooled_over_neighbouring_harmonics_and_weights_right():
+    """Truth first: pure noise over 3 revolutions, white and steeply coloured (h^4, as the encoder torque's): one
+    harmonic's own scatter has 4 degrees of freedom, so 1 / v^ overstates the information about twice (E = k /
+    (k - 2)); pooled with its neighbours (`pooled_variance`) v^ is right within 6 % and 1 / v^ within 10 % (44
+    degrees of freedom leave k / (k - 2) = 1.05, and the ends' shorter windows a little more). A harmonic
+    whose amplitude changes from revolution to revolution keeps its own, larger scatter."""
+    rng = np.random.default_rng(29)
+    cpr, revolutions, H, draws = 512, 3, 60, 300
+    for colour in (np.ones(cpr // 2 + 1), (1.0 + np.arange(cpr // 2 + 1) / 8.0) ** 2):
+        own, pooled = [], []
+        for _ in range(draws):
+            noise = np.fft.irfft(np.fft.rfft(rng.standard_normal((revolutions, cpr)), axis=-1) * colour, cpr, axis=-1)
+            _, variance = table_harmonics(noise, H)
+            own.append(variance[1:])
+            pooled.append(pooled_variance(variance, revolutions)[1:])
+        truth = np.mean(own, axis=0)
+        assert np.mean(np.asarray(own) / truth) == pytest.approx(1.0, abs=0.02)  # the scatter is unbiased...
+        assert np.mean(truth / np.asarray(own)) > 1.8  # ...its inverse is not
+        assert np.mean(np.asarray(pooled) / truth) == pytest.approx(1.0, abs=0.06)
+        assert np.mean(truth / np.asarray(pooled)) == pytest.approx(1.0, abs=0.1)
+    table = 1e-3 * rng.standard_normal((revolutions, cpr))
+    table += np.array([0.0, 0.5, 1.0])[:, None] * np.cos(2 * np.pi * 7 * np.arange(cpr) / cpr)
+    _, variance = table_harmonics(table, H)
+    assert pooled_variance(variance, revolutions)[7] == variance[7] > 1e3 * np.median(variance[1:])
+
+
 def spectrum(harmonics: np.ndarray, variance: np.ndarray) -> TorqueSpectrum:
     return TorqueSpectrum(np.asarray(harmonics, complex), np.asarray(variance, float), 0.0, 256)
 
 
-def test_the_learning_floor_is_the_inverse_variance_mean_where_a_trial_learned_from_showed_ripple():
-    """Harmonic 3 stands out in the longer trial only: the learning found ripple there and its noise counts
-    (issue 25: counting the compensation trial's harmonics alone left out the broadband ripple that only the
-    longer learning trials resolve, which the learning then learned with its noise: 2-3.4x "floors")."""
-    v = np.full(6, 1e-6)
-    ripple = np.array([1.0, 0.01, SIGNIFICANCE * 0.999e-3, 0.0, SIGNIFICANCE * 1.001e-3, 0.5])
-    later = np.array([0.0, 0.0, 0.0, SIGNIFICANCE * 1.001e-3 * np.sqrt(0.25), 0.0, 0.0])
-    learned_from = [spectrum(ripple, v), spectrum(later, 0.25 * v)]
-    P = 1.0 / (1.0 / 1e-6 + 1.0 / 0.25e-6)
-    assert learning_variance(learned_from) == pytest.approx([0.0, P, 0.0, P, P, P])
+def complex_noise(rng: np.random.Generator, variance: np.ndarray) -> np.ndarray:
+    return (rng.standard_normal(variance.shape) + 1j * rng.standard_normal(variance.shape)) * np.sqrt(variance / 2)
 
 
-def test_where_the_points_share_their_ripple_the_learning_floor_pools_every_points_trials():
-    """Harmonic 1: the same ripple at every point (within its noise): shared, its floor the variance of all the
-    points' trials pooled, as a learner that pools them reaches it (the ilc stage); harmonic 2: one point's
-    ripple 10 standard deviations off the others': each point's own."""
-    v = np.full(3, 1e-6)
+def test_the_learning_floor_finds_the_ripple_with_no_feed_forward_and_the_power_it_cannot_resolve():
+    """Truth first: a ripple d (harmonics 1-2 large, 3-4002 a broadband 0.65 standard deviations each), seen by
+    a compensation trial and two learning trials whose feed-forward (known, G^ u) removed part of it. The estimate
+    is d within its noise, and the learning floor P_h where d stands out; over the broadband ripple no single
+    harmonic shows, the floor's learning part (P_h where one stands out by chance, the power of the rest) is
+    within 10 % of the least error of any learner that knew its power, the Wiener bound sum D P / (D + P) (0 if
+    it were not counted)."""
+    rng = np.random.default_rng(41)
+    H = 4002
+    v = np.full(H + 1, 1e-6)
+    d = np.zeros(H + 1, complex)
+    d[1], d[2] = 0.05, 0.01j
+    d[3:] = np.sqrt(0.42 * 0.2e-6) * np.exp(2j * np.pi * rng.random(H - 2))
+    trials = []
+    for k, scale in enumerate((1.0, 0.5, 0.5)):
+        delivered = np.zeros(H + 1, complex)
+        delivered[1:3] = -d[1:3] * (1 - 0.1**k)
+        measured = spectrum(d + delivered + complex_noise(rng, scale * v), scale * v)
+        trials.append(PointSpectra(measured, 1.0, delivered_nm=delivered))
+    estimate = RippleEstimate.of(trials)
+    P = 1.0 / (1.0 / 1e-6 + 2.0 / 0.5e-6)
+    assert estimate.variance_nm2 == pytest.approx(np.full(H + 1, P))
+    assert np.abs(estimate.estimate_nm[1:3] - d[1:3]) == pytest.approx([0, 0], abs=5 * np.sqrt(P))
+    learning = learning_floors({(1.0, 1.0): estimate})[(1.0, 1.0)].total_nm2
+    assert learning[1:3] == pytest.approx([P, P]) and learning[0] == 0.0
+    D = np.abs(d[3:]) ** 2
+    assert learning[3:].sum() == pytest.approx(np.sum(D * P / (D + P)), rel=0.1)
+
+
+def test_what_the_points_share_is_learned_pooled_and_what_one_point_has_of_its_own_at_its_noise():
+    """Truth first: nine points share a ripple of 0.9 standard deviations of each one's estimate at harmonics
+    1-200 (none shows it, their mean does, at 2.7: the floor there is near the pooled variance A = P / 9, with
+    what the mean misses, under 0.3 P: not the ripple's power 0.81 P, nor the Wiener bound of one point alone,
+    0.45 P); one point also has a large ripple of its own at harmonic 201, of which the
+    points' mean carries a ninth: there every point learns its own, at its own P."""
     rng = np.random.default_rng(25)
-    learned = {}
-    for k in range(5):
-        noise = (rng.normal(size=3) + 1j * rng.normal(size=3)) * np.sqrt(v / 2)
-        ripple = np.array([0.0, 0.01, 0.02 + (10e-3 if k == 0 else 0.0)]) + noise
-        learned[(float(k + 1), 1.0)] = [PointSpectra(spectrum(ripple, v), 1.0), PointSpectra(spectrum(0 * v, v), 1.0),
-                                        PointSpectra(spectrum(0 * v, v), 1.0)]
-    shared, pooled = shared_harmonics(learned)
-    assert shared.tolist() == [True, True, False]
-    assert pooled[1:] == pytest.approx(1e-6 / 10)  # 5 points x 2 trials learned from
-    assert not shared_harmonics(dict(list(learned.items())[:2]))[0].any()  # two points pool nothing
+    H, n, P = 201, 9, 1e-6
+    shared = np.zeros(H + 1, complex)
+    shared[1:201] = 0.9 * np.sqrt(P) * np.exp(2j * np.pi * rng.random(200))
+    estimates = {}
+    for k in range(n):
+        d = shared.copy()
+        d[201] = 0.1 if k == 0 else 0.0
+        estimates[(float(k), 1.0)] = RippleEstimate(d + complex_noise(rng, np.full(H + 1, P)), np.full(H + 1, P))
+    floors = {p: f.total_nm2 for p, f in learning_floors(estimates).items()}
+    for point in estimates:
+        assert 0.5 * P / n < np.mean(floors[point][1:201]) < 0.3 * P
+        assert floors[point][201] == P
+    alone = {p: f.total_nm2 for p, f in learning_floors(dict(list(estimates.items())[:2])).items()}  # no pooling
+    assert np.mean(alone[(0.0, 1.0)][1:201]) > 0.4 * P
 
 
 def test_summary_json_floors_read_back_as_written_and_entries_without_one_have_none():
@@ -160,8 +211,9 @@ def test_a_budget_sizes_the_trials_after_the_grid_to_fit_or_says_what_the_shorte
 @pytest.mark.slow
 def test_a_campaign_runs_as_long_as_its_plan_said_and_reports_every_point_against_its_floor(tmp_path, write_config):
     """The small campaign on the simulator: the motor time summary.json gives per phase is the plan's, trial by
-    trial; every point has a floor below its uncompensated ripple and its final one (the small campaign's trials
-    are too few to converge to it: tests/test_other_motors.py holds the default campaign to its floors)."""
+    trial; every point has a floor below its uncompensated ripple, and its final ripple is not far below it: the
+    floor is an expected peak-to-peak, which the final trial's own scatter and the floor's estimate (of the ripple
+    no trial resolved) spread about (0.48-2.0x at the 240 points of benchmarks/other_motors.py --seeds)."""
     from campaign_helpers import SMALL_CAMPAIGN
 
     import ilcpmac.campaign
@@ -179,7 +231,7 @@ def test_a_campaign_runs_as_long_as_its_plan_said_and_reports_every_point_agains
     for p in points:
         for kind in ("measured", "true"):
             assert 0 < p[f"floor_pp_{kind}"] < p[f"uncompensated_pp_{kind}"]
-        assert p[f"floor_pp_{kind}"] <= 1.1 * p[f"ripple_pp_{kind}"]
+            assert p[f"ripple_pp_{kind}"] > 0.45 * p[f"floor_pp_{kind}"]
 
 
 # ---------------------------------------------------------------- configs that extend others

@@ -1,28 +1,31 @@
 """The noise floor of each operating point: the least peak-to-peak ripple its trials can reach and show
 (docs/campaign.md, "The noise floor").
 
-Two noises bound what a point ends at:
+Two noises, and what the trials cannot resolve, bound what a point ends at:
 
 - the **final trial's own noise** (what it can show): the non-repeatable part of the torque left in its
   synchronous average, of variance v_h per harmonic (its revolution-to-revolution scatter over the number of
-  revolutions; `TorqueSpectrum.variance_nm2`); for the true torque on the simulator that is the current sensors'
-  noise reaching it through the loop, for the measured one the torque sensor's or the encoder torque's noise;
-- the **learning's noise** (what it can reach): the feed-forward that removes the ripple the model-based
-  compensation left is estimated from the measured torque of the trials learned from before the final one,
-  no better than the inverse-variance mean of their harmonics, of variance P_h = 1 / sum_k (1 / v_k,h), at
-  every harmonic where there was ripple to remove: where the measured harmonic of one of those trials stood
-  out of its noise by `SIGNIFICANCE` standard deviations (the compensation trial shows the large ripple, the
-  longer learning trials what is smaller). A harmonic no trial shows is left out: a learner may leave it alone.
-  Where the learned points share their ripple (`shared_harmonics`), a learner that pools the points (the ilc
-  stage) learns it from every point's trials: there P_h is that of all of them pooled.
+  revolutions, pooled with the neighbouring harmonics': `TorqueSpectrum.variance_nm2`); for the true torque on
+  the simulator that is the current sensors' noise reaching it through the loop, for the measured one the torque
+  sensor's or the encoder torque's noise;
+- the **learning** (what it can reach): the ripple with no feed-forward, d, is estimated from the trials
+  learned from before the final one, each trial's measured harmonics less the torque its feed-forward delivered
+  through the identified response (`RippleEstimate`), no better than their inverse-variance mean, of variance
+  P_h = 1 / sum_k (1 / v_k,h). A learner learns a harmonic where the data show it (`stands_out`, `SIGNIFICANCE`
+  standard deviations) and leaves the rest (`learning_floors`): where the learned points' mean stands out, what
+  they share, at the pooled variance A_h (the ilc stage pools them); where a point's own ripple stands out of
+  that, at its own P_h; and what stands out nowhere stays, its power estimated from the estimates
+  (`unresolved_power`). Per harmonic this is about the Wiener bound D P / (D + P) of a ripple of power D: the
+  least mean-square error of any learner that knew D.
 
-The floor is the expected peak-to-peak of independent harmonics of variance v_h + P_h over the band 1..H
-(`expected_noise_pp`), as a fraction of the mean torque. A validation point learns nothing: its learning part
-is that of the learned points its feed-forward is interpolated from, weighted as the compensation weighs their
-tables (`interpolation_weights`), w^2 P_h summed; and the feed-forward there is an interpolation, whose error
-no trial removes. Where three or more points were learned along an axis, the quadratic through the three
-nearest estimates that error: the floor's harmonics are centred on the difference between the quadratic's
-feed-forward and the bilinear one (`interpolation_error`), not on zero.
+The floor is the expected peak-to-peak of independent harmonics of variance v_h plus the learning's over the
+band 1..H (`expected_noise_pp`), as a fraction of the mean torque. A validation point learns nothing: its
+learning part is that of the learned points its feed-forward is interpolated from, weighted as the compensation
+weighs their tables (`interpolation_weights`): their learning noise w^2, the ripple they left w (it is there
+too); and the feed-forward there is an interpolation, whose error no trial removes. Where three or more points
+were learned along an axis, the quadratic through the three nearest estimates that error: the floor's harmonics
+are centred on the difference between the quadratic's feed-forward and the bilinear one (`interpolation_error`),
+not on zero.
 """
 
 from __future__ import annotations
@@ -36,28 +39,28 @@ from ilcpmac.compensation import interpolation_weights
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
 
-__all__ = ["SIGNIFICANCE", "PointFloor", "PointSpectra", "floors_of", "interpolation_error", "learning_variance",
-           "point_floors", "shared_harmonics"]
+__all__ = ["SIGNIFICANCE", "LearningFloor", "PointFloor", "PointSpectra", "RippleEstimate", "floors_of",
+           "interpolation_error", "learning_floors", "point_floors", "stands_out", "unresolved_power"]
 
-#: standard deviations a harmonic of a trial learned from stands out by to count as ripple to learn
+#: standard deviations an estimated harmonic stands out by to count as ripple a learner learns (`stands_out`)
 SIGNIFICANCE = 2.0
-#: learned points from which on the points' shared ripple is learned pooled (`shared_harmonics`; the ilc
-#: stage's `POOLED_MIN`)
+#: learned points from which on what they share is learned pooled (`learning_floors`; the ilc stage's
+#: `POOLED_MIN`)
 POOLED_POINTS = 3
-#: the chance that points sharing a harmonic's ripple are taken for differing there (`shared_harmonics`)
-SHARED_FALSE_ALARM = 0.01
 
 
 @dataclass(frozen=True)
 class PointSpectra:
     """What the floor of a point needs of one of its trials: its measured spectrum in true-torque units
     (`TorqueMeasurement.in_true_units`) and the measurement's mean torque, N m; its true spectrum and mean
-    (simulator only)."""
+    (simulator only); the harmonics 0..H of the torque its feed-forward delivered through the identified response,
+    G^ u, N m (`Pipeline.delivered_nm`; None: none)."""
 
     measured: TorqueSpectrum
     mean_nm: float
     true: TorqueSpectrum | None = None
     true_mean_nm: float | None = None
+    delivered_nm: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -104,40 +107,94 @@ def floors_of(summary: dict) -> dict[Point, PointFloor]:
     return {floor.point: floor for p in summary.get("points", []) if (floor := PointFloor.from_json(p)) is not None}
 
 
-def learning_variance(learned_from: list[TorqueSpectrum]) -> np.ndarray:
-    """P_h of the module docstring per harmonic 0..H, N m^2: the inverse-variance mean's variance of the spectra
-    ``learned_from`` (true units) where the harmonic of one of them stands out at `SIGNIFICANCE`, 0 elsewhere
-    and at h = 0."""
-    information = sum(1.0 / np.maximum(s.variance_nm2, 1e-300) for s in learned_from)
-    ripple = np.any([np.abs(s.harmonics_nm) > SIGNIFICANCE * np.sqrt(s.variance_nm2) for s in learned_from], axis=0)
-    ripple[0] = False
-    return np.where(ripple, 1.0 / information, 0.0)
+@dataclass(frozen=True)
+class RippleEstimate:
+    """What the trials a point learned from tell of its ripple with no feed-forward, d, per harmonic 0..H.
 
-
-def shared_harmonics(learned: dict[Point, list[PointSpectra]]) -> tuple[np.ndarray, np.ndarray]:
-    """Where the learned points share their ripple, and the learning variance there with every point's trials
-    pooled (a learner that pools the points, as the ilc stage does, reaches it), N m^2, per harmonic 0..H.
-
-    Shared: the compensation trials' harmonics (what each point had to learn) agree across the points within
-    their noise, sum_p |c_p - c|^2 / v_p (c their inverse-variance mean) within the 1 - `SHARED_FALSE_ALARM`
-    quantile of its Gamma(k - 1) law for k points that share it. Fewer than `POOLED_POINTS` points share
-    nothing.
+    Attributes
+    ----------
+    estimate_nm : the inverse-variance mean d^ of their harmonics less what their feed-forward delivered
+        (`PointSpectra.delivered_nm`), N m.
+    variance_nm2 : its variance P = 1 / sum_k 1 / v_k, N m^2.
     """
-    from scipy.special import gammaincinv  # deferred: scipy.special costs the campaign's import
 
-    first = next(iter(learned.values()))[0].measured if learned else None
-    if first is None or len(learned) < POOLED_POINTS:
-        size = 0 if first is None else first.variance_nm2.size
-        return np.zeros(size, bool), np.zeros(size)
-    compensation = [trials[0].measured for trials in learned.values()]
-    c = np.array([s.harmonics_nm for s in compensation])
-    w = 1.0 / np.maximum(np.array([s.variance_nm2 for s in compensation]), 1e-300)
-    mean = (w * c).sum(axis=0) / w.sum(axis=0)
-    spread = (w * np.abs(c - mean) ** 2).sum(axis=0)
-    shared = spread <= gammaincinv(len(learned) - 1, 1.0 - SHARED_FALSE_ALARM)
-    pooled = 1.0 / sum(1.0 / np.maximum(t.measured.variance_nm2, 1e-300) for trials in learned.values()
-                       for t in trials[:-1])
-    return shared, pooled
+    estimate_nm: np.ndarray
+    variance_nm2: np.ndarray
+
+    @classmethod
+    def of(cls, learned_from: list[PointSpectra]) -> RippleEstimate:
+        """From the trials ``learned_from`` (true units)."""
+        weights = [1.0 / np.maximum(t.measured.variance_nm2, 1e-300) for t in learned_from]
+        P = 1.0 / sum(weights)
+        unforced = [t.measured.harmonics_nm - (0.0 if t.delivered_nm is None else t.delivered_nm)
+                    for t in learned_from]
+        return cls(sum(w * d for w, d in zip(weights, unforced)) * P, P)
+
+
+def stands_out(estimate_nm: np.ndarray, variance_nm2: np.ndarray) -> np.ndarray:
+    """Where ``estimate_nm`` stands out of its noise at `SIGNIFICANCE` (never at h = 0)."""
+    out = np.abs(estimate_nm) ** 2 > SIGNIFICANCE**2 * variance_nm2
+    out[0] = False
+    return out
+
+
+def unresolved_power(residual_nm: np.ndarray, variance_nm2: np.ndarray, quiet: np.ndarray) -> np.ndarray:
+    """The power of the ripple ``residual_nm`` (of noise ``variance_nm2``) at the ``quiet`` harmonics, where it did
+    not stand out (`stands_out`), N m^2 per harmonic: sum (|r_h|^2 - m V_h) over them, m = E[X | X <
+    SIGNIFICANCE^2] for X ~ Exp(1) (what the noise leaves there, given it did not stand out), at least 0, spread
+    over them as V_h. Per harmonic, with what stands out counted at V_h, about the Wiener bound D V / (D + V)
+    of a ripple of power D (docs/campaign.md)."""
+    k2 = SIGNIFICANCE**2
+    m = (1.0 - (1.0 + k2) * np.exp(-k2)) / (1.0 - np.exp(-k2))
+    power = max(0.0, float(np.sum(np.abs(residual_nm[quiet]) ** 2 - m * variance_nm2[quiet])))
+    return np.where(quiet, power * variance_nm2 / max(float(np.sum(variance_nm2[quiet])), 1e-300), 0.0)
+
+
+@dataclass(frozen=True)
+class LearningFloor:
+    """The learning's part of a learned point's floor, N m^2 per harmonic 0..H (`learning_floors`).
+
+    Attributes
+    ----------
+    noise_nm2 : what the learned harmonics keep of the noise they were learned with.
+    unresolved_nm2 : the ripple no trial resolved, which stays.
+    """
+
+    noise_nm2: np.ndarray
+    unresolved_nm2: np.ndarray
+
+    @property
+    def total_nm2(self) -> np.ndarray:
+        return self.noise_nm2 + self.unresolved_nm2
+
+
+def learning_floors(estimates: dict[Point, RippleEstimate]) -> dict[Point, LearningFloor]:
+    """The learning part of each learned point's floor: the error of a learner that learns a harmonic where the
+    data show it, and leaves the rest.
+
+    Shared by the points (`POOLED_POINTS` or more): where their inverse-variance mean s^ (variance A) stands out,
+    a learner that pools them (the ilc stage) learns it at A. At a point: where d^_p - s^ (or d^_p where nothing
+    is shared; variance V = P_p - A, or P_p) stands out, the point's own at P_p; elsewhere what is left of
+    d^_p - s^ stays, its power estimated by `unresolved_power`.
+    """
+    first = next(iter(estimates.values()))
+    shared, A = np.zeros(first.estimate_nm.shape, complex), np.zeros(first.variance_nm2.shape)
+    if len(estimates) >= POOLED_POINTS:
+        information = sum(1.0 / np.maximum(e.variance_nm2, 1e-300) for e in estimates.values())
+        A = 1.0 / information
+        mean = sum(e.estimate_nm / np.maximum(e.variance_nm2, 1e-300) for e in estimates.values()) * A
+        shared = np.where(stands_out(mean, A), mean, 0.0)
+    pooled = shared != 0
+    floors = {}
+    for point, e in estimates.items():
+        residual = e.estimate_nm - shared
+        V = np.where(pooled, np.maximum(e.variance_nm2 - A, 0.0), e.variance_nm2)
+        own = stands_out(residual, V)
+        quiet = ~own
+        quiet[0] = False
+        floors[point] = LearningFloor(np.where(own, e.variance_nm2, np.where(pooled, A, 0.0)),
+                                      unresolved_power(residual, V, quiet))
+    return floors
 
 
 def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:
@@ -175,21 +232,21 @@ def point_floors(learned: dict[Point, list[PointSpectra]], validated: dict[Point
     ``torques_nm`` x ``speeds_hz`` is the compensation's grid of learned points and ``tables_nm`` its feed-forward
     tables there (`Compensation`).
     """
-    learning = {}
-    floors = []
-    shared, pooled = shared_harmonics(learned)
+    estimates = {point: RippleEstimate.of(trials[:-1]) for point, trials in learned.items() if len(trials) > 1}
+    learning = learning_floors(estimates) if estimates else {}
     for point, trials in learned.items():
-        *before, final = trials
-        learning[point] = learning_variance([t.measured for t in before]) if before else \
-            np.zeros_like(final.measured.variance_nm2)
-        learning[point] = np.where(shared & (learning[point] > 0), pooled, learning[point])
-        floors.append(_point(point, True, final, learning[point], None))
+        nothing = np.zeros_like(trials[-1].measured.variance_nm2)
+        learning.setdefault(point, LearningFloor(nothing, nothing))
+    floors = [_point(point, True, trials[-1], learning[point].total_nm2, None) for point, trials in learned.items()]
     for point, trial in validated.items():
+        # the learned points' learning noise as the interpolation weighs it, w^2; the ripple they left as it is
+        # there, interpolated (w)
         weights = interpolation_weights(torques_nm, speeds_hz, *point)
         part = np.zeros_like(trial.measured.variance_nm2)
         for (i, j), w in np.ndenumerate(weights):
             if w:
-                part = part + w**2 * learning[(float(torques_nm[i]), float(speeds_hz[j]))]
+                near = learning[(float(torques_nm[i]), float(speeds_hz[j]))]
+                part = part + w**2 * near.noise_nm2 + w * near.unresolved_nm2
         error = interpolation_error(tables_nm, torques_nm, speeds_hz, point, part.size - 1)
         floors.append(_point(point, False, trial, part, error))
     return floors

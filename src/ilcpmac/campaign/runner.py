@@ -434,7 +434,8 @@ class CampaignRunner:
         """What the floors need of a trial that ran ``ran`` (`PointSpectra`), from its analysis."""
         assert self.measurement is not None and analysis.measured is not None
         measured = self.measurement.in_true_units(analysis.measured, ran.speed_setpoint_hz, ran.calibration)
-        return PointSpectra(measured, self.measurement.mean_torque_nm(ran), analysis.true, analysis.true_mean_nm)
+        return PointSpectra(measured, self.measurement.mean_torque_nm(ran), analysis.true, analysis.true_mean_nm,
+                            self.pipeline.delivered_nm(ran, ran.speed_setpoint_hz)[: measured.max_harmonic + 1])
 
     def _grid_bench(self, grid_trials: list[TrialData]) -> Bench:
         """The grid as a bench folder in memory."""

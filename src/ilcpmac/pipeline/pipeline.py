@@ -352,6 +352,13 @@ class Pipeline:
         pole_pairs = self.description.motor.pole_pairs
         return np.arange(pole_pairs, self.max_harmonic + 1, pole_pairs)
 
+    def delivered_nm(self, request: TrialRequest, speed_hz: float) -> np.ndarray:
+        """Harmonics 0..H of the true torque ``request``'s feed-forward delivers at ``speed_hz`` through the
+        identified response, G^ u (`StageSetup.torque_response`), N m; 0 at h = 0 (the mean is the set point's)."""
+        h = np.arange(1, self.max_harmonic + 1)
+        u = harmonic_amplitudes(request.feedforward_nm, self.max_harmonic)[1:]
+        return np.concatenate([[0.0], self._response(h, speed_hz, request.calibration) * u])
+
     def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
         """The joint fit and the measured ripple spectrum of a finished trial.
 
