@@ -180,9 +180,9 @@ def learning_floors(estimates: dict[Point, RippleEstimate]) -> dict[Point, Learn
     first = next(iter(estimates.values()))
     shared, A = np.zeros(first.estimate_nm.shape, complex), np.zeros(first.variance_nm2.shape)
     if len(estimates) >= POOLED_POINTS:
-        information = sum(1.0 / np.maximum(e.variance_nm2, 1e-300) for e in estimates.values())
-        A = 1.0 / information
-        mean = sum(e.estimate_nm / np.maximum(e.variance_nm2, 1e-300) for e in estimates.values()) * A
+        weights = {point: 1.0 / np.maximum(e.variance_nm2, 1e-300) for point, e in estimates.items()}
+        A = 1.0 / sum(weights.values())
+        mean = sum(weights[point] * e.estimate_nm for point, e in estimates.items()) * A
         shared = np.where(stands_out(mean, A), mean, 0.0)
     pooled = shared != 0
     floors = {}

@@ -378,8 +378,7 @@ class Pipeline:
         true = self.measurement.in_true_units(spectrum, speed_hz, request.calibration)
         mean, variance = true.harmonics_nm * gain, true.variance_nm2 * gain**2
         h = self.claimed_harmonics()
-        u = harmonic_amplitudes(request.feedforward_nm)[h]
-        known = gain * self._response(h, speed_hz, request.calibration) * u
+        known = gain * self.delivered_nm(request, speed_hz)[h]
         blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.bounded
                   if (table := s.columns(trial)) is not None}
         regression = Regression(mean[h] - known, variance[h], blocks)
