@@ -220,6 +220,28 @@ def test_compensation_trials_leave_the_common_scale_alone(fine):
     assert off[-1] < off[0]
 
 
+def test_sensor_stage_holds_its_calibration_after_trials_per_point(fast):
+    """It learns from a set point's first trials_per_point trials, then holds the calibration, so the last learning
+    trials and the compensation run at one calibration (a move of it in the last round left the ilc stage's
+    estimate stale by the move); another set point's first trials teach it again; the count survives a restore."""
+    ident = identified(fast, alpha_error=ALPHA_ERROR, beta_error_a=BETA_ERROR_A)
+    pipeline = make_pipeline(fast, ["current-sensor", "cogging"], ident)
+    sensor = stage(pipeline, "current-sensor")
+    start = SensorErrors(fast, sensor.calibration())
+    scales = []
+    run_trials(fast, pipeline, 4, seed=105, after=lambda trial: scales.append(sensor.calibration().current_scale))
+    assert not np.array_equal(scales[0], scales[1])  # learned from the first two
+    np.testing.assert_array_equal(scales[1], scales[2])
+    np.testing.assert_array_equal(scales[1], scales[3])
+    assert SensorErrors(fast, sensor.calibration()).imbalance < start.imbalance  # and what it learned is right
+    fresh = make_pipeline(fast, ["current-sensor", "cogging"], ident)
+    fresh.restore(json_round_trip(pipeline.state()))
+    run_trials(fast, fresh, 1, seed=106)
+    np.testing.assert_array_equal(stage(fresh, "current-sensor").calibration().current_scale, scales[3])
+    run_trials(fast, fresh, 1, seed=107, torque_nm=0.5 * TORQUE_NM)
+    assert not np.array_equal(stage(fresh, "current-sensor").calibration().current_scale, scales[3])
+
+
 def test_sensor_stage_state_restores(fast):
     ident = identified(fast, alpha_error=ALPHA_ERROR, beta_error_a=BETA_ERROR_A)
     pipeline = make_pipeline(fast, ["current-sensor", "cogging"], ident)
