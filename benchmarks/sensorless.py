@@ -79,7 +79,8 @@ def identify_on_sensor(bench, torque_source: TorqueSource | None = None):
 
 def config_text(source: str, encoder_error: bool) -> str:
     """The seed config with ``torque_source``, no validation and, with ``encoder_error``, a real encoder's errors."""
-    text = CONFIG.read_text().replace("[campaign]\n", f"[campaign]\ntorque_source = {source!r}\n")
+    text = re.sub(r"(?m)^torque_source = .*$", "", CONFIG.read_text())  # the seed config's own: replaced
+    text = text.replace("[campaign]\n", f"[campaign]\ntorque_source = {source!r}\n")
     text = re.sub(r"(?m)^validate_(torques_nm|speeds_hz) = \[[^]]*\]", r"validate_\1 = []", text)
     if encoder_error:
         text = re.sub(r"(?m)^eccentricity_counts = [0-9.]+", "eccentricity_counts = 0.05", text)

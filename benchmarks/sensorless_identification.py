@@ -2,8 +2,8 @@
 
     python benchmarks/sensorless_identification.py [--eccentricity COUNTS] [--line-std COUNTS]
 
-The seed bench (configs/seed-bench.toml: 30 trials, 1-5 N m at 0.5-1 Hz, 8
-revolutions, 4096 counts, 1 us timer) with an encoder error of 0.05 counts
+The seed bench (configs/seed-bench.toml, 4096 counts, 1 us timer) on the report's grid (`REPORT_GRID`: 30
+trials, 1-5 N m at 0.5-1 Hz, 8 revolutions; the campaign's own is shorter) with an encoder error of 0.05 counts
 once per revolution and 0.01 counts RMS per line, simulated once; its trials
 identified by `identify_bench` from the torque sensor's column and from the
 encoder's time stamps (J given). Targets (issue 12): cogging within 3 % RMS,
@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from reproduce_report import REPORT_GRID
 
 from ilcpmac.bench.format import Bench
 from ilcpmac.campaign.grid import grid_requests
@@ -42,6 +43,7 @@ LEFT_AT_HZ = (0.5, 1.0, 1.5)
 def simulated(eccentricity_counts: float, line_std_counts: float) -> tuple[Bench, dict]:
     """The seed bench's grid with that encoder error, and its truth."""
     config = load_config(CONFIG)
+    config = replace(config, grid=replace(config.grid, **REPORT_GRID))
     model = config.model
     model = replace(model, encoder=replace(model.encoder, eccentricity_counts=eccentricity_counts,
                                            line_std_counts=line_std_counts))
