@@ -209,3 +209,25 @@ def test_x_and_P_are_copies():
     kf.x[0] = 5.0
     kf.P[0, 0] = 5.0
     assert kf.x[0] == 0.0 and kf.P[0, 0] == 1.0
+
+
+def test_a_constraint_is_the_least_squares_answer_under_it_and_holds_through_later_updates():
+    """Truth: the minimiser of (x - x^)' P^-1 (x - x^) with D x = d (the KKT system solved directly); after it D x
+    has no variance, and a later measurement (no process noise) leaves D x at d."""
+    rng = np.random.default_rng(12)
+    n = 4
+    root = rng.standard_normal((n, n))
+    P0 = root @ root.T + n * np.eye(n)
+    x0 = rng.standard_normal(n)
+    kf = KalmanEstimator(x0, P0)
+    kf.update(rng.standard_normal(2), np.diag([0.5, 2.0]), rng.standard_normal((2, n)))
+    x, P = kf.x, kf.P
+    D, d = rng.standard_normal(n), 0.7
+    kkt = np.block([[np.linalg.inv(P), D[:, None]], [D[None, :], np.zeros((1, 1))]])
+    expected = np.linalg.solve(kkt, np.concatenate([np.linalg.solve(P, x), [d]]))[:n]
+    kf.constrain(D, d)
+    np.testing.assert_allclose(kf.x, expected, rtol=1e-10, atol=1e-12)
+    assert D @ kf.x == pytest.approx(d, abs=1e-12)
+    assert D @ kf.P @ D == pytest.approx(0.0, abs=1e-9)
+    kf.update(rng.standard_normal(3), np.eye(3), rng.standard_normal((3, n)))
+    assert D @ kf.x == pytest.approx(d, abs=1e-8)

@@ -72,6 +72,19 @@ class KalmanEstimator:
         self.update(V.T @ np.asarray(estimate, float), np.diag(1.0 / eigval[keep]), V.T @ H)
         return int(keep.sum())
 
+    def constrain(self, D: np.ndarray, d: float) -> None:
+        """Hold the linear combination D x at ``d``: the estimate and its covariance as after a measurement
+        D x = d of no noise (the minimum-variance projection onto the constraint), so that no later update
+        moves D x either. No-op when D x has no variance."""
+        D = np.asarray(D, float).reshape(1, -1)
+        P = self._kf.P
+        variance = float((D @ P @ D.T)[0, 0])
+        if variance <= 0.0:
+            return
+        gain = P @ D.T / variance
+        self._kf.x = self._kf.x - gain * (float((D @ self._kf.x)[0, 0]) - d)
+        self._kf.P = P - gain @ D @ P
+
     def state(self) -> dict:
         """JSON-able mean and covariance."""
         return {"x": self.x.tolist(), "P": self.P.tolist()}

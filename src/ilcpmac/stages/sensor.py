@@ -24,12 +24,18 @@ share of the feed-forward's torque stays in them, its common part does not,
 so the common gain is no longer collinear with the stages that feed forward
 (cogging) and their estimates stay the plant's.
 
+Such a trial (no excitation) cannot tell the mean gain: scaling every G_s,p with the offsets in counts o_s,p
+fixed changes no coefficient it measures. The prior's correlations moved it all the same, through the offsets'
+differential b_p, which is measured against o*_s,p G_s,p: on the seed bench 0.05-1.06 % a round, away from the
+truth (to -1.3 % and +0.6 % from the identification's -0.3 % and +0.1 %). So after each such update the estimate
+is held at mean_p(G_s,p / G_s,p before) = 1 (`KalmanEstimator.constrain`, the minimum-variance projection; to
+first order, the torque the calibration gives at a balanced set point).
+
 The stage learns from each set point's first ``trials_per_point`` trials after the identification (the
 compensation trial and the first learning trial by default), then holds the calibration, so the last learning
-trials and the compensation run at one calibration. Every move of it changes the current, so the
-torque-proportional ripple, at every point at once, and the ilc stage's estimates go stale by as much: on the seed
-bench (seed 13) the common gain still moved 0.05-1.06 % a round, and in the last round the cogging order at 5 N m,
-1.5 Hz went from 0.11 to 0.83 mN m (docs/campaign.md, "The noise floor").
+trials and the compensation run at one calibration: every move of it changes the current, and the ilc stage's
+estimates go stale by as much (on the seed bench, seed 13, the cogging order at 5 N m, 1.5 Hz went from 0.11 to
+0.83 mN m in the last round, when the calibration still moved; docs/campaign.md, "The noise floor").
 """
 
 from __future__ import annotations
@@ -146,13 +152,17 @@ class CurrentSensorCorrection:
                                     [-np.diag(cal.current_offset), np.eye(3)]])
         block = frame.block(self.name)
         information = block.information
-        if not np.any(request.excitation_nm):
-            key = request.setpoint_key
-            if self._learned.get(key, 0) >= self._trials_per_point:
-                return
-            self._learned[key] = self._learned.get(key, 0) + 1
-            information = _without_common_modes(information)
-        self._kalman.update_block(block.estimate, information, H)
+        if np.any(request.excitation_nm):
+            self._kalman.update_block(block.estimate, information, H)
+            return
+        key = request.setpoint_key
+        if self._learned.get(key, 0) >= self._trials_per_point:
+            return
+        self._learned[key] = self._learned.get(key, 0) + 1
+        gain = self._kalman.x[:3]
+        self._kalman.update_block(block.estimate, _without_common_modes(information), H)
+        # the mean gain stays: mean_p(G_s,p / G_s,p before) = 1 (module docstring)
+        self._kalman.constrain(np.concatenate([1.0 / (3.0 * gain), np.zeros(3)]), 1.0)
 
     def state(self) -> dict:
         return {"kalman": self._kalman.state(), "learned": dict(self._learned), **self.calibration().to_json()}
