@@ -3,9 +3,9 @@ pole pairs, slots, encoder lines, inertia, current-loop bandwidth, sensor errors
 errors), seed 2009: the motor time the plan states before the first trial is the time the motor runs, and every
 point's final ripple is reported beside its floor.
 
-The issue's target, learned points within 1.5x and validation points within 2x of their floors, is not met on every
-motor and seed (docs/campaign.md, "The noise floor": 9 of 240 points over four seeds, at 1.51-1.96x); this test
-guards what holds with this seed, learned points within 2x and validation points within 2.5x, against a regression.
+The target: learned points within 1.5x and validation points within 2x of their floors. Over four seeds it held at
+all 240 points of benchmarks/other_motors.py (docs/campaign.md, "The noise floor"); with this seed the closest are
+the third motor's, learned 1.48x and validation 1.74x.
 """
 
 from __future__ import annotations
@@ -40,4 +40,4 @@ def test_another_motor_runs_as_long_as_its_plan_said_and_ends_near_its_floors(tm
     assert result.summary["motor_time_s"]["all"] == pytest.approx(stated_s, rel=0.1)
     for p in result.summary["points"]:
         assert 0 < p["floor_pp_true"] < p["uncompensated_pp_true"]
-        assert p["ripple_pp_true"] < (2.0 if p["learned"] else 2.5) * p["floor_pp_true"], p
+        assert p["ripple_pp_true"] < (1.5 if p["learned"] else 2.0) * p["floor_pp_true"], p
