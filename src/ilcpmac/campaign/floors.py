@@ -153,8 +153,12 @@ def unresolved_power(residual_nm: np.ndarray, variance_nm2: np.ndarray, quiet: n
     not stand out, N m^2 per harmonic: `_excess_power`, at least 0, spread over them as V_h. Per harmonic, with
     what stands out counted at V_h, about the Wiener bound D V / (D + V) of a ripple of power D
     (docs/campaign.md)."""
-    power = max(0.0, _excess_power(residual_nm, variance_nm2, quiet))
-    return np.where(quiet, power * variance_nm2 / max(float(np.sum(variance_nm2[quiet])), 1e-300), 0.0)
+    return _spread(max(0.0, _excess_power(residual_nm, variance_nm2, quiet)), variance_nm2, quiet)
+
+
+def _spread(power_nm2: float, variance_nm2: np.ndarray, quiet: np.ndarray) -> np.ndarray:
+    """``power_nm2`` spread over the ``quiet`` harmonics as their noise ``variance_nm2``, N m^2 per harmonic."""
+    return np.where(quiet, power_nm2 * variance_nm2 / max(float(np.sum(variance_nm2[quiet])), 1e-300), 0.0)
 
 
 @dataclass(frozen=True)
@@ -226,8 +230,7 @@ def _own_unresolved(deviations: dict[Point, tuple[np.ndarray, np.ndarray, np.nda
             means.append(_excess_power(deviation, V, quiet) / n)
             weights.append(n**2 / max(float(np.sum(V[quiet] ** 2)), 1e-300))
     per_harmonic = max(0.0, float(np.average(means, weights=weights))) if weights else 0.0
-    return {point: np.where(quiet, per_harmonic * quiet.sum() * V / max(float(np.sum(V[quiet])), 1e-300), 0.0)
-            for point, (_, V, quiet) in deviations.items()}
+    return {point: _spread(per_harmonic * int(quiet.sum()), V, quiet) for point, (_, V, quiet) in deviations.items()}
 
 
 def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:

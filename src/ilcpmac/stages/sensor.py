@@ -147,20 +147,21 @@ class CurrentSensorCorrection:
 
     def learn(self, trial: TrialData, frame: Frame) -> None:
         request = trial.requested()
+        excited = bool(np.any(request.excitation_nm))
+        if not excited:
+            key = request.setpoint_key
+            if self._learned.get(key, 0) >= self._trials_per_point:
+                return
+            self._learned[key] = self._learned.get(key, 0) + 1
         cal = request.calibration
         H = frame.delta * np.block([[np.diag(cal.current_scale), np.zeros((3, 3))],
                                     [-np.diag(cal.current_offset), np.eye(3)]])
         block = frame.block(self.name)
-        information = block.information
-        if np.any(request.excitation_nm):
-            self._kalman.update_block(block.estimate, information, H)
+        if excited:
+            self._kalman.update_block(block.estimate, block.information, H)
             return
-        key = request.setpoint_key
-        if self._learned.get(key, 0) >= self._trials_per_point:
-            return
-        self._learned[key] = self._learned.get(key, 0) + 1
         gain = self._kalman.x[:3]
-        self._kalman.update_block(block.estimate, _without_common_modes(information), H)
+        self._kalman.update_block(block.estimate, _without_common_modes(block.information), H)
         # the mean gain stays: mean_p(G_s,p / G_s,p before) = 1 (module docstring)
         self._kalman.constrain(np.concatenate([1.0 / (3.0 * gain), np.zeros(3)]), 1.0)
 
