@@ -198,8 +198,8 @@ def test_export_moteus_from_a_result_prints_the_residual(tmp_path):
     lines = out.output.splitlines()
     assert lines[0].startswith("wrote 1 file, ") and lines[1].split()[0] == "moteus_cogging.txt"
     residual = export(read_position_table(path), tmp_path / "again", "moteus", torque_constant_nm_per_a=KT).residual
-    assert lines[2] == residual.line("moteus")
-    assert lines[2].startswith("residual ripple of the moteus export: ") and "of the table's peak-to-peak" in lines[2]
+    assert [line.split(":")[0] for line in lines[2:4]] == ["bound", "bound"] and lines[4] == residual.line("moteus")
+    assert lines[4].startswith("residual ripple of the moteus export: ") and "of the table's peak-to-peak" in lines[4]
 
 
 def test_the_drive_formats_need_a_torque_constant_and_a_result(tmp_path):
@@ -227,3 +227,13 @@ def test_a_result_exports_its_position_torque_or_says_it_holds_only_the_cogging(
     assert out.exit_code == 2 and len(out.output.splitlines()) == 1, out.output
     assert out.output.startswith(f"error: {only_cogging}: no position torque") and "only the cogging" in out.output
     assert not (tmp_path / "out").exists()
+
+
+def test_a_scan_without_cogging_says_so_and_exports_its_position_torque(tmp_path):
+    """A scan whose cogging order is beyond its counts' Nyquist limit writes "cogging": null; its export read as
+    "not a result of ilcpmac identify (TypeError ...)"."""
+    path = scan_json(tmp_path)
+    path.write_text(json.dumps({**json.loads(path.read_text()), "cogging": None}))
+    with pytest.raises(BenchFormatError, match=r"scan.json: no cogging table \(key 'cogging' is missing or null\)"):
+        read_position_table(path)
+    assert read_position_table(path, "position-torque").feedforward_nm.size == CPR

@@ -174,3 +174,15 @@ def test_bad_options_exit_2_with_one_line_before_writing(write_config, tmp_path,
     assert result.exit_code == 2
     assert result.stderr.strip() == f"error: {message}"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_log_on_a_full_disk_names_its_file_and_leaves_none_truncated(write_config, tmp_path, monkeypatch):
+    """drive_log.csv was written in place: a full disk left a truncated log, and an error naming no file."""
+    from test_output_and_sweep_garbage import full_disk
+
+    full_disk(monkeypatch, "drive_log.csv")
+    out = tmp_path / "out"
+    result = run("simulate", str(write_config(SMALL)), "--out", str(out), "--kind", "log", "--duration-s", "1")
+    assert result.exit_code == 2, result.output
+    assert result.stderr.strip() == f"error: {out / 'drive_log.csv'}: No space left on device"
+    assert not (out / "drive_log.csv").exists() and not list(out.glob("*.tmp"))

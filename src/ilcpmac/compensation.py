@@ -69,6 +69,8 @@ UNITS = {"torques_nm": "N m", "speeds_hz": "Hz", "tables_nm": "N m per encoder c
          "fade.zero_hz": "Hz (null: never fades)"}
 #: what a `PositionTable` holds (``ilcpmac export --content``)
 CONTENTS = ("cogging", "position-torque")
+#: the key of a result holding each of `CONTENTS`
+_CONTENT_KEYS = {"cogging": "cogging", "position-torque": "position_torque"}
 #: largest identification or standstill scan result read, bytes
 MAX_RESULT_BYTES = 2**26
 #: a harmonic of an identification's cogging table counts towards its order above this fraction of its largest
@@ -82,7 +84,8 @@ _FADE_KEYS = ("full_hz", "zero_hz")
 class FadeOut:
     """The feed-forward's factor over speed: 1 up to full_hz, linear down to 0 at zero_hz, 0 beyond.
 
-    full_hz <= zero_hz; full_hz == zero_hz is a step; both may be inf (never fades), zero_hz alone not.
+    full_hz <= zero_hz; full_hz == zero_hz is a step; both may be inf (never fades), zero_hz alone not; a finite
+    one is a speed of the bench format's range, at most `MAX_SPEED_HZ`.
 
     Attributes
     ----------
@@ -99,9 +102,9 @@ class FadeOut:
         full, zero = float(self.full_hz), float(self.zero_hz)
         object.__setattr__(self, "full_hz", full)
         object.__setattr__(self, "zero_hz", zero)
-        if not 0.0 <= full <= zero or (math.isinf(zero) and not math.isinf(full)):
-            raise ValueError(f"key 'fade': needs 0 <= full_hz <= zero_hz, both finite or both infinite (null: "
-                             f"never fades), got full_hz = {full!r}, zero_hz = {zero!r}")
+        if not 0.0 <= full <= zero or math.isinf(zero) != math.isinf(full) or MAX_SPEED_HZ < zero < math.inf:
+            raise ValueError(f"key 'fade': needs 0 <= full_hz <= zero_hz <= {MAX_SPEED_HZ:g}, or both infinite "
+                             f"(null: never fades), got full_hz = {full!r}, zero_hz = {zero!r}")
 
     def factor(self, speed_hz: float) -> float:
         """The factor at ``speed_hz`` (Hz)."""
@@ -110,6 +113,16 @@ class FadeOut:
         if speed_hz >= self.zero_hz:
             return 0.0
         return (self.zero_hz - speed_hz) / (self.zero_hz - self.full_hz)
+
+
+def _check_calibration(cal: SensorCalibration) -> None:
+    """The bench format's ranges on a calibration (bench.toml's [sensors], `SensorTable`): `ValueError` naming
+    the key otherwise."""
+    if not isinstance(cal, SensorCalibration):
+        raise ValueError(f"key 'calibration': must be a SensorCalibration, got {type(cal).__name__}")
+    problem = section_problem("calibration", SensorTable(**cal.to_json()), _json_key)
+    if problem is not None:
+        raise ValueError(problem)
 
 
 def _grid(values, key: str, low: float, high: float, low_open: bool) -> np.ndarray:
@@ -198,7 +211,7 @@ class Compensation:
             raise ValueError(f"key 'counts_per_rev': must be an integer in {list(MOTOR_RANGES['counts_per_rev'])}, "
                              f"got {_shown(cpr)}")
         object.__setattr__(self, "counts_per_rev", int(cpr))
-        self._check_calibration()
+        _check_calibration(self.calibration)
         if not isinstance(self.fade, FadeOut):
             raise ValueError(f"key 'fade': must be a FadeOut, got {type(self.fade).__name__}")
         torques = _grid(self.torques_nm, "torques_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM, low_open=False)
@@ -219,15 +232,6 @@ class Compensation:
         object.__setattr__(self, "torques_nm", torques)
         object.__setattr__(self, "speeds_hz", speeds)
         object.__setattr__(self, "tables_nm", tables)
-
-    def _check_calibration(self) -> None:
-        """The bench format's ranges on a calibration (bench.toml's [sensors], `SensorTable`)."""
-        cal = self.calibration
-        if not isinstance(cal, SensorCalibration):
-            raise ValueError(f"key 'calibration': must be a SensorCalibration, got {type(cal).__name__}")
-        problem = section_problem("calibration", SensorTable(**cal.to_json()), _json_key)
-        if problem is not None:
-            raise ValueError(problem)
 
     def feedforward_nm(self, torque_nm: float, speed_hz: float) -> np.ndarray:
         """The feed-forward per count at a torque and a speed set point, shape (counts_per_rev,), N m."""
@@ -322,7 +326,8 @@ class PositionTable:
         The harmonics it is exported as: the cogging order's multiples ("cogging") or every order ("position-
         torque"), up to counts_per_rev / 2.
     calibration : SensorCalibration or None
-        The identification's corrected current-sensor calibration (None: not identified; a scan has none).
+        The identification's corrected current-sensor calibration (None: not identified; a scan has none), within
+        the bench format's ranges (checked when the record is made: `ValueError` naming the key).
     source : str
         The file it was read from.
     """
@@ -333,10 +338,19 @@ class PositionTable:
     calibration: SensorCalibration | None
     source: str
 
+    def __post_init__(self) -> None:
+        if self.calibration is not None:
+            _check_calibration(self.calibration)
+
     @property
     def counts_per_rev(self) -> int:
         """Encoder counts per mechanical revolution."""
         return int(self.feedforward_nm.size)
+
+    @property
+    def key(self) -> str:
+        """The key of its result that holds the table, "cogging.torque" or "position_torque.torque"."""
+        return f"{_CONTENT_KEYS[self.content]}.torque"
 
     def coefficients_nm(self) -> np.ndarray:
         """(a_n, b_n) at `orders`, shape (k, 2), N m: feedforward = sum a_n cos(n theta) + b_n sin(n theta) with
@@ -372,14 +386,22 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
     if not isinstance(data, dict):
         raise BenchFormatError(f"{path}: must hold an object, got {_shown(data)}")
     scan = data.get("kind") == "standstill_scan"
-    key = "cogging" if content == "cogging" else "position_torque"
+    key = _CONTENT_KEYS[content]
     try:
         if scan:
-            table, order, calibration = data[key]["torque"], data["cogging_order"], None
+            found = data[key]
+            table, order, calibration = None if found is None else found["torque"], data["cogging_order"], None
+            counts = {"counts_per_rev": data["counts_per_rev"]}
+            listed = None if found is None else found.get("count")
         else:
             result = IdentificationResult.from_json(data)
             table = result.cogging_nm if content == "cogging" else result.position_torque_nm
-            order, calibration = None, result.calibration
+            order, calibration, listed = None, result.calibration, None
+            counts = {f"{name}.torque": a.size for name, a in (("cogging", result.cogging_nm),
+                                                               ("position_torque", result.position_torque_nm))
+                      if a is not None}
+            if result.encoder_error_counts is not None:
+                counts["encoder_error.error_counts"] = result.encoder_error_counts.size
     except ResultKeyError as e:
         raise BenchFormatError(f"{path}: {e}") from None
     except (KeyError, TypeError, ValueError) as e:
@@ -394,6 +416,13 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
     if not _is_counts_per_rev(tau.size) or np.any(np.abs(tau) > MAX_TORQUE_NM):
         raise BenchFormatError(f"{path}: key '{key}.torque': needs one value per count ({tau.size} is no count "
                                f"in {list(MOTOR_RANGES['counts_per_rev'])}), each within +-{MAX_TORQUE_NM:g} N m")
+    if listed is not None and listed != list(range(tau.size)):
+        raise BenchFormatError(f"{path}: key '{key}.count': must be the counts 0 .. {tau.size - 1}, one per value of "
+                               f"'{key}.torque'")
+    other = next(((name, n) for name, n in counts.items() if n != tau.size), None)
+    if other is not None:
+        raise BenchFormatError(f"{path}: key '{key}.torque': {tau.size} values, but key '{other[0]}' gives "
+                               f"{_shown(other[1])} counts per revolution (one value per count)")
     if not np.any(tau != tau[0]):
         raise BenchFormatError(f"{path}: key '{key}.torque': the table is constant: no position torque to cancel")
     if order is None:
@@ -402,7 +431,10 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
         raise BenchFormatError(f"{path}: key 'cogging_order': must be an integer in [1, {tau.size // 2}], "
                                f"got {_shown(order)}")
     orders = np.arange(order if content == "cogging" else 1, tau.size // 2 + 1, order if content == "cogging" else 1)
-    return PositionTable(content, -tau, orders, calibration, str(path))
+    try:
+        return PositionTable(content, -tau, orders, calibration, str(path))
+    except ValueError as e:
+        raise BenchFormatError(f"{path}: {e}") from None
 
 
 def _read_json(path: Path, max_bytes: int):

@@ -14,9 +14,13 @@
 - moteus (a position table): ``moteus_cogging.txt``, the ``conf set`` lines of moteus's
   ``motor.cogging_dq_scale`` and 1024 int8 ``motor.cogging_dq_comp`` entries, q-axis amperes.
 
-Every export states its `Residual`: the table as the target reproduces it per count, against the table.
-`export_source` exports what a path holds (`read_source`: a run directory, a compensation.json or a result JSON), as
-``ilcpmac export`` and ``ilcpmac.api.export`` do.
+Every export states its `Residual`: the table as the target reproduces it per count, against the table; and its
+`Bound` s: the feed-forward within the limits the record was made under (a run directory's [limits], `RunLimits`,
+else the record's own range) and, for the drive formats, the q-axis current within the run's or the bench
+format's largest current. A record beyond them, or one a format cannot hold (a C float that would be 0, a
+moteus scale that would be 0 or infinite), is refused before anything is written. The files of one export are
+written all or none (`_write_all`). `export_source` exports what a path holds (`read_source`: a run directory,
+a compensation.json or a result JSON), as ``ilcpmac export`` and ``ilcpmac.api.export`` do.
 """
 
 from __future__ import annotations
@@ -24,23 +28,29 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 from collections.abc import Callable, Iterable
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from string import Template
 
 import numpy as np
 
+from ilcpmac.bench.format import BENCH_FILE, read_bench_head
 from ilcpmac.compensation import COMPENSATION_FILE, Compensation, PositionTable, read_position_table
+from ilcpmac.config import LimitSettings
 from ilcpmac.core.errors import BenchFormatError, IlcpmacError
-from ilcpmac.core.records import SensorCalibration
+from ilcpmac.core.files import atomic_write, check_writable
+from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, SensorCalibration
+from ilcpmac.core.schema import parse_section, read_toml
 from ilcpmac.model.tables import mechanical_angles_rad
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 
-__all__ = ["C_TYPES", "FORMATS", "INT16_FULL_SCALE", "MOTEUS_INT8_MAX", "MOTEUS_TABLE_SIZE", "POSITION_FORMATS",
-           "Exported", "Int16Tables", "MoteusTable", "Residual", "export", "export_source", "feedforward_column",
-           "read_source", "write_c",
-           "write_csv", "write_harmonics", "write_json", "write_moteus"]
+__all__ = ["C_TYPES", "FLOAT32_TINY", "FORMATS", "INT16_FULL_SCALE", "MOTEUS_INT8_MAX", "MOTEUS_TABLE_SIZE",
+           "POSITION_FORMATS", "RUN_CONFIG", "Bound", "Exported", "Int16Tables", "MoteusTable", "Residual", "RunLimits",
+           "export", "export_source", "feedforward_column", "read_source", "write_c", "write_csv", "write_harmonics",
+           "write_json", "write_moteus"]
 
 #: what ``ilcpmac export --format`` writes
 FORMATS = ("json", "csv", "c", "harmonics", "moteus")
@@ -61,6 +71,11 @@ POSITION_C_HEADER, POSITION_C_SOURCE = "ilcpmac_position_table.h", "ilcpmac_posi
 _PHASES = ("a", "b", "c")
 #: table values per line of the C source
 _C_PER_LINE = 12
+#: the smallest positive normal float32: a C float or a drive's float below it is subnormal or 0
+FLOAT32_TINY = float(np.finfo(np.float32).tiny)
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+#: the file that makes a folder a run directory (ilcpmac.campaign.rundir.CONFIG_FILE): the config it ran, [limits]
+RUN_CONFIG = "campaign.toml"
 #: a CSV row: text as it is, numbers as their shortest exact decimals
 _Row = list[str | float]
 
@@ -104,6 +119,75 @@ class Residual:
 
 
 @dataclass(frozen=True)
+class Bound:
+    """A bound an export keeps: the largest magnitude of a quantity in it, and the bound.
+
+    Attributes
+    ----------
+    quantity : str
+        What is bounded, e.g. "|feed-forward|".
+    peak : float
+        Its largest magnitude in the export, in ``unit``.
+    limit : float
+        The bound, in ``unit``.
+    unit : str
+    origin : str
+        Where the bound comes from, e.g. "[limits] max_correction_nm of runs/today/campaign.toml".
+    """
+
+    quantity: str
+    peak: float
+    limit: float
+    unit: str
+    origin: str
+
+    def checked(self, where: str) -> Bound:
+        """This bound, kept; else `BenchFormatError` naming ``where`` (the file, the key or the option)."""
+        if not self.peak <= self.limit:
+            raise BenchFormatError(f"{where}: {self.quantity} {self.peak:.4g} {self.unit} is beyond {self.limit:g} "
+                                   f"{self.unit} ({self.origin})")
+        return self
+
+    def line(self) -> str:
+        """The line ``ilcpmac export`` prints."""
+        return (f"bound: {self.quantity} at most {self.peak:.4g} {self.unit}, within {self.limit:g} {self.unit} "
+                f"({self.origin})")
+
+
+@dataclass(frozen=True)
+class RunLimits:
+    """What a run directory says the records in it were made under: its [limits] and its encoder.
+
+    Attributes
+    ----------
+    limits : LimitSettings
+        The run's [limits] (its campaign.toml).
+    counts_per_rev : int
+        Its bench's encoder counts per revolution (its bench.toml).
+    config : Path
+        Its campaign.toml, which messages name.
+    """
+
+    limits: LimitSettings
+    counts_per_rev: int
+    config: Path
+
+    @classmethod
+    def of(cls, source: Path) -> RunLimits | None:
+        """The limits of the run directory that holds the file ``source`` (a folder with `RUN_CONFIG`), None
+        outside one; a campaign.toml or bench.toml that cannot be read is one error naming it."""
+        config = source.parent / RUN_CONFIG
+        if not config.exists():
+            return None
+        limits = parse_section(read_toml(config).get("limits", {}), LimitSettings, str(config), "limits")
+        return cls(limits, read_bench_head(source.parent).motor.counts_per_rev, config)
+
+    def bound(self, quantity: str, peak: float, key: str, unit: str) -> Bound:
+        """The `Bound` of ``quantity`` at [limits] ``key``."""
+        return Bound(quantity, peak, getattr(self.limits, key), unit, f"[limits] {key} of {self.config}")
+
+
+@dataclass(frozen=True)
 class Exported:
     """What an export wrote.
 
@@ -117,12 +201,15 @@ class Exported:
         The tables as the target reproduces them per count from the files, N m.
     residual : Residual or None
         `rendered_nm` against the tables (`export` sets it).
+    bounds : tuple of Bound
+        The bounds the export keeps (`export` adds the record's to the format's).
     """
 
     files: tuple[Path, ...]
     quantisation_error_nm: float | None = None
     rendered_nm: np.ndarray | None = field(default=None, repr=False)
     residual: Residual | None = None
+    bounds: tuple[Bound, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -169,11 +256,42 @@ def tables_of(record: Record) -> np.ndarray:
     return record.tables_nm if isinstance(record, Compensation) else record.feedforward_nm
 
 
+def _staged(path: Path) -> Path:
+    """Where `_write_all` writes ``path`` before renaming it: PATH.new, beside it."""
+    return path.with_name(path.name + ".new")
+
+
+def _write_all(out_dir: Path, texts: dict[str, str]) -> tuple[Path, ...]:
+    """Write the files ``texts`` (name: text) into ``out_dir`` (made if missing), all or none.
+
+    Each is checked writable first (`check_writable`), then written through `atomic_write` to PATH.new, and
+    only once every one is written is each renamed to PATH: on a failure (a full disk, a quota) the PATH.new
+    files are removed and the files of those names stay as they were, and the `OSError` names the file.
+    """
+    paths = tuple(out_dir / name for name in texts)
+    for path in paths:
+        check_writable(path, IlcpmacError)
+    try:
+        for path, text in zip(paths, texts.values()):
+            try:
+                atomic_write(_staged(path), text)
+            except OSError as e:
+                raise OSError(e.errno, e.strerror, str(path)) from None
+        for path in paths:
+            os.replace(_staged(path), path)
+    except BaseException:
+        for path in paths:
+            with suppress(OSError):
+                _staged(path).unlink(missing_ok=True)
+        raise
+    return paths
+
+
 def write_json(record: Record, out_dir: Path) -> Exported:
     """compensation.json (`Compensation.to_json`) or position_table.json (`PositionTable.to_json`), indented."""
-    path = out_dir / (COMPENSATION_FILE if isinstance(record, Compensation) else POSITION_JSON)
-    path.write_text(json.dumps(record.to_json(), indent=1, allow_nan=False) + "\n")
-    return Exported((path,), rendered_nm=tables_of(record))
+    name = COMPENSATION_FILE if isinstance(record, Compensation) else POSITION_JSON
+    text = json.dumps(record.to_json(), indent=1, allow_nan=False) + "\n"
+    return Exported(_write_all(out_dir, {name: text}), rendered_nm=tables_of(record))
 
 
 def _calibration_files(cal: SensorCalibration | None) -> dict[str, list[_Row]]:
@@ -187,9 +305,7 @@ def _calibration_files(cal: SensorCalibration | None) -> dict[str, list[_Row]]:
 
 
 def _write_rows(files: dict[str, list[_Row]], out_dir: Path, rendered_nm: np.ndarray) -> Exported:
-    for name, rows in files.items():
-        (out_dir / name).write_text(_text(rows))
-    return Exported(tuple(out_dir / name for name in files), rendered_nm=rendered_nm)
+    return Exported(_write_all(out_dir, {name: _text(rows) for name, rows in files.items()}), rendered_nm=rendered_nm)
 
 
 def write_csv(record: Record, out_dir: Path) -> Exported:
@@ -215,6 +331,38 @@ def write_csv(record: Record, out_dir: Path) -> Exported:
 def _c_float(x: float) -> str:
     """``x`` as a C float literal: the shortest decimal of its float32."""
     return str(np.float32(x)) + "f"
+
+
+def _float_scale(x: float, where: str) -> float:
+    """A scale a drive divides or multiplies by, ``x`` > 0, as the float32 it holds; one a float32 cannot hold
+    (0 or subnormal there, or infinite) raises `BenchFormatError` naming ``where``."""
+    if not FLOAT32_TINY <= x <= _FLOAT32_MAX:
+        raise BenchFormatError(f"{where}: {x:.4g} is no normal float32, which the drive's float needs (it holds "
+                               f"{FLOAT32_TINY:.4g} to {_FLOAT32_MAX:.4g}; below, 0 or lost digits)")
+    return float(np.float32(x))
+
+
+def _c_scale(x: float, where: str) -> str:
+    """`_float_scale` as a C float literal (`_c_float`)."""
+    return _c_float(_float_scale(x, where))
+
+
+def _c_grid(values: np.ndarray, where: str) -> str:
+    """A grid axis as a C initialiser: it must stay strictly ascending as floats (the lookup divides by the
+    steps), else `BenchFormatError` naming ``where``."""
+    steps = np.diff(values.astype(np.float32))
+    if np.any(steps <= 0):
+        k = int(np.argmax(steps <= 0))
+        raise BenchFormatError(f"{where}: values {k} and {k + 1} ({float(values[k])!r}, {float(values[k + 1])!r}) "
+                               "are one float in the C export: its lookup would divide by zero")
+    return _c_list(values)
+
+
+def _comment(text: str) -> str:
+    """``text`` (a path) inert in a C comment: printable ASCII only, anything else as its escape (a byte of a name
+    that is no UTF-8 as \\udcXX), and neither ``*/`` nor ``/*``."""
+    text = "".join(c if " " <= c <= "~" else c.encode("unicode_escape").decode("ascii") for c in text)
+    return text.replace("*/", "*\\/").replace("/*", "/\\*")
 
 
 def _c_list(values: Iterable[float], indent: str = "", literal: Callable[[float], str] = _c_float) -> str:
@@ -353,25 +501,31 @@ class _CTables:
     rendered_nm: np.ndarray
 
     @classmethod
-    def of(cls, tables_nm: np.ndarray, c_type: str) -> _CTables:
+    def of(cls, tables_nm: np.ndarray, c_type: str, where: str) -> _CTables:
+        """``where`` names the tables in an error."""
         if c_type == "int16":
             q = Int16Tables.of(tables_nm)
             doc = (f" * Tables: int16, {q.nm_per_lsb:.9g} N m per LSB; quantisation error\n"
                    f" * max |float - int16| = {q.error_nm:.3g} N m (the lookup's float arithmetic adds less\n"
                    " * than 1e-6 of the tables' peak).")
             rendered = (q.values.astype(np.float32) * np.float32(q.nm_per_lsb)).astype(float)
-            return cls("int16_t", q.values, str, _c_float(q.nm_per_lsb), doc, q, rendered)
+            scale = _c_scale(q.nm_per_lsb, f"{where}: the int16 tables' N m per LSB (their largest magnitude / "
+                                           f"{INT16_FULL_SCALE}; --c-type float holds smaller tables)")
+            return cls("int16_t", q.values, str, scale, doc, q, rendered)
         return cls("float", tables_nm, _c_float, "1.0f", " * Tables: float, N m.", None,
                    tables_nm.astype(np.float32).astype(float))
 
 
-def _calibration_c(cal: SensorCalibration) -> tuple[str, str]:
-    """The calibration's declarations (header) and definitions (source)."""
-    return ("#define ILCPMAC_TORQUE_GAIN_V_PER_NM " + _c_float(cal.torque_gain) + "\n"
+def _calibration_c(cal: SensorCalibration, source: str) -> tuple[str, str]:
+    """The calibration's declarations (header) and definitions (source); ``source`` names its file in an error."""
+    scales = ", ".join(_c_scale(float(x), f"{source}: key 'calibration.current_scale': value [{p}]")
+                       for p, x in enumerate(cal.current_scale))
+    return ("#define ILCPMAC_TORQUE_GAIN_V_PER_NM "
+            + _c_scale(cal.torque_gain, f"{source}: key 'calibration.torque_gain'") + "\n"
             "/* per phase a, b, c */\n"
             "extern const float ilcpmac_current_scale_counts_per_a[3];\n"
             "extern const float ilcpmac_current_offset_counts[3];\n",
-            f"const float ilcpmac_current_scale_counts_per_a[3] = {{{_c_list(cal.current_scale)}}};\n"
+            f"const float ilcpmac_current_scale_counts_per_a[3] = {{{scales}}};\n"
             f"const float ilcpmac_current_offset_counts[3] = {{{_c_list(cal.current_offset)}}};\n")
 
 
@@ -431,35 +585,39 @@ _CALIBRATION_DOC = """\
 
 def _write_position_c(table: PositionTable, out_dir: Path, c_type: str) -> Exported:
     """ilcpmac_position_table.h and .c (module docstring)."""
-    form = _CTables.of(table.feedforward_nm, c_type)
+    form = _CTables.of(table.feedforward_nm, c_type, f"{table.source}: key '{table.key}'")
     cal = table.calibration
-    declarations, definitions = ("", "") if cal is None else _calibration_c(cal)
+    declarations, definitions = ("", "") if cal is None else _calibration_c(cal, table.source)
     header = _POSITION_HEADER.substitute(
-        header=POSITION_C_HEADER, content=table.content, source=table.source, table_doc=form.doc,
+        header=POSITION_C_HEADER, content=table.content, source=_comment(table.source), table_doc=form.doc,
         calibration_doc=_CALIBRATION_DOC if cal is not None else " * No current-sensor calibration was identified.",
         counts_per_rev=table.counts_per_rev, nm_per_lsb=form.nm_per_lsb, calibration=declarations,
         element=form.element)
     body = _POSITION_SOURCE.substitute(
         source_name=POSITION_C_SOURCE, header=POSITION_C_HEADER, calibration=definitions, element=form.element,
         table=_c_list(form.values.tolist(), " " * 4, form.literal))
-    paths = (out_dir / POSITION_C_HEADER, out_dir / POSITION_C_SOURCE)
-    paths[0].write_text(header)
-    paths[1].write_text(body)
+    paths = _write_all(out_dir, {POSITION_C_HEADER: header, POSITION_C_SOURCE: body})
     return Exported(paths, None if form.quantised is None else form.quantised.error_nm, form.rendered_nm)
 
 
 def write_c(record: Record, out_dir: Path, c_type: str = "int16", source: str = "") -> Exported:
     """ilcpmac_compensation.h and .c, or a position table's ilcpmac_position_table.h and .c (module docstring);
-    ``source`` names a compensation in their comments."""
+    ``source`` names a compensation in their comments (made inert there) and in errors. A scale a C float
+    cannot hold, or a grid that is not strictly ascending as floats, raises `BenchFormatError` before anything
+    is written."""
     if isinstance(record, PositionTable):
         return _write_position_c(record, out_dir, c_type)
     c = record
+    where = source or COMPENSATION_FILE
     fade = c.fade
     fades = not math.isinf(fade.full_hz)
-    form = _CTables.of(c.tables_nm, c_type)
-    declarations, definitions = _calibration_c(c.calibration)
+    form = _CTables.of(c.tables_nm, c_type, f"{where}: key 'tables_nm'")
+    declarations, definitions = _calibration_c(c.calibration, where)
+    torques = _c_grid(c.torques_nm, f"{where}: key 'torques_nm'")
+    speeds = _c_grid(c.speeds_hz, f"{where}: key 'speeds_hz'")
     header = _HEADER.substitute(
-        header=C_HEADER, source=source or "a campaign", table_doc=form.doc, calibration_doc=_CALIBRATION_DOC,
+        header=C_HEADER, source=_comment(source or "a campaign"), table_doc=form.doc,
+        calibration_doc=_CALIBRATION_DOC,
         fade_doc=f" * Fade-out: 1 up to {fade.full_hz:g} Hz, linear down to 0 at {fade.zero_hz:g} Hz, 0 beyond."
         if fades else " * Fade-out: none (the feed-forward never fades).",
         counts_per_rev=c.counts_per_rev, n_torques=c.torques_nm.size, n_speeds=c.speeds_hz.size,
@@ -468,11 +626,9 @@ def write_c(record: Record, out_dir: Path, c_type: str = "int16", source: str = 
                      f"#define ILCPMAC_FADE_ZERO_HZ {_c_float(fade.zero_hz)}\n" if fades else "")
     body = _SOURCE.substitute(
         source_name=C_SOURCE, header=C_HEADER, element=form.element, calibration=definitions,
-        torques=_c_list(c.torques_nm), speeds=_c_list(c.speeds_hz), tables=_c_tables(c, form.values, form.literal),
+        torques=torques, speeds=speeds, tables=_c_tables(c, form.values, form.literal),
         fade_body=_FADE_BODY if fades else "    (void)speed_hz;\n    return 1.0f;\n")
-    paths = (out_dir / C_HEADER, out_dir / C_SOURCE)
-    paths[0].write_text(header)
-    paths[1].write_text(body)
+    paths = _write_all(out_dir, {C_HEADER: header, C_SOURCE: body})
     return Exported(paths, None if form.quantised is None else form.quantised.error_nm, form.rendered_nm)
 
 
@@ -482,22 +638,45 @@ def _harmonic_sum(orders: np.ndarray, coefficients: np.ndarray, theta: np.ndarra
     return np.cos(angle) @ coefficients[:, 0] + np.sin(angle) @ coefficients[:, 1]
 
 
-def write_harmonics(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float) -> Exported:
+def _q_current_bound(peak_a: float, kt: float, source: str, run: RunLimits | None) -> Bound:
+    """The `Bound` of a drive format's q-axis current, ``peak_a`` its largest magnitude at torque constant ``kt``
+    (N m per A): within the run's max_current_a, else the bench format's largest current, and no smaller than a
+    drive's float holds; `IlcpmacError` naming ``source`` and the option otherwise."""
+    where = f"{source}: at --torque-constant {kt!r} N m per A"
+    if not peak_a >= FLOAT32_TINY:
+        raise IlcpmacError(f"{where}: the q-axis current peaks at {peak_a:.3g} A, below {FLOAT32_TINY:.3g} A, the "
+                           "smallest normal float32 a drive holds (a torque constant in N m per A?)")
+    bound = (Bound("|q-axis current|", peak_a, MAX_CURRENT_A, "A", "the bench format's largest current")
+             if run is None else run.bound("|q-axis current|", peak_a, "max_current_a", "A"))
+    return bound.checked(where)
+
+
+def write_harmonics(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float,
+                    run: RunLimits | None = None) -> Exported:
     """harmonics.csv: per order n of ``table.orders``, a_n, b_n, the amplitude sqrt(a_n^2 + b_n^2) and the
-    phase atan2(b_n, a_n) (a_n cos + b_n sin = amplitude cos(n theta - phase)), in N m and in q-axis A."""
+    phase atan2(b_n, a_n) (a_n cos + b_n sin = amplitude cos(n theta - phase)), in N m and in q-axis A; the
+    series' q-axis current within `_q_current_bound` (``run``: the run directory's limits)."""
     coefficients = table.coefficients_nm()
+    kt = float(torque_constant_nm_per_a)
+    rendered = _harmonic_sum(table.orders, coefficients, mechanical_angles_rad(table.counts_per_rev))
+    bound = _q_current_bound(float(np.max(np.abs(rendered))) / kt, kt, table.source, run)
     amplitude = np.hypot(coefficients[:, 0], coefficients[:, 1])
     phase = np.arctan2(coefficients[:, 1], coefficients[:, 0])
-    kt = float(torque_constant_nm_per_a)
     at = f"_at_{kt!r}_nm_per_a"
     rows: list[_Row] = [["order", "cos_nm", "sin_nm", "amplitude_nm", "phase_rad",
                          "cos_a" + at, "sin_a" + at, "amplitude_a" + at]]
     rows += [[str(n), float(a), float(b), float(m), float(ph), float(a) / kt, float(b) / kt, float(m) / kt]
              for n, (a, b), m, ph in zip(table.orders.tolist(), coefficients, amplitude, phase)]
-    path = out_dir / HARMONICS_FILE
-    path.write_text(_text(rows))
-    theta = mechanical_angles_rad(table.counts_per_rev)
-    return Exported((path,), rendered_nm=_harmonic_sum(table.orders, coefficients, theta))
+    return Exported(_write_all(out_dir, {HARMONICS_FILE: _text(rows)}), rendered_nm=rendered, bounds=(bound,))
+
+
+def _moteus_current_a(table: PositionTable, torque_constant_nm_per_a: float) -> np.ndarray:
+    """The feed-forward in q-axis amperes at the 1024 positions k / 1024 by its Fourier series (orders up to 511,
+    what 1024 entries hold), each order n divided by sinc^2(n / 1024), the linear interpolation's response to it."""
+    orders = np.arange(min(table.counts_per_rev // 2, MOTEUS_TABLE_SIZE // 2 - 1) + 1)
+    c = harmonic_amplitudes(table.feedforward_nm)[orders] / np.sinc(orders / MOTEUS_TABLE_SIZE) ** 2
+    theta = mechanical_angles_rad(MOTEUS_TABLE_SIZE)
+    return np.real(np.exp(1j * np.outer(theta, orders)) @ c) / torque_constant_nm_per_a
 
 
 @dataclass(frozen=True)
@@ -507,30 +686,26 @@ class MoteusTable:
 
     The firmware (fw/bldc_servo_control.h, fw/bldc_servo_structs.h of mjbots/moteus) takes the commutation
     encoder's position p in [0, 1) of a revolution, the entry k = min(1023, floor(1024 p)) and the next one
-    (k + 1) mod 1024, and interpolates linearly with the fraction 1024 p - k.
+    (k + 1) mod 1024, and interpolates linearly with the fraction 1024 p - k; it adds that current after its own
+    current limit, so the export bounds it (`_q_current_bound`).
 
     Attributes
     ----------
     values : ndarray of int8, shape (1024,)
         Within +-`MOTEUS_INT8_MAX`.
     scale_a : float
-        A float32 number, A per unit: the largest magnitude maps to `MOTEUS_INT8_MAX`.
+        A normal float32 number, A per unit: the largest magnitude maps to `MOTEUS_INT8_MAX`.
     """
 
     values: np.ndarray
     scale_a: float
 
     @classmethod
-    def of(cls, table: PositionTable, torque_constant_nm_per_a: float) -> MoteusTable:
-        """The feed-forward in q-axis amperes at the 1024 positions k / 1024 by its Fourier series (orders up
-        to 511, what 1024 entries hold), each order n divided by sinc^2(n / 1024), the linear interpolation's
-        response to it, and quantised."""
-        orders = np.arange(min(table.counts_per_rev // 2, MOTEUS_TABLE_SIZE // 2 - 1) + 1)
-        c = harmonic_amplitudes(table.feedforward_nm)[orders] / np.sinc(orders / MOTEUS_TABLE_SIZE) ** 2
-        theta = mechanical_angles_rad(MOTEUS_TABLE_SIZE)
-        current_a = np.real(np.exp(1j * np.outer(theta, orders)) @ c) / torque_constant_nm_per_a
+    def of(cls, current_a: np.ndarray, where: str) -> MoteusTable:
+        """``current_a`` (`_moteus_current_a`, finite, not all 0) quantised; a scale a float32 cannot hold raises
+        `BenchFormatError` naming ``where``."""
         peak = float(np.max(np.abs(current_a)))
-        scale = float(np.float32((peak or 1.0) / MOTEUS_INT8_MAX))
+        scale = _float_scale(peak / MOTEUS_INT8_MAX, f"{where}: motor.cogging_dq_scale")
         values = np.clip(np.rint(current_a / scale), -MOTEUS_INT8_MAX, MOTEUS_INT8_MAX).astype(np.int8)
         return cls(values, scale)
 
@@ -548,34 +723,69 @@ class MoteusTable:
                 *(f"conf set motor.cogging_dq_comp.{k} {v}" for k, v in enumerate(self.values.tolist()))]
 
 
-def write_moteus(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float) -> Exported:
-    """moteus_cogging.txt: the `MoteusTable` lines, count c at commutation position c / counts_per_rev."""
-    moteus = MoteusTable.of(table, torque_constant_nm_per_a)
-    path = out_dir / MOTEUS_FILE
-    path.write_text("\n".join(moteus.lines()) + "\n")
-    rendered = moteus.sample_a(np.arange(table.counts_per_rev) / table.counts_per_rev) * torque_constant_nm_per_a
-    return Exported((path,), rendered_nm=rendered)
+def write_moteus(table: PositionTable, out_dir: Path, torque_constant_nm_per_a: float,
+                 run: RunLimits | None = None) -> Exported:
+    """moteus_cogging.txt: the `MoteusTable` lines, count c at commutation position c / counts_per_rev; its
+    q-axis current within `_q_current_bound` (``run``: the run directory's limits)."""
+    kt = float(torque_constant_nm_per_a)
+    current_a = _moteus_current_a(table, kt)
+    bound = _q_current_bound(float(np.max(np.abs(current_a))), kt, table.source, run)
+    moteus = MoteusTable.of(current_a, f"{table.source}: at --torque-constant {kt!r} N m per A")
+    rendered = moteus.sample_a(np.arange(table.counts_per_rev) / table.counts_per_rev) * kt
+    return Exported(_write_all(out_dir, {MOTEUS_FILE: "\n".join(moteus.lines()) + "\n"}), rendered_nm=rendered,
+                    bounds=(bound,))
+
+
+def _record_bounds(record: Record, where: str, run: RunLimits | None) -> tuple[Bound, ...]:
+    """The record within the limits it was made under: its run directory's [limits] and encoder (``run``), else
+    its own range; `BenchFormatError` naming ``where`` and the key otherwise."""
+    tables = tables_of(record)
+    index = [int(i) for i in np.unravel_index(int(np.argmax(np.abs(tables))), tables.shape)]
+    peak = float(np.abs(tables).max())
+    at = f"{where}: key '{'tables_nm' if isinstance(record, Compensation) else record.key}': value {index}"
+    if run is None:
+        return (Bound("|feed-forward|", peak, MAX_TORQUE_NM, "N m",
+                      "the record's range: no run directory, so no [limits]").checked(at),)
+    if record.counts_per_rev != run.counts_per_rev:
+        raise BenchFormatError(f"{where}: {record.counts_per_rev} counts per revolution, but the run's encoder has "
+                               f"{run.counts_per_rev} ({run.config.parent / BENCH_FILE})")
+    bounds = [run.bound("|feed-forward|", peak, "max_correction_nm", "N m").checked(at)]
+    if isinstance(record, Compensation):
+        bounds += [run.bound("|torque set point|", float(np.abs(record.torques_nm).max()), "max_torque_nm",
+                             "N m").checked(f"{where}: key 'torques_nm'"),
+                   run.bound("speed set point", float(record.speeds_hz[-1]), "max_speed_hz",
+                             "Hz").checked(f"{where}: key 'speeds_hz'")]
+    return tuple(bounds)
 
 
 def export(record: Record, out_dir: Path, fmt: str, c_type: str = "int16", source: str = "",
-           torque_constant_nm_per_a: float | None = None, rated_torque_nm: float | None = None) -> Exported:
-    """Write ``record`` into ``out_dir`` (made if missing) in format ``fmt`` (`FORMATS`; another raises
-    `ValueError` before anything is made), with its `Residual` against ``rated_torque_nm`` (None: the tables'
-    peak-to-peak). `POSITION_FORMATS` take a `PositionTable` and a torque constant, N m per q-axis A; without
-    either they raise `IlcpmacError` before anything is made."""
+           torque_constant_nm_per_a: float | None = None, rated_torque_nm: float | None = None,
+           run: RunLimits | None = None) -> Exported:
+    """Write ``record`` into ``out_dir`` (made if missing) in format ``fmt``, with its `Residual` against
+    ``rated_torque_nm`` (None: the tables' peak-to-peak) and its `Bound` s: within ``run``, the limits of the run
+    directory it came from (None: its own range; `_record_bounds`), and within the format's.
+
+    A ``fmt`` not in `FORMATS`, or a ``c_type`` not in `C_TYPES`, raises `ValueError` before anything is made.
+    `POSITION_FORMATS` take a `PositionTable` and a finite torque constant, N m per q-axis A. Every refusal
+    (`IlcpmacError`) comes before anything is made; the files are written all or none (`_write_all`)."""
     if fmt not in FORMATS:
         raise ValueError(f"export format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    if c_type not in C_TYPES:
+        raise ValueError(f"C table type must be one of {', '.join(C_TYPES)}, got {c_type!r}")
     if fmt in POSITION_FORMATS:
         if not isinstance(record, PositionTable):
             raise IlcpmacError(f"--format {fmt} takes an identification's or a scan's result.json: "
                                f"{source or 'a campaign'}'s compensation varies with torque and speed (use json, "
                                "csv or c)")
-        if torque_constant_nm_per_a is None or not torque_constant_nm_per_a > 0:
-            raise IlcpmacError(f"--format {fmt} needs --torque-constant NM_PER_A > 0, the q-axis torque constant "
-                               f"that turns N m into q-axis amperes ({record.source} does not hold the back-EMF)")
-    if rated_torque_nm is not None and not rated_torque_nm > 0:
-        raise IlcpmacError(f"--rated-torque must be > 0 N m, got {rated_torque_nm!r}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+        if torque_constant_nm_per_a is None or not 0 < torque_constant_nm_per_a < math.inf:
+            got = "" if torque_constant_nm_per_a is None else f", got {torque_constant_nm_per_a!r}"
+            raise IlcpmacError(f"--format {fmt} needs --torque-constant NM_PER_A > 0 and finite, the q-axis torque "
+                               "constant that turns N m into q-axis amperes "
+                               f"({record.source} does not hold the back-EMF){got}")
+    if rated_torque_nm is not None and not 0 < rated_torque_nm < math.inf:
+        raise IlcpmacError(f"--rated-torque must be a finite number > 0 N m, got {rated_torque_nm!r}")
+    bounds = _record_bounds(record, record.source if isinstance(record, PositionTable) else source or COMPENSATION_FILE,
+                            run)
     exported: Exported
     if fmt == "json":
         exported = write_json(record, out_dir)
@@ -586,10 +796,10 @@ def export(record: Record, out_dir: Path, fmt: str, c_type: str = "int16", sourc
     else:
         assert isinstance(record, PositionTable) and torque_constant_nm_per_a is not None
         writer = write_harmonics if fmt == "harmonics" else write_moteus
-        exported = writer(record, out_dir, torque_constant_nm_per_a)
+        exported = writer(record, out_dir, torque_constant_nm_per_a, run)
     assert exported.rendered_nm is not None
     residual = Residual.of(tables_of(record), exported.rendered_nm, rated_torque_nm)
-    return dataclasses.replace(exported, residual=residual)
+    return dataclasses.replace(exported, residual=residual, bounds=bounds + exported.bounds)
 
 
 def read_source(source: str | Path, content: str | None = None) -> tuple[Record, Path]:
@@ -637,4 +847,5 @@ def export_source(source: str | Path, out_dir: str | Path, fmt: str, c_type: str
     compensation.json or a result JSON) into ``out_dir``; the arguments and errors are `read_source`'s and
     `export`'s."""
     record, path = read_source(source, content)
-    return export(record, Path(out_dir), fmt, c_type, str(path), torque_constant_nm_per_a, rated_torque_nm)
+    return export(record, Path(out_dir), fmt, c_type, str(path), torque_constant_nm_per_a, rated_torque_nm,
+                  RunLimits.of(path))

@@ -47,8 +47,9 @@ def export(source: Path, fmt: str, out_dir: Path, c_type: str, content: str | No
     A run directory, or its compensation.json: the compensation a campaign writes (current-sensor calibration,
     torque gain, torque feed-forward per encoder count over the learned torque x speed points). A result JSON of ilcpmac
     identify (a bench's or a standstill scan's): the position torque feed-forward, which applies at every
-    torque and speed, and the identified calibration. Writes into --out and prints the residual ripple the
-    format leaves (docs/export.md).
+    torque and speed, and the identified calibration. Writes into --out, all files or none, and prints the bounds
+    the export keeps (a run directory's [limits], the drive's current) and the residual ripple the format leaves
+    (docs/export.md); a record beyond them, or one the format cannot hold, is refused before anything is written.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.export import export_source
@@ -58,6 +59,7 @@ def export(source: Path, fmt: str, out_dir: Path, c_type: str, content: str | No
     lines = [f"  {p.name:<{width}}  {_size(p.stat().st_size)}" for p in exported.files]
     total = sum(p.stat().st_size for p in exported.files)
     assert exported.residual is not None
+    lines += [bound.line() for bound in exported.bounds]
     lines.append(exported.residual.line(fmt))
     # not wrapped: the path stays whole, to copy
     console.print(Text(f"wrote {len(exported.files)} file{'s' if len(exported.files) > 1 else ''}, {_size(total)}, "

@@ -41,6 +41,7 @@ from numba import njit
 from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.bench.logs import MAX_LOG_ROWS
 from ilcpmac.core.errors import SimulationError
+from ilcpmac.core.files import atomic_write
 from ilcpmac.core.schema import in_range, shown
 from ilcpmac.model.tables import q_axis
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator
@@ -229,8 +230,8 @@ def drive_log(simulator: Simulator, plan: LogPlan) -> tuple[dict[str, np.ndarray
 
 
 def write_drive_log(path: str | Path, simulator: Simulator, plan: LogPlan) -> dict:
-    """Write `drive_log`'s columns as a CSV log (header ``time,position,i_q`` or ``time,position,i_a,i_b,i_c``);
-    returns the truth.
+    """Write `drive_log`'s columns as a CSV log (header ``time,position,i_q`` or ``time,position,i_a,i_b,i_c``),
+    atomically (`atomic_write`: a full disk leaves no part of it, and its error names it); returns the truth.
 
     Truth keys: ``torque_constant_nm_per_a`` K_t (mean of k_q), ``torque_per_ampere`` k_q per count,
     ``cogging`` and ``position_torque`` (cogging plus the position disturbance) per count under the result keys
@@ -242,5 +243,5 @@ def write_drive_log(path: str | Path, simulator: Simulator, plan: LogPlan) -> di
     decimals = {"time": 7, "position": 9}
     values = np.column_stack(list(columns.values()))
     body = format_rows(values, np.array([decimals.get(name, 6) for name in columns]))
-    Path(path).write_bytes(",".join(columns).encode() + b"\n" + body)
+    atomic_write(Path(path), ",".join(columns).encode() + b"\n" + body)
     return truth

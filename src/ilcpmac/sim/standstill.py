@@ -38,6 +38,7 @@ import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.core.errors import SimulationError
+from ilcpmac.core.files import atomic_write
 from ilcpmac.core.schema import in_range, shown
 from ilcpmac.model.tables import current_references, q_axis
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator, airgap_torque_nm
@@ -189,5 +190,5 @@ def write_scan_log(path: str | Path, simulator: Simulator, plan: ScanPlan) -> di
     decimals = {"time": 7, "position": 6, "direction": 0}
     values = np.column_stack(list(columns.values()))
     body = format_rows(values, np.array([decimals.get(name, 6) for name in columns]))
-    Path(path).write_bytes(",".join(columns).encode() + b"\n" + body)
+    atomic_write(Path(path), ",".join(columns).encode() + b"\n" + body)
     return truth
