@@ -18,6 +18,10 @@ position scan (`ilcpmac.bench.standstill`): their rows are kept as they are,
 in standard units, with the direction of motion, and written as a scan folder;
 with ``[log] kind = "moteus-cogging"``, moteus cogging files
 (`ilcpmac.bench.moteus`) make a scan folder.
+A mapping's optional [limits] (`ImportLimits`) are what the logged values are judged
+against, never converted: a log whose currents, torque or the torque its currents ask for pass
+`LOG_LIMIT_FACTOR` times them, or a scan whose holding torque passes the motor's torque range, is in a wrong
+unit or holds an outlier, and is refused.
 Every problem raises `ConfigError` (the mapping, naming its key) or
 `BenchFormatError` (a log, naming its line and column), one line each.
 """
@@ -48,9 +52,24 @@ from ilcpmac.bench.format import (
     read_backemf_csv,
     write_bench,
 )
-from ilcpmac.bench.logs import LogLayout, current_columns, named_columns, read_log
+from ilcpmac.bench.logs import (
+    LOG_LIMIT_FACTOR,
+    ImportLimits,
+    LogLayout,
+    beyond_limit,
+    current_columns,
+    named_columns,
+    read_log,
+)
 from ilcpmac.bench.moteus import MOTEUS_COGGING, MoteusLog, MoteusMapping, cogging_scan
-from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan, write_scan
+from ilcpmac.bench.standstill import (
+    ScanData,
+    SensorErrors,
+    check_scan,
+    holding_problem,
+    logged_holding_nm,
+    write_scan,
+)
 from ilcpmac.config import BenchSettings, model_key
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.records import (
@@ -120,6 +139,8 @@ class ImportMapping:
         Log file name -> (torque set point N m, speed set point Hz).
     scan_errors : SensorErrors
         From [scan] (a scan's sensor errors; the defaults without it).
+    limits : ImportLimits
+        From [limits] (the defaults without it).
     """
 
     path: Path
@@ -129,6 +150,7 @@ class ImportMapping:
     layout: LogLayout
     points: dict[str, tuple[float, float]]
     scan_errors: SensorErrors = SensorErrors()
+    limits: ImportLimits = ImportLimits()
 
 
 @dataclass(frozen=True)
@@ -224,7 +246,7 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
     each problem raises `ConfigError` naming the file and key."""
     path = Path(path)
     data = read_toml(path)
-    known = ("bench", "log", "points", "scan")
+    known = ("bench", "log", "points", "scan", "limits")
     unknown = sorted(set(data) - set(known))
     if unknown:
         raise ConfigError(f"{path}: unknown table [{shown(unknown[0])}] (known: {', '.join(known)})")
@@ -234,9 +256,10 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
     bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
     if bench.inertia_kgm2 is None:
         raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
+    limits = parse_section(data.get("limits", {}), ImportLimits, str(path), "limits")
     if isinstance(data["log"], dict) and data["log"].get("kind") == MOTEUS_COGGING:
         return _moteus_mapping(data, bench, MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev,
-                                                      bench.inertia_kgm2, torque_sensor=True), path)
+                                                      bench.inertia_kgm2, torque_sensor=True), limits, path)
     layout = parse_section(data["log"], LogLayout, str(path), "log")
     motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2,
                       torque_sensor=layout.kind == "scan" or layout.torque is not None,
@@ -256,10 +279,11 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
         raise ConfigError(f'{path}: [scan]: only for a standstill scan ([log] kind = "scan")')
     errors = SensorErrors.parse(data.get("scan", {}), str(path), "scan")
     return ImportMapping(path, motor, _backemf(bench, motor, path), None if bench.calibration is None
-                         else bench.calibration.calibration(), layout, by_file, errors)
+                         else bench.calibration.calibration(), layout, by_file, errors, limits)
 
 
-def _moteus_mapping(data: dict, bench: BenchSettings, motor: MotorInfo, path: Path) -> MoteusMapping:
+def _moteus_mapping(data: dict, bench: BenchSettings, motor: MotorInfo, limits: ImportLimits,
+                    path: Path) -> MoteusMapping:
     """A mapping for moteus cogging files: [log] holds the kind alone, no [[points]]; ``motor`` has a torque
     sensor (the scan holds a torque)."""
     parse_section(data["log"], MoteusLog, str(path), "log")
@@ -267,7 +291,7 @@ def _moteus_mapping(data: dict, bench: BenchSettings, motor: MotorInfo, path: Pa
         raise ConfigError(f"{path}: [[points]]: only for run logs (a moteus cogging file has no operating point)")
     return MoteusMapping(path, motor, _backemf(bench, motor, path), None if bench.calibration is None
                          else bench.calibration.calibration(), SensorErrors.parse(data.get("scan", {}), str(path),
-                                                                                  "scan"))
+                                                                                  "scan"), limits)
 
 
 def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
@@ -419,7 +443,8 @@ def import_log(log: Path, mapping: ImportMapping) -> ImportedLog:
     BenchFormatError
         Naming the log: time not increasing, a row's time, position, current
         or torque beyond what a trial file holds (`MAX_TIME_S`, 2^53 counts,
-        1e4 A, 1e5 N m), rows off a drive's rate or with a gap (`_check_clock`),
+        1e4 A, 1e5 N m) or its current, torque or K . i_ref beyond
+        `LOG_LIMIT_FACTOR` times [limits], rows off a drive's rate or with a gap (`_check_clock`),
         a [[points]] torque set point at odds with the currents, a position that never
         changes or that turns (`import_laps` cuts such a log into laps), a
         mean speed beyond a bench's 1000 Hz, rows too coarse for [log]
@@ -484,6 +509,10 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
         current_error = value_error[:, :3].max(axis=1)
     point = mapping.points.get(log.name)
     backemf = mirrored_table(mapping.backemf_nm_per_a) if reverse else mapping.backemf_nm_per_a
+    problem = _limit_problem(np.sum(backemf[count % cpr] * currents, axis=1), "max_torque_nm", "N m", mapping)
+    if problem is not None:
+        raise BenchFormatError(f"{where}: count {sign * count[problem[0]]:g}: the current references ask for "
+                               f"(K . i_ref) {problem[1]}")
     torque, speed = point if point is not None else _operating_point(where, count, at, currents, backemf, mapping)
     trial = TrialData(torque, speed, count, at, np.ascontiguousarray(currents),
                       values_at[:, -1].copy() if torque_names else None,
@@ -583,7 +612,8 @@ def _finest_change(steps: np.ndarray) -> float:
 def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
     """A log's columns, its time stamps in s (strictly increasing) and its unwrapped position in counts of
     [bench] counts_per_rev; every row's time, position, currents and torque, once scaled, within what a trial
-    file holds (`MAX_TIME_S`, 2^53 counts, 1e4 A, 1e5 N m), or the first row beyond is named."""
+    file holds (`MAX_TIME_S`, 2^53 counts, 1e4 A, 1e5 N m), and its currents and torque within
+    `LOG_LIMIT_FACTOR` times [limits] (`_limit_problem`), or the first row beyond is named."""
     layout, cpr = mapping.layout, mapping.motor.counts_per_rev
     columns = read_log(log, layout)
     time_s = columns[layout.time] * layout.time_s_per_unit
@@ -594,17 +624,36 @@ def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.
     if per_rev is None:
         raise ConfigError(f'{log}: [log] position_counts_per_rev: missing (position_unit = "counts" needs it)')
     position = columns[layout.position] * (cpr / per_rev)
-    bounds = [(layout.time, time_s, MAX_TIME_S, "s"), (layout.position, position, MAX_COUNT, "counts")] + [
-        (name, columns[name] * layout.current_a_per_unit, MAX_CURRENT_A, "A") for name in current_columns(layout)] + (
+    judged = [(name, columns[name] * layout.current_a_per_unit, MAX_CURRENT_A, "max_current_a", "A")
+              for name in current_columns(layout)] + (
         [] if layout.torque is None else [(layout.torque, columns[layout.torque] * layout.torque_nm_per_unit,
-                                           MAX_TORQUE_NM, "N m")])
+                                           MAX_TORQUE_NM, "max_torque_nm", "N m")])
+    bounds = [(layout.time, time_s, MAX_TIME_S, "s"), (layout.position, position, MAX_COUNT, "counts")] + [
+        (name, values, bound, unit) for name, values, bound, _, unit in judged]
     for name, values, bound, unit in bounds:
         beyond = np.flatnonzero(~(np.abs(values) <= bound))
         if beyond.size:
             raise BenchFormatError(f"{log}: line {layout.header_lines + 1 + beyond[0]}: {name} beyond {bound:.4g} "
                                    f"{unit} once scaled, more than a trial file holds (wrong scale or unit in "
                                    f"{mapping.path}?)")
+    for name, values, _, key, unit in judged:
+        problem = _limit_problem(values, key, unit, mapping)
+        if problem is not None:
+            raise BenchFormatError(f"{log}: line {_line(layout, problem[0])}: {name} {problem[1]}")
     return columns, time_s, np.unwrap(position, period=cpr)
+
+
+def _limit_problem(values: np.ndarray, key: str, unit: str, mapping: ImportMapping) -> tuple[int, str] | None:
+    """The first row where |values| (a log's currents or torque, or the torque its currents ask for) passes
+    `LOG_LIMIT_FACTOR` times [limits] ``key``, and the message's rest naming the limit and the likely cause
+    (`beyond_limit`); None within."""
+    limit = getattr(mapping.limits, key)
+    found = beyond_limit(values, LOG_LIMIT_FACTOR * limit)
+    if found is None:
+        return None
+    row, cause = found
+    return row, (f"{values[row]:.4g} {unit} once scaled, beyond {LOG_LIMIT_FACTOR:g}x [limits] {key} = {limit:g} "
+                 f"{unit} (of {mapping.path}, its default if not given): {cause}")
 
 
 def import_scan(log: Path, mapping: ImportMapping) -> ScanData:
@@ -640,6 +689,9 @@ def import_scan(log: Path, mapping: ImportMapping) -> ScanData:
     torque = None if layout.torque is None else columns[layout.torque] * layout.torque_nm_per_unit
     scan = ScanData(time_s, position, direction.astype(float), currents, torque)
     check_scan(scan, str(log))
+    problem = holding_problem(logged_holding_nm(scan, mapping.backemf_nm_per_a), mapping.limits, mapping.path)
+    if problem is not None:
+        raise BenchFormatError(f"{log}: line {_line(layout, problem[0])}: {problem[1]}")
     return scan
 
 

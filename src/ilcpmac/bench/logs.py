@@ -1,4 +1,5 @@
-"""Drive logs as columns: the [log] table of a mapping file (`LogLayout`) and the bounded reader (`read_log`).
+"""Drive logs as columns: the [log] and [limits] tables of a mapping file (`LogLayout`, `ImportLimits`) and the
+bounded reader (`read_log`).
 
 The importer (`ilcpmac.bench.importer`) resamples what this reads onto encoder counts; a standstill scan folder
 (`ilcpmac.bench.standstill`) reads its samples with it.
@@ -6,6 +7,7 @@ The importer (`ilcpmac.bench.importer`) resamples what this reads onto encoder c
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
 import io
 import math
@@ -16,12 +18,13 @@ import numpy as np
 
 from ilcpmac.bench.fastcsv import parse_rows
 from ilcpmac.bench.format import MAX_HEADER_BYTES, MAX_TIMER_RESOLUTION_S, loadtxt_problem
+from ilcpmac.config import LimitSettings
 from ilcpmac.core.errors import BenchFormatError
 from ilcpmac.core.files import read_bounded
-from ilcpmac.core.schema import in_range, setting, shown
+from ilcpmac.core.schema import field_like, in_range, setting, shown
 
-__all__ = ["LogLayout", "MAX_LOG_ROWS", "MAX_LOG_ROW_BYTES", "MAX_SCALE", "MIN_SCALE", "current_columns",
-           "named_columns", "read_log"]
+__all__ = ["ImportLimits", "LOG_LIMIT_FACTOR", "LogLayout", "MAX_LOG_ROWS", "MAX_LOG_ROW_BYTES", "MAX_SCALE",
+           "MIN_SCALE", "beyond_limit", "current_columns", "named_columns", "read_log", "utf8_text"]
 
 #: most data rows of one log (20 kHz for 200 s) ...
 MAX_LOG_ROWS = 2**22
@@ -29,6 +32,53 @@ MAX_LOG_ROWS = 2**22
 MAX_LOG_ROW_BYTES = 128
 #: range of |current_a_per_unit| and |torque_nm_per_unit|: a scale beyond it is a wrong unit, never a sensor's
 MIN_SCALE, MAX_SCALE = 1e-12, 1e12
+#: how many times its mapping's [limits] a run log's currents, its torque column and the torque its currents ask
+#: for (K . i) may reach: a drive's peak is a few times its rated current, a unit off 100x or 1000x (mA read as A)
+LOG_LIMIT_FACTOR = 10.0
+
+
+#: byte-order marks of the encodings a text file of a bench may not be in (UTF-32's first: UTF-16 LE's is its start)
+_WIDE_BOMS = ((codecs.BOM_UTF32_LE, "UTF-32"), (codecs.BOM_UTF32_BE, "UTF-32"), (codecs.BOM_UTF16_LE, "UTF-16"),
+              (codecs.BOM_UTF16_BE, "UTF-16"))
+
+
+def utf8_text(path: Path, raw: bytes) -> bytes:
+    """The bytes of a text file without a UTF-8 byte-order mark (a spreadsheet's "CSV UTF-8" writes one).
+
+    Logs, scan samples and moteus cogging files are UTF-8 (ASCII is UTF-8): a file that starts with a UTF-16 or
+    UTF-32 byte-order mark, or holds a NUL byte (UTF-16 or UTF-32 text without a mark, or not text at all),
+    raises `BenchFormatError` naming the file (and the line of the NUL), never read as something else.
+    """
+    for bom, encoding in _WIDE_BOMS:
+        if raw.startswith(bom):
+            raise BenchFormatError(f"{path}: {encoding} text (its byte-order mark): save it as UTF-8 or ASCII")
+    nul = raw.find(b"\0")
+    if nul >= 0:
+        line = raw.count(b"\n", 0, nul) + 1
+        raise BenchFormatError(f"{path}: line {line}: a NUL byte (UTF-16 or UTF-32 text, or not text): save it as "
+                               "UTF-8 or ASCII")
+    return raw.removeprefix(codecs.BOM_UTF8)
+
+
+@dataclass(frozen=True)
+class ImportLimits:
+    """[limits] of a mapping file (optional): the motor's limits, as a campaign config's [limits] states them and
+    with the same defaults; what the logged values are judged against (docs/bench-format.md, "The mapping file").
+    """
+
+    max_current_a: float = field_like(LimitSettings, "max_current_a", default=LimitSettings.max_current_a)
+    max_torque_nm: float = field_like(LimitSettings, "max_torque_nm", default=LimitSettings.max_torque_nm)
+
+
+def beyond_limit(values: np.ndarray, bound: float) -> tuple[int, str] | None:
+    """The first index where |values| passes ``bound``, and what that likely is: a wrong unit ("in mA?", when
+    most values pass it) or an outlier; None when none does."""
+    beyond = np.flatnonzero(np.abs(values) > bound)
+    if not beyond.size:
+        return None
+    most = np.median(np.abs(values)) > bound
+    return int(beyond[0]), ("most values pass it: a unit 1000x too small (mA for A, mN m for N m?) or a wrong scale"
+                            if most else "an outlier (a corrupt row or bin?)")
 
 
 def _one_of(*choices: str):
@@ -91,11 +141,11 @@ def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
     """The columns of a drive log that ``layout`` names, as floats, by column name.
 
     The file is at most `MAX_LOG_ROWS` rows of `MAX_LOG_ROW_BYTES` on average
-    (read bounded); every named column must be in the header and every value
+    (read bounded), UTF-8 (`utf8_text`); every named column must be in the header and every value
     finite, or `BenchFormatError` names the file, line and column.
     """
-    raw = read_bounded(path, layout.header_lines * MAX_HEADER_BYTES + MAX_LOG_ROWS * MAX_LOG_ROW_BYTES,
-                       BenchFormatError)
+    raw = utf8_text(path, read_bounded(path, layout.header_lines * MAX_HEADER_BYTES + MAX_LOG_ROWS * MAX_LOG_ROW_BYTES,
+                                       BenchFormatError))
     start = 0
     for line in range(1, layout.header_lines + 1):
         end = raw.find(b"\n", start, start + MAX_HEADER_BYTES)

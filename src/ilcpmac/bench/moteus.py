@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan
+from ilcpmac.bench.logs import ImportLimits, utf8_text
+from ilcpmac.bench.standstill import ScanData, SensorErrors, check_scan, holding_problem
 from ilcpmac.core.errors import BenchFormatError
 from ilcpmac.core.files import read_bounded
 from ilcpmac.core.records import MAX_CURRENT_A, MotorInfo, SensorCalibration
@@ -50,13 +51,15 @@ class MoteusLog:
 @dataclass(frozen=True)
 class MoteusMapping:
     """A parsed mapping for moteus cogging files: [bench] as for logs (``motor`` with a torque sensor: the scan
-    holds a torque), [bench.calibration] and the scan's sensor errors ([scan]; torque_sensor_gain is k_q's)."""
+    holds a torque), [bench.calibration], the scan's sensor errors ([scan]; torque_sensor_gain is k_q's) and
+    [limits]."""
 
     path: Path
     motor: MotorInfo
     backemf_nm_per_a: np.ndarray
     sensors: SensorCalibration | None
     scan_errors: SensorErrors
+    limits: ImportLimits = ImportLimits()
 
 
 def q_torque_constant(backemf_nm_per_a: np.ndarray, pole_pairs: int) -> float:
@@ -71,13 +74,13 @@ def read_cogging_file(path: Path) -> dict[str, np.ndarray]:
     Raises
     ------
     BenchFormatError
-        One line naming the file and the key (and the index of a bad value): not a JSON object, a key
-        missing, unknown or given twice, lists of unequal length or not a multiple of `HISTOGRAM_BINS`, a
-        value not a finite number within a bench's currents.
+        One line naming the file and the key (and the index of a bad value): not UTF-8 text (`utf8_text`), not
+        a JSON object, a key missing, unknown or given twice, lists of unequal length or not a multiple of
+        `HISTOGRAM_BINS`, a value not a finite number within a bench's currents, every bin the same.
     """
-    raw = read_bounded(path, _MAX_FILE_BYTES, BenchFormatError)
+    raw = utf8_text(path, read_bounded(path, _MAX_FILE_BYTES, BenchFormatError))
     try:
-        data = json.loads(raw, object_pairs_hook=unique_keys)
+        data = json.loads(raw.decode("utf-8"), object_pairs_hook=unique_keys)
     except json.JSONDecodeError as e:
         raise BenchFormatError(f"{path}: line {e.lineno}: not JSON ({e.msg})") from None
     except UnicodeDecodeError:
@@ -111,6 +114,10 @@ def read_cogging_file(path: Path) -> dict[str, np.ndarray]:
     if currents["forward"].size != currents["reverse"].size:
         raise BenchFormatError(f"{path}: forward has {currents['forward'].size} values, reverse "
                                f"{currents['reverse'].size}: one per bin of the same revolution in each direction")
+    first = currents["forward"][0]
+    if all(np.all(values == first) for values in currents.values()):
+        raise BenchFormatError(f"{path}: every bin holds {first:g} A: no cogging, nothing to identify (an empty or "
+                               "constant file?)")
     return currents
 
 
@@ -128,7 +135,8 @@ def _point_values(bin_means: np.ndarray) -> np.ndarray:
 def cogging_scan(path: Path, mapping: MoteusMapping) -> ScanData:
     """A moteus cogging file as scan samples: forward bins in ascending position, then reverse bins in
     descending position, each at its centre (j + 1/2) counts_per_rev / N, holding torque k_q i_q of the
-    current at that point; time is the row's number (the file holds none)."""
+    current at that point; time is the row's number (the file holds none). A bin whose holding torque k_q i_q
+    passes [limits] max_torque_nm (`holding_problem`: a file in mA, or an outlier) is refused, naming it."""
     currents = read_cogging_file(path)
     cpr = mapping.motor.counts_per_rev
     n = currents["forward"].size
@@ -137,6 +145,10 @@ def cogging_scan(path: Path, mapping: MoteusMapping) -> ScanData:
                                f"= {cpr} in {mapping.path} (the scan's scatter needs two or more: counts_per_rev "
                                f"{n // 2} or fewer)")
     k_q = q_torque_constant(mapping.backemf_nm_per_a, mapping.motor.pole_pairs)
+    for key, _ in _DIRECTIONS:
+        problem = holding_problem(k_q * currents[key], mapping.limits, mapping.path)
+        if problem is not None:
+            raise BenchFormatError(f"{path}: {key}[{problem[0]}]: {currents[key][problem[0]]:.4g} A, {problem[1]}")
     centre = (np.arange(n) + 0.5) * cpr / n
     order = {"forward": slice(None), "reverse": slice(None, None, -1)}
     position = np.concatenate([centre[order[key]] for key, _ in _DIRECTIONS])

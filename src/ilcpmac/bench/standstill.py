@@ -32,15 +32,16 @@ import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
 from ilcpmac.bench.format import BENCH_FILE, MAX_HEADER_BYTES, bench_toml_text, read_bench_head, write_backemf_csv
-from ilcpmac.bench.logs import LogLayout, read_log
+from ilcpmac.bench.logs import ImportLimits, LogLayout, beyond_limit, read_log, utf8_text
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.files import atomic_write, read_bounded
 from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, MotorInfo, SensorCalibration
 from ilcpmac.core.schema import all_of, finite_json, in_range, length_in, parse_section, read_toml, setting, shown
 from ilcpmac.signals.harmonics import filtered, harmonic_amplitudes, harmonic_band
 
-__all__ = ["CURRENT_COLUMNS", "SCAN_DATA_FILE", "SCAN_FILE", "ScanData", "ScanResult", "SensorErrors",
-           "identify_scan", "read_scan", "reduce_scan", "write_scan"]
+__all__ = ["CURRENT_COLUMNS", "MAX_RELATIVE_STD", "SCAN_DATA_FILE", "SCAN_FILE", "ScanData", "ScanResult",
+           "SensorErrors", "holding_problem", "identify_scan", "logged_holding_nm", "read_scan", "reduce_scan",
+           "unresolved_cogging", "write_scan"]
 
 #: the file that makes a folder a scan folder, and the samples' file it names by default
 SCAN_FILE = "scan.toml"
@@ -54,6 +55,10 @@ CURRENT_COLUMNS = ("i_a", "i_b", "i_c")
 TORQUE_COLUMN = "torque"
 #: most samples of one scan
 MAX_SCAN_ROWS = 2**22
+#: the largest standard error of an estimate a result takes, relative to its size (a scan's cogging, an
+#: identification's gains; `ilcpmac.identify` judges by it too): beyond it, 2 standard errors reach past zero and
+#: the estimate tells nothing
+MAX_RELATIVE_STD = 0.5
 _THREE = length_in(3, 3)
 
 
@@ -140,7 +145,8 @@ class ScanResult:
     position_torque_nm, position_torque_std_nm
         tau_pos = -(h_+ + h_-) / 2 minus its mean, and its standard error.
     cogging_nm, cogging_std_nm
-        tau_pos on the multiples of the cogging order (the cogging torque), and its standard error.
+        tau_pos on the multiples of the cogging order (the cogging torque), and its standard error; None when
+        the cogging order is beyond the counts' Nyquist limit counts_per_rev / 2 (no cogging harmonic resolved).
     friction_nm, friction_std_nm
         f = (h_+ - h_-) / 2: Coulomb friction plus hysteresis, per count.
     orders : ndarray of int, shape (k,)
@@ -160,8 +166,8 @@ class ScanResult:
     source: str
     position_torque_nm: np.ndarray
     position_torque_std_nm: np.ndarray
-    cogging_nm: np.ndarray
-    cogging_std_nm: np.ndarray
+    cogging_nm: np.ndarray | None
+    cogging_std_nm: np.ndarray | None
     friction_nm: np.ndarray
     friction_std_nm: np.ndarray
     orders: np.ndarray
@@ -173,11 +179,27 @@ class ScanResult:
 
     @property
     def messages(self) -> tuple[str, ...]:
-        """Warnings about the result: the counts filled from their neighbours, one line."""
+        """Warnings about the result, one line each: a cogging not identified, the counts filled from their
+        neighbours."""
+        unresolved = () if self.cogging_nm is not None else (
+            f"{unresolved_cogging(self.cogging_order, self.counts_per_rev)}; the position torque and friction are",)
         if not any(self.filled_counts):
-            return ()
-        return (f"{_gaps_text(self.filled_counts)} without a sample: filled from their neighbours, the "
-                "interpolation's error bound in their standard errors (docs/standstill.md)",)
+            return unresolved
+        return (*unresolved, f"{_gaps_text(self.filled_counts)} without a sample: filled from their neighbours, the "
+                "interpolation's error bound in their standard errors (docs/standstill.md)")
+
+    @property
+    def too_uncertain(self) -> str | None:
+        """Why the cogging is too uncertain to take: its standard error (RMS over the counts) beyond
+        `MAX_RELATIVE_STD` of its RMS; None for a cogging to take, or none identified."""
+        if self.cogging_nm is None or self.cogging_std_nm is None:
+            return None
+        size, std = _rms(self.cogging_nm), _rms(self.cogging_std_nm)
+        if std <= MAX_RELATIVE_STD * size:
+            return None
+        return (f"cogging too uncertain to take: {1e3 * size:.3g} mN m RMS ± {1e3 * std:.2g} mN m per count, a "
+                f"standard error beyond {MAX_RELATIVE_STD:g} of its size - the scan's scatter hides it (an "
+                "outlier, or too few samples)")
 
     def to_json(self) -> dict:
         """The scan result JSON (docs/standstill.md); its ``cogging`` reads as an identification's."""
@@ -187,7 +209,8 @@ class ScanResult:
         return finite_json({
             "kind": "standstill_scan", "counts_per_rev": self.counts_per_rev, "cogging_order": self.cogging_order,
             "source": self.source,
-            "cogging": {"count": count, "torque": self.cogging_nm.tolist(), "std": self.cogging_std_nm.tolist()},
+            "cogging": None if self.cogging_nm is None or self.cogging_std_nm is None else {
+                "count": count, "torque": self.cogging_nm.tolist(), "std": self.cogging_std_nm.tolist()},
             "position_torque": {"count": count, "torque": self.position_torque_nm.tolist(),
                                 "std": self.position_torque_std_nm.tolist()},
             "friction": {"count": count, "torque": self.friction_nm.tolist(), "std": self.friction_std_nm.tolist()},
@@ -198,8 +221,17 @@ class ScanResult:
                                   "sin_std_nm": self.coefficients_std_nm[:, 1].tolist()},
             "noise_std_nm": self.noise_std_nm,
             "samples": {"forward": self.samples[0], "reverse": self.samples[1]},
-            **filled,
+            **filled, **({} if self.too_uncertain is None else {"too_uncertain": self.too_uncertain}),
         })
+
+
+def unresolved_cogging(cogging_order: int, counts_per_rev: int) -> str | None:
+    """Why no cogging can be identified at ``counts_per_rev``: its order beyond the counts' Nyquist limit
+    counts_per_rev / 2; None when its first harmonic is resolved."""
+    if cogging_order <= counts_per_rev // 2:
+        return None
+    return (f"cogging: not identified - its order {cogging_order} (lcm(slots, 2 pole_pairs)) is beyond the Nyquist "
+            f"limit of {counts_per_rev} counts per revolution ({counts_per_rev // 2}): no cogging harmonic is resolved")
 
 
 def _gaps_text(filled: tuple[tuple[int, ...], tuple[int, ...]]) -> str:
@@ -271,13 +303,14 @@ def _header(path: Path) -> list[str]:
     except OSError as e:
         raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
     try:
-        return [n.strip() for n in line.decode("utf-8").strip().split(",")]
+        return [n.strip() for n in utf8_text(path, line).decode("utf-8").strip().split(",")]
     except UnicodeDecodeError:
         raise BenchFormatError(f"{path}: line 1: the column names are not UTF-8 text") from None
 
 
 def check_scan(scan: ScanData, where: str) -> None:
-    """Directions of +-1, positions within 2^40 counts, currents and torque within a bench's bounds."""
+    """Directions of +-1, positions within 2^40 counts, currents and torque within a bench's bounds and not the
+    same at every sample (a constant or empty file holds no position torque: nothing to identify)."""
     n = scan.position_counts.size
     if n > MAX_SCAN_ROWS:
         raise BenchFormatError(f"{where}: {n} samples; a scan holds at most {MAX_SCAN_ROWS}")
@@ -294,6 +327,33 @@ def check_scan(scan: ScanData, where: str) -> None:
         bad = np.flatnonzero(np.abs(values) > bound)
         if bad.size:
             raise BenchFormatError(f"{where}: line {bad[0] + 2}: {name} beyond +-{bound:g} (wrong unit or scale?)")
+    holding = scan.torque_nm if scan.torque_nm is not None else scan.currents_a
+    if holding is not None and n and np.all(holding == holding[0]):
+        raise BenchFormatError(f"{where}: the holding {'torque is' if scan.torque_nm is not None else 'currents are'}"
+                               " the same at every sample: no position torque, nothing to identify (an empty or "
+                               "constant file?)")
+
+
+def logged_holding_nm(data: ScanData, backemf_nm_per_a: np.ndarray) -> np.ndarray:
+    """Each sample's holding torque as logged (exact sensors), N m: its torque, or sum_p K_p i_p."""
+    if data.torque_nm is not None:
+        return data.torque_nm
+    if data.currents_a is None:
+        raise BenchFormatError("a scan needs its phase currents or its torque")
+    return np.sum(_backemf_at(backemf_nm_per_a, data.position_counts) * data.currents_a, axis=1)
+
+
+def holding_problem(holding_nm: np.ndarray, limits: ImportLimits, mapping: Path) -> tuple[int, str] | None:
+    """The first sample whose holding torque passes [limits] max_torque_nm of the ``mapping`` file, and what to
+    say of it: a motor holds its cogging and friction within its torque range, so a holding torque beyond it
+    is a wrong unit or an outlier (`beyond_limit`); None within."""
+    found = beyond_limit(holding_nm, limits.max_torque_nm)
+    if found is None:
+        return None
+    index, cause = found
+    return index, (f"a holding torque of {holding_nm[index]:.4g} N m, beyond [limits] max_torque_nm = "
+                   f"{limits.max_torque_nm:g} N m (of {mapping}, its default if not given): a motor holds its cogging "
+                   f"and friction within its torque range; {cause}")
 
 
 # ---------------------------------------------------------------- reduction
@@ -414,7 +474,8 @@ def reduce_scan(scan: Scan) -> ScanResult:
     from its neighbours (`_direction_means`) adds its error bound b / 2 on tau_pos, correlated over the gap,
     as a standard error b / (2 sqrt 3) (h'' uniform within +-M); the scan is refused when the gaps could
     move a cogging harmonic by more than its standard error: sqrt(sum over gaps of (sum |W_h| b / 2)^2)
-    against the harmonic's standard error without the gaps' own.
+    against the harmonic's standard error without the gaps' own. With the cogging order beyond counts_per_rev /
+    2 the cogging is None (`ScanResult.messages` says why).
     """
     where = str(scan.path / scan.data_file)
     cpr, order = scan.motor.counts_per_rev, scan.motor.cogging_order
@@ -445,7 +506,7 @@ def reduce_scan(scan: Scan) -> ScanResult:
     systematic = -(s_up + s_down) / 2.0
     systematic -= systematic.mean(axis=0)
     filled = (up.filled, down.filled)
-    if gaps_up + gaps_down:
+    if (gaps_up + gaps_down) and orders.size:
         sensors = systematic[:, :up.sensitivity.shape[1]]
         std = np.sqrt(weights**2 @ var + np.sum((weights @ sensors) ** 2, axis=-1))
         fill_bound = np.hstack([up.fill_bound_nm, down.fill_bound_nm]) / 2.0  # on tau_pos
@@ -456,17 +517,19 @@ def reduce_scan(scan: Scan) -> ScanResult:
                 f"{where}: {_gaps_text(filled)} without a sample: filled from their neighbours they could move "
                 f"cogging harmonic {orders[worst[0]]} ({'cos' if worst[1] == 0 else 'sin'}) by {change[worst]:.2g} "
                 f"N m, beyond its standard error {std[worst]:.2g} N m (scan those counts again)")
-    band = harmonic_band(cpr, order, cpr // 2, order)
-    impulse = np.fft.irfft(band, n=cpr)  # the cogging band's circular impulse response
-    cogging = filtered(position, band)
-    cogging_noise = np.real(np.fft.ifft(np.fft.fft(var) * np.fft.fft(impulse**2)))
-    cogging_systematic = filtered(systematic, band[:, None])
+    cogging = cogging_std = None
+    if orders.size:
+        band = harmonic_band(cpr, order, cpr // 2, order)
+        impulse = np.fft.irfft(band, n=cpr)  # the cogging band's circular impulse response
+        cogging = filtered(position, band)
+        cogging_noise = np.real(np.fft.ifft(np.fft.fft(var) * np.fft.fft(impulse**2)))
+        cogging_std = np.sqrt(np.maximum(cogging_noise, 0.0) + np.sum(filtered(systematic, band[:, None])**2, axis=1))
     c = harmonic_amplitudes(position)[orders]
     coefficient_var = weights**2 @ var + np.sum((weights @ systematic) ** 2, axis=-1)
     return ScanResult(
         cpr, order, "torque" if scan.data.torque_nm is not None else "currents",
         position, np.sqrt(var + np.sum(systematic**2, axis=1)),
-        cogging, np.sqrt(np.maximum(cogging_noise, 0.0) + np.sum(cogging_systematic**2, axis=1)),
+        cogging, cogging_std,
         friction, np.sqrt(var + np.sum(((s_up - s_down) / 2.0) ** 2, axis=1)),
         orders, np.column_stack([c.real, -c.imag]), np.sqrt(coefficient_var),
         math.sqrt(noise_var), (n_forward, int(h.size - n_forward)), filled)
@@ -513,8 +576,8 @@ def _truth_tables(folder: Path) -> dict[str, np.ndarray]:
 
 def identify_scan(folder: str | Path, output: str | Path) -> tuple[ScanResult, list[str]]:
     """``ilcpmac identify SCAN_FOLDER``: reduce the scan, write the result JSON to ``output`` and return the
-    result (its ``messages`` the warnings) and the lines to print; with a truth.json (a simulated scan's),
-    the RMS errors against it."""
+    result (its ``messages`` the warnings, its ``too_uncertain`` the error the command ends with) and the lines
+    to print; with a truth.json (a simulated scan's), the RMS errors against it."""
     folder = Path(folder)
     result = reduce_scan(read_scan(folder))
     truth_nm = _truth_tables(folder)
@@ -526,15 +589,17 @@ def identify_scan(folder: str | Path, output: str | Path) -> tuple[ScanResult, l
              f"scatter of one sample: {r.noise_std_nm:.3g} N m",
              f"position torque: {1e3 * _rms(r.position_torque_nm):.4g} mN m RMS, "
              f"± {1e3 * _rms(r.position_torque_std_nm):.2g} mN m per count",
-             f"cogging (orders {r.cogging_order}, {2 * r.cogging_order}, ...): {1e3 * _rms(r.cogging_nm):.4g} mN m "
-             f"RMS, ± {1e3 * _rms(r.cogging_std_nm):.2g} mN m per count",
+             f"cogging (orders {r.cogging_order}, {2 * r.cogging_order}, ...): " + (
+                 "not identified (see the warning)" if r.cogging_nm is None or r.cogging_std_nm is None else
+                 f"{1e3 * _rms(r.cogging_nm):.4g} mN m RMS, ± {1e3 * _rms(r.cogging_std_nm):.2g} mN m per count"),
              f"friction and hysteresis: {r.friction_nm.mean():.4g} N m mean, {r.friction_nm.min():.4g} to "
              f"{r.friction_nm.max():.4g}"]
     for h, (a, b), (sa, sb) in zip(r.orders[:4], r.coefficients_nm, r.coefficients_std_nm):
         lines.append(f"  harmonic {h}: cos {a:+.5f} ± {sa:.2g}, sin {b:+.5f} ± {sb:.2g} N m")
     for key, estimate in (("cogging", r.cogging_nm), ("position_torque", r.position_torque_nm)):
         true = truth_nm.get(key)
-        if true is not None and true.shape == estimate.shape and np.all(np.isfinite(true)) and np.any(true != true[0]):
+        if (true is not None and estimate is not None and true.shape == estimate.shape and np.all(np.isfinite(true))
+                and np.any(true != true[0])):
             true = np.asarray(true, float) - np.mean(true)
             lines.append(f"vs truth: {key.replace('_', ' ')} RMS error {100 * _rms(estimate - true) / _rms(true):.3g} "
                          f"% of its RMS")

@@ -14,6 +14,7 @@ from ilcpmac.cli import FIGURE_FORMATS, console, main, progress_bar
 if TYPE_CHECKING:
     import numpy as np  # imported where used: the command's startup does without
 
+
 #: the true values a simulated bench folder holds (``ilcpmac simulate``), under the result keys
 TRUTH_FILE = "truth.json"
 
@@ -170,8 +171,10 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     writes the result to --output (checked writable before the work); with a truth.json in BENCH_DIR (a
     simulated bench), also each estimate's error. A bench without a torque sensor at one operating point (a
     rolling drive log) is identified by the acceleration method (docs/sensorless.md): its position-locked
-    torque and friction. An estimate too uncertain to take (`ilcpmac.identify.TOO_UNCERTAIN`) is shown but
-    not taken, and ends the command with an error (exit 2) once the result is written.
+    torque and friction. A run directory of ``ilcpmac run`` is identified on its grid trials
+    (`ilcpmac.campaign.rundir.campaign_grid`).
+    An estimate too uncertain to take (`ilcpmac.identify.TOO_UNCERTAIN`, or a scan's cogging) is shown but not
+    taken, and ends the command with an error (exit 2) once the result is written.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import read_bench
@@ -188,17 +191,23 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
             console.print(f"[yellow]warning:[/yellow] {message}")
         for line in lines:
             console.print(line)
+        if scan.too_uncertain is not None:
+            raise IdentificationError(f"{bench_dir}: {scan.too_uncertain}")
         return
     truth = read_truth(bench_dir)
     with progress_bar() as progress:
         task = progress.add_task("reading bench folder", total=len(STEPS) + 1)
-        bench = read_bench(bench_dir, extras=False)  # the simulator's own columns: never used here
+        from ilcpmac.campaign.rundir import campaign_grid
+
+        bench, grid = campaign_grid(bench_dir, read_bench(bench_dir, extras=False))  # extras: the simulator's own
 
         def advance(step: str, index: int, total: int) -> None:
             progress.update(task, description=step, completed=index + 1)
 
         result = identify_bench(bench, advance, None if torque_source is None else TorqueSource(torque_source))
         progress.update(task, description="done", completed=len(STEPS) + 1)
+    if grid is not None:
+        console.print(grid)
     for message in result.messages:
         console.print(f"[yellow]warning:[/yellow] {message}")
     click.echo()

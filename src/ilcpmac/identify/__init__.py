@@ -40,6 +40,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from ilcpmac.bench.format import Bench
+from ilcpmac.bench.standstill import MAX_RELATIVE_STD, unresolved_cogging
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.records import IdentificationResult, MethodEstimates, SensorCalibration
@@ -51,7 +52,7 @@ from ilcpmac.identify.joint import JointEstimate, fit_joint
 from ilcpmac.identify.mirror import in_motor_coordinates
 from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
-from ilcpmac.identify.system_gain import SystemGainEstimate, estimate_system_gain
+from ilcpmac.identify.system_gain import SystemGainEstimate, TorqueNotFollowing, estimate_system_gain
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
 __all__ = ["TOO_UNCERTAIN", "IdentificationDetails", "IdentificationResult", "Identifier", "MethodEstimates",
@@ -73,11 +74,9 @@ NOT_IDENTIFIED_WITHOUT_SENSOR = (
 )
 #: the diagnostics' key of the one line naming the estimates too uncertain to take (`_certain`), when any is
 TOO_UNCERTAIN = "too_uncertain"
-#: the largest standard error of an estimate the result takes, relative to its size (a gain's value, an offset's
-#: reference currents' RMS): beyond it, 2 standard errors reach past zero and the estimate tells nothing
-MAX_RELATIVE_STD = 0.5
-#: the estimates so judged: the current sensors' gains and offsets, which the calibration corrects
-JUDGED = ("epsilon", "alpha", "beta")
+#: the estimates judged by `MAX_RELATIVE_STD` (of a gain's value, of an offset's reference currents' RMS): every one
+#: with a standard error; the gains and offsets correct the calibration, delta*eps scales the learning
+JUDGED = ("delta_epsilon", "delta", "epsilon", "alpha", "beta", "inertia_estimate")
 #: what the acceleration method does not give beyond what needs a sensor
 ACCELERATION_NOT_IDENTIFIED = ("current sensors (eps, alpha, beta), current loop, encoder error: not identified - "
                                "the acceleration method at one speed gives the position-locked torque and the friction")
@@ -196,7 +195,9 @@ def identify_bench(bench: Bench, progress: Callable[[str, int, int], None] | Non
     ------
     IdentificationError
         When no trial can be used or nothing at all can be estimated, for BOTH, or for a source that reads
-        a torque sensor on a bench without one. An estimate that is impossible on its own is reported in ``messages``.
+        a torque sensor on a bench without one, and when the torque follows the current references neither as
+        ch. 2's gain and loop (`TorqueNotFollowing`) nor with a joint fit's gain to take. An estimate that is
+        impossible on its own is reported in ``messages``.
     """
     def step(index: int) -> None:
         if progress is not None:
@@ -229,7 +230,16 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
         tables = reduce_bench(bench)
         messages = list(tables.messages)
     step(1)
-    system = _attempt(messages, STEPS[1], lambda: estimate_system_gain(tables))
+    not_following: list[TorqueNotFollowing] = []
+
+    def system_gain() -> SystemGainEstimate:
+        try:
+            return estimate_system_gain(tables)
+        except TorqueNotFollowing as e:
+            not_following.append(e)
+            raise
+
+    system = _attempt(messages, STEPS[1], system_gain)
     step(2)
     if encoder is not None:
         joint = encoder.joint
@@ -258,11 +268,20 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
     else:
         report = _without_sensor(_report_method(system, _UNIT_SENSOR, decoupling))
         joint_estimates = _without_sensor(_joint_method(joint, _UNIT_SENSOR, bench.motor.counts_per_rev))
+    unresolved = unresolved_cogging(bench.motor.cogging_order, bench.motor.counts_per_rev)
+    if unresolved is not None:
+        messages.append(unresolved)
+        report, joint_estimates = (replace(m, cogging_nm=None) for m in (report, joint_estimates))
     report = _finite_estimates(report, "report method", messages)
     joint_estimates = _finite_estimates(joint_estimates, "joint method", messages)
     current_rms_a = float(np.sqrt(np.mean([np.mean(t.i_ref_table_a**2) for t in tables.trials])))
     (joint_taken, joint_left), (report_taken, report_left) = (_certain(m, current_rms_a)
                                                               for m in (joint_estimates, report))
+    fitted = joint if joint is not None and "delta_epsilon" not in dict(joint_left) else None  # its gain taken
+    if not_following and fitted is None:
+        raise IdentificationError(f"{not_following[0]}; the joint fit's gain is "
+                                  f"{'too uncertain to take' if joint is not None else 'none'}: nothing can be "
+                                  "identified from this torque")
     best = {name: getattr(joint_taken, name) if getattr(joint_taken, name) is not None
             else getattr(report_taken, name) for name in MethodEstimates.__dataclass_fields__}
     untaken = [f"{method} method's {text}" for method, left in (("joint", joint_left), ("report", report_left))
@@ -285,8 +304,8 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
         elif encoder is not None:
             messages.append("calibration: torque_gain left as bench.toml's (no torque sensor reading)")
     loop = None
-    if joint is not None and not joint.loop.is_ideal and np.all(np.isfinite(joint.loop.bandwidth_hz)):
-        loop = joint.loop
+    if fitted is not None and not fitted.loop.is_ideal and np.all(np.isfinite(fitted.loop.bandwidth_hz)):
+        loop = fitted.loop
     diagnostics = _diagnostics(tables, system, joint, sensor)
     if encoder is not None:
         diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
@@ -296,8 +315,8 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
         **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
         messages=tuple(messages), diagnostics=diagnostics,
         details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
-        torque_source=source, torque_sensor_highpass_hz=None if joint is None else joint.highpass_hz,
-        torque_sensor_delay_s=None if joint is None else joint.torque_delay_s, **_encoder_error_fields(encoder))
+        torque_source=source, torque_sensor_highpass_hz=None if fitted is None else fitted.highpass_hz,
+        torque_sensor_delay_s=None if fitted is None else fitted.torque_delay_s, **_encoder_error_fields(encoder))
     return in_motor_coordinates(result) if bench.motor.mirrored else result
 
 

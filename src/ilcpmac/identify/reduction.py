@@ -31,6 +31,9 @@ from ilcpmac.signals.harmonics import (
 
 #: Highest Legendre degree of the torque sensor's slow trend (linear drift and slow settling).
 TREND_DEGREE = 5
+#: a torque whose scatter about its revolutions' mean (RMS) is within this much of its largest value, 16 double
+#: roundings, repeats exactly: no sensor's reading (a noise-free simulation still scatters 1e-3 of its torque)
+EXACT_REPEAT = 16 * np.finfo(float).eps
 #: what numpy and scipy raise on degenerate data (collinear or constant columns, NaN from a division by zero)
 NUMERICAL_FAILURES = (np.linalg.LinAlgError, ValueError, FloatingPointError, ZeroDivisionError)
 
@@ -144,7 +147,8 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
     ------
     IdentificationError
         With fewer than two whole revolutions: the sensor's drift cannot then
-        be told from the ripple.
+        be told from the ripple; and for a torque whose scatter about its
+        revolutions' mean is none (`EXACT_REPEAT`): it weighs a fit by that scatter.
     """
     span = whole_revolution_span(trial.count, counts_per_rev)
     count, time_s = trial.count[span], trial.time_s[span]
@@ -159,6 +163,9 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
     degree = min(TREND_DEGREE, revolutions - 1)
     torque = trial.torque_nm[span]
     trend, noise_variance = slow_trend(count, time_s, torque, counts_per_rev, degree)
+    if noise_variance <= (EXACT_REPEAT * np.abs(torque).max()) ** 2:
+        raise IdentificationError("the torque repeats exactly from revolution to revolution, without noise: no "
+                                  "sensor reads that (a current reference, or an exact table, in the torque column?)")
     torque = torque - trend
     speed_hz, i_ref_table, count_period = revolution_averages(count, time_s, trial.i_ref_a[span], counts_per_rev)
     return TrialTables(
