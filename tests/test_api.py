@@ -188,7 +188,8 @@ def test_identify_errors_are_the_clis_lines(work, tmp_path):
     with pytest.raises(BenchFormatError) as e:
         ilc.identify(tmp_path / "none")
     assert str(e.value) == cli_error(["identify", tmp_path / "none", "--output", tmp_path / "r.json"])
-    with pytest.raises(IlcpmacError, match="torque_source: 'sensor' or 'encoder', got 'piezo'"):
+    with pytest.raises(IlcpmacError, match="^torque_source: expected 'sensor', 'encoder' or a TorqueSource, got "
+                                           "'piezo'$"):
         ilc.identify(work["simulated"].folder, torque_source="piezo")
 
 

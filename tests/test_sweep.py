@@ -327,3 +327,18 @@ def test_a_result_file_that_is_not_a_task_result_is_refused_naming_it(spec_file,
         read_results(out)
     with pytest.raises(SweepResultsError, match=re.escape(str(path))):
         SweepRunner(load_spec(spec_file, small_config), out).prepare(resume=True)
+
+
+def test_a_config_that_extends_another_sweeps_as_the_config_it_makes(tmp_path, small_config, spec_file):
+    """Each task's config stands alone: the tables of what the base config extends merged in (the spec read the base
+    config's own text, so a task's config held an ``extends`` relative to a folder it is not in)."""
+    child = tmp_path / "child" / "child.toml"
+    child.parent.mkdir()
+    child.write_text(f'extends = "../{small_config.name}"\n\n[campaign]\nlearn_trials = 3\n')
+    spec = load_spec(spec_file, child)
+    text = spec.task_config(spec.draw(0))
+    assert "extends =" not in text and "learn_trials = 3" in text and "learn_torques_nm" in text
+    task = tmp_path / "elsewhere" / "task.toml"
+    task.parent.mkdir()
+    task.write_text(text)
+    assert load_config(task).campaign.learn_trials == 3

@@ -13,6 +13,10 @@ a notebook, each returning a typed record (docs/api.md; ``examples/api_tour.py``
 
 Every error of a path, a file or an argument is an `ilcpmac.core.errors.IlcpmacError` (its subclass names the kind)
 whose message is one line, as ``ilcpmac`` prints it; a file system's refusal stays an `OSError` naming its path.
+Every argument is checked as a function is called, by the kind `_ARGUMENTS` declares for its name: one of the wrong
+type (a bool or 1.5 for an integer, ``"no"`` for a bool, an empty list of logs, an unknown choice, a NUL in a path,
+an infinite torque constant) is an `OptionError` naming it ("seed: expected an integer, got True"); a numpy number
+is the builtin number it is, and is passed on as one.
 ``import ilcpmac`` imports nothing of this module; importing it imports numpy, the simulator and the
 identification only when a function needs them.
 
@@ -23,16 +27,21 @@ a trial's columns are in `COLUMN_UNITS`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import importlib
+import inspect
 import json
+import os
+import typing
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, ParamSpec, TypeVar
 
 import numpy as np
 
+from ilcpmac.backends.base import Backend
 from ilcpmac.bench.format import COLUMN_UNITS, Bench, file_columns, read_bench, read_bench_head
 from ilcpmac.bench.importer import ImportedBench, ImportMapping, read_mapping
 from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
@@ -40,18 +49,19 @@ from ilcpmac.bench.standstill import SCAN_FILE, TRUTH_FILE, ScanData, ScanResult
 from ilcpmac.campaign import service
 from ilcpmac.campaign.events import CampaignMessage, CampaignStart, NoEvents
 from ilcpmac.campaign.floors import PointFloor
+from ilcpmac.campaign.plan import MAX_BUDGET_MIN
 from ilcpmac.campaign.record import TrialRecord, records_of
-from ilcpmac.campaign.rundir import RunDirError, RunFiles
-from ilcpmac.config import CampaignConfig, load_config, packaged_config
+from ilcpmac.campaign.rundir import RunDirError, RunFiles, campaign_grid
+from ilcpmac.compensation import CONTENTS
+from ilcpmac.config import CampaignConfig, config_path, load_config, packaged_config
 from ilcpmac.core.errors import BenchFormatError, IlcpmacError, OptionError
 from ilcpmac.core.files import atomic_write, check_writable
 from ilcpmac.core.records import IdentificationResult, TrialData
-from ilcpmac.core.schema import toml_text
+from ilcpmac.core.schema import finite_number, shown, toml_text
 from ilcpmac.core.torque_source import TorqueSource
-from ilcpmac.export import Exported, export_source
+from ilcpmac.export import C_TYPES, FORMATS, Exported, export_source
 
 if TYPE_CHECKING:
-    from ilcpmac.backends.base import Backend
     from ilcpmac.sim.drive_log import LogPlan
     from ilcpmac.sim.standstill import ScanPlan
 
@@ -69,6 +79,183 @@ DEFAULT_CONFIG = service.DEFAULT_CONFIG
 
 #: what `run` passes to its ``on_event``: the start, each finished trial's record, each message of the campaign
 CampaignEvent = CampaignStart | TrialRecord | CampaignMessage
+
+
+# ---------------------------------------------------------------- arguments
+
+
+def _shown(value: Any) -> str:
+    """``value`` as an error shows it: `shown`, on one line (an array's repr spans several)."""
+    return " ".join(shown(value).splitlines())
+
+
+@dataclass(frozen=True)
+class _Kind:
+    """What an argument takes: ``problem(value)``, what is wrong with a value ("expected ..., got ..."; None:
+    nothing), and ``converted(value)``, the value as the function uses it (numpy numbers as the builtin ones they
+    are)."""
+
+    problem: Callable[[Any], str | None]
+    converted: Callable[[Any], Any]
+
+    def of(self, name: str, value: Any) -> Any:
+        """``value`` converted; `OptionError` naming argument ``name``, on one line, if it is not of this kind."""
+        problem = self.problem(value)
+        if problem is not None:
+            raise OptionError(name, problem)
+        return self.converted(value)
+
+
+def _kind(what: str, takes: Callable[[Any], bool], converted: Callable[[Any], Any] = lambda value: value) -> _Kind:
+    """The kind of the values ``takes`` is true of ("expected WHAT, got ..." of any other)."""
+    return _Kind(lambda value: None if takes(value) else f"expected {what}, got {_shown(value)}", converted)
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _is_text(value: Any) -> bool:
+    """A str that a file or a socket can take: UTF-8, without NUL."""
+    if not isinstance(value, str) or "\0" in value:
+        return False
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:  # a lone surrogate
+        return False
+    return True
+
+
+def _is_path(value: Any) -> bool:
+    """A str or `os.PathLike` naming a path the file system can take: not empty, without NUL."""
+    try:
+        text = os.fspath(value)
+    except TypeError:
+        return False
+    if not isinstance(text, str) or text == "" or "\0" in text:
+        return False
+    try:
+        os.fsencode(text)
+    except UnicodeEncodeError:  # a lone surrogate that is no undecodable byte
+        return False
+    return True
+
+
+def _is_list(value: Any, item: Callable[[Any], bool]) -> bool:
+    """A list, tuple or 1-D array whose every value ``item`` is true of."""
+    if isinstance(value, np.ndarray) and value.ndim != 1:
+        return False
+    return isinstance(value, list | tuple | np.ndarray) and all(map(item, value))
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with every numpy number, and array, as the builtin number, and list, it is."""
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_plain(item) for item in value]
+    return value.item() if isinstance(value, np.generic) else value
+
+
+#: how deep `write_config`'s ``changes`` may nest (a config's deepest value is a list in [simulator.NAME])
+_MAX_TABLE_DEPTH = 8
+
+
+def _tables_problem(value: Any, at: str = "", depth: int = 0) -> str | None:
+    """What of ``value`` is no config tables `toml_text` writes as a config reads them (str keys; tables,
+    strings, numbers, booleans and lists of them), naming its dotted key; None: nothing."""
+    where = f"{at}: " if at else ""
+    if depth > _MAX_TABLE_DEPTH:
+        return f"{where}nested more than {_MAX_TABLE_DEPTH} deep"
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not _is_text(key):
+                return f"{where}expected a key (a string), got {_shown(key)}"
+            problem = _tables_problem(item, f"{at}.{key}" if at else key, depth + 1)
+            if problem is not None:
+                return problem
+        return None
+    if depth == 0:
+        return f"expected a dict of config tables, got {_shown(value)}"
+    if isinstance(value, list | tuple | np.ndarray) and (not isinstance(value, np.ndarray) or value.ndim == 1):
+        return next((p for p in (_tables_problem(item, at, depth + 1) for item in value) if p is not None), None)
+    if _is_text(value) or isinstance(value, bool | int | float | np.bool_ | np.integer | np.floating):
+        return None
+    return f"{where}expected a table, a string, a number, a boolean or a list of them, got {_shown(value)}"
+
+
+def _choice(values: Sequence[str]) -> _Kind:
+    return _kind(f"one of {', '.join(map(repr, values))}", lambda value: isinstance(value, str) and value in values,
+                 str)
+
+
+_PATH = _kind("a path (a str or Path, not empty, without NUL)", _is_path)
+_INTEGER = _kind("an integer", _is_integer, int)
+_NUMBER = _kind("a finite number", finite_number, float)
+_BOOL = _kind("True or False", lambda value: isinstance(value, bool | np.bool_), bool)
+
+#: every argument of the functions, by name (`_checked`); a simulated log's options by type (`_OPTIONS`)
+_ARGUMENTS: dict[str, _Kind] = {
+    **dict.fromkeys(("path", "base", "out", "resume", "run_dir", "bench_dir", "output", "source"), _PATH),
+    "config": _kind("a config file's path or a CampaignConfig",
+                    lambda value: isinstance(value, CampaignConfig) or _is_path(value)),
+    "logs": _kind("a path or a non-empty list of paths",
+                  lambda value: _is_path(value) or (_is_list(value, _is_path) and len(value) > 0)),
+    "mapping": _kind("a mapping file's path, an ImportMapping or a MoteusMapping",
+                     lambda value: isinstance(value, ImportMapping | MoteusMapping) or _is_path(value)),
+    "changes": _Kind(_tables_problem, _plain),
+    "backend": _kind("an installed backend's name or a Backend",
+                     lambda value: isinstance(value, Backend) or (_is_text(value) and value != "")),
+    "address": _kind("a string (HOST:PORT)", _is_text),
+    **dict.fromkeys(("seed", "trials", "revolutions", "index"), _INTEGER),
+    "budget_min": _kind(f"a number of minutes within (0, {MAX_BUDGET_MIN:g}]",
+                        lambda value: finite_number(value) and 0 < value <= MAX_BUDGET_MIN, float),
+    **dict.fromkeys(("torque_constant_nm_per_a", "rated_torque_nm"),
+                    _kind("a finite number > 0", lambda value: finite_number(value) and value > 0, float)),
+    "torque_sensor": _BOOL,
+    "torque_source": _kind("'sensor', 'encoder' or a TorqueSource",
+                           lambda value: isinstance(value, TorqueSource) or (isinstance(value, str)
+                                                                             and value in ("sensor", "encoder")),
+                           TorqueSource),
+    "fmt": _choice(FORMATS),
+    "c_type": _choice(C_TYPES),
+    "content": _choice(CONTENTS),
+    "trial_format": _choice(("csv", "parquet")),
+    **dict.fromkeys(("on_event", "on_trial"), _kind("a function", callable)),
+    "event": _kind("a CampaignEvent", lambda value: isinstance(value, CampaignEvent)),
+}
+
+#: a simulated log's or scan's option (`simulate_log`, `simulate_scan`) by its type in the plan
+_OPTIONS: dict[Any, _Kind] = {
+    int: _INTEGER, float: _NUMBER, bool: _BOOL, str: _kind("a string", _is_text),
+    tuple[int, ...]: _kind("a list of integers", lambda value: _is_list(value, _is_integer),
+                           lambda value: tuple(int(v) for v in value)),
+}
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _checked(function: Callable[_P, _R]) -> Callable[_P, _R]:
+    """``function`` with every argument checked and converted by its kind in `_ARGUMENTS` before it runs (None
+    passes where it is the default): one `OptionError` naming the argument for a value of the wrong type."""
+    signature = inspect.signature(function)
+    names = [name for name, p in signature.parameters.items() if name != "self" and p.kind is not p.VAR_KEYWORD]
+    undeclared = set(names) - set(_ARGUMENTS)
+    if undeclared:  # a programming error, at import
+        raise TypeError(f"{function.__qualname__}: no kind declared for {', '.join(sorted(undeclared))}")
+
+    @functools.wraps(function)
+    def checked(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        bound = signature.bind(*args, **kwargs)
+        for name in names:
+            if name in bound.arguments:
+                value = bound.arguments[name]
+                if not (value is None and signature.parameters[name].default is None):
+                    bound.arguments[name] = _ARGUMENTS[name].of(name, value)
+        return function(*bound.args, **bound.kwargs)
+
+    return checked
 
 
 # ---------------------------------------------------------------- records
@@ -247,6 +434,7 @@ class RunResults:
         """Whether the run's bench has a torque sensor (its trial files a torque column)."""
         return read_bench_head(self.path).motor.torque_sensor
 
+    @_checked
     def trial(self, index: int) -> TrialColumns:
         """Trial ``index`` (1-based, as `records` number them) read from its file, as float64 columns.
 
@@ -257,7 +445,7 @@ class RunResults:
         RunDirError
             Its file cannot be read (one line naming it).
         """
-        if not (isinstance(index, int) and 1 <= index <= len(self.records)):
+        if not 1 <= index <= len(self.records):
             raise IlcpmacError(f"{self.path}: no trial {index!r} (its trials are 1..{len(self.records)})")
         record = self.records[index - 1]
         data = RunFiles(self.path).read_trial(index, record.torque_setpoint_nm, record.speed_setpoint_hz,
@@ -322,15 +510,6 @@ def _config(config: str | Path | CampaignConfig) -> CampaignConfig:
     return config if isinstance(config, CampaignConfig) else load_config(config)
 
 
-def _torque_source(torque_source: str | TorqueSource | None) -> TorqueSource | None:
-    """``torque_source`` as a `TorqueSource` ("sensor" or "encoder", as ``--torque-source`` takes it)."""
-    if torque_source is None or isinstance(torque_source, TorqueSource):
-        return torque_source
-    if torque_source not in ("sensor", "encoder"):
-        raise IlcpmacError(f"torque_source: 'sensor' or 'encoder', got {torque_source!r}")
-    return TorqueSource(torque_source)
-
-
 class _Callback(NoEvents):
     """Campaign events that pass each start, finished trial and message to one function."""
 
@@ -350,6 +529,7 @@ class _Callback(NoEvents):
 # ---------------------------------------------------------------- the functions
 
 
+@_checked
 def write_config(path: str | Path, changes: dict, base: str | Path | None = None) -> Path:
     """Write a campaign config that is ``base`` with ``changes``, and check it.
 
@@ -376,12 +556,13 @@ def write_config(path: str | Path, changes: dict, base: str | Path | None = None
         The config is not one (one line naming the file, table and key).
     """
     path = Path(path)
-    base_path = Path(base) if base is not None else packaged_config(DEFAULT_CONFIG)
+    base_path = config_path(base) if base is not None else packaged_config(DEFAULT_CONFIG)
     atomic_write(path, f"extends = {json.dumps(str(base_path.resolve()))}\n{toml_text(changes)}")
     load_config(path)
     return path
 
 
+@_checked
 def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | None = None,
         backend: str | Backend = "sim", address: str | None = None, seed: int | None = None,
         trials: int | None = None, budget_min: float | None = None, resume: str | Path | None = None,
@@ -434,6 +615,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     return RunResults.from_summary(result.path, result.summary)
 
 
+@_checked
 def print_event(event: CampaignEvent) -> None:
     """Print a campaign's event on one line, as ``run(..., on_event=print_event)`` does.
 
@@ -458,6 +640,7 @@ def print_event(event: CampaignEvent) -> None:
         print(event.text)
 
 
+@_checked
 def load_run(run_dir: str | Path) -> RunResults:
     """The results of a run directory of ``ilcpmac run`` (or `run`), finished or stopped.
 
@@ -481,6 +664,7 @@ def load_run(run_dir: str | Path) -> RunResults:
     return RunResults.from_summary(files.path, files.read_summary())
 
 
+@_checked
 def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None = None,
              output: str | Path | None = None) -> IdentificationResult | ScanResult:
     """Identify a bench folder or a standstill scan folder (``ilcpmac identify``).
@@ -514,30 +698,35 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
     ------
     BenchFormatError
         The folder is not a bench or scan folder (one line naming the file, key or row).
+    OptionError
+        An argument of the wrong type, an unknown ``torque_source``.
     IlcpmacError
-        A bad ``torque_source`` (or one given for a scan), an ``output`` that cannot be written.
+        A ``torque_source`` given for a scan, an ``output`` that cannot be written.
     IdentificationError
         The data cannot support the identification (the message says which estimate and why).
     """
     folder = Path(bench_dir)
-    source = _torque_source(torque_source)
     if output is not None:
         check_writable(Path(output), IlcpmacError)
     result: IdentificationResult | ScanResult
     if (folder / SCAN_FILE).exists():
-        if source is not None:
+        if torque_source is not None:
             raise IlcpmacError(f"torque_source: not for a standstill scan folder ({folder / SCAN_FILE})")
         result = reduce_scan(read_scan(folder))
     else:
         # the identification imports numba and scipy: only when it runs
         from ilcpmac.identify import identify_bench
 
-        result = identify_bench(read_bench(folder, extras=False), torque_source=source)
+        bench, grid = campaign_grid(folder, read_bench(folder, extras=False))
+        result = identify_bench(bench, torque_source=None if torque_source is None else TorqueSource(torque_source))
+        if grid is not None:
+            result = dataclasses.replace(result, messages=(grid, *result.messages))
     if output is not None:
         atomic_write(Path(output), json.dumps(result.to_json(), indent=1, allow_nan=False))
     return result
 
 
+@_checked
 def torque_constant_nm_per_a(bench_dir: str | Path) -> float:
     """The q-axis torque constant of a bench (or scan) folder's motor, which the moteus and harmonics exports need
     (docs/export.md).
@@ -564,6 +753,7 @@ def torque_constant_nm_per_a(bench_dir: str | Path) -> float:
     return q_torque_constant(head.backemf_nm_per_a, head.motor.pole_pairs)
 
 
+@_checked
 def simulate_bench(config: str | Path | CampaignConfig, out: str | Path, *, seed: int | None = None,
                    revolutions: int | None = None, torque_sensor: bool = True,
                    on_trial: Callable[[int, TrialData], None] | None = None) -> SimulatedBench:
@@ -613,11 +803,13 @@ def _simulate_drive(kind: str, config: str | Path | CampaignConfig, out: str | P
 
     cfg = _config(config)
     plan_type = ScanPlan if kind == "scan" else LogPlan
+    types = typing.get_type_hints(plan_type)
     known = [f.name for f in dataclasses.fields(plan_type) if f.name != "seed"]
     for name in options:
         if name not in known:
             raise OptionError(name, f"not an option of simulate_{kind} (its options: {', '.join(known)})")
-    plan = plan_type(seed=cfg.grid.seed if seed is None else seed, **options)
+    plan = plan_type(seed=cfg.grid.seed if seed is None else seed,
+                     **{name: _OPTIONS[types[name]].of(name, value) for name, value in options.items()})
     simulator = Simulator(cfg.simulated_model())
     problem = plan.problem(simulator.model.encoder.counts_per_rev) if isinstance(plan, ScanPlan) else \
         plan.problem(simulator)
@@ -633,6 +825,7 @@ def _simulate_drive(kind: str, config: str | Path | CampaignConfig, out: str | P
                         plan)
 
 
+@_checked
 def simulate_scan(config: str | Path | CampaignConfig, out: str | Path, *, seed: int | None = None,
                   **options: Any) -> SimulatedLog[ScanPlan]:
     """Simulate a standstill scan log (``ilcpmac simulate --kind scan``): the rotor stepped slowly forward and
@@ -660,12 +853,13 @@ def simulate_scan(config: str | Path | CampaignConfig, out: str | Path, *, seed:
     ------
     ConfigError
         The config cannot be read (one line naming the file and key).
-    IlcpmacError
-        An unknown option, or one out of its range ("name: why").
+    OptionError
+        An unknown option, one of the wrong type or out of its range ("name: why").
     """
     return _simulate_drive("scan", config, out, seed, options)
 
 
+@_checked
 def simulate_log(config: str | Path | CampaignConfig, out: str | Path, *, seed: int | None = None,
                  **options: Any) -> SimulatedLog[LogPlan]:
     """Simulate a rolling drive log (``ilcpmac simulate --kind log``): the drive closing a speed, position or
@@ -693,8 +887,8 @@ def simulate_log(config: str | Path | CampaignConfig, out: str | Path, *, seed: 
     ------
     ConfigError
         The config cannot be read (one line naming the file and key).
-    IlcpmacError
-        An unknown option, or one out of its range ("name: why").
+    OptionError
+        An unknown option, one of the wrong type or out of its range ("name: why").
     """
     return _simulate_drive("log", config, out, seed, options)
 
@@ -709,6 +903,7 @@ def _paths(logs: str | Path | Sequence[str | Path]) -> list[Path]:
     return [Path(logs)] if isinstance(logs, str | Path) else [Path(log) for log in logs]
 
 
+@_checked
 def import_logs(logs: str | Path | Sequence[str | Path], mapping: str | Path | ImportMapping, out: str | Path, *,
                 trial_format: str = "csv") -> tuple[ImportedBench, ...]:
     """Import drive logs into a bench folder (``ilcpmac import LOG... --map MAPPING --out OUT``).
@@ -741,14 +936,12 @@ def import_logs(logs: str | Path | Sequence[str | Path], mapping: str | Path | I
     BenchFormatError
         A log cannot be imported, the mapping is a scan's (`import_scan`), or ``out`` holds a bench already;
         nothing is written unless every log imports.
-    IlcpmacError
-        A bad ``trial_format``.
+    OptionError
+        An argument of the wrong type (no logs, an unknown ``trial_format``).
     """
     # the importer's resampling imports numba: only when it runs
     from ilcpmac.bench.importer import import_logs as write_bench_folders
 
-    if trial_format not in ("csv", "parquet"):
-        raise IlcpmacError(f"trial_format: 'csv' or 'parquet', got {trial_format!r}")
     read = _mapping(mapping)
     if isinstance(read, MoteusMapping):
         raise BenchFormatError(f'{read.path}: [log] kind = "moteus-cogging": moteus cogging files make a scan folder '
@@ -756,6 +949,7 @@ def import_logs(logs: str | Path | Sequence[str | Path], mapping: str | Path | I
     return tuple(write_bench_folders(_paths(logs), read, Path(out), f".{trial_format}"))
 
 
+@_checked
 def import_scan(logs: str | Path | Sequence[str | Path], mapping: str | Path | ImportMapping | MoteusMapping,
                 out: str | Path) -> ScanData:
     """Import standstill scan logs, or moteus cogging files, into one scan folder (``ilcpmac import`` with a
@@ -792,6 +986,7 @@ def import_scan(logs: str | Path | Sequence[str | Path], mapping: str | Path | I
     return write_scan_folder(_paths(logs), read, Path(out))
 
 
+@_checked
 def export(source: str | Path, fmt: str, out: str | Path, *, c_type: str = "int16", content: str | None = None,
            torque_constant_nm_per_a: float | None = None, rated_torque_nm: float | None = None) -> Exported:
     """Export a compensation for a drive's firmware (``ilcpmac export SOURCE --format FMT --out OUT``;
@@ -830,10 +1025,11 @@ def export(source: str | Path, fmt: str, out: str | Path, *, c_type: str = "int1
     ------
     BenchFormatError
         ``source`` is none of the three, or cannot be read (one line naming the file and key).
+    OptionError
+        An argument of the wrong type: an unknown ``fmt``, ``c_type`` or ``content``, a torque constant or rated
+        torque that is no finite number > 0.
     IlcpmacError
-        A format the source cannot take, a missing or bad torque constant or rated torque, ``content`` of a
-        compensation; nothing is written.
-    ValueError
-        An unknown ``fmt``, ``c_type`` or ``content``.
+        A format the source cannot take, a missing torque constant, ``content`` of a compensation; nothing is
+        written.
     """
     return export_source(source, out, fmt, c_type, content, torque_constant_nm_per_a, rated_torque_nm)

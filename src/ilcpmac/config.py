@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import re
 import typing
 from dataclasses import dataclass
 from importlib import resources
@@ -30,6 +32,7 @@ from ilcpmac.core.schema import (
     read_toml,
     section_problem,
     setting,
+    shown,
     toml_name,
     toml_text,
 )
@@ -365,6 +368,7 @@ def config_reference() -> str:
              "the declarations in src/ilcpmac/config.py and src/ilcpmac/model/motor.py by "
              "`ilcpmac.config.config_reference()`; tests/test_config.py checks that this file is up to date. "
              "Options of a stage go in `[stages.NAME]` (docs/writing-a-stage.md).", ""]
+    parts.append(key_table(ConfigBase, "", heading="### Outside any table"))
     parts += [key_table(cls, name) for name, cls in tables.items()]
     parts += [key_table(cls, f"simulator.{name}", BENCH_KEYS.get(name, {})) for name, cls in SIMULATOR_SECTIONS.items()]
     return "\n".join(parts)
@@ -373,6 +377,41 @@ def config_reference() -> str:
 def packaged_config(name: str) -> Path:
     """The path of config ``name`` shipped with the package (``ilcpmac/configs``), e.g. "seed-bench.toml"."""
     return Path(str(resources.files("ilcpmac") / "configs" / name))
+
+
+def config_path(path: str | Path) -> Path:
+    """The config file ``path`` names: ``path`` itself where it exists; else, for ``NAME`` or ``configs/NAME``
+    (relative) where NAME is a config shipped with the package (quick.toml, seed-bench.toml, real-bench.toml),
+    the packaged one, so that ``ilcpmac run configs/quick.toml`` runs from any folder; else ``path`` (whose
+    reading then fails naming it)."""
+    path = Path(path)
+    if os.path.exists(path) or path.is_absolute() or path.parts[:-1] not in ((), ("configs",)):
+        return path
+    packaged = packaged_config(path.name)
+    return packaged if os.path.isfile(packaged) else path
+
+
+def _file_name(x: str) -> bool:
+    return isinstance(x, str) and x != "" and "\0" not in x
+
+
+def _dotted_names(x: list) -> bool:
+    return isinstance(x, list) and all(isinstance(n, str) and re.fullmatch(r"[A-Za-z0-9_-]+(\.[A-Za-z0-9_-]+)*", n)
+                                       for n in x)
+
+
+@dataclass(frozen=True)
+class ConfigBase:
+    """The keys of a config outside its tables: the config it builds on and what of it is left out
+    (docs/campaign.md, "Phases": "A config may build on another")."""
+
+    extends: str | None = setting(
+        _file_name, "a config's file name, relative to this config's folder (or an absolute path), whose tables "
+        "this config's own are merged over key by key (a table merged, any other value replaced)", None)
+    drop: tuple[str, ...] = setting(
+        _dotted_names, 'tables and keys of what it extends left out, dotted ("stages.ilc", '
+        '"campaign.validate_torques_nm"), before this config\'s own are merged in: a stage no longer run, a key '
+        "back to its default; only with extends", ())
 
 
 #: how many configs deep `extends` may chain
@@ -387,21 +426,72 @@ def _merged(base: dict, over: dict) -> dict:
     return out
 
 
-def config_tables(path: Path, chain: tuple[Path, ...] = ()) -> dict:
-    """The tables of config ``path``, the config its top-level ``extends`` names (a file name, relative to its
-    folder) under them: its tables merged key by key, any other value replaced (`MAX_EXTENDS` deep)."""
+def _dotted(tables: dict, prefix: str = "") -> list[str]:
+    """Every table and key of ``tables``, by dotted name, tables before their keys."""
+    names = []
+    for key, value in tables.items():
+        names.append(f"{prefix}{key}")
+        if isinstance(value, dict):
+            names += _dotted(value, f"{prefix}{key}.")
+    return names
+
+
+def _dropped(tables: dict, name: str) -> bool:
+    """Remove the table or key dotted ``name`` from ``tables`` (in place); False if there is none."""
+    *parents, key = name.split(".")
+    table: object = tables
+    for parent in parents:
+        table = table.get(parent) if isinstance(table, dict) else None
+    return isinstance(table, dict) and table.pop(key, None) is not None
+
+
+def _chain_tables(path: Path, chain: tuple[Path, ...]) -> tuple[dict, dict[str, str]]:
+    """`config_tables` of ``path``, which ``chain`` extends, and where each table and key not ``path``'s own comes
+    from, by dotted name: "PATH extends NAME: ..." down to the file that gives it."""
     data = read_toml(path)
-    base = data.pop("extends", None)
+    head = {f.name: data.pop(f.name) for f in dataclasses.fields(ConfigBase) if f.name in data}
+    for f in dataclasses.fields(ConfigBase):
+        if f.name in head and not f.metadata["check"](head[f.name]):
+            raise ConfigError(f"{path}: {f.name}: {f.metadata['doc']}, got {shown(head[f.name])}")
+    base = head.get("extends")
     if base is None:
-        return data
-    if not isinstance(base, str) or not base:
-        raise ConfigError(f"{path}: extends: a config's file name, relative to {path.parent}, got {base!r}")
+        if "drop" in head:
+            raise ConfigError(f"{path}: drop: leaves out tables of the config it extends, and it extends none")
+        return data, {}
     base_path = path.parent / base
     if base_path.resolve() in {p.resolve() for p in (*chain, path)}:
-        raise ConfigError(f"{path}: extends: {base!r} extends itself, through {' -> '.join(map(str, chain))}")
+        raise ConfigError(f"{path}: extends: {shown(base)} extends itself")
     if len(chain) + 1 >= MAX_EXTENDS:
         raise ConfigError(f"{path}: extends: more than {MAX_EXTENDS} configs deep")
-    return _merged(config_tables(base_path, (*chain, path)), data)
+    where = f"{path} extends {base}"
+    try:
+        tables, origins = _chain_tables(base_path, (*chain, path))
+    except ConfigError as e:
+        raise ConfigError(f"{where}: {e}") from None
+    for name in head.get("drop", ()):
+        if not _dropped(tables, name):
+            raise ConfigError(f"{path}: drop: {shown(name)}: no such table or key in {base} (what it extends)")
+    merged = _merged(tables, data)
+    own = set(_dotted(data))
+    return merged, {name: f"{where}: {origins.get(name, base_path)}" for name in _dotted(merged) if name not in own}
+
+
+class _Origins(dict):
+    """Where each table and key of a config that is not the config's own came from, by dotted name
+    (`_chain_tables`): what an error about it names; any other name gives the config's path."""
+
+    def __init__(self, path: Path, origins: dict[str, str]) -> None:
+        super().__init__(origins)
+        self.path = path
+
+    def __missing__(self, name: str) -> str:
+        return str(self.path)
+
+
+def config_tables(path: Path) -> dict:
+    """The tables of config ``path`` over those of the config its top-level ``extends`` names (`ConfigBase`;
+    `MAX_EXTENDS` deep), less those its ``drop`` names: a table merged key by key, any other value replaced."""
+    return _chain_tables(path, ())[0]
 
 
 def config_text(config: CampaignConfig) -> str:
@@ -414,47 +504,55 @@ def config_text(config: CampaignConfig) -> str:
 
 
 def load_config(path: str | Path) -> CampaignConfig:
-    """Read and validate a campaign config (see configs/seed-bench.toml and `check_config`); a config whose
-    top-level ``extends`` names another builds on it (`config_tables`)."""
-    path = Path(path)
-    data = config_tables(path)
+    """Read and validate a campaign config (see configs/seed-bench.toml and `check_config`) at `config_path`
+    ``path``; a config whose top-level ``extends`` names another builds on it (`config_tables`), and an error of
+    a table or key it takes from there names the chain down to the file that gives it."""
+    path = config_path(path)
+    data, chained = _chain_tables(path, ())
+    origins = _Origins(path, chained)
     known = {"bench", "simulator", "trials", "excitation", "stages"} | set(RUN_SECTIONS)
     unknown = sorted(set(data) - known)
     if unknown:
-        raise ConfigError(f"{path}: unknown table [{toml_name(unknown[0])}] (known: {', '.join(sorted(known))})")
+        raise ConfigError(f"{origins[unknown[0]]}: unknown table [{toml_name(unknown[0])}] "
+                          f"(known: {', '.join(sorted(known))})")
     for name in ["bench", "trials", "excitation"]:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
-    bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
+
+    def parsed(name: str, cls: type):
+        return parse_section(data.get(name, {}), cls, str(path), name, sources=origins)
+
+    bench = parsed("bench", BenchSettings)
     if bench.backemf_file is not None and bench.backemf is not None:
         raise ConfigError(f"{path}: [bench] backemf_file and [bench.backemf] both give the back-EMF: give one")
-    run = {name: parse_section(data.get(name, {}), cls, str(path), name) for name, cls in RUN_SECTIONS.items()}
+    run = {name: parsed(name, cls) for name, cls in RUN_SECTIONS.items()}
     stage_options = data.get("stages", {})
     if not isinstance(stage_options, dict):
-        raise ConfigError(f"{path}: [stages] must be a table of [stages.NAME] tables")
+        raise ConfigError(f"{origins['stages']}: [stages] must be a table of [stages.NAME] tables")
     for name, table in stage_options.items():
         if not isinstance(table, dict):
-            raise ConfigError(f"{path}: [stages.{toml_name(name)}] must be a table")
+            raise ConfigError(f"{origins[f'stages.{name}']}: [stages.{toml_name(name)}] must be a table")
         if name not in run["pipeline"].stages:
-            raise ConfigError(f"{path}: [stages.{toml_name(name)}] configures a stage that [pipeline] stages "
-                              "does not list")
-    config = CampaignConfig(path=path, bench=bench,
-                            grid=parse_section(data["trials"], TrialGrid, str(path), "trials"),
-                            excitation=parse_section(data["excitation"], Excitation, str(path), "excitation"),
-                            stage_options=stage_options,
-                            model=_simulated_drive(data["simulator"], bench, path) if "simulator" in data else None,
+            hint = f' (drop = ["stages.{name}"] leaves it out)' if f"stages.{name}" in origins else ""
+            raise ConfigError(f"{origins[f'stages.{name}']}: [stages.{toml_name(name)}] configures a stage that "
+                              f"[pipeline] stages does not list{hint}")
+    model = None
+    if "simulator" in data:
+        model = _simulated_drive(data["simulator"], bench, path, origins)
+    config = CampaignConfig(path=path, bench=bench, grid=parsed("trials", TrialGrid),
+                            excitation=parsed("excitation", Excitation), stage_options=stage_options, model=model,
                             **run)
     check_config(config)
     return config
 
 
-def _simulated_drive(tables: object, bench: BenchSettings, path: Path) -> MotorModel:
+def _simulated_drive(tables: object, bench: BenchSettings, path: Path, origins: _Origins) -> MotorModel:
     """The simulated drive from the [simulator.*] tables and what [bench] holds of it."""
     if not isinstance(tables, dict):
-        raise ConfigError(f"{path}: [simulator] must hold the tables [simulator.NAME]")
+        raise ConfigError(f"{origins['simulator']}: [simulator] must hold the tables [simulator.NAME]")
     unknown = sorted(set(tables) - set(SIMULATOR_SECTIONS))
     if unknown:
-        raise ConfigError(f"{path}: unknown table [simulator.{toml_name(unknown[0])}] "
+        raise ConfigError(f"{origins[f'simulator.{unknown[0]}']}: unknown table [simulator.{toml_name(unknown[0])}] "
                           f"(known: {', '.join(SIMULATOR_SECTIONS)})")
     for key, value in (("backemf", bench.backemf), ("calibration", bench.calibration),
                        ("inertia_kgm2", bench.inertia_kgm2)):
@@ -471,9 +569,9 @@ def _simulated_drive(tables: object, bench: BenchSettings, path: Path) -> MotorM
         given = {key: known[key] for key in BENCH_KEYS.get(name, {})}
         misplaced = sorted(set(given) & set(tables[name])) if isinstance(tables[name], dict) else []
         if misplaced:
-            raise ConfigError(f"{path}: [simulator.{name}] {misplaced[0]}: the controller knows it: "
-                              f"give it as {model_key(name, misplaced[0])}")
-        parts[name] = parse_section(tables[name], cls, str(path), f"simulator.{name}", given)
+            raise ConfigError(f"{origins[f'simulator.{name}.{misplaced[0]}']}: [simulator.{name}] {misplaced[0]}: "
+                              f"the controller knows it: give it as {model_key(name, misplaced[0])}")
+        parts[name] = parse_section(tables[name], cls, str(path), f"simulator.{name}", given, sources=origins)
     return MotorModel(**{f.name: parts[f.name] for f in dataclasses.fields(MotorModel)})
 
 

@@ -12,7 +12,10 @@ import errno
 import os
 import sys
 import threading
-from typing import NoReturn
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, NoReturn
 
 import click
 from rich import box
@@ -36,13 +39,52 @@ FIGURE_FORMATS = ("png", "svg", "pdf")
 _FILE_SYSTEM_ERRORS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM}
 
 
+def _usage_error(error: click.UsageError) -> NoReturn:
+    """Report a usage error (an unknown command or option, a missing argument, a bad value) as one line on stderr,
+    with the command whose ``--help`` says more, and exit with its status (2)."""
+    message = " ".join(line.strip() for line in error.format_message().splitlines() if line.strip()).rstrip(".")
+    see = "" if error.ctx is None else f" (see {error.ctx.command_path} --help)"
+    click.echo(f"error: {message[:1].lower()}{message[1:]}{see}", err=True)
+    sys.exit(error.exit_code)
+
+
+class _Command(click.Command):
+    """A command whose campaign config (its parameter ``config``) may name a packaged config from any folder
+    (`ilcpmac.config.config_path`): the one taken is said on stderr before the command runs."""
+
+    def invoke(self, ctx: click.Context):
+        given = ctx.params.get("config")
+        if isinstance(given, Path):
+            from ilcpmac.config import config_path  # after tune_process: it imports numpy
+
+            taken = config_path(given)
+            if taken != given:
+                click.echo(f"config: {given} is not here: the packaged {taken}", err=True)
+                ctx.params["config"] = taken
+        return super().invoke(ctx)
+
+
 class _Group(click.Group):
     """Reports an `IlcpmacError`, or a file system's refusal (a path that cannot be made or written, a full
-    disk, a quota, a read-only place), as one line on stderr and exit status 2, never a traceback."""
+    disk, a quota, a read-only place), as one line on stderr and exit status 2, never a traceback; and so a usage
+    error of the group or any command (`_usage_error`). Its commands are `_Command`s."""
+
+    command_class = _Command
+
+    def make_context(self, info_name: str | None, args: list[str], parent: click.Context | None = None,
+                     **extra: Any) -> click.Context:
+        if not args:  # no command: the help, as click writes it
+            return super().make_context(info_name, args, parent, **extra)
+        try:
+            return super().make_context(info_name, args, parent, **extra)
+        except click.UsageError as e:
+            _usage_error(e)
 
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
+        except click.UsageError as e:
+            _usage_error(e)
         except IlcpmacError as e:
             click.echo(f"error: {e}", err=True)
             sys.exit(2)
@@ -69,10 +111,20 @@ def plugins_table(kind: str, group: str, entries: dict[str, PluginEntry]) -> Tab
     return table
 
 
-def progress_bar() -> Progress:
-    """A rich progress bar on stderr."""
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), console=console, transient=False)
+@contextmanager
+def progress_bar() -> Iterator[Progress]:
+    """A rich progress bar on stderr, started for the ``with`` block, that leaves nothing behind when the work in it
+    fails: the error is then the command's one line."""
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                        TimeElapsedColumn(), console=console, transient=False)
+    with progress:
+        try:
+            yield progress
+        except BaseException:
+            progress.live.transient = True
+            progress.live.stop()
+            progress.disable = True  # its stop() would print the bar's last line (or a blank one, off a terminal)
+            raise
 
 
 @click.group(cls=_Group)

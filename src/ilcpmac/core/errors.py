@@ -33,7 +33,8 @@ class SafetyError(IlcpmacError):
 
 
 class OptionError(IlcpmacError):
-    """An option of a simulated log or scan is unknown or out of its range: ``name``, ``why``."""
+    """An option or argument (of a simulated log or scan, or of an ``ilcpmac.api`` function) is unknown, of the
+    wrong type or out of its range: ``name``, ``why``."""
 
     def __init__(self, name: str, why: str) -> None:
         super().__init__(f"{name}: {why}")

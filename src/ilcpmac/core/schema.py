@@ -193,41 +193,47 @@ def toml_name(key: str) -> str:
 
 
 def parse_section(table: object, cls: type, source: str, section: str, given: dict | None = None,
-                  error: type[IlcpmacError] = ConfigError, label: str | None = None):
+                  error: type[IlcpmacError] = ConfigError, label: str | None = None,
+                  sources: typing.Mapping[str, str] | None = None):
     """Build dataclass ``cls`` from TOML ``table``; every error (an ``error``) names ``source`` and the key.
 
     A field whose metadata names a ``"table"`` class is the optional sub-table
     ``[section.field]``; the fields in ``given`` take its values and are not read.
     ``label`` names the table in messages (default ``"[section]"``; e.g. ``"[[trials]] #2"``).
+    ``sources`` names, by dotted name (``"section.key"``, ``"section"`` for the table itself), where a table
+    or key came from when not from ``source`` (a config's keys from one it extends); an error about it names
+    that instead.
     """
     label = label or f"[{section}]"
+    sources = sources or {}
     if not isinstance(table, dict):
-        raise error(f"{source}: {label} must be a table")
+        raise error(f"{sources.get(section, source)}: {label} must be a table")
     given = given or {}
     hints = typing.get_type_hints(cls)
     known = {f.name: f for f in fields(cls) if f.name not in given and f.init}
     unknown = sorted(set(table) - set(known))
     renamed = getattr(cls, "RENAMED", {})
-    if unknown and unknown[0] in renamed:
-        raise error(f"{source}: {label} {unknown[0]} is now {renamed[unknown[0]]}")
     if unknown:
-        raise error(f"{source}: {label} {unknown_key(table, known)}")
+        from_ = sources.get(f"{section}.{unknown[0]}", source)
+        if unknown[0] in renamed:
+            raise error(f"{from_}: {label} {unknown[0]} is now {renamed[unknown[0]]}")
+        raise error(f"{from_}: {label} {unknown_key(table, known)}")
     values = dict(given)
     for name, f in known.items():
-        where = f"{source}: {label} {name}"
+        from_ = sources.get(f"{section}.{name}", source)
         if "table" in f.metadata:
             values[name] = (parse_section(table[name], f.metadata["table"], source, f"{section}.{name}",
-                                          error=error) if name in table else None)
+                                          error=error, sources=sources) if name in table else None)
             continue
         if name not in table:
             if f.default is not dataclasses.MISSING:
                 values[name] = f.default
                 continue
-            raise error(f"{where}: missing ({f.metadata.get('doc', '')})")
-        values[name] = coerce_value(table[name], hints[name], where, error)
+            raise error(f"{source}: {label} {name}: missing ({f.metadata.get('doc', '')})")
+        values[name] = coerce_value(table[name], hints[name], f"{from_}: {label} {name}", error)
         problem = value_problem(f, values[name])
         if problem is not None:
-            raise error(f"{source}: {label} {problem}")
+            raise error(f"{from_}: {label} {problem}")
     obj = cls(**values)
     problem = lengths_problem(obj)
     if problem is not None:
@@ -315,12 +321,13 @@ def _type_name(annotation) -> str:
     return {int: "integer", float: "number", str: "string", bool: "true/false"}.get(annotation, str(annotation))
 
 
-def key_table(cls: type, table: str, given: typing.Iterable[str] = ()) -> str:
+def key_table(cls: type, table: str, given: typing.Iterable[str] = (), heading: str | None = None) -> str:
     """A Markdown table of the keys of TOML table ``[table]`` that dataclass ``cls`` declares: key, type,
     default ("required" where there is none) and the field's doc; the fields in ``given`` are left out
-    (another table gives them), and so is a sub-table field."""
+    (another table gives them), and so is a sub-table field. ``heading`` replaces the heading
+    ``### [table]`` (keys outside any table)."""
     hints = typing.get_type_hints(cls)
-    rows = [f"### [{table}]", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+    rows = [heading or f"### [{table}]", "", "| key | type | default | meaning |", "|---|---|---|---|"]
     for f in fields(cls):
         if f.name in given or "table" in f.metadata or not f.init:
             continue

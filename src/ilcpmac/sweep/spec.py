@@ -27,6 +27,7 @@ from ilcpmac.config import (
     BenchCalibration,
     BenchSettings,
     CampaignConfig,
+    config_tables,
     load_config,
     model_key,
 )
@@ -319,7 +320,7 @@ def load_spec(spec_path: str | Path, config_path: str | Path) -> SweepSpec:
     spec_path, config_path = Path(spec_path), Path(config_path)
     data = read_toml(spec_path, SweepSpecError)
     config = load_config(config_path)
-    config_data = read_toml(config_path)
+    config_data = config_tables(config.path)  # what it extends merged in: a task's config stands alone
     unknown = sorted(set(data) - {"sweep", "draw", "magnets"})
     if unknown:
         raise SweepSpecError(f"{spec_path}: unknown table [{shown(unknown[0])}] (known: sweep, draw, magnets)")
