@@ -1,11 +1,13 @@
-"""A custom compensation stage on one screen, run through a short campaign on the simulator.
+"""A custom compensation stage on one screen, run through the default campaign on the simulator.
 
     python examples/custom_stage.py
 
 The stage cancels the torque ripple at one harmonic with a fixed learning
-gain. Packaged with an entry point in the group ``ilcpmac.stages`` it would be
-named in a config like a built-in (docs/writing-a-stage.md); here the script
-hands it to the campaign directly.
+gain, one correction per set point. Packaged with an entry point in the group
+``ilcpmac.stages`` it would be named in a config like a built-in
+(docs/writing-a-stage.md); here the script hands it to the campaign directly.
+It ends with the true torque at that harmonic at every validation point, with
+the compensation and without.
 """
 
 import dataclasses
@@ -14,22 +16,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcpmac.backends.base import BenchLimits
-from ilcpmac.backends.simulated import SimulatorBackend
+import ilcpmac.campaign
 from ilcpmac.bench.format import read_bench
-from ilcpmac.campaign.events import CampaignMessage
+from ilcpmac.campaign.events import CampaignMessage, NoEvents
 from ilcpmac.campaign.record import TrialRecord
-from ilcpmac.campaign.rundir import RunDir
-from ilcpmac.campaign.runner import CampaignRunner
-from ilcpmac.config import PipelineSettings, load_config
-from ilcpmac.identify import identify_bench
+from ilcpmac.config import CampaignConfig, PipelineSettings, load_config
+from ilcpmac.core.records import TrialData
 from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 from ilcpmac.stages import Frame, StageSetup
 from ilcpmac.stages.base import read_options
 
 
 class OneHarmonicCanceller:
-    """Cancel the torque ripple at one harmonic with a fixed learning gain."""
+    """Cancel the torque ripple at one harmonic with a fixed learning gain, per set point."""
 
     name = "one-harmonic"
 
@@ -39,27 +38,35 @@ class OneHarmonicCanceller:
         self.setup = setup
         cpr = setup.description.motor.counts_per_rev
         self.theta = 2 * np.pi * np.arange(cpr) / cpr
-        self.c = 0j  # correction, complex amplitude in N m
+        self.c: dict[str, complex] = {}  # correction per set point (request.setpoint_key), complex amplitude, N m
 
     def columns(self, trial):
         return None
 
     def shape(self, request):
-        table = np.real(self.c * np.exp(1j * self.order * self.theta))
+        c = self.c.get(request.setpoint_key, 0j)
+        table = np.real(c * np.exp(1j * self.order * self.theta))
         return request.with_changes(feedforward_nm=request.feedforward_nm + table)
 
     def learn(self, trial, frame: Frame):
-        g = self.setup.torque_response(np.array([self.order]), frame.speed_hz, trial.requested().calibration)[0]
-        self.c -= self.gain * frame.learning_gain * frame.torque_harmonics_nm[self.order] / g
+        request = trial.requested()  # the set point's correction is the one this trial ran with
+        g = self.setup.torque_response(np.array([self.order]), frame.speed_hz, request.calibration)[0]
+        step = self.gain * frame.learning_gain * frame.torque_harmonics_nm[self.order] / g
+        self.c[request.setpoint_key] = self.c.get(request.setpoint_key, 0j) - step
 
     def state(self):
-        return {"re": self.c.real, "im": self.c.imag}
+        return {key: [c.real, c.imag] for key, c in self.c.items()}
 
     def restore(self, state):
-        self.c = complex(state["re"], state["im"])
+        self.c = {key: complex(*c) for key, c in state.items()}
+
+    def revert(self, state, key):
+        self.c.pop(key, None)
+        if key in state:
+            self.c[key] = complex(*state[key])
 
 
-class Printer:
+class Printer(NoEvents):
     def trial(self, record: TrialRecord, records: list[TrialRecord]) -> None:
         if record.role != "grid":
             print(f"trial {record.index:2d} {record.phase:10s} {record.torque_setpoint_nm:g} N m: "
@@ -68,31 +75,33 @@ class Printer:
     def message(self, message: CampaignMessage) -> None:
         print(message.text)
 
-    def progress(self, fraction: float) -> None:
-        pass
+
+def campaign_config() -> CampaignConfig:
+    """The default campaign (the packaged seed-bench.toml), the stage after the current-sensor and cogging stages."""
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "seed-bench.toml")
+    return dataclasses.replace(cfg, pipeline=PipelineSettings(("current-sensor", "cogging", "one-harmonic")),
+                               stage_options={"one-harmonic": {"order": 20, "gain": 0.5}})
+
+
+def true_harmonic_nm(trial: TrialData, counts_per_rev: int, order: int) -> float:
+    """|c_order| of the true torque's synchronous average, N m."""
+    return float(abs(harmonic_amplitudes(synchronous_average(trial.count, trial.torque_true_nm,
+                                                             counts_per_rev))[order]))
 
 
 def main() -> None:
-    root = Path(__file__).resolve().parents[1]
-    cfg = load_config(root / "configs" / "seed-bench.toml")
-    cfg = dataclasses.replace(
-        cfg, pipeline=PipelineSettings(("current-sensor", "cogging", "one-harmonic")),
-        stage_options={"one-harmonic": {"order": 20, "gain": 0.5}},
-        campaign=dataclasses.replace(cfg.campaign, learn_torques_nm=(3.0,), learn_speeds_hz=(0.75,), learn_trials=4,
-                                     learn_revolutions=(8,), validate_torques_nm=(), validate_speeds_hz=()))
-    limits = BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm, cfg.limits.max_speed_hz)
-    backend = SimulatorBackend(cfg.model, limits, cfg.grid.warmup_revolutions)
     with tempfile.TemporaryDirectory() as tmp:
-        run_dir = RunDir.create(Path(tmp) / "run", backend.describe(), cfg.path.read_text())
-        runner = CampaignRunner(cfg, backend, run_dir, seed=1, identify=identify_bench, events=Printer(),
-                                extra_stages={"one-harmonic": OneHarmonicCanceller})
-        summary = runner.run()
-        # the run directory is a bench folder: compare the true torque at harmonic 20, first and last trial
-        bench = read_bench(run_dir.path)
-        first = next(i for i, r in enumerate(summary["trials"]) if r["role"] == "compensate")
-        for label, trial in (("before", bench.trials[first]), ("after", bench.trials[-1])):
-            table = synchronous_average(trial.count, trial.torque_true_nm, bench.motor.counts_per_rev)
-            print(f"{label}: true torque at harmonic 20: {1000 * abs(harmonic_amplitudes(table)[20]):.3f} mN m")
+        result = ilcpmac.campaign.run(campaign_config(), out=Path(tmp) / "run", events=Printer(),
+                                      extra_stages={"one-harmonic": OneHarmonicCanceller})
+        # the run directory is a bench folder: the true torque at harmonic 20 without and with the compensation
+        bench = read_bench(result.path)
+        cpr = bench.motor.counts_per_rev
+        for point in result.points:
+            if not point.learned:
+                before, after = (true_harmonic_nm(bench.trials[r.index - 1], cpr, 20)
+                                 for r in (point.before, point.after))
+                print(f"{point.point[0]:g} N m at {point.point[1]:g} Hz: true torque at harmonic 20 "
+                      f"{1000 * before:.3f} mN m uncompensated, {1000 * after:.3f} mN m compensated")
 
 
 if __name__ == "__main__":

@@ -302,18 +302,28 @@ def test_the_quick_preset_is_the_seed_bench_with_a_shorter_campaign():
 
 
 def test_the_final_lines_give_each_set_of_points_against_its_floor_and_the_motor_time():
+    from ilcpmac.campaign.record import TrialRecord
     from ilcpmac.report.table import final_lines
+    from ilcpmac.signals.harmonics import RippleFigures
 
-    # summary.json's entries as the campaign writes them (`PointFloor.to_json` always holds the measured floor)
-    points = [{"torque_setpoint": t, "speed_setpoint": 1.0, "learned": learned, "ripple_pp_true": ripple,
-               "floor_pp_measured": 0.004, "floor_pp_true": floor}
-              for t, learned, ripple, floor in ((1.0, True, 0.0009, 0.0009), (3.0, True, 0.0006, 0.0005),
-                                                (2.0, False, 0.0017, 0.0013))]
-    summary = {"final": {"ripple_pp_true": 0.0009}, "validation": [{"ripple_pp_true": 0.0017}], "points": points,
+    # summary.json's entries as the campaign writes them (`PointResult.to_json` with its two trials' indices,
+    # `PointFloor.to_json` always holding the measured floor)
+    trials, points = [], []
+    for t, learned, ripple, floor in ((1.0, True, 0.0009, 0.0009), (3.0, True, 0.0006, 0.0005),
+                                      (2.0, False, 0.0017, 0.0013)):
+        for pp, role in ((0.02, "baseline"), (ripple, "learn" if learned else "validate")):
+            trials.append(TrialRecord(len(trials) + 1, "learn" if learned else "validate", role, t, 1.0,
+                                      RippleFigures(pp, *(0.0,) * 7), RippleFigures(pp, *(0.0,) * 7)).to_json())
+        points.append({"torque_setpoint": t, "speed_setpoint": 1.0, "learned": learned,
+                       "uncompensated_trial": len(trials) - 1, "compensated_trial": len(trials),
+                       "floor_pp_measured": 0.004, "floor_pp_true": floor})
+    summary = {"trials": trials, "points": points,
                "motor_time_s": {"identify": 132.0, "learn": 708.0, "all": 840.0}}
     assert final_lines(summary) == [
-        "learned: true ripple 0.0900 % of mean torque; 1.00-1.20x its floor",
-        "validation: true ripple 0.170 % of mean torque; 1.31-1.31x its floor",
+        "learned: true ripple 0.0900 % of mean torque at worst (1 N m, 1 Hz); each point 1.00-1.20x its floor",
+        "learned: measured ripple 0.0900 % of mean torque at worst (1 N m, 1 Hz); each point 0.150-0.225x its floor",
+        "validation: true ripple 0.170 % of mean torque at worst (2 N m, 1 Hz); each point 1.31-1.31x its floor",
+        "validation: measured ripple 0.170 % of mean torque at worst (2 N m, 1 Hz); each point 0.425-0.425x its floor",
         "motor time: 14.0 min (identify 2.2, learn 11.8 min; warm-ups included)"]
 
 
@@ -350,3 +360,12 @@ def test_the_readmes_figures_are_what_the_default_campaign_prints(tmp_path):
     assert [float(row[1]), float(row[2])] == [round(w, 3) for w in worst]
     assert [float(row[3]), float(row[4])] == [round(min(ratios), 2), round(max(ratios), 2)]
     assert float(row[5]) == float(job[2])
+
+
+def test_the_budget_option_takes_the_plan_s_range():
+    """cli/run.py states ``--budget``'s range without importing the campaign: it must be the plan's."""
+    from ilcpmac.campaign.plan import MAX_BUDGET_MIN
+    from ilcpmac.cli.run import run
+
+    (budget,) = [p for p in run.params if p.name == "budget_min"]
+    assert (budget.type.min, budget.type.max, budget.type.min_open) == (0.0, MAX_BUDGET_MIN, True)

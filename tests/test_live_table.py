@@ -4,7 +4,6 @@ written and the next command, and summary.json says the units of its figures."""
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
 import re
@@ -187,30 +186,66 @@ def validation_json(records: list[TrialRecord]) -> list[dict]:
     return [r.to_json() for r in point_results(records, LEARNED, VALIDATED) if not r.learned]
 
 
-def test_the_final_figures_are_words_with_units():
-    final = {"ripple_pp_true": 0.00081411, "ripple_pp_measured": 0.0039536, "ripple_rms_true": 0.000119,
-             "ripple_rms_measured": 0.000679, "reduction_factor": 418.39, "reduction_factor_true": 2034.98}
-    summary = {"final": final, "validation": validation_json(campaign_records())}
-    assert final_lines(summary) == [
-        "learned: true ripple 0.0814 % of mean torque, 2035x below uncompensated",
-        "learned: measured ripple 0.395 % of mean torque, 418x below uncompensated",
-        # the worst validation point: 2 N m, against 2.39 % uncompensated
-        "validation: true ripple 0.100 % of mean torque, 1195x below uncompensated",
-        "validation: measured ripple 0.101 % of mean torque, 299x below uncompensated"]
-    measured_only = {"final": {k: v for k, v in final.items() if "true" not in k},
-                     "validation": [{k: v for k, v in point.items() if "true" not in k}
-                                    for point in summary["validation"]]}
-    assert final_lines(measured_only) == [final_lines(summary)[i] for i in (1, 3)]
-    assert final_lines({"final": final}) == final_lines(summary)[:2]
-    assert final_lines({"final": {}, "validation": []}) == []
+def summary_of(records: list[TrialRecord], learned: list, validated: list) -> dict:
+    """summary.json's "trials", "points" and "final" as `CampaignRunner.summary` writes them (no floors)."""
+    results = point_results(records, learned, validated)
+    last = [r.after for r in results if r.learned]
+    final = {f"ripple_pp_{kind}": max(r.figures(kind).pp for r in last) for kind in ("true", "measured")
+             if all(r.figures(kind) is not None for r in last)}
+    final |= {f: min(getattr(r, f) for r in last) for f in ("reduction_factor", "reduction_factor_true")
+              if all(getattr(r, f) is not None for r in last)}
+    return {"trials": [r.to_json() for r in records], "final": final,
+            "validation": [r.to_json() for r in results if not r.learned], "points": [r.to_json() for r in results]}
 
 
-def test_the_validation_line_is_the_worst_point():
+def two_point_records(true: bool = True) -> list[TrialRecord]:
+    """Per set of points, one with the worst ripple and one with the least reduction: 1 N m at 0.5 Hz, 0.100 %
+    after 2.00 % (20x), and 5 N m at 1.5 Hz, 0.0800 % after 0.400 % (5x), learned; the same halved, validated."""
+    records: list[TrialRecord] = []
+    for point, before, after, phase in (((1.0, 0.5), 0.02, 0.001, "learn"), ((5.0, 1.5), 0.004, 0.0008, "learn"),
+                                        ((2.0, 0.5), 0.01, 0.0005, "validate"),
+                                        ((4.0, 1.5), 0.002, 0.0004, "validate")):
+        factor = before / after
+        records += [TrialRecord(len(records) + 1, "identify" if phase == "learn" else phase, "baseline", *point,
+                                ripple(before, 1e-3), ripple(before, 1e-3) if true else None),
+                    TrialRecord(len(records) + 2, phase, phase, *point, ripple(after, 1e-3),
+                                ripple(after, 1e-3) if true else None, factor, factor if true else None)]
+    return records
+
+
+def test_each_final_line_gives_the_figures_of_one_point():
+    """Issue 34, item 17: "worst ripple 0.100 %, 5.00x below uncompensated" gave one point's ripple and another's
+    reduction (summary.json's "final": the largest ripple and the smallest factor)."""
+    records = two_point_records()
+    lines = [
+        "learned: true ripple 0.100 % of mean torque at worst (1 N m, 0.5 Hz), 20.0x below uncompensated",
+        "learned: true ripple 5.00x below uncompensated at least (5 N m, 1.5 Hz), 0.0800 % of mean torque",
+        "learned: measured ripple 0.100 % of mean torque at worst (1 N m, 0.5 Hz), 20.0x below uncompensated",
+        "learned: measured ripple 5.00x below uncompensated at least (5 N m, 1.5 Hz), 0.0800 % of mean torque",
+        "validation: true ripple 0.0500 % of mean torque at worst (2 N m, 0.5 Hz), 20.0x below uncompensated",
+        "validation: true ripple 5.00x below uncompensated at least (4 N m, 1.5 Hz), 0.0400 % of mean torque",
+        "validation: measured ripple 0.0500 % of mean torque at worst (2 N m, 0.5 Hz), 20.0x below uncompensated",
+        "validation: measured ripple 5.00x below uncompensated at least (4 N m, 1.5 Hz), 0.0400 % of mean torque"]
+    learned, validated = [(1.0, 0.5), (5.0, 1.5)], [(2.0, 0.5), (4.0, 1.5)]
+    assert final_lines(summary_of(records, learned, validated)) == lines
+    assert final_lines(summary_of(two_point_records(true=False), learned, validated)) == \
+        [line for line in lines if "measured" in line]
+    assert final_lines(summary_of(records, learned, [])) == lines[:4]
+    assert final_lines(summary_of(records[:2], learned[:1], [])) == [lines[0], lines[2]]  # one point: one line
+    assert final_lines({"points": []}) == final_lines({}) == []
+
+
+def test_the_final_lines_of_a_campaign_give_its_worst_point_against_the_floors():
     records = campaign_records()
-    worse = dataclasses.replace(records[-1], measured=ripple(0.05, 1e-3), reduction_factor=0.5)
-    assert final_lines({"validation": validation_json([*records[:-1], worse])}) == [
-        "validation: true ripple 0.100 % of mean torque, 1195x below uncompensated",
-        "validation: measured ripple 5.00 % of mean torque, 0.500x below uncompensated"]
+    summary = summary_of(records, LEARNED, VALIDATED)
+    summary["points"] = [{**p, "floor_pp_measured": p["ripple_pp_measured"] / 2, "floor_pp_true": p["ripple_pp_true"]}
+                         for p in summary["points"]]
+    worst_learned, worst_validated = final_lines(summary)[0], [line for line in final_lines(summary)
+                                                               if line.startswith("validation: true")][0]
+    assert worst_learned == ("learned: true ripple 0.0800 % of mean torque at worst (1 N m, 0.5 Hz), 2988x below "
+                             "uncompensated; each point 1.00-1.00x its floor")
+    assert worst_validated == ("validation: true ripple 0.100 % of mean torque at worst (2 N m, 0.5 Hz), 1195x below "
+                               "uncompensated; each point 1.00-1.00x its floor")
 
 
 def test_summary_json_units_cover_every_number_of_a_trial_a_validation_point_and_the_compensation():

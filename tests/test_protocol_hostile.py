@@ -340,15 +340,27 @@ def test_a_second_client_gets_busy_while_the_first_controls_the_target(emulator,
     assert run_trial(connect(server), 1) == 4  # the next client takes control once the first has gone
 
 
-def test_connections_beyond_the_bound_get_busy_at_once(emulator, connect):
-    server = emulator(max_connections=2)
+def test_connections_beyond_the_bound_get_busy_at_once_when_every_slot_is_past_its_hello(emulator, connect):
+    server = emulator(max_connections=1)
     controller = connect(server)
-    connect(server, hello=False)
     extra = [connect(server, hello=False) for _ in range(20)]
     for channel in extra:
-        expect_error(channel, ErrorCode.BUSY, "this target serves at most 2 connections")
+        expect_error(channel, ErrorCode.BUSY, "^all 1 connections this target serves are past their HELLO$")
         assert closed_by_the_target(channel)
     assert run_trial(controller, 1) == 4
+
+
+def test_half_open_connections_give_their_slots_up_to_a_client_that_shakes_hands(emulator, connect):
+    """Issue 34, item 13: limit + 2 connections that sent two bytes and stalled held every slot (until their
+    frame timeout), and a real client then got BUSY. A newcomer now takes the oldest such slot."""
+    server = emulator(max_connections=4)
+    half_open = [connect(server, hello=False) for _ in range(server.max_connections + 2)]
+    for channel in half_open:
+        channel.send_bytes(b"IL")
+    with RemoteBackend(server.address, connect_timeout_s=WAIT_S, read_timeout_s=WAIT_S, retries=0) as backend:
+        trial = backend.run_trial(REQUEST)
+    assert np.array_equal(trial.torque_nm, honest_trial(REQUEST).torque_nm)
+    assert all(closed_by_the_target(channel) for channel in half_open[:3])  # the oldest three gave way
 
 
 @pytest.mark.parametrize("seed, code, detail", [

@@ -7,6 +7,7 @@ every socket read has a short timeout, so no test can hang.
 from __future__ import annotations
 
 import dataclasses
+import re
 import select
 import signal
 import socket
@@ -310,6 +311,61 @@ def test_an_unreachable_target_is_a_clear_error(remote):
     with pytest.raises(BackendError, match=rf"^handshake with the bench target on 127.0.0.1:{port}: gave up after "
                                            r"2 attempts; last failure: ConnectionRefusedError"):
         backend.describe()
+
+
+def _closed_port(request) -> int:
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind((HOST, 0))
+        return probe.getsockname()[1]
+
+
+def _peer(request, answer: bytes | None) -> int:
+    """A TCP server on 127.0.0.1 that is no bench: it answers every connection's first bytes with ``answer`` and
+    closes it, or (None) never says anything; stopped when the test ends."""
+    listener = socket.create_server((HOST, 0))
+    listener.settimeout(0.05)
+    stop, held = threading.Event(), []
+
+    def serve() -> None:
+        with listener:
+            while not stop.is_set():
+                try:
+                    conn, _ = listener.accept()
+                except TimeoutError:
+                    continue
+                held.append(conn)
+                if answer is not None:
+                    conn.settimeout(5.0)
+                    conn.recv(64)
+                    conn.sendall(answer)
+                    conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    request.addfinalizer(lambda: (stop.set(), thread.join(5.0), [c.close() for c in held]))
+    return listener.getsockname()[1]
+
+
+@pytest.mark.parametrize("peer, reason", [
+    (_closed_port, "ConnectionRefusedError: Connection refused"),
+    (lambda request: _peer(request, b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n"),
+     r"bad magic b'HTTP' in a frame header from bench target 127.0.0.1:\d+"),
+    (lambda request: _peer(request, None), r"bench target 127.0.0.1:\d+ sent no complete frame in time"),
+], ids=["closed port", "HTTP server", "silent server"])
+def test_a_failed_handshake_is_one_error_line(request, monkeypatch, caplog, tmp_path, peer, reason):
+    """Issue 34, item 17: ``ilcpmac run --backend remote`` against no bench printed each attempt's warning, then
+    the error: five lines. The command's own backend, with short deadlines and no back-off."""
+    monkeypatch.setattr(RemoteBackend, "from_setup", classmethod(
+        lambda cls, setup: cls(setup.address, connect_timeout_s=1.0, read_timeout_s=0.2, backoff_s=0.0)))
+    address = f"{HOST}:{peer(request)}"
+    caplog.set_level("INFO", logger="ilcpmac.backends.remote")
+    done = CliRunner().invoke(main, ["run", "--backend", "remote", "--address", address, "--out",
+                                     str(tmp_path / "run")])
+    assert done.exit_code == 2
+    assert re.fullmatch(rf"error: handshake with the bench target on {address}: gave up after 4 attempts; last "
+                        rf"failure: {reason}\n", done.output), done.output
+    assert [r.levelname for r in caplog.records if r.name == "ilcpmac.backends.remote"] == ["INFO"] * 4
+    assert not (tmp_path / "run").exists()
 
 
 def test_a_target_that_changes_after_reconnecting_is_refused(emulator, remote, simulator, requests):

@@ -8,8 +8,9 @@ deterministic. It can play each trial back at the pace of a bench (``pace``),
 its DATA frames spread over the trial's time, so that a client sees the
 trial progress. Like a real bench it has one controlling client at a time
 (another gets ERROR BUSY), a bounded number of connections, bounded frames,
-and drops idle or slow clients; whatever the backend raises is answered
-with an ERROR, and it keeps serving.
+and drops idle or slow clients; a connection still before its HELLO gives its
+slot up to a newcomer, so that half-open clients cannot lock the others out.
+Whatever the backend raises is answered with an ERROR, and it keeps serving.
 """
 
 from __future__ import annotations
@@ -160,7 +161,9 @@ class BenchEmulator:
         byte, and the client must take each frame sent to it within it;
         otherwise it is disconnected.
     max_connections : int
-        Connections open at once; one more is answered ERROR BUSY and closed.
+        Connections open at once. When all are open, a new connection takes the slot of the oldest one
+        that has not sent its HELLO yet (which is closed); with none such, it is answered ERROR BUSY and
+        closed.
     max_trial_samples : int
         Largest trial (revolutions x counts_per_rev) run; a larger request
         is refused with LIMIT_EXCEEDED.
@@ -198,6 +201,8 @@ class BenchEmulator:
         self._stopping = threading.Event()
         self._generation = 0
         self._channels: set[Channel] = set()
+        #: the open connections whose HELLO has not arrived, oldest first (a dict as an ordered set)
+        self._handshaking: dict[Channel, None] = {}
         self._controller: Channel | None = None
         self._threads: set[threading.Thread] = set()
         self._accept_thread: threading.Thread | None = None
@@ -272,14 +277,24 @@ class BenchEmulator:
                 thread = threading.Thread(target=self._serve, args=(channel,), name="emulator-client",
                                           daemon=True)
                 with self._lock:
+                    evicted = None
+                    if len(self._channels) >= self.max_connections and self._handshaking:
+                        evicted = next(iter(self._handshaking))
+                        del self._handshaking[evicted]
+                        self._channels.discard(evicted)
                     full = len(self._channels) >= self.max_connections
                     if not full:
                         self._channels.add(channel)
+                        self._handshaking[channel] = None
                         self._threads.add(thread)
+                if evicted is not None:
+                    log.warning("%s dropped before its HELLO: %s needs its slot", evicted.peer, channel.peer)
+                    evicted.shutdown()  # its thread closes it
                 if full:
                     log.warning("%s refused: %d connections open", channel.peer, self.max_connections)
                     self._send_error(channel, ErrorCode.BUSY, 0,
-                                     f"this target serves at most {self.max_connections} connections")
+                                     f"all {self.max_connections} connections this target serves are past their "
+                                     "HELLO")
                     channel.close()
                     continue
                 thread.start()
@@ -303,8 +318,10 @@ class BenchEmulator:
     # -------------------------------------------------------- one client
 
     def _take_control(self, channel: Channel) -> bool:
-        """Make ``channel`` the controlling client, unless another one is still connected."""
+        """Make ``channel``, whose HELLO has arrived, the controlling client, unless another one is still
+        connected; either way no newcomer takes its slot any more."""
         with self._lock:
+            self._handshaking.pop(channel, None)
             current = self._controller
             if current is not None and not current.peer_closed():
                 return False
@@ -350,6 +367,7 @@ class BenchEmulator:
                 if self._controller is channel:
                     self._controller = None
                 self._channels.discard(channel)
+                self._handshaking.pop(channel, None)
                 self._threads.discard(threading.current_thread())
             channel.close()
             log.info("%s disconnected", channel.peer)

@@ -174,8 +174,9 @@ class RemoteBackend:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def _with_retries(self, what: str, attempt: Callable[[], T]) -> T:
-        """Call ``attempt()`` until it succeeds, retrying transport failures with back-off."""
+    def _with_retries(self, what: str, attempt: Callable[[], T], level: int = logging.WARNING) -> T:
+        """Call ``attempt()`` until it succeeds, retrying transport failures with back-off; each failed attempt
+        logged at ``level``, the last failure raised in one line."""
         tries = self.retries + 1
         for k in range(tries):
             if k:
@@ -191,8 +192,8 @@ class RemoteBackend:
             except OSError as e:
                 self.close()
                 last = e
-            log.warning("%s on %s: attempt %d of %d failed (%s)", what, self.address, k + 1, tries,
-                        self._reason(last))
+            log.log(level, "%s on %s: attempt %d of %d failed (%s)", what, self.address, k + 1, tries,
+                    self._reason(last))
         raise BackendError(f"{what} on {self.address}: gave up after {tries} attempts; "
                            f"last failure: {self._reason(last)}") from None
 
@@ -207,9 +208,13 @@ class RemoteBackend:
     # -------------------------------------------------------- Backend
 
     def describe(self) -> BenchDescription:
-        """The target's motor, back-EMF table, calibration and limits (from the handshake)."""
+        """The target's motor, back-EMF table, calibration and limits (from the handshake).
+
+        Its attempts are logged at INFO only: a handshake that fails (no bench at the address, a closed port, a
+        server that speaks something else or nothing) is the error's one line, and one that succeeds after a
+        retry (a bench booting) needs no warning."""
         if self._description is None:
-            self._with_retries("handshake with the bench target", self._connect)
+            self._with_retries("handshake with the bench target", self._connect, logging.INFO)
         assert self._description is not None, "a successful handshake records the description"
         return self._description
 

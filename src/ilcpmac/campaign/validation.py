@@ -14,10 +14,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ilcpmac.campaign.record import Point, TrialRecord
+from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.compensation import FadeOut
 
-__all__ = ["PointResult", "fade_out", "point_results"]
+__all__ = ["PointResult", "fade_out", "point_results", "results_of"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,13 @@ class PointResult:
         """Whether the compensation leaves at least as much measured peak-to-peak ripple as none."""
         return self.after.measured_ripple.pp >= self.before.measured_ripple.pp
 
+    @property
+    def reduction(self) -> float:
+        """The uncompensated trial's measured peak-to-peak ripple over the compensated one's (inf where that is
+        0)."""
+        after = self.after.measured_ripple.pp
+        return self.before.measured_ripple.pp / after if after > 0 else math.inf
+
     def to_json(self) -> dict:
         """Its object in summary.json's ``validation`` list (ripple as fractions of the mean torque)."""
         out = {"torque_setpoint": self.point[0], "speed_setpoint": self.point[1], "learned": self.learned,
@@ -55,6 +62,17 @@ class PointResult:
                 out[key] = getattr(self.after, key)
         out["worse_than_uncompensated"] = self.worse
         return out
+
+    @classmethod
+    def from_json(cls, data: dict, trials: dict[int, TrialRecord]) -> PointResult:
+        """The result `to_json` wrote, its two trials taken from ``trials`` (by index); `ValueError` naming the key
+        of a trial that is not among them."""
+        pair = []
+        for key in ("uncompensated_trial", "compensated_trial"):
+            if (trial := trials.get(data[key])) is None:
+                raise ValueError(f"{key} {data[key]!r} is not a trial of the summary")
+            pair.append(trial)
+        return cls((float(data["torque_setpoint"]), float(data["speed_setpoint"])), bool(data["learned"]), *pair)
 
 
 def _pair(records: list[TrialRecord], point: Point, roles: tuple[str, ...]) -> tuple | None:
@@ -74,6 +92,14 @@ def point_results(records: list[TrialRecord], learned: list[Point], validated: l
             if pair is not None:
                 out.append(PointResult(point, is_learned, *pair))
     return out
+
+
+def results_of(summary: dict) -> list[PointResult]:
+    """The results of summary.json ``summary``'s ``points``, learned points first (`PointResult.from_json`, with the
+    trials of its ``trials``: `records_of`)."""
+    points = summary.get("points", [])
+    trials = {r.index: r for r in records_of(summary)} if points else {}
+    return [PointResult.from_json(p, trials) for p in points]
 
 
 def fade_out(results: list[PointResult]) -> FadeOut:

@@ -49,7 +49,8 @@ _FAULT_HELP = "N: on trial N only; N+: on trial N and every later one (trials co
               type=click.FloatRange(min=0, min_open=True),
               help="Disconnect a client that takes longer to send a frame, or to take one sent to it, s.")
 @click.option("--max-connections", default=4, show_default=True, type=click.IntRange(min=1),
-              help="Connections open at once; more are answered ERROR BUSY and closed.")
+              help="Connections open at once; a new one takes the slot of the oldest still before its HELLO "
+                   "(closed), or, with none such, is answered ERROR BUSY and closed.")
 @click.option("--pace", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Play each trial back at this many times a bench's speed (1: as a bench records it, so a "
                    "client shows its progress) [default: as fast as the client takes it].")

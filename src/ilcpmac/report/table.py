@@ -14,9 +14,9 @@ from dataclasses import dataclass
 from rich.console import JustifyMethod
 from rich.table import Table
 
-from ilcpmac.campaign.floors import PointFloor
+from ilcpmac.campaign.floors import PointFloor, floors_of
 from ilcpmac.campaign.record import Point, TrialRecord
-from ilcpmac.campaign.validation import point_results
+from ilcpmac.campaign.validation import PointResult, point_results, results_of
 
 __all__ = ["FINAL_TITLE", "SOURCE_CAPTIONS", "SUMMARY_TITLE", "final_lines", "significant", "summary_table",
            "trials_table"]
@@ -184,31 +184,45 @@ def _floor(floor: PointFloor | None, kind: str) -> str:
 
 
 #: the line above `final_lines`
-FINAL_TITLE = "final ripple peak-to-peak, the worst over the learned and the validation points:"
+FINAL_TITLE = "final ripple peak-to-peak, each figure beside its point:"
+
+
+def _at(point: Point) -> str:
+    return f"{point[0]:g} N m, {point[1]:g} Hz"
+
+
+def _ripple_lines(where: str, kind: str, results: list[PointResult], floors: dict[Point, PointFloor]) -> list[str]:
+    """The final lines of one set of points and kind of ripple: the worst ripple with its point and that point's
+    reduction, the least reduction with its point and its ripple (where another point has it), and every point's
+    ripple over its floor."""
+    factor = "reduction_factor_true" if kind == "true" else "reduction_factor"
+    ripple = {r.point: pp.pp for r in results if (pp := r.after.figures(kind)) is not None}
+    if not ripple:
+        return []
+    reduction = {r.point: f for r in results if r.point in ripple and (f := getattr(r.after, factor)) is not None}
+    worst = max(ripple, key=ripple.__getitem__)
+    words = f"{where}: {kind} ripple {significant(100 * ripple[worst])} % of mean torque at worst ({_at(worst)})"
+    if worst in reduction:
+        words += f", {significant(reduction[worst])}x below uncompensated"
+    ratios = [ripple[p] / below for p in ripple if p in floors and (below := floors[p].pp(kind)) is not None
+              and below > 0]
+    if ratios:
+        words += f"; each point {significant(min(ratios))}-{significant(max(ratios))}x its floor"
+    lines = [words]
+    least = min(reduction, key=reduction.__getitem__, default=worst)
+    if least != worst:
+        lines.append(f"{where}: {kind} ripple {significant(reduction[least])}x below uncompensated at least "
+                     f"({_at(least)}), {significant(100 * ripple[least])} % of mean torque")
+    return lines
 
 
 def final_lines(summary: dict) -> list[str]:
-    """summary.json's ``final`` and ``validation`` in words, one line per kind of peak-to-peak ripple (true,
-    then measured) and set of points; `FINAL_TITLE` heads them."""
-    validation = summary.get("validation", [])
-    worst = {f"ripple_pp_{kind}": max(v[f"ripple_pp_{kind}"] for v in validation)
-             for kind in ("true", "measured") if validation and all(f"ripple_pp_{kind}" in v for v in validation)}
-    worst |= {factor: min(v[factor] for v in validation) for factor in ("reduction_factor", "reduction_factor_true")
-              if validation and all(factor in v for v in validation)}
-    lines = []
-    for where, figures in (("learned", summary.get("final", {})), ("validation", worst)):
-        for kind, factor in (("true", "reduction_factor_true"), ("measured", "reduction_factor")):
-            if f"ripple_pp_{kind}" not in figures:
-                continue
-            words = f"{where}: {kind} ripple {significant(100 * figures[f'ripple_pp_{kind}'])} % of mean torque"
-            if factor in figures:
-                words += f", {significant(figures[factor])}x below uncompensated"
-            ratios = [p[f"ripple_pp_{kind}"] / below for p in summary.get("points", [])
-                      if (floor := PointFloor.from_json(p)) is not None and floor.learned == (where == "learned")
-                      and (below := floor.pp(kind)) is not None and below > 0]
-            if ratios:
-                words += f"; {significant(min(ratios))}-{significant(max(ratios))}x its floor"
-            lines.append(words)
+    """summary.json's points in words (`results_of`, `floors_of`): per set of points (learned, then validation)
+    and kind of peak-to-peak ripple (true, then measured) `_ripple_lines`, each figure beside the point it belongs
+    to; then the motor time per phase. `FINAL_TITLE` heads them."""
+    results, floors = results_of(summary), floors_of(summary)
+    lines = [line for where, learned in (("learned", True), ("validation", False)) for kind in ("true", "measured")
+             for line in _ripple_lines(where, kind, [r for r in results if r.learned == learned], floors)]
     motor = summary.get("motor_time_s")
     if motor:
         phases = ", ".join(f"{phase} {t / 60:.1f}" for phase, t in motor.items() if phase != "all")
