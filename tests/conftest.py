@@ -144,3 +144,23 @@ def quick_emulator_stop(monkeypatch) -> None:
     """Bench emulators started in the test check for a stop (or a restart) every 10 ms instead of 100 ms
     (ilcpmac.backends.emulator._POLL_S, their listener's accept timeout): each stop() waited up to 0.1 s."""
     monkeypatch.setattr("ilcpmac.backends.emulator._POLL_S", 0.01)
+
+
+@pytest.fixture(scope="session")
+def limits_bench(small_model):
+    """The small seed bench under the default [limits] (backend, description, identification from the truth,
+    limits, a request at 3 N m, 0.75 Hz)."""
+    from ilcpmac.backends.base import BenchLimits
+    from ilcpmac.backends.simulated import SimulatorBackend
+    from ilcpmac.config import LimitSettings
+    from ilcpmac.pipeline.safety import SafetyLimits
+    from ilcpmac.sim.bench import truth_dict
+    from ilcpmac.stages.base import Identified
+
+    backend = SimulatorBackend(small_model, BenchLimits(30.0, 8.0, 1.5))
+    description = backend.describe()
+    cpr = description.motor.counts_per_rev
+    base = TrialRequest(3.0, 0.75, 2, np.zeros(cpr), np.zeros(cpr), description.calibration, seed=3)
+    identified = Identified.from_result(truth_dict(backend.simulator, base.calibration), description.calibration)
+    limits = SafetyLimits.of_campaign(LimitSettings(), description.limits, 1)
+    return backend, description, identified, limits, base

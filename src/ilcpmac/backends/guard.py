@@ -5,13 +5,16 @@ from __future__ import annotations
 from ilcpmac.backends.base import Backend, ProgressCallback, report_progress_to
 from ilcpmac.core.errors import SafetyError
 from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest
-from ilcpmac.pipeline.safety import SafetyLimits, request_violation
+from ilcpmac.pipeline.safety import MalformedRequest, SafetyLimits, limit_violation, owned_request
 
 __all__ = ["LimitGuard"]
 
 
 class LimitGuard:
-    """A backend (the whole `Backend` protocol) that passes on only the requests `request_violation` accepts.
+    """A backend (the whole `Backend` protocol) that passes on only requests within the limits, and of each only
+    the copy it checked: `owned_request` copies the request into values the host owns, `limit_violation` checks
+    that copy, and the backend gets exactly it (nothing the request's maker still holds, or whose class lies to a
+    comparison, reaches the bench).
 
     The campaign wraps whatever backend it is given in one, so no phase can bypass the limits. It forwards
     ``set_progress`` to the backend, which reports nothing if it cannot (`report_progress_to`).
@@ -42,11 +45,15 @@ class LimitGuard:
         return self.description
 
     def run_trial(self, request: TrialRequest) -> TrialData:
-        violation = request_violation(request, self.description, self.limits, self.truth)
-        if violation is not None:
-            raise SafetyError(f"trial at {request.torque_setpoint_nm!r} N m, {request.speed_setpoint_hz!r} Hz "
-                              f"refused before it reached the backend: {violation.message}")
-        return self.backend.run_trial(request)
+        try:
+            owned = owned_request(request, self.description.motor.counts_per_rev)
+        except MalformedRequest as e:
+            raise SafetyError(f"a trial refused before it reached the backend: {e}") from None
+        why = limit_violation(owned, self.description, self.limits, self.truth)
+        if why is not None:
+            raise SafetyError(f"trial at {owned.torque_setpoint_nm!r} N m, {owned.speed_setpoint_hz!r} Hz "
+                              f"refused before it reached the backend: {why}")
+        return self.backend.run_trial(owned)
 
     def set_progress(self, callback: ProgressCallback | None) -> None:
         report_progress_to(self.backend, callback)

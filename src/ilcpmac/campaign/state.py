@@ -16,7 +16,6 @@ import numpy as np
 from ilcpmac.campaign.events import GuardEvent
 from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.core.records import SensorCalibration, TrialRequest
-from ilcpmac.stages.base import Stage
 
 __all__ = ["LearnedPoint", "TrialState", "learned_from_json", "learned_json"]
 
@@ -97,14 +96,13 @@ class LearnedPoint:
     tables_nm: dict[str, np.ndarray]
 
     @classmethod
-    def of(cls, trial: int, stages: list[Stage], request: TrialRequest) -> LearnedPoint:
-        """What each of ``stages``, in order, adds to the feed-forward of ``request`` (one at the point) as it
-        passes through them."""
+    def of(cls, trial: int, request: TrialRequest, shaped: list[tuple[str, TrialRequest]]) -> LearnedPoint:
+        """What each stage adds to the feed-forward of ``request`` (one at the point) as it passes through them:
+        ``shaped``, each stage's name and answer in turn (`Pipeline.stage_by_stage`)."""
         tables = {}
-        for stage in stages:
-            shaped = stage.shape(request)
-            tables[stage.name] = shaped.feedforward_nm - request.feedforward_nm
-            request = shaped
+        for name, answer in shaped:
+            tables[name] = answer.feedforward_nm - request.feedforward_nm
+            request = answer
         return cls(trial, tables)
 
     def to_json(self) -> dict:

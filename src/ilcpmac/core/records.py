@@ -38,11 +38,18 @@ CURRENTS_FROM_PHASES, CURRENTS_FROM_I_Q = "phases", "from_i_q"
 MAX_CALIBRATION = 1e9
 
 
+def immutable(array: np.ndarray) -> np.ndarray:
+    """A copy of ``array`` in memory nothing can write: its buffer is an immutable bytes object, so that even
+    ``setflags(write=True)``, on it or on a view of it, is refused. What the host shares with a stage or sends to a
+    backend cannot be changed in place by whoever else holds it (docs/safety.md)."""
+    contiguous = np.asarray(array, order="C")
+    return np.frombuffer(contiguous.tobytes(), contiguous.dtype).reshape(contiguous.shape)
+
+
 def frozen(values: ArrayLike) -> np.ndarray:
-    """A read-only float copy of ``values``: what is shared with every stage cannot be changed in place."""
-    array = np.array(values, float)
-    array.setflags(write=False)
-    return array
+    """An `immutable` float copy of ``values``: what is shared with every stage cannot be changed in place."""
+    return immutable(np.asarray(values, float))
+
 
 @dataclass(frozen=True)
 class MotorInfo:

@@ -14,8 +14,10 @@ torque in N m): the fit divides out its shape per harmonic and keeps its scalar 
 which the stages see as `Frame.delta`. The stages never know which source measured the torque.
 
 Every call into a stage goes through `BoundedStage`: in a thread of the stages' for at most `STAGE_CALL_S`, given
-read-only views of the trial and request (a stage cannot change the data it learns from), its columns and its
-state checked (`MAX_COLUMNS`, `MAX_STATE_BYTES`). Whatever else it raises, SystemExit included, and a call that
+immutable copies of the trial and request (a stage cannot change the data it learns from, nor what is persisted;
+it sees what a bench measures, not the simulator's truth: `shared_trial`), its columns and its state checked; what
+it returns is copied into values the pipeline owns before anything checks it (`Pipeline.checked`)
+(`MAX_COLUMNS`, `MAX_STATE_BYTES`). Whatever else it raises, SystemExit included, and a call that
 does not return in time are a `StageError` naming the stage (docs/writing-a-stage.md, "What the pipeline bounds").
 """
 
@@ -24,25 +26,26 @@ from __future__ import annotations
 import math
 import queue
 import threading
-from dataclasses import fields, replace
+from dataclasses import replace
 from typing import Any, Callable, TypeVar
 
 import numpy as np
 
 from ilcpmac.core.errors import IlcpmacError, StageError
-from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest, immutable
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.regression import Regression
 from ilcpmac.pipeline.safety import (
     FlowingCurrent,
+    MalformedRequest,
     SafetyError,
     SafetyLimits,
     calibration_violation,
     clip_to_trust_region,
     enforce_limits,
     extent_violation,
-    form_violation,
     identified_truth,
+    owned_request,
     torque_violation,
 )
 from ilcpmac.signals.harmonics import harmonic_amplitudes
@@ -128,44 +131,28 @@ def built_stages(names: list[str], setups: dict[str, StageSetup],
     return [bounded(name, "its factory", build_stages, [name], {name: setups[name]}, extra)[0] for name in names]
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
-    """A view of ``array`` that cannot be written through."""
-    view = array.view()
-    view.setflags(write=False)
-    return view
-
-
-def _readonly_request(request: TrialRequest) -> TrialRequest:
-    """``request`` with read-only views of its tables and calibration."""
+def _shared_request(request: TrialRequest) -> TrialRequest:
+    """``request`` as a stage is given it: `immutable` copies of its tables and calibration (a stage cannot change
+    the request it shapes from, nor what the pipeline or another stage holds)."""
     cal = request.calibration
-    return replace(request, feedforward_nm=_readonly(request.feedforward_nm),
-                   excitation_nm=_readonly(request.excitation_nm),
-                   calibration=SensorCalibration(_readonly(cal.current_scale), _readonly(cal.current_offset),
+    return replace(request, feedforward_nm=immutable(request.feedforward_nm),
+                   excitation_nm=immutable(request.excitation_nm),
+                   calibration=SensorCalibration(immutable(cal.current_scale), immutable(cal.current_offset),
                                                  cal.torque_gain))
 
 
-def _thawed(request: Any) -> Any:
-    """A stage's output with a writeable copy of each read-only array in it (the views of the request it was given,
-    or its setup's): what follows, the simulator's kernel included, takes a request's arrays writeable. Anything but
-    a `TrialRequest` as it is (`Pipeline.checked` refuses it)."""
-    if not isinstance(request, TrialRequest):
-        return request
-
-    def own(array: Any) -> Any:
-        return array.copy() if isinstance(array, np.ndarray) and not array.flags.writeable else array
-
-    cal = request.calibration
-    if isinstance(cal, SensorCalibration):
-        cal = replace(cal, current_scale=own(cal.current_scale), current_offset=own(cal.current_offset))
-    return replace(request, feedforward_nm=own(request.feedforward_nm), excitation_nm=own(request.excitation_nm),
-                   calibration=cal)
+#: the columns of a trial a stage sees: what a bench measures; and those it sees as None: the simulator's truth
+SHARED_COLUMNS = ("count", "time_s", "i_ref_a", "torque_nm", "i_meas_a")
+TRUE_COLUMNS = ("torque_true_nm", "i_true_a", "speed_true_rad_s")
 
 
-def _readonly_trial(trial: TrialData) -> TrialData:
-    """``trial`` with read-only views of its columns and its request's."""
-    arrays: dict[str, Any] = {f.name: _readonly(value) for f in fields(trial)
-                              if isinstance(value := getattr(trial, f.name), np.ndarray)}
-    return replace(trial, **arrays, request=None if trial.request is None else _readonly_request(trial.request))
+def shared_trial(trial: TrialData) -> TrialData:
+    """``trial`` as the stages are given it: `immutable` copies of the columns a bench measures (`SHARED_COLUMNS`;
+    the simulator's true columns None) and of its request. Nothing a stage does to it reaches what the campaign
+    analyses, persists or sends; made once per trial, shared by every stage's calls."""
+    columns: dict[str, Any] = dict.fromkeys(TRUE_COLUMNS)
+    columns.update({name: immutable(value) for name in SHARED_COLUMNS if (value := getattr(trial, name)) is not None})
+    return replace(trial, **columns, request=None if trial.request is None else _shared_request(trial.request))
 
 
 def _json_copy(state: Any, stage: str) -> dict:
@@ -226,8 +213,8 @@ def _json_copy(state: Any, stage: str) -> dict:
 
 
 class BoundedStage:
-    """A stage as the pipeline calls it: each call `bounded`, given read-only views of the trial and request,
-    its columns and state checked.
+    """A stage as the pipeline calls it: each call `bounded`, given immutable copies of the trial (`shared_trial`)
+    and request, its columns and state checked.
 
     Parameters
     ----------
@@ -241,8 +228,9 @@ class BoundedStage:
         self.counts_per_rev = counts_per_rev
 
     def columns(self, trial: TrialData) -> np.ndarray | None:
-        """The stage's regressors, checked: real, finite, shape (counts_per_rev, k) with k <= `MAX_COLUMNS`."""
-        table = bounded(self.name, "columns", self.stage.columns, _readonly_trial(trial))
+        """The stage's regressors for ``trial`` (`shared_trial`), checked: real, finite, shape (counts_per_rev, k)
+        with k <= `MAX_COLUMNS`."""
+        table = bounded(self.name, "columns", self.stage.columns, trial)
         if table is None:
             return None
         cpr, name = self.counts_per_rev, self.name
@@ -257,13 +245,14 @@ class BoundedStage:
             raise StageError(f"stage {name!r}: columns returned NaN or infinity")
         return table
 
-    def shape(self, request: TrialRequest) -> TrialRequest:
-        """The stage's request (`Pipeline.checked` checks it), given a read-only ``request``."""
-        return bounded(self.name, "shape", lambda given: _thawed(self.stage.shape(given)), _readonly_request(request))
+    def shape(self, request: TrialRequest) -> Any:
+        """What the stage returns for ``request``, given its `_shared_request` copy (`Pipeline.checked` checks the
+        answer: a stage may return anything)."""
+        return bounded(self.name, "shape", self.stage.shape, _shared_request(request))
 
     def learn(self, trial: TrialData, frame: Frame) -> None:
-        """The stage learns from ``trial``."""
-        bounded(self.name, "learn", self.stage.learn, _readonly_trial(trial), frame)
+        """The stage learns from ``trial`` (`shared_trial`)."""
+        bounded(self.name, "learn", self.stage.learn, trial, frame)
 
     def state(self) -> dict[str, Any]:
         """A copy of the stage's state, checked (`_json_copy`)."""
@@ -312,30 +301,43 @@ class Pipeline:
         self._response = StageSetup(description, identified, max_harmonic).torque_response
 
     def shape(self, request: TrialRequest) -> TrialRequest:
-        """Pass ``request`` through every stage, each output checked (`checked`), then clip the
+        """Pass ``request`` through every stage, each output checked (`stage_by_stage`), then clip the
         feed-forward to the limits (`enforce_limits`)."""
-        for stage in self.bounded:
-            request = self.checked(stage.shape(request), stage.name)
+        shaped = self.stage_by_stage(request)
+        request = shaped[-1][1] if shaped else request
         flowing = FlowingCurrent.at(request.calibration, self._truth)
         return enforce_limits(request, self.description.backemf_nm_per_a, self.limits, flowing)
 
-    def checked(self, request: TrialRequest, stage: str) -> TrialRequest:
-        """Stage ``stage``'s output, its calibration clipped into the trust region.
+    def stage_by_stage(self, request: TrialRequest, notify: bool = True) -> list[tuple[str, TrialRequest]]:
+        """Each stage's name and its answer, checked (`checked`; ``notify``: clipping told), as ``request`` passes
+        through them in turn."""
+        shaped = []
+        for stage in self.bounded:
+            request = self.checked(stage.shape(request), stage.name, notify)
+            shaped.append((stage.name, request))
+        return shaped
+
+    def checked(self, answer: object, stage: str, notify: bool = True) -> TrialRequest:
+        """Stage ``stage``'s answer as a request the pipeline owns (`owned_request`: a copy in plain values, which
+        alone is checked and used), its calibration clipped into the trust region (told to ``notify`` unless
+        ``notify`` is False).
 
         Raises `SafetyError` naming the stage for anything else out of bounds: no request, NaN or
         infinity, a wrong shape, a speed, length or duration beyond the limits, or a set point that
         with its excitation breaks the torque or current limits.
         """
-        if not isinstance(request, TrialRequest):
-            raise SafetyError(f"stage {stage!r} returned {type(request).__name__}, not a TrialRequest")
         cpr = self.description.motor.counts_per_rev
-        why = form_violation(request, cpr) or extent_violation(request, cpr, self.limits)
+        try:
+            request = owned_request(answer, cpr)
+        except MalformedRequest as e:
+            raise SafetyError(f"stage {stage!r}: {e}") from None
+        why = extent_violation(request, cpr, self.limits)
         if why is not None:
             raise SafetyError(f"stage {stage!r}: {why}")
         nominal = self.description.calibration
         calibration = clip_to_trust_region(request.calibration, nominal, self._truth, self.limits)
         if calibration is not request.calibration:
-            if self.notify is not None:
+            if notify and self.notify is not None:
                 self.notify(f"limits: stage {stage!r} set a calibration outside the trust region: "
                             f"{calibration_violation(request.calibration, nominal, self._truth, self.limits)}; "
                             "clipped to the region around the identified sensors")
@@ -359,12 +361,14 @@ class Pipeline:
         u = harmonic_amplitudes(request.feedforward_nm, self.max_harmonic)[1:]
         return np.concatenate([[0.0], self._response(h, speed_hz, request.calibration) * u])
 
-    def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
+    def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None,
+              shared: TrialData | None = None) -> Frame:
         """The joint fit and the measured ripple spectrum of a finished trial.
 
         The fit is of the measured harmonics, their response's shape divided out, less the feed-forward's
         torque through the identified response, gain G^ u (module docstring). ``spectrum``: the trial's
-        measured `TorqueSpectrum` up to H (`TrialAnalysis.measured`), computed here when not given.
+        measured `TorqueSpectrum` up to H (`TrialAnalysis.measured`), computed here when not given; ``shared``:
+        the trial as the stages see it (`shared_trial`), made here when not given.
         """
         cpr = self.description.motor.counts_per_rev
         if spectrum is None:
@@ -379,19 +383,21 @@ class Pipeline:
         mean, variance = true.harmonics_nm * gain, true.variance_nm2 * gain**2
         h = self.claimed_harmonics()
         known = gain * self.delivered_nm(request, speed_hz)[h]
+        shared = shared_trial(trial) if shared is None else shared
         blocks = {s.name: harmonic_amplitudes(table)[h] for s in self.bounded
-                  if (table := s.columns(trial)) is not None}
+                  if (table := s.columns(shared)) is not None}
         regression = Regression(mean[h] - known, variance[h], blocks)
         fitted = {name: regression.block(name) for name in blocks}
-        return Frame({name: Block(_readonly(b.estimate), _readonly(b.information)) for name, b in fitted.items()},
-                     _readonly(true.harmonics_nm), _readonly(true.variance_nm2), gain, speed_hz, learning_gain)
+        return Frame({name: Block(immutable(b.estimate), immutable(b.information)) for name, b in fitted.items()},
+                     immutable(true.harmonics_nm), immutable(true.variance_nm2), gain, speed_hz, learning_gain)
 
     def learn(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None) -> Frame:
-        """Teach every stage from ``trial`` (whose ``request`` must be set); return the frame (`frame`), whose
-        arrays, as the trial's, the stages see read-only."""
-        frame = self.frame(trial, learning_gain, spectrum)
+        """Teach every stage from ``trial`` (whose ``request`` must be set), which they all see as one
+        `shared_trial`; return the frame (`frame`), whose arrays they see immutable too."""
+        shared = shared_trial(trial)
+        frame = self.frame(trial, learning_gain, spectrum, shared)
         for stage in self.bounded:
-            stage.learn(trial, frame)
+            stage.learn(shared, frame)
         return frame
 
     def state(self) -> dict:

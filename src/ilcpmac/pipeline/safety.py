@@ -1,9 +1,11 @@
 """Limits every request obeys, whatever the stages ask: the one check that decides what may reach a backend.
 
-`request_violation` is that check (docs/safety.md): the campaign's `LimitGuard`
-applies it to every request of every phase, the plan check to every planned
-request before the first trial, and the bench protocol (client and emulator)
-to every REQUEST. `enforce_limits` and `clip_to_trust_region` are the two
+`request_violation` is that check (docs/safety.md): on a copy of the request in
+values the host owns (`owned_request`), the form, then the limits
+(`limit_violation`). The campaign's `LimitGuard` checks every request of every
+phase so and sends exactly the copy it checked, the plan check covers every
+planned request before the first trial, and the bench protocol's target every
+REQUEST. `enforce_limits` and `clip_to_trust_region` are the two
 corrections the pipeline applies instead of refusing: the feed-forward and a
 stage's calibration are clipped, everything else out of bounds is an error.
 """
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import operator
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -19,7 +22,7 @@ import numpy as np
 
 from ilcpmac.config import LimitSettings
 from ilcpmac.core.errors import ConfigError, IdentificationError, SafetyError
-from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest
+from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest, immutable
 from ilcpmac.model.tables import current_references, dead_counts
 from ilcpmac.stages.base import Identified
 
@@ -285,39 +288,94 @@ def enforce_limits(request: TrialRequest, backemf_nm_per_a: np.ndarray, limits: 
 # ---------------------------------------------------------------- the check
 
 
-def _is_real(x) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+class MalformedRequest(SafetyError):
+    """No valid request at all: a wrong type or shape, NaN or infinity (`owned_request`)."""
 
 
-def _is_integer(x) -> bool:
-    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+def _what(value: object) -> str:
+    """``value`` for a message: a builtin scalar shown, anything else by its type alone (whose repr may lie, raise
+    or never end)."""
+    return repr(value) if type(value) in (bool, int, float, str, type(None)) else type(value).__name__
 
 
-def form_violation(request: TrialRequest, counts_per_rev: int) -> str | None:
-    """Why ``request`` is no valid request at all (shapes, types, NaN or infinity anywhere), or None."""
-    for name in ("feedforward_nm", "excitation_nm"):
-        table = getattr(request, name)
-        if not isinstance(table, np.ndarray) or table.dtype.kind not in "fiu":
-            return f"{name} must be an array of real numbers, got {type(table).__name__}"
-        if table.shape != (counts_per_rev,):
-            return f"{name} has shape {table.shape}, the bench needs ({counts_per_rev},)"
-        if not np.all(np.isfinite(table)):
-            return f"{name} holds NaN or infinite values"
+def _owned_float(value: object, name: str) -> float:
+    """``value`` as a builtin float, converted once; `MalformedRequest` naming ``name`` for anything but a real
+    number (a bool included)."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool | np.bool_):
+        raise MalformedRequest(f"{name} must be a real number, got {_what(value)}")
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError) as e:
+        raise MalformedRequest(f"{name}: {type(value).__name__} does not convert to a float ({e})") from None
+
+
+def _owned_int(value: object, name: str) -> int:
+    """``value`` as a builtin int, converted once; `MalformedRequest` naming ``name`` for anything but an integer
+    (a bool or a whole float included)."""
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool | np.bool_):
+        raise MalformedRequest(f"{name} must be an integer, got {_what(value)}")
+    try:
+        return int(operator.index(value))  # index() may return an int subclass; int() of one is a builtin int
+    except (TypeError, ValueError, OverflowError) as e:
+        raise MalformedRequest(f"{name}: {type(value).__name__} does not convert to an int ({e})") from None
+
+
+def _owned_table(table: object, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``table`` as an `immutable` float64 copy of ``shape``, finite; `MalformedRequest` naming ``name`` otherwise.
+
+    Read through `numpy.ndarray`'s own view, so that a subclass's methods and attributes are never consulted."""
+    if not isinstance(table, np.ndarray):
+        raise MalformedRequest(f"{name} must be an array of real numbers, got {_what(table)}")
+    plain = np.ndarray.view(table, np.ndarray)
+    if plain.dtype.kind not in "fiu":
+        raise MalformedRequest(f"{name} must be an array of real numbers, got {plain.dtype}")
+    if plain.shape != shape:
+        raise MalformedRequest(f"{name} has shape {plain.shape}, the bench needs {shape}")
+    owned = immutable(np.asarray(plain, np.float64))
+    if not np.isfinite(owned).all():
+        raise MalformedRequest(f"{name} holds NaN or infinite values")
+    return owned
+
+
+def owned_request(request: object, counts_per_rev: int) -> TrialRequest:
+    """``request`` copied once into values the host owns: builtin ``float`` and ``int``, `immutable` float64 tables
+    of ``counts_per_rev`` values (docs/safety.md, "Check what is sent, send what was checked").
+
+    Every check of a request is made on this copy and exactly this copy goes on, so that a value whose class lies
+    to comparisons, or an array its maker changes from another thread, cannot pass as one thing and run as another.
+
+    Raises
+    ------
+    MalformedRequest
+        For no valid request at all: not a `TrialRequest`, a wrong type or shape, NaN or infinity anywhere,
+        revolutions or seed out of range, a speed or calibration that is not positive.
+    """
+    if not isinstance(request, TrialRequest):
+        raise MalformedRequest(f"a request must be a TrialRequest, got {_what(request)}")
     cal = request.calibration
     if not isinstance(cal, SensorCalibration):
-        return f"calibration must be a SensorCalibration, got {type(cal).__name__}"
-    if not (np.all(np.isfinite(cal.current_scale)) and np.all(cal.current_scale > 0)
-            and np.all(np.isfinite(cal.current_offset)) and 0 < cal.torque_gain < math.inf):
-        return "calibration needs finite positive current scales and torque gain, and finite offsets"
-    if not (_is_integer(request.revolutions) and 1 <= request.revolutions < 2**32):
-        return f"revolutions must be 1 to 2^32-1, got {request.revolutions!r}"
-    if not (_is_integer(request.seed) and 0 <= request.seed < 2**32):
-        return f"seed must be a 32-bit unsigned integer, got {request.seed!r}"
-    if not (_is_real(request.torque_setpoint_nm) and math.isfinite(request.torque_setpoint_nm)):
-        return f"torque set point must be finite, got {request.torque_setpoint_nm!r}"
-    if not (_is_real(request.speed_setpoint_hz) and 0 < request.speed_setpoint_hz < math.inf):
-        return f"speed set point must be positive, got {request.speed_setpoint_hz!r} Hz"
-    return None
+        raise MalformedRequest(f"calibration must be a SensorCalibration, got {_what(cal)}")
+    calibration = SensorCalibration(_owned_table(cal.current_scale, "calibration current_scale", (3,)),
+                                    _owned_table(cal.current_offset, "calibration current_offset", (3,)),
+                                    _owned_float(cal.torque_gain, "calibration torque_gain"))
+    if not (np.all(calibration.current_scale > 0) and 0 < calibration.torque_gain < math.inf):
+        raise MalformedRequest("calibration needs finite positive current scales and torque gain, and finite offsets")
+    owned = TrialRequest(
+        torque_setpoint_nm=_owned_float(request.torque_setpoint_nm, "torque set point"),
+        speed_setpoint_hz=_owned_float(request.speed_setpoint_hz, "speed set point"),
+        revolutions=_owned_int(request.revolutions, "revolutions"),
+        feedforward_nm=_owned_table(request.feedforward_nm, "feedforward_nm", (counts_per_rev,)),
+        excitation_nm=_owned_table(request.excitation_nm, "excitation_nm", (counts_per_rev,)),
+        calibration=calibration, seed=_owned_int(request.seed, "seed"))
+    if not 1 <= owned.revolutions < 2**32:
+        raise MalformedRequest(f"revolutions must be 1 to 2^32-1, got {owned.revolutions}")
+    if not 0 <= owned.seed < 2**32:
+        raise MalformedRequest(f"seed must be a 32-bit unsigned integer, got {owned.seed}")
+    if not math.isfinite(owned.torque_setpoint_nm):
+        raise MalformedRequest(f"torque set point must be finite, got {owned.torque_setpoint_nm}")
+    if not 0 < owned.speed_setpoint_hz < math.inf:
+        raise MalformedRequest(f"speed set point must be positive, got {owned.speed_setpoint_hz} Hz")
+    return owned
 
 
 def extent_violation(request: TrialRequest, counts_per_rev: int, limits: SafetyLimits) -> str | None:
@@ -350,22 +408,29 @@ class Violation:
     message: str
 
 
-def request_violation(request: TrialRequest, description: BenchDescription, limits: SafetyLimits,
-                      truth: SensorCalibration | None = None) -> Violation | None:
-    """Why ``request`` must not reach the bench ``description``, or None: the check of every request.
+def limit_violation(owned: TrialRequest, description: BenchDescription, limits: SafetyLimits,
+                    truth: SensorCalibration | None = None) -> str | None:
+    """Why ``owned``, a request as `owned_request` copied it, breaks a limit of the bench ``description``, or None.
 
-    Form (`form_violation`), speed, samples and duration (`extent_violation`), the calibration trust
-    region (`calibration_violation`), the torque reference, the current references and, with the
-    identified true sensors ``truth``, the flowing currents (`torque_violation`).
+    Speed, samples and duration (`extent_violation`), the calibration trust region (`calibration_violation`), the
+    torque reference, the current references and, with the identified true sensors ``truth``, the flowing currents
+    (`torque_violation`).
     """
-    cpr = description.motor.counts_per_rev
-    why = form_violation(request, cpr)
-    if why is not None:
-        return Violation(True, why)
-    flowing = None if truth is None else FlowingCurrent.at(request.calibration, truth)
-    why = (extent_violation(request, cpr, limits)
-           or calibration_violation(request.calibration, description.calibration, truth, limits)
-           or torque_violation(request.torque_reference_nm(), description.backemf_nm_per_a, limits, flowing))
+    flowing = None if truth is None else FlowingCurrent.at(owned.calibration, truth)
+    return (extent_violation(owned, description.motor.counts_per_rev, limits)
+            or calibration_violation(owned.calibration, description.calibration, truth, limits)
+            or torque_violation(owned.torque_reference_nm(), description.backemf_nm_per_a, limits, flowing))
+
+
+def request_violation(request: object, description: BenchDescription, limits: SafetyLimits,
+                      truth: SensorCalibration | None = None) -> Violation | None:
+    """Why ``request`` must not reach the bench ``description``, or None: its form (`owned_request`), then its
+    limits (`limit_violation`) on the owned copy. What sends a request checks and sends that copy (`LimitGuard`)."""
+    try:
+        owned = owned_request(request, description.motor.counts_per_rev)
+    except MalformedRequest as e:
+        return Violation(True, str(e))
+    why = limit_violation(owned, description, limits, truth)
     return None if why is None else Violation(False, why)
 
 
