@@ -80,6 +80,17 @@ def test_the_built_in_backends_are_entry_points_and_implement_the_protocol(seed_
         build_backend("remote", BackendSetup(seed_config))
 
 
+def test_the_simulator_refuses_an_address(seed_config):
+    """Issue 34, item 14: ``ilcpmac run --address 127.0.0.1:5999`` without ``--backend remote`` ran the simulated
+    campaign, exit 0, while the bench engineer believed the motor ran."""
+    with pytest.raises(ConfigError, match=r"^--address 127.0.0.1:5999: the sim backend runs the simulator in this "
+                                          r"process and takes no address; for a bench at that address give "
+                                          r"--backend remote"):
+        build_backend("sim", BackendSetup(seed_config, "127.0.0.1:5999"))
+    done = CliRunner().invoke(main, ["run", "--address", "127.0.0.1:5999", "--out", "unused"])
+    assert done.exit_code == 2 and done.output.count("error:") == 1 and "--backend remote" in done.output
+
+
 def test_ilcpmac_backends_lists_each_with_its_description(plugin):
     done = CliRunner().invoke(main, ["backends"], env={"COLUMNS": "200"})
     assert done.exit_code == 0, done.output

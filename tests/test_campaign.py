@@ -82,6 +82,16 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
     assert (validated["torque_setpoint"], validated["speed_setpoint"]) == (3.0, 0.9)
     assert validated["reduction_factor_true"] > 20 and not validated["worse_than_uncompensated"]
     assert summary["compensation"] == {"file": "compensation.json", "fade_full_hz": None, "fade_zero_hz": None}
+    assert summary["complete"] is True
+    # issue 34, item 17: resumed once ended, it says there is nothing to do and changes no file (it rewrote them)
+    files = {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in (tmp_path / "run").rglob("*") if p.is_file()
+             and not p.name.startswith(".lock")}
+    events = Quiet()
+    assert run_campaign(campaign_config, tmp_path / "run", resume=True, events=events) == summary
+    run = tmp_path / "run"
+    assert [m.text for m in events.messages] == [f"resume: {len(records)} trials already complete in {run}",
+                                                 f"the run in {run} had ended: nothing to do, no file changed"]
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in files} == files
 
 
 # in the parallel grid; within the compensation round; at the start of and within a learning round, whose

@@ -57,7 +57,8 @@ def test_a_script_runs_a_campaign_with_one_call(write_config, tmp_path):
 
 def test_a_resume_takes_no_config_and_a_failed_start_leaves_no_directory(write_config, tmp_path):
     config = write_config(SHORT_CAMPAIGN)
-    with pytest.raises(ConfigError, match="--resume continues a run with its own config"):
+    with pytest.raises(ConfigError, match="--resume continues a run with the config, seed, trials and budget it began "
+                                          "with: give no CONFIG"):
         ilcpmac.campaign.run(config, resume=tmp_path / "run")
     with pytest.raises(ConfigError, match="--backend: no backend named 'nowhere'"):
         ilcpmac.campaign.run(config, out=tmp_path / "new", backend="nowhere")

@@ -149,20 +149,24 @@ def test_a_changed_run_directory_is_one_line_naming_the_file_at_resume(config, t
     assert done.output.startswith("error: ") and run.name in done.output
 
 
-def test_an_untouched_run_directory_and_one_made_before_digests_resume_to_the_same_end(config, tmp_path):
-    """Digests change nothing of what a run learns; a run made before them (no digests, states/run.json
-    without "sealed") resumes unchecked, as before."""
+def test_an_untouched_run_directory_resumes_to_the_same_end_and_one_without_its_seal_is_refused(config, tmp_path):
+    """Digests change nothing of what a run learns; a run without its seal (no digests, states/run.json without
+    "sealed": made before them, or unsealed by hand) is refused before the backend is built (issue 34, item 4:
+    it resumed unchecked, and then an edited trial, state or seed was accepted)."""
     reference = campaign.run(config, out=tmp_path / "reference", seed=7).summary
-    for name, old in (("untouched", False), ("old", True)):
-        run = stopped(config, tmp_path / name, 9)
-        if old:
-            for path in [run / "states" / "run.json", run / "states" / "identification.json",
-                         *(run / "states").glob("trial_*.json")]:
-                data = json.loads(path.read_text())
-                for key in ("sealed", "sha256", "trial_sha256", "trials_sha256"):
-                    data.pop(key, None)
-                path.write_text(json.dumps(data))
-        assert campaign.run(resume=run, backend=Bench(config)).summary == reference, name
+    run = stopped(config, tmp_path / "untouched", 9)
+    assert campaign.run(resume=run, backend=Bench(config)).summary == reference
+    run = stopped(config, tmp_path / "old", 9)
+    for path in [run / "states" / "run.json", run / "states" / "identification.json",
+                 *(run / "states").glob("trial_*.json")]:
+        data = json.loads(path.read_text())
+        for key in ("sealed", "sha256", "trial_sha256", "trials_sha256", "run_id", "config_sha256", "index"):
+            data.pop(key, None)
+        path.write_text(json.dumps(data))
+    bench = Bench(config)
+    with pytest.raises(RunDirError, match=r"states/run.json: holds no seal"):
+        campaign.run(resume=run, backend=bench)
+    assert bench.calls == 0
 
 
 @pytest.mark.parametrize("unseal", ["resealed", "run.json deleted", "every digest stripped"])
@@ -192,6 +196,7 @@ def test_an_identification_edited_behind_the_digests_is_refused_on_resume(config
                 state.write_text(json.dumps(saved))
     bench = Bench(config)
     with pytest.raises(RunDirError, match=r"states/(identification.json: (epsilon .* is not what the grid trials on "
-                                          r"disk give|does not match its sha256 digest)|run.json: missing)"):
+                                          r"disk give|does not match its sha256 digest)|run.json: missing|run.json: "
+                                          r"holds no seal)"):
         campaign.run(resume=run, backend=bench)
     assert bench.calls == 0

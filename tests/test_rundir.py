@@ -9,6 +9,7 @@ import dataclasses
 import errno
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -420,27 +421,29 @@ def test_trials_are_parquet_and_hold_what_the_campaign_reads_back(tmp_path):
     assert back.i_meas_a is None
 
 
-def test_a_run_written_with_csv_trials_resumes_and_goes_on_in_parquet(tmp_path):
+def test_a_run_of_an_earlier_release_is_read_but_not_resumed(tmp_path):
+    """A run begun before Parquet (CSV trials) was made before digests and seals too: nothing tells its files from
+    another run's, so it is not resumed (one line naming states/run.json); its trials still read."""
     path = new_run(tmp_path / "run", trials=2)
     before = read_bench(path)
     for i in (1, 2):
         (path / trial_file(i)).unlink()
         write_trial_csv(path / trial_file(i, ".csv"), before.trials[i - 1])
     (path / "bench.toml").write_text((path / "bench.toml").read_text().replace(".parquet", ".csv"))
-    (path / "states" / "run.json").write_text("{}")  # a run begun before Parquet was made before digests too
+    (path / "states" / "run.json").write_text("{}")
     for state in (path / "states").glob("trial_*.json"):
         saved = json.loads(state.read_text())
-        for key in ("sha256", "trial_sha256"):
+        for key in ("sha256", "trial_sha256", "run_id", "index"):
             saved.pop(key, None)
         state.write_text(json.dumps(saved))
-    run = RunDir.resume(path, DESCRIPTION)
-    assert run.completed == 2
-    add(run, 3.0)
-    run.close()
+    with pytest.raises(RunDirError, match=r"states/run.json: holds no seal \(a run made by an earlier release, or "
+                                          r"its seal removed\); only a sealed run resumes"):
+        RunDir.resume(path, DESCRIPTION)
     after = read_bench(path)
-    assert after.trial_files == ("trial_001.csv", "trial_002.csv", "trial_003.parquet")
+    assert after.trial_files == ("trial_001.csv", "trial_002.csv")
     for a, b in zip(before.trials, after.trials):
         np.testing.assert_array_equal(a.torque_nm, b.torque_nm)
+    assert RunFiles(path).read_state(2).record.role == "grid"  # its states too, unchecked
 
 
 # ---------------------------------------------------------------- what a commit writes, cheaply (issue 10)
@@ -486,12 +489,16 @@ def test_a_typed_state_writes_the_same_bytes_it_reads(tmp_path):
     run.add_trial(trial(2.0), state, {})
     run.close()
     written = (path / "states" / "trial_001.json").read_bytes()
-    assert list(json.loads(written)) == ["record", "pipeline", "gains", "guard", "request", "trial_sha256", "sha256"]
+    assert list(json.loads(written)) == ["record", "pipeline", "gains", "guard", "request", "trial_sha256", "run_id",
+                                         "index", "sha256"]
     again = new_run(tmp_path / "again")
     run = RunDir.resume(again, DESCRIPTION)
     run.add_trial(trial(2.0), RunFiles(path).read_state(1), {})
     run.close()
-    assert (again / "states" / "trial_001.json").read_bytes() == written
+    rewritten = (again / "states" / "trial_001.json").read_bytes()
+    ids = [json.loads(text)["run_id"] for text in (written, rewritten)]  # each run's own, and its digest with it
+    assert ids[0] != ids[1] and re.sub(rb'"(run_id|sha256)": "[0-9a-f]+"', b"", rewritten) == re.sub(
+        rb'"(run_id|sha256)": "[0-9a-f]+"', b"", written)
 
 
 def test_the_request_a_state_says_ran_carries_its_feed_forward_as_the_feed_forward():

@@ -59,6 +59,20 @@ def test_the_default_source_follows_the_bench(seed_config):
             torque_source(config, without)
 
 
+@pytest.mark.parametrize("chosen, said", [("encoder", " = 'encoder'"), ("both", " = 'both'"), (None, "")])
+def test_the_encoder_s_torque_needs_three_revolutions_a_grid_trial(seed_config, chosen, said):
+    """The fuzz's small config (2 grid revolutions, the seed's "both") raised a ValueError traceback in the
+    identification's graduation error: the encoder's torque needs two whole revolutions."""
+    without = SimpleNamespace(motor=SimpleNamespace(torque_sensor=chosen is not None))
+    config = dataclasses.replace(seed_config, grid=dataclasses.replace(seed_config.grid, revolutions=2),
+                                 campaign=dataclasses.replace(seed_config.campaign, torque_source=chosen))
+    with pytest.raises(ConfigError, match=rf"\[trials\] revolutions = 2: \[campaign\] torque_source{said} reads the "
+                                          r"encoder's time stamps.* at least 3 recorded revolutions"):
+        torque_source(config, without)
+    assert torque_source(dataclasses.replace(config, grid=dataclasses.replace(config.grid, revolutions=3)),
+                         without).reads_encoder
+
+
 # ---------------------------------------------------------------- the analysis of one simulated trial
 
 

@@ -6,6 +6,7 @@ import os
 from typing import TYPE_CHECKING
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
+from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.sim.bench import simulated_description
@@ -35,7 +36,14 @@ class SimulatorBackend:
 
     @classmethod
     def from_setup(cls, setup: BackendSetup) -> SimulatorBackend:
-        """The numba simulator of the config's [bench] and [simulator.*] tables, within its [limits]."""
+        """The numba simulator of the config's [bench] and [simulator.*] tables, within its [limits].
+
+        Raises `ConfigError` when given an address (``--address``): the simulator runs here, and a user who gave one
+        meant a bench, which must never be taken for the simulator."""
+        if setup.address is not None:
+            raise ConfigError(f"--address {setup.address}: the sim backend runs the simulator in this process and "
+                              "takes no address; for a bench at that address give --backend remote (or the "
+                              "backend that drives it)")
         config = setup.config
         return cls(config.simulated_model(), config.limits.bench_limits(), config.grid.warmup_revolutions)
 

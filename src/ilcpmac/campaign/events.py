@@ -9,6 +9,7 @@ from typing import Protocol
 
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.record import Point, TrialRecord
+from ilcpmac.campaign.validation import PointResult
 from ilcpmac.compensation import FadeOut
 from ilcpmac.core.torque_source import TorqueSource
 
@@ -186,15 +187,28 @@ class CompensationWorse:
 
 @dataclass(frozen=True)
 class CompensationBeatsNone:
-    """The validation found the compensation better than none at every point, ``learned`` and ``validated``."""
+    """At every point, ``learned`` (their last trial) and ``validated``, the compensated trial's measured
+    peak-to-peak ripple is below the uncompensated one's (`PointResult.worse` nowhere); the least reduction,
+    ``least_reduction`` (inf: no ripple left), is at ``point``. Nothing more: the ripple at one harmonic may
+    still have grown where the others fell further."""
 
     learned: int
     validated: int
+    least_reduction: float
+    point: Point
+
+    @classmethod
+    def of(cls, results: list[PointResult]) -> CompensationBeatsNone:
+        """From the points' results, none of them worse (`PointResult.worse`)."""
+        least = min(results, key=lambda r: r.reduction)
+        validated = sum(not r.learned for r in results)
+        return cls(len(results) - validated, validated, least.reduction, least.point)
 
     @property
     def text(self) -> str:
-        return (f"validate: the compensation beats none at every point ({self.learned} learned, {self.validated} "
-                "validated)")
+        return (f"validate: the measured peak-to-peak ripple is below the uncompensated trial's at every point, "
+                f"{self.least_reduction:.3g}x at least ({self.point[0]:g} N m at {self.point[1]:g} Hz; "
+                f"{self.learned} learned points, their last trial, and {self.validated} validated)")
 
 
 @dataclass(frozen=True)
@@ -209,9 +223,20 @@ class Resumed:
         return f"resume: {self.trials} trials already complete in {self.path}"
 
 
+@dataclass(frozen=True)
+class AlreadyComplete:
+    """A resumed run had ended: no trial ran and no file changed."""
+
+    path: Path
+
+    @property
+    def text(self) -> str:
+        return f"the run in {self.path} had ended: nothing to do, no file changed"
+
+
 #: what the campaign says between its trials
 CampaignMessage = (PlanStated | GridStarted | Identifying | FloorsExpected | PipelineNote | GuardEvent
-                   | CompensationWritten | CompensationWorse | CompensationBeatsNone | Resumed)
+                   | CompensationWritten | CompensationWorse | CompensationBeatsNone | Resumed | AlreadyComplete)
 
 
 class CampaignEvents(Protocol):

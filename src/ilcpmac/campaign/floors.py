@@ -35,8 +35,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcpmac.campaign.record import Point
+from ilcpmac.campaign.record import MAX_RIPPLE_FRACTION, Point, number_in
 from ilcpmac.compensation import interpolation_weights
+from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
+from ilcpmac.core.schema import shown
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
 
@@ -94,9 +96,12 @@ class PointFloor:
         an entry without one (a run of an earlier release)."""
         if "floor_pp_measured" not in data:
             return None
-        true = data.get("floor_pp_true")
-        return cls((float(data["torque_setpoint"]), float(data["speed_setpoint"])), bool(data["learned"]),
-                   float(data["floor_pp_measured"]), None if true is None else float(true))
+        point = (number_in(data, "torque_setpoint", -MAX_TORQUE_NM, MAX_TORQUE_NM),
+                 number_in(data, "speed_setpoint", -MAX_SPEED_HZ, MAX_SPEED_HZ))
+        if not isinstance(data["learned"], bool):
+            raise ValueError(f"learned is {shown(data['learned'])}, not true or false")
+        true = None if data.get("floor_pp_true") is None else number_in(data, "floor_pp_true", 0.0, MAX_RIPPLE_FRACTION)
+        return cls(point, data["learned"], number_in(data, "floor_pp_measured", 0.0, MAX_RIPPLE_FRACTION), true)
 
     def pp(self, kind: str) -> float | None:
         """`measured_pp` or `true_pp` by name ("measured", "true")."""

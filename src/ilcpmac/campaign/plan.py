@@ -14,16 +14,19 @@ import numpy as np
 from ilcpmac.bench.format import check_bench
 from ilcpmac.campaign.grid import grid_plan, grid_requests
 from ilcpmac.campaign.record import LEARN_PHASE, Point, TrialRecord
-from ilcpmac.config import CampaignConfig
+from ilcpmac.config import MIN_REVOLUTIONS, CampaignConfig
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import BenchDescription, TrialRequest
 from ilcpmac.core.seeds import trial_seed
+from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan, torque_violation, trust_edges
 
-__all__ = ["INDEPENDENT_ROLES", "CampaignPlan", "Step", "records_at"]
+__all__ = ["INDEPENDENT_ROLES", "MAX_BUDGET_MIN", "CampaignPlan", "Step", "records_at", "torque_source"]
 
 #: roles of trials that neither learn nor depend on learning (the campaign runs them at once)
 INDEPENDENT_ROLES = ("grid", "baseline", "validate")
+#: the longest motor-time budget a plan takes (``--budget``), minutes: some 70 days of running
+MAX_BUDGET_MIN = 1e5
 
 
 @dataclass(frozen=True)
@@ -33,6 +36,29 @@ class Step:
     phase: str
     role: str
     request: TrialRequest
+
+
+def torque_source(config: CampaignConfig, description: BenchDescription) -> TorqueSource:
+    """[campaign] torque_source, or its default (`TorqueSource.default`): the sensor unless the bench's
+    description says it has no torque sensor (``motor.torque_sensor`` False), then the encoder.
+
+    Raises `ConfigError` for a source that reads a torque sensor the bench does not have, and for one that reads
+    the encoder when the grid's trials record fewer than `MIN_REVOLUTIONS` (the encoder's torque needs two whole
+    revolutions, and a trial need not begin at a revolution's start).
+    """
+    has_sensor = description.motor.torque_sensor
+    chosen = TorqueSource.default(has_sensor) if config.campaign.torque_source is None else \
+        TorqueSource(config.campaign.torque_source)
+    said = "" if config.campaign.torque_source is None else f" = {chosen.value!r}"
+    if chosen.reads_sensor and not has_sensor:
+        raise ConfigError(f"{config.path}: [campaign] torque_source{said}: the bench has no torque "
+                          f'sensor (use "{TorqueSource.ENCODER.value}")')
+    if chosen.reads_encoder and config.grid.revolutions < MIN_REVOLUTIONS:
+        raise ConfigError(f"{config.path}: [trials] revolutions = {config.grid.revolutions}: [campaign] "
+                          f"torque_source{said} reads the encoder's time stamps{'' if said else ' (the default here)'}"
+                          f", whose torque needs at least {MIN_REVOLUTIONS} recorded revolutions per trial (two "
+                          'whole ones); record more, or use torque_source = "sensor"')
+    return chosen
 
 
 def records_at(records: list[TrialRecord], point: Point, roles: tuple[str, ...]) -> list[TrialRecord]:
@@ -74,6 +100,7 @@ class CampaignPlan:
         each operating point as its uncompensated trial runs it, and as the stages may run it (any calibration
         of the trust region); raise `ConfigError` naming the keys."""
         check_bench(config, description)
+        torque_source(config, description)
         limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
         grid = [replace(r, seed=trial_seed(seed, i + 1))
                 for i, r in enumerate(grid_requests(config, description.calibration, seed, config.grid.revolutions))]

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
+from ilcpmac.core.schema import shown
 from ilcpmac.signals.harmonics import RippleFigures
 
-__all__ = ["FIGURE_KEYS", "LEARN_PHASE", "Point", "TrialRecord", "records_of"]
+__all__ = ["FIGURE_KEYS", "LEARN_PHASE", "Point", "TrialRecord", "number_in", "records_of"]
 
 #: the learning phase's name, whatever stages learn in it
 LEARN_PHASE = "learn"
@@ -22,6 +24,26 @@ FIGURE_KEYS = (("pp", "ripple_pp_{}"), ("rms", "ripple_rms_{}"), ("rest_rms", "r
                ("amp_2x", "amp_2x_{}_nm"), ("amp_cogging", "amp_cogging_{}_nm"), ("amp_rest", "amp_rest_{}_nm"))
 
 
+#: the largest ripple figure a record holds, as a fraction of the mean torque: a million times the mean, beyond any
+#: trial (its N m figures are bounded by `MAX_TORQUE_NM`); and the largest reduction factor and motor time, s
+MAX_RIPPLE_FRACTION = 1e6
+MAX_REDUCTION_FACTOR = 1e15
+MAX_MOTOR_TIME_S = 1e9
+
+
+def number_in(data: dict, key: str, low: float, high: float) -> float:
+    """``data[key]`` as a float within [low, high]; `ValueError` naming ``key`` for anything else (a bool, text,
+    NaN, a number beyond the range): what a reader of summary.json takes from it."""
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
+        raise ValueError(f"{key} is {shown(value)}, not a number within [{low:g}, {high:g}]")
+    return float(value)
+
+
+def _optional(data: dict, key: str, low: float, high: float) -> float | None:
+    return None if data.get(key) is None else number_in(data, key, low, high)
+
+
 def _figures_json(kind: str, figures: RippleFigures | None) -> dict:
     return {} if figures is None else {key.format(kind): getattr(figures, name) for name, key in FIGURE_KEYS}
 
@@ -29,7 +51,8 @@ def _figures_json(kind: str, figures: RippleFigures | None) -> dict:
 def _figures_from_json(kind: str, data: dict) -> RippleFigures | None:
     if FIGURE_KEYS[0][1].format(kind) not in data:
         return None
-    return RippleFigures(**{name: float(data[key.format(kind)]) for name, key in FIGURE_KEYS})
+    return RippleFigures(**{name: number_in(data, key.format(kind), 0.0, MAX_TORQUE_NM if key.endswith("_nm")
+                                            else MAX_RIPPLE_FRACTION) for name, key in FIGURE_KEYS})
 
 
 @dataclass(frozen=True)
@@ -103,15 +126,35 @@ class TrialRecord:
 
     @classmethod
     def from_json(cls, data: dict) -> TrialRecord:
-        """The record `to_json` wrote."""
-        phase = str(data["phase"])
-        return cls(int(data["index"]), LEARN_PHASE if phase == _EARLIER_LEARN_PHASE else phase, str(data["role"]),
-                   float(data["torque_setpoint"]), float(data["speed_setpoint"]), _figures_from_json("measured", data),
-                   _figures_from_json("true", data), data.get("reduction_factor"), data.get("reduction_factor_true"),
-                   data.get("motor_time_s"))
+        """The record `to_json` wrote; `ValueError` (or `KeyError`, `TypeError`) naming the key of a value no run
+        writes (a number out of its range, text for a number, a missing key)."""
+        index, phase, role = data["index"], data["phase"], data["role"]
+        if isinstance(index, bool) or not isinstance(index, int) or index < 1:
+            raise ValueError(f"index is {shown(index)}, not a trial's (1, 2, ...)")
+        if not (isinstance(phase, str) and isinstance(role, str)):
+            raise ValueError(f"phase {shown(phase)} and role {shown(role)} must be text")
+        return cls(index, LEARN_PHASE if phase == _EARLIER_LEARN_PHASE else phase, role,
+                   number_in(data, "torque_setpoint", -MAX_TORQUE_NM, MAX_TORQUE_NM),
+                   number_in(data, "speed_setpoint", -MAX_SPEED_HZ, MAX_SPEED_HZ),
+                   _figures_from_json("measured", data), _figures_from_json("true", data),
+                   _optional(data, "reduction_factor", 0.0, MAX_REDUCTION_FACTOR),
+                   _optional(data, "reduction_factor_true", 0.0, MAX_REDUCTION_FACTOR),
+                   _optional(data, "motor_time_s", 0.0, MAX_MOTOR_TIME_S))
 
 
 def records_of(summary: dict) -> list[TrialRecord]:
-    """The trial records of a summary.json."""
-    return [TrialRecord.from_json(t) for t in summary["trials"]]
+    """The trial records of a summary.json, one per trial in the order they ran (trial k's index k); `ValueError`
+    naming the trial otherwise (`TrialRecord.from_json`)."""
+    records = []
+    for k, data in enumerate(summary["trials"], start=1):
+        if not isinstance(data, dict):
+            raise ValueError(f"trials.{k - 1} is {shown(data)}, not a trial's object")
+        try:
+            record = TrialRecord.from_json(data)
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"trials.{k - 1}: {e}") from None
+        if record.index != k:
+            raise ValueError(f"trials.{k - 1}: index {record.index}, not {k} (the trials in the order they ran)")
+        records.append(record)
+    return records
 

@@ -57,28 +57,31 @@ import hashlib
 import json
 import math
 import os
+import secrets
 import socket
 import tempfile
 import time
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager, suppress
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from filelock import FileLock, Timeout
 
-from ilcpmac.bench.format import BENCH_FILE, bench_toml_text, read_trial, write_backemf_csv, write_trial
+from ilcpmac.bench.format import BENCH_FILE, Bench, bench_toml_text, read_trial, write_backemf_csv, write_trial
+from ilcpmac.campaign.record import records_of
 from ilcpmac.campaign.state import LearnedPoint, TrialState, learned_from_json, learned_json
 from ilcpmac.compensation import COMPENSATION_FILE
-from ilcpmac.core.errors import BenchFormatError, IlcpmacError
-from ilcpmac.core.files import atomic_write
+from ilcpmac.core.errors import BenchFormatError, IdentificationError, IlcpmacError
+from ilcpmac.core.files import atomic_write, read_bounded
 from ilcpmac.core.records import BenchDescription, TrialData
 from ilcpmac.core.schema import read_toml
+from ilcpmac.export import RUN_CONFIG
 
-CONFIG_FILE = "campaign.toml"
+CONFIG_FILE = RUN_CONFIG  # export finds a run's limits by it
 STATES = "states"
 RUN_FILE = "run.json"
 BACKEMF_FILE = "backemf.csv"
@@ -97,6 +100,11 @@ PACKED_MIN_LENGTH = 32
 PACKED_KEY = "float64_base64"
 #: least time between two writes of summary.json while trials are committed, s
 SUMMARY_INTERVAL_S = 1.0
+#: the most bytes a run's JSON file is read to, beyond anything a run writes: summary.json grows by about 1.5 kB a
+#: trial (64 MiB: some 40 000 trials); a state holds at most MAX_STATE_BYTES of JSON per stage, states/learned.json
+#: a table per stage and learned point (at 2^20 counts, 9 points and 3 stages, 0.3 GB)
+SUMMARY_MAX_BYTES = 64 << 20
+JSON_MAX_BYTES = 1 << 30
 #: a state file's and states/identification.json's key holding the SHA-256 of the rest of its JSON text
 DIGEST_KEY = "sha256"
 #: a state file's key holding the SHA-256 of its trial file
@@ -105,10 +113,31 @@ TRIAL_DIGEST_KEY = "trial_sha256"
 TRIALS_DIGEST_KEY = "trials_sha256"
 #: states/run.json's key saying the run's states carry digests (a run made before them has none, unchecked)
 SEALED_KEY = "sealed"
+#: states/run.json's key holding the run's identity, a random 128-bit id that every state and
+#: states/identification.json repeat (`RunSeal`)
+RUN_ID_KEY = "run_id"
+#: states/run.json's key holding the SHA-256 of campaign.toml as the run began
+CONFIG_DIGEST_KEY = "config_sha256"
+#: a state file's key holding its trial's index
+INDEX_KEY = "index"
 
 
 class RunDirError(IlcpmacError):
     """A run directory cannot be created, resumed, locked or written."""
+
+
+@dataclass(frozen=True)
+class RunSeal:
+    """What states/run.json seals a run with (docs/campaign.md, "What the seal guarantees").
+
+    Attributes
+    ----------
+    run_id : the run's random identity, repeated in every state and in states/identification.json.
+    config_sha256 : the SHA-256 of campaign.toml as the run began.
+    """
+
+    run_id: str
+    config_sha256: str
 
 
 #: what a run writes its trials as, and what runs written before Parquet hold
@@ -152,32 +181,68 @@ class RunFiles:
         old = self.path / trial_file(index, _OLD_TRIAL_SUFFIX)
         return old if not path.exists() and old.exists() else path
 
-    def is_trial_name(self, index: int, name: str) -> bool:
-        """Whether ``name`` may be trial ``index``'s file (Parquet, or the CSV of a run begun before it)."""
-        return name in (trial_file(index), trial_file(index, _OLD_TRIAL_SUFFIX))
-
     def state(self, index: int) -> Path:
         """states/trial_NNN.json, the state saved with trial ``index``."""
         return self.states / f"trial_{index:03d}.json"
 
     @cached_property
+    def seal(self) -> RunSeal | None:
+        """The run's seal in states/run.json, its digest checked; None when it has none (a run made by a release
+        before seals, or one whose seal was removed: `resumable_seal` refuses both)."""
+        data = self.read_json(self.settings)
+        if not isinstance(data, dict) or DIGEST_KEY not in data:
+            return None
+        data = self._unsealed(self.settings, dict(data), checked=True)
+        run_id, config = data.get(RUN_ID_KEY), data.get(CONFIG_DIGEST_KEY)
+        if not (isinstance(run_id, str) and isinstance(config, str)):
+            raise RunDirError(f"{self.settings}: sealed without its {RUN_ID_KEY} and {CONFIG_DIGEST_KEY}; the run "
+                              "cannot go on from it")
+        return RunSeal(run_id, config)
+
+    @cached_property
     def sealed(self) -> bool:
-        """Whether the run's states carry digests: states/run.json says so, or its first trial's state has one (a
-        run made before them has none; run.json deleted or edited does not unseal a run that has them)."""
-        if (self.read_json(self.settings) or {}).get(SEALED_KEY):
+        """Whether the run's files carry digests, which reading them checks: a `seal`, or (a run of an earlier
+        release) states/run.json says so or its first trial's state has one."""
+        if self.seal is not None or (self.read_json(self.settings) or {}).get(SEALED_KEY):
             return True
         first = self.read_json(self.state(1))
         return isinstance(first, dict) and DIGEST_KEY in first
 
+    def resumable_seal(self) -> RunSeal:
+        """The seal a resume goes on from: states/run.json sealed, campaign.toml the config it sealed.
+
+        Raises `RunDirError` naming the file otherwise: a run without a seal (made by an earlier release, or its
+        seal removed) is not resumed, as nothing then tells its files from another run's or an edited config;
+        ``ilcpmac report`` and ``ilcpmac export`` still read it.
+        """
+        seal = self.seal
+        if seal is None:
+            what = "missing" if not self.settings.is_file() else "holds no seal"
+            raise RunDirError(f"{self.settings}: {what} (a run made by an earlier release, or its seal removed); "
+                              "only a sealed run resumes: start a new run (ilcpmac report and export still read "
+                              "this one)")
+        if _file_digest(self.config) != seal.config_sha256:
+            raise RunDirError(f"{self.config}: not the config this run began with (its SHA-256 differs from "
+                              f"{self.settings.name}'s {CONFIG_DIGEST_KEY}); a resumed run keeps the config and "
+                              "limits it began with: put that config back, or start a new run")
+        return seal
+
     def read_json(self, path: Path, packed: bool = False) -> dict | None:
         """The JSON object in ``path`` (one of these paths), None when it does not exist; `RunDirError`
-        naming it when it cannot be read or holds NaN or infinity. ``packed``: a state file's packed float
-        lists are unpacked."""
+        naming it when it cannot be read, is no JSON object, holds NaN or infinity, nests beyond the parser's depth
+        or is larger than anything a run writes there (`JSON_MAX_BYTES`, `SUMMARY_MAX_BYTES`: refused before it is
+        read). ``packed``: a state file's packed float lists are unpacked."""
+        if not path.exists():
+            return None
+        raw = read_bounded(path, SUMMARY_MAX_BYTES if path == self.summary else JSON_MAX_BYTES, RunDirError)
         try:
-            return json.loads(path.read_text(), object_hook=_unpacked if packed else None,
-                              parse_constant=_not_finite) if path.is_file() else None
-        except (OSError, ValueError) as e:
-            raise RunDirError(f"{path}: unreadable ({e})") from None
+            data = json.loads(raw, object_hook=_unpacked if packed else None, parse_constant=_not_finite)
+        except (ValueError, RecursionError) as e:
+            why = "nested too deeply" if isinstance(e, RecursionError) else str(e)
+            raise RunDirError(f"{path}: unreadable ({why})") from None
+        if not isinstance(data, dict):
+            raise RunDirError(f"{path}: unreadable (a JSON {type(data).__name__}, not an object)")
+        return data
 
     def read_sealed(self, path: Path) -> dict | None:
         """The JSON object in ``path`` without its `DIGEST_KEY`, None when it does not exist; `RunDirError` naming
@@ -190,17 +255,19 @@ class RunFiles:
             raise RunDirError(f"{path}: unreadable (not a JSON object)")
         return self._unsealed(path, data)
 
-    def _unsealed(self, path: Path, data: dict) -> dict:
-        """``data``, the object read from ``path``, without its digest, which must match (`read_sealed`)."""
+    def _unsealed(self, path: Path, data: dict, checked: bool | None = None) -> dict:
+        """``data``, the object read from ``path``, without its digest, which must match (`read_sealed`) when
+        ``checked`` (default: in a `sealed` run)."""
         claimed = data.pop(DIGEST_KEY, None)
-        if self.sealed and claimed != _digest(json.dumps(data, allow_nan=False)):
+        if (self.sealed if checked is None else checked) and claimed != _digest(json.dumps(data, allow_nan=False)):
             raise RunDirError(f"{path}: does not match its {DIGEST_KEY} digest (changed since the run wrote it); "
                               "the run cannot go on from it")
         return data
 
     def read_checked_state(self, index: int) -> tuple[TrialState, str | None]:
         """The state saved with trial ``index`` (`read_sealed`) and the digest of its trial file it records (None
-        in a run made before digests); `RunDirError` when it is missing or unreadable."""
+        in a run made before digests); `RunDirError` when it is missing or unreadable, or, in a run with a `seal`,
+        is not this run's state of trial ``index`` (its run id and index)."""
         path = self.state(index)
         data = self.read_json(path)
         if data is None:
@@ -209,7 +276,13 @@ class RunFiles:
             state = TrialState.from_json(_unpacked_all(data))
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise RunDirError(f"{path}: unreadable ({e!r})") from None
-        return state, self._unsealed(path, data).get(TRIAL_DIGEST_KEY)
+        data = self._unsealed(path, data)
+        seal = self.seal
+        if seal is not None and (data.get(RUN_ID_KEY), data.get(INDEX_KEY)) != (seal.run_id, index):
+            raise RunDirError(f"{path}: not this run's state of trial {index} (it says run {data.get(RUN_ID_KEY)!r}, "
+                              f"trial {data.get(INDEX_KEY)!r}; {self.settings.name}: run {seal.run_id!r}): a state of "
+                              "another run or trial mixed in; the run cannot go on from it")
+        return state, data.get(TRIAL_DIGEST_KEY)
 
     def read_state(self, index: int) -> TrialState:
         """The state saved with trial ``index`` (`read_checked_state`)."""
@@ -233,6 +306,10 @@ class RunFiles:
             raise RunDirError(f"{self.path}: no {SUMMARY_FILE} (not a run directory of ilcpmac run)")
         if not isinstance(summary.get("trials"), list):
             raise RunDirError(f"{self.summary}: unreadable (no list of trials)")
+        try:
+            records_of(summary)
+        except ValueError as e:
+            raise RunDirError(f"{self.summary}: unreadable ({e})") from None
         return summary
 
     def read_trial(self, index: int, torque_setpoint_nm: float, speed_setpoint_hz: float,
@@ -458,6 +535,8 @@ class RunDir:
         self._held_summary: dict | None = None
         self._lock = lock
         self._resumable = f"the run stays resumable: make room or allow writing, then ilcpmac run --resume {path}"
+        #: the run's seal: made by `create`, checked by `resume`
+        self.seal = RunSeal("", "")
 
     @staticmethod
     def lock(path: str | Path, new: bool) -> RunLock:
@@ -502,8 +581,10 @@ class RunDir:
             with _writing(files.states, then):
                 files.states.mkdir(exist_ok=True)
             target = files.settings
+            run.seal = RunSeal(secrets.token_hex(16), _digest(config_text))
             with _writing(target, then):
-                atomic_write(target, _json_text({**(settings or {}), SEALED_KEY: True}, target))
+                atomic_write(target, _sealed_text({**(settings or {}), SEALED_KEY: True, RUN_ID_KEY: run.seal.run_id,
+                                                   CONFIG_DIGEST_KEY: run.seal.config_sha256}, target))
             with _writing(files.backemf, then):
                 write_backemf_csv(files.backemf, description.backemf_nm_per_a)
             with _writing(files.bench, then):
@@ -524,11 +605,12 @@ class RunDir:
         path = Path(path)
         run = cls(path, description, [], None if lock else cls.lock(path, new=False))
         try:
+            run.seal = run.files.resumable_seal()
             data = read_toml(run.files.bench, RunDirError)
             run._entries = [(t["file"], float(t["torque_setpoint"]), float(t["speed_setpoint"]))
                             for t in data.get("trials", [])]
             for i, (name, _, _) in enumerate(run._entries, start=1):
-                if not run.files.is_trial_name(i, name) or not (path / name).is_file() \
+                if name != trial_file(i) or not (path / name).is_file() \
                         or not run.files.state(i).is_file():
                     raise RunDirError(f"{path}: trial {i} is listed in {BENCH_FILE} but {name} or its state "
                                       "is missing")
@@ -541,12 +623,10 @@ class RunDir:
         return run
 
     def _check_trials(self) -> None:
-        """Read every complete trial's state (its digest checked) and check its trial file is the one committed
-        with it; `RunDirError` naming the file otherwise (a run made before digests is not checked)."""
+        """Read every complete trial's state (its digest, run and index checked) and check its trial file is the one
+        committed with it; `RunDirError` naming the file otherwise."""
         for i, (name, _, _) in enumerate(self._entries, start=1):
             self._states[i], recorded = self.files.read_checked_state(i)
-            if not self.files.sealed:
-                continue
             if recorded != _file_digest(self.path / name):
                 raise RunDirError(f"{self.path / name}: not the file committed with {self.files.state(i)} (its "
                                   "digest differs: changed, swapped or truncated since); the run cannot resume")
@@ -554,15 +634,14 @@ class RunDir:
 
     @staticmethod
     def read_settings(path: str | Path) -> dict:
-        """The settings a run was created with (states/run.json, its `SEALED_KEY` aside; empty in a run made
-        before them). `RunDirError` when a run whose states carry digests (`RunFiles.sealed`) has lost the file:
-        its seed and overrides would fall back to the config's, and the run go on as another."""
+        """The settings a run was created with (states/run.json without its seal), once its seal is checked
+        (`RunFiles.resumable_seal`: `RunDirError` naming the file for a run without one, or whose campaign.toml is
+        not the one it began with): a resumed run goes on with its own seed, overrides and config."""
         files = RunFiles(path)
-        settings = files.read_json(files.settings)
-        if settings is None and files.sealed:
-            raise RunDirError(f"{files.settings}: missing (the run's seed and overrides); the run cannot go on "
-                              "without it")
-        return {key: value for key, value in (settings or {}).items() if key != SEALED_KEY}
+        files.resumable_seal()
+        settings = files.read_json(files.settings) or {}
+        return {key: value for key, value in settings.items()
+                if key not in (SEALED_KEY, DIGEST_KEY, RUN_ID_KEY, CONFIG_DIGEST_KEY)}
 
     def _remove_incomplete(self) -> None:
         """Delete what a crash left of a trial that was never committed, and temporary files."""
@@ -634,7 +713,8 @@ class RunDir:
             self._trial_digests[index] = _file_digest(data)
             with _writing(state_file, self._resumable):
                 atomic_write(state_file, _sealed_text({**_packed(state.to_json(), state_file),
-                                                       TRIAL_DIGEST_KEY: self._trial_digests[index]}, state_file))
+                                                       TRIAL_DIGEST_KEY: self._trial_digests[index],
+                                                       RUN_ID_KEY: self.seal.run_id, INDEX_KEY: index}, state_file))
             with _writing(self.files.bench, self._resumable):
                 self._write_bench_toml(entries)
             if time.monotonic() - self._summary_written_s < SUMMARY_INTERVAL_S:
@@ -653,22 +733,25 @@ class RunDir:
 
     def write_identification(self, data: dict) -> None:
         """Write states/identification.json atomically, with the digests of the trial files committed so far
-        (`flush` first) and its own (not in a run made before digests)."""
+        (`flush` first), the run's id and its own digest."""
         self.flush()
         target = self.files.identification
-        text = _sealed_text({**data, TRIALS_DIGEST_KEY: [self._trial_digests[i] for i in range(
-            1, self.completed + 1)]}, target) if self.files.sealed else _json_text(data, target)
+        text = _sealed_text({**data, RUN_ID_KEY: self.seal.run_id, TRIALS_DIGEST_KEY: [
+            self._trial_digests[i] for i in range(1, self.completed + 1)]}, target)
         with _writing(target, self._resumable):
             atomic_write(target, text)
 
     def read_identification(self) -> dict | None:
-        """states/identification.json without its digests, or None when it does not exist; `RunDirError` naming it
-        when its digest, or those of the trial files it was identified from, differ (`sealed` runs)."""
+        """states/identification.json without its digests and run id, or None when it does not exist; `RunDirError`
+        naming it when its digest, its run or the trial files it was identified from (their digests) differ."""
         target = self.files.identification
         data = self.files.read_sealed(target)
-        recorded = None if data is None else data.pop(TRIALS_DIGEST_KEY, None)
-        if data is None or not self.files.sealed:
-            return data
+        if data is None:
+            return None
+        recorded, run_id = data.pop(TRIALS_DIGEST_KEY, None), data.pop(RUN_ID_KEY, None)
+        if run_id != self.seal.run_id:
+            raise RunDirError(f"{target}: not this run's (it says run {run_id!r}, {self.files.settings.name}: run "
+                              f"{self.seal.run_id!r}); the run cannot resume from it")
         if not isinstance(recorded, list) or recorded != [self._trial_digests.get(i)
                                                           for i in range(1, len(recorded) + 1)]:
             raise RunDirError(f"{target}: not identified from the trial files on disk (their digests differ); the "
@@ -711,3 +794,26 @@ class RunDir:
             self.flush()
         torque_sensor = self.description.motor.torque_sensor
         return [self.files.read_trial(i, *self._entries[i - 1][1:], torque_sensor) for i in indices]
+
+
+def campaign_grid(bench_dir: Path, bench: Bench) -> tuple[Bench, str | None]:
+    """The trials of ``bench`` (read from ``bench_dir``) the identification can use, and a line saying which when
+    that is not all.
+
+    A run directory of ``ilcpmac run`` (its campaign.toml and summary.json) holds the identification grid, then
+    trials run with a feed-forward and a corrected calibration, which the identification's model of one
+    calibration without compensation does not describe: its grid trials, which the campaign identified, are
+    the ones. Any other folder: all its trials.
+    """
+    files = RunFiles(bench_dir)
+    if not (files.config.is_file() and files.summary.is_file()):
+        return bench, None
+    grid = {files.existing_trial(r.index).name for r in records_of(files.read_summary()) if r.role == "grid"}
+    kept = [k for k, name in enumerate(bench.trial_files) if name in grid]
+    if not kept:
+        raise IdentificationError(f"{bench_dir}: a run directory of ilcpmac run without a grid trial in "
+                                  f"{files.summary.name}: nothing the identification can use")
+    return replace(bench, trials=tuple(bench.trials[k] for k in kept),
+                   trial_files=tuple(bench.trial_files[k] for k in kept)), (
+        f"a run directory: its {len(kept)} grid trials identified, as the campaign did (its other "
+        f"{len(bench.trials) - len(kept)} ran with a compensation, which the identification does not model)")

@@ -42,6 +42,7 @@ from ilcpmac.backends.base import Backend, report_progress_to
 from ilcpmac.backends.guard import LimitGuard
 from ilcpmac.bench.format import Bench, as_written
 from ilcpmac.campaign.events import (
+    AlreadyComplete,
     CampaignEvents,
     CompensationBeatsNone,
     CompensationWorse,
@@ -55,14 +56,14 @@ from ilcpmac.campaign.events import (
     Resumed,
 )
 from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
-from ilcpmac.campaign.plan import CampaignPlan, Step, records_at
+from ilcpmac.campaign.plan import CampaignPlan, Step, records_at, torque_source
 from ilcpmac.campaign.record import FIGURE_KEYS, LEARN_PHASE, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir, RunDirError
 from ilcpmac.campaign.state import LearnedPoint, TrialState
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
-from ilcpmac.core.errors import ConfigError, IdentificationError, IlcpmacError, SafetyError
+from ilcpmac.core.errors import IdentificationError, IlcpmacError, SafetyError
 from ilcpmac.core.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
 from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.identify import Identifier, encoder_error_fields
@@ -95,22 +96,6 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
 #: how far an identified estimate saved in the run directory may lie from the grid's identified again on resume,
 #: relative: the numerical libraries' threads move the last bits, an edit far more
 IDENTIFIED_RTOL = 1e-6
-
-
-def torque_source(config: CampaignConfig, description: BenchDescription) -> TorqueSource:
-    """[campaign] torque_source, or its default (`TorqueSource.default`): the sensor unless the bench's
-    description says it has no torque sensor (``motor.torque_sensor`` False), then the encoder.
-
-    Raises `ConfigError` for a source that reads a torque sensor the bench does not have.
-    """
-    has_sensor = description.motor.torque_sensor
-    if config.campaign.torque_source is None:
-        return TorqueSource.default(has_sensor)
-    chosen = TorqueSource(config.campaign.torque_source)
-    if chosen.reads_sensor and not has_sensor:
-        raise ConfigError(f"{config.path}: [campaign] torque_source = {chosen.value!r}: the bench has no torque "
-                          f'sensor (use "{TorqueSource.ENCODER.value}")')
-    return chosen
 
 
 def _reduction(before: RippleFigures | None, after: RippleFigures | None) -> float | None:
@@ -194,15 +179,30 @@ class CampaignRunner:
         """Run the campaign to its end (resuming what ``run_dir`` holds); return the summary."""
         try:
             self._resume()
+            ended = self._ended()
+            if ended is not None:
+                self.events.message(AlreadyComplete(self.run_dir.path))
+                return ended
             self.events.message(self.plan_stated())
             self._loop()
             self.run_dir.flush()
             self._conclude()
-            summary = self.summary()
+            summary = self.summary(complete=True)
             self.run_dir.write_summary(summary)
         finally:
             self.run_dir.close()
         return summary
+
+    def _ended(self) -> dict | None:
+        """summary.json of a run that had ended (no trial left, and its last summary written at its end: "complete"
+        with every trial), which a resume leaves as it is; None otherwise."""
+        if self.next_step() is not None:
+            return None
+        try:
+            summary = self.run_dir.files.read_summary()
+        except RunDirError:
+            return None
+        return summary if summary.get("complete") is True and len(summary["trials"]) == len(self.records) else None
 
     def plan_stated(self) -> PlanStated:
         """The trials and the motor's running time left, per phase (`CampaignPlan.steps_left`)."""
@@ -532,17 +532,17 @@ class CampaignRunner:
         """What each stage feeds forward at each learned point as the point's last trial left the stages
         (states/learned.json, which ``ilcpmac report`` draws): the stages, restored from that trial's state, shape
         in turn a one-revolution request at the point with the calibration that trial ran with
-        (`LearnedPoint.of`, through the pipeline's bounds); then they are put back as they were."""
+        (`LearnedPoint.of`, each answer checked: `Pipeline.stage_by_stage`, its clipping told when the point's
+        trials ran); then they are put back as they were."""
         cpr = self.description.motor.counts_per_rev
         now = self.pipeline.state()
-        stages: list[Stage] = list(self.pipeline.bounded)
         points = []
         for point in self.plan.learned:
             last = records_at(self.records, point, ("compensate", "learn"))[-1]
             saved = self.run_dir.state(last.index)
             self.pipeline.restore(saved.stages)
             request = TrialRequest(point[0], point[1], 1, np.zeros(cpr), np.zeros(cpr), saved.calibration)
-            points.append(LearnedPoint.of(last.index, stages, request))
+            points.append(LearnedPoint.of(last.index, request, self.pipeline.stage_by_stage(request, notify=False)))
         self.pipeline.restore(now)
         return points
 
@@ -565,8 +565,7 @@ class CampaignRunner:
         if worse:
             self.events.message(CompensationWorse(tuple(r.point for r in worse), fade))
         elif results:
-            validated = sum(not r.learned for r in results)
-            self.events.message(CompensationBeatsNone(len(results) - validated, validated))
+            self.events.message(CompensationBeatsNone.of(results))
 
     def _floors(self) -> list[PointFloor]:
         """Every learned and validated point's noise floor (`point_floors`), from the spectra of its trials: kept
@@ -623,9 +622,10 @@ class CampaignRunner:
                 raise RunDirError(f"{self.run_dir.files.identification}: {key} {a} is not what the grid trials on "
                                   f"disk give ({b}); the run cannot go on from it")
 
-    def summary(self) -> dict:
+    def summary(self, complete: bool = False) -> dict:
         """summary.json: the units of its figures, every trial, the identification, the final figures of the
-        learned points, the validation points' results and the compensation's fade-out (docs/campaign.md)."""
+        learned points, the validation points' results, the compensation's fade-out and whether the run had ended
+        when it was written (``complete``; docs/campaign.md)."""
         points = self.plan.learned
         last = [done[-1] for p in points if (done := records_at(self.records, p, ("compensate", "learn")))]
         final = {}
@@ -647,7 +647,7 @@ class CampaignRunner:
                    "validation": [r.to_json() for r in self._results() if not r.learned],
                    "points": [{**r.to_json(), **(floors[r.point].to_json() if r.point in floors else {})}
                               for r in self._results()],
-                   "motor_time_s": {**motor_time, "all": sum(motor_time.values())}}
+                   "motor_time_s": {**motor_time, "all": sum(motor_time.values())}, "complete": complete}
         if self.compensation is not None:
             fade = self.compensation.fade
             summary["compensation"] = {"file": self.run_dir.files.compensation.name,

@@ -22,7 +22,7 @@ from ilcpmac.backends.registry import BackendSetup, build_backend
 from ilcpmac.bench.format import Bench, write_bench
 from ilcpmac.campaign.events import CampaignEvents, CampaignStart, NoEvents
 from ilcpmac.campaign.grid import grid_plan, grid_requests
-from ilcpmac.campaign.plan import CampaignPlan
+from ilcpmac.campaign.plan import MAX_BUDGET_MIN, CampaignPlan
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDir, RunFiles
 from ilcpmac.campaign.validation import PointResult, point_results
@@ -106,8 +106,9 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     seed : overrides [trials] seed.
     budget_min : the motor's running time to plan the campaign to, minutes: the trials after the grid as long as
         fit (`CampaignPlan.within_budget`); None: as the config says.
-    resume : continue the run in this directory from its last complete trial (no ``config`` or ``out`` then:
-        the run's own settings hold).
+    resume : continue the run in this directory from its last complete trial, sealed (docs/campaign.md, "What the
+        seal guarantees"); no ``config``, ``out``, ``budget_min``, ``seed`` or ``trials`` then: the run goes on with
+        the ones it began with.
     events : told what happens (`CampaignEvents`); default nothing.
     identify : the identification, ``identify(bench, torque_source=...) -> result`` (`Identifier`; default
         `ilcpmac.identify.identify_bench`).
@@ -117,8 +118,12 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     directory that exists (or, with ``resume``, is locked) is left untouched.
     """
     events = events or NoEvents()
-    if resume is not None and (config is not None or out is not None or budget_min is not None):
-        raise ConfigError("--resume continues a run with its own config: give no CONFIG, --out or --budget")
+    if resume is not None:
+        given = [name for name, value in (("CONFIG", config), ("--out", out), ("--budget", budget_min),
+                                          ("--seed", seed), ("--trials", trials)) if value is not None]
+        if given:
+            raise ConfigError(f"--resume continues a run with the config, seed, trials and budget it began with: "
+                              f"give no {', '.join(given)} (start a new run to change them)")
     resume_dir = None if resume is None else Path(resume)
     out_dir = None if out is None else Path(out)
     # the run directory is locked before the backend is built: a second run on it, or one that cannot
@@ -131,9 +136,10 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
             settings = RunDir.read_settings(resume_dir)
             cfg = load_config(RunFiles(resume_dir).config)
             seed, trials, budget_min = settings.get("seed"), settings.get("trials"), settings.get("budget_min")
-            if budget_min is not None and not (isinstance(budget_min, (int, float)) and 0 < budget_min <= 1e5):
+            if budget_min is not None and not (isinstance(budget_min, (int, float)) and
+                                               0 < budget_min <= MAX_BUDGET_MIN):
                 raise ConfigError(f"{RunFiles(resume_dir).settings}: budget_min: {budget_min!r} is not a number "
-                                  "of minutes within (0, 1e5]")
+                                  f"of minutes within (0, {MAX_BUDGET_MIN:g}]")
         elif isinstance(config, CampaignConfig):
             cfg = config
         else:

@@ -249,6 +249,8 @@ class LiveCampaign:
 @click.option("--trials", type=click.IntRange(min=1), default=None,
               help="Most learning trials per learned point (overrides [campaign] learn_trials).")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override [trials] seed.")
+# max: ilcpmac.campaign.plan.MAX_BUDGET_MIN, not imported here (the command imports the campaign when it runs;
+# tests/test_bench_time.py checks the two agree)
 @click.option("--budget", "budget_min", type=click.FloatRange(min=0.0, min_open=True, max=1e5), default=None,
               metavar="MINUTES",
               help="Plan the campaign to this much motor running time: the trials after the grid as long as fit "
