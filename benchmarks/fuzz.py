@@ -39,18 +39,57 @@ seed in a temporary folder:
 8. resume tampering: a finished run of that campaign and one stopped at trial
    PARTIAL_AT, changed (epsilon / 3 and x 10 in states/identification.json, a
    NaN in a state, trial files swapped, a grid Parquet truncated, files
-   deleted; and an edit resealed as the run seals it), run as ``ilcpmac run
-   --resume DIR`` in the probe: refused in one line before any trial;
+   deleted; and an edit resealed as the run seals it; issue 34: every seal
+   removed, campaign.toml with higher [limits] or another learning grid, the
+   seed edited in states/run.json, the finished run's trial and state, run.json
+   or identification.json mixed in, a trial and its state copied over the
+   next; and --seed, --trials, --budget, --out given with --resume), run as
+   ``ilcpmac run --resume DIR`` in the probe: refused in one line before any
+   trial;
 9. import units and gaps: the drive logs of 4. with the time in ms read as s
    and in s read as ms, a gap of 10 s, a 1e300 N m or 1e5 A row (also between
-   two counts, at 10 kHz), a ``#`` in a row, backemf_file at /etc/passwd: one
-   line naming the file, exit 2, nothing written and no *.tmp left;
+   two counts, at 10 kHz), a ``#`` in a row, backemf_file at /etc/passwd,
+   currents in mA and a torque in mN m (judged against the mapping's
+   [limits]), logs in UTF-16, a moteus cogging file of the base bench's motor
+   in mA, with a 9999 A bin, of zeros, constant, in UTF-16: one line naming
+   the file, exit 2, nothing written and no *.tmp left; and ``ilcpmac
+   identify`` on what its model does not describe (issue 34): a campaign's
+   run directory (its grid identified, exit 0), the torque and i_ref_a
+   swapped (with and without noise) and a folder without bench.toml (one
+   line, nothing before it), a scan whose cogging order is beyond the counts'
+   Nyquist limit (exit 0, saying so); never a Python or LAPACK warning;
 10. sweep: ``--scheduler`` at TCP ports that are no Dask scheduler (HTTP,
    echo, silent, closing) and [magnets] out of range: one line, exit 2;
-11. export tables: a run's compensation.json and an identification's
-   result.json with JSON ``true`` in a table, duplicate keys, NaN, 1e400,
-   tables beyond their bounds and of the wrong shape, run as ``ilcpmac export``:
-   one line naming the file, exit 2, nothing written.
+11. export tables: a run's compensation.json (in a copy of its run directory)
+   and an identification's result.json with JSON ``true`` in a table,
+   duplicate keys, NaN, 1e400, tables beyond their bounds and of the wrong
+   shape, run as ``ilcpmac export``: one line naming the file, exit 2, nothing
+   written; export bounds (issue 34): calibrations out of range, torque
+   constants of 1e-300, 1e300, inf, tables of 1e5 N m or 3.3 x the run's
+   max_correction_nm, of the wrong length, scales a C float cannot hold:
+   refused the same way; source folders named ``x*/ ... /*``, ``run*`` or no
+   UTF-8, an output folder named no UTF-8: written, the C compiling (gcc) and
+   inert; and full-disk export, every format into an empty folder and over an
+   earlier export, on a tmpfs with one page free (root; else an emulated full
+   disk): one line naming the file, the folder as it was.
+
+12. api arguments (issue 34): every function of ``ilcpmac.api`` called with
+   arguments of the wrong type (True or 1.5 for an integer, "no" for a bool,
+   NaN, inf and strings for numbers, an empty list of logs, unknown choices,
+   NUL and bytes in paths, garbage config changes, options of the wrong type),
+   each in a Python process whose wrapper prints an `IlcpmacError` as its
+   ``error:`` lines and exits 2 (anything else is a traceback): one line naming
+   the argument, exit 2, nothing written; and numpy numbers taken as the
+   builtin ones (a campaign, a simulated bench and scan, a config): exit 0.
+
+13. lying values (issue 34): the small campaign of 7. with a stage whose
+   answer lies to the checks (a float subclass for the speed or the set point
+   and an int subclass for the revolutions that claim harmless values to every
+   comparison and arithmetic operator; ndarray subclasses claiming other values
+   to every ufunc for the feed-forward and the current scales; current scales
+   the stage keeps and triples from a thread during the trial), run in the
+   probe, which reads what the simulator received as the values hold them:
+   refused in one line naming the stage, or run within every limit.
 
 Groups 7 to 11 take about 4 minutes on two shared cores. The probe
 (``python benchmarks/fuzz_targets.py probe ... -- ARGS``, fuzz_targets.probe_main)
@@ -72,7 +111,9 @@ whether its input must be rejected, and ends as one of
   sweep whose tasks are ready) on an input that must be rejected, or the
   contents of a file outside the bench folder echoed;
 - LIMIT-BREACH: a trial (in the probe) whose true phase current passed
-  [limits] max_current_a by more than BREACH_TOLERANCE_A;
+  [limits] max_current_a by more than BREACH_TOLERANCE_A, or whose speed,
+  torque reference or duration, as the simulator received them, passed the
+  limits;
 - WRONG-STATE: a refusal that left the wrong files (a trial that ran missing
   from the run directory, a trial run on a changed one, an output or a *.tmp
   written) or whose error line names the wrong thing (`Run.problem`).
@@ -143,6 +184,8 @@ class Run:
     folder the case wrote (scanned for NaN/Infinity). peak_current_a and
     limit_a: the largest true phase current of any trial that ran and
     [limits] max_current_a (a case run in the probe; nan: no trial ran).
+    breach: a speed, torque reference or duration beyond the limits that the
+    simulator received, in the values the request held (the probe).
     problem: what the case found wrong in what was left (a trial that ran
     missing from the run directory, a file written or a *.tmp left by a
     refused input, an error line that names the wrong thing).
@@ -158,6 +201,7 @@ class Run:
     peak_current_a: float | None = None
     limit_a: float | None = None
     problem: str | None = None
+    breach: str | None = None
 
 
 @dataclass(frozen=True)
@@ -256,6 +300,8 @@ def classify(case: Case, run: Run) -> tuple[str, str]:
 def _classify(case: Case, run: Run) -> tuple[str, str]:
     if run.peak_current_a is not None and run.peak_current_a > run.limit_a + BREACH_TOLERANCE_A:
         return "LIMIT-BREACH", f"a true phase current of {run.peak_current_a:.3g} A, [limits] {run.limit_a:g} A"
+    if run.breach is not None:
+        return "LIMIT-BREACH", run.breach
     if run.timed_out:
         if run.code is None:
             return "HANG", run.text.strip().splitlines()[-1][:200]
@@ -703,8 +749,10 @@ RUN_TABLES = ("campaign", "limits", "pipeline", "stages.ilc")
 
 def small_config(text: str) -> str:
     """The seed bench reduced: a 2 x 2 grid, 2 revolutions, 2 learned points of 3 revolutions, one validation
-    point of 3 (the fewest [campaign] takes)."""
-    for table, name, value in (("trials", "torque_setpoints_nm", "[1.0, 3.0]"),
+    point of 3 (the fewest [campaign] takes), the torque from the sensor (the encoder's needs 3 revolutions a
+    trial)."""
+    for table, name, value in (("campaign", "torque_source", '"sensor"'),
+                               ("trials", "torque_setpoints_nm", "[1.0, 3.0]"),
                                ("trials", "speed_setpoints_hz", "[0.8, 1.0]"), ("trials", "revolutions", "2"),
                                ("campaign", "learn_torques_nm", "[1.0, 3.0]"),
                                ("campaign", "learn_speeds_hz", "[0.8]"), ("campaign", "learn_revolutions", "[3]"),
@@ -786,6 +834,8 @@ CONFIG_KEYS: list[tuple[str, bool, str, str, str | None]] = [
     ("old key ilc_trials", True, "campaign", "ilc_trials", "3"),
     ("min_improvement 2", True, "campaign", "min_improvement", "2.0"),
     ("ripple_harmonics 0", True, "campaign", "ripple_harmonics", "0"),
+    ("torque_source both with 2 grid revolutions", True, "campaign", "torque_source", '"both"'),
+    ("torque_source encoder with 2 grid revolutions", True, "campaign", "torque_source", '"encoder"'),
     ("max_current_a nan", True, "limits", "max_current_a", "nan"),
     ("max_speed_hz 0", True, "limits", "max_speed_hz", "0.0"),
     ("max_torque_nm -1", True, "limits", "max_torque_nm", "-1.0"),
@@ -1393,8 +1443,11 @@ SCAN_MUTATIONS: list[tuple[str, bool, Callable, bool]] = [
     ("reverse rows only", True, _keep_rows(lambda p, s: s < 0), True),
     ("direction column missing", True, _drop_column("direction"), False),
     # counts and samples
-    ("count 100 without samples", True, _keep_rows(lambda p, s: np.round(p) % 4096 != 100), False),
-    ("count 7 without reverse samples", True, _keep_rows(lambda p, s: (s > 0) | (np.round(p) % 4096 != 7)), True),
+    # a count without a sample is filled from its neighbours, said in a warning (docs/standstill.md, issue 24)
+    ("count 100 without samples", False, _keep_rows(lambda p, s: np.round(p) % 4096 != 100), False),
+    ("count 7 without reverse samples", False, _keep_rows(lambda p, s: (s > 0) | (np.round(p) % 4096 != 7)), True),
+    ("counts 300-350 without samples", True, _keep_rows(lambda p, s: (np.round(p) % 4096 < 300)
+                                                         | (np.round(p) % 4096 > 350)), False),
     ("one sample per count and direction", True, _keep_rows(lambda p, s: np.arange(p.size) % 4 == 0), False),
     ("half a revolution", True, _keep_rows(lambda p, s: p < 2048), False),
     ("position shifted by one revolution", False, column("position", lambda p: p + 4096, (SCAN_CSV,)), False),
@@ -1877,6 +1930,7 @@ def make_campaign_configs(scratch: Path) -> None:
 
 
 _PROBE_LINE = re.compile(rf"{ft.PROBE} requests (\d+) peak_true_current_a (\S+) max_current_a (\S+)")
+_PROBE_BREACH = re.compile(rf"{ft.PROBE}-breach (.+)")
 
 
 def probe(*args, folder: Path, opts: tuple = (), written: Path | None = None) -> tuple[Run, int | None]:
@@ -1888,6 +1942,8 @@ def probe(*args, folder: Path, opts: tuple = (), written: Path | None = None) ->
     if found is None:
         return run, None
     run.peak_current_a, run.limit_a = float(found[2]), float(found[3])
+    breach = _PROBE_BREACH.search(run.text)
+    run.breach = None if breach is None else breach[1]
     return run, int(found[1])
 
 
@@ -1899,9 +1955,11 @@ def trials_on_disk(run_dir: Path) -> tuple[int, int, int]:
             listed)
 
 
-def stage_case(name: str, config: Path) -> Case:
-    """The small campaign with the broken stage ``name`` (ft.BROKEN_STAGES): one StageError line naming it,
-    exit 2, and every trial sent on disk (its file, its state, listed in bench.toml)."""
+def stage_case(name: str, config: Path, category: str = "stages", must_reject: bool = True) -> Case:
+    """The small campaign with the broken stage ``name`` (ft.BROKEN_STAGES, or a lying one, ft.LYING_STAGES): one
+    error line naming the stage, exit 2 (or, where not ``must_reject``, the run to its end), every trial sent on
+    disk (its file, its state, listed in bench.toml), and never a value beyond the limits received by the
+    simulator (the probe)."""
     def run(folder: Path) -> Run:
         out = folder / "run"
         opts = ("--stage", name) + (("--stage-call-s", FUZZ_STAGE_CALL_S) if "hangs" in name else ())
@@ -1912,13 +1970,18 @@ def stage_case(name: str, config: Path) -> Case:
         elif trials_on_disk(out) != (sent,) * 3:
             done.problem = f"{sent} trials sent; trial files, states, listed in bench.toml: {trials_on_disk(out)}"
         elif errors and not errors[0].startswith(f"error: stage '{ft.BROKEN_STAGE}'"):
-            done.problem = f"not a StageError naming the stage: {errors[0][:150]}"
+            done.problem = f"not an error naming the stage: {errors[0][:150]}"
         return done
-    return Case("stages", name, True, run)
+    return Case(category, name, must_reject, run)
 
 
 def stage_cases(config: Path) -> list[Case]:
     return [stage_case(name, config) for name in ft.BROKEN_STAGES]
+
+
+def lying_cases(config: Path) -> list[Case]:
+    return [stage_case(name, config, "lying values", must_reject)
+            for name, (_, must_reject) in ft.LYING_STAGES.items()]
 
 
 # ---------------------------------------------------------------- 8. a run directory changed before --resume
@@ -1993,6 +2056,45 @@ def _unsealed(run: Path) -> None:
     path.write_text(json.dumps({**json.loads(path.read_text()), "sealed": False}))
 
 
+def _seal_removed(run: Path) -> None:
+    """Every seal removed, as a run before digests and seals had none: run.json's and the states'."""
+    import json
+
+    for path in [run / "states" / "run.json", *(run / "states").glob("*.json")]:
+        data = json.loads(path.read_text())
+        for key in ("sealed", "sha256", "trial_sha256", "trials_sha256", "run_id", "config_sha256", "index"):
+            data.pop(key, None)
+        path.write_text(json.dumps(data))
+
+
+def _json_key(name: str, key: str, value) -> Callable[[Path], None]:
+    import json
+
+    def tamper(run: Path) -> None:
+        data = json.loads((run / name).read_text())
+        data[key] = value
+        (run / name).write_text(json.dumps(data))
+    return tamper
+
+
+def _config(table: str, key: str, value: str) -> Callable[[Path], None]:
+    """campaign.toml with ``key = value`` in ``[table]``."""
+    return lambda run: (run / "campaign.toml").write_text(toml_set((run / "campaign.toml").read_text(), table, key,
+                                                                    value))
+
+
+def _from_finished(*names: str) -> Callable[[Path], None]:
+    """Files of the finished run (another run of the same config) copied into this one."""
+    def tamper(run: Path) -> None:
+        for name in names:
+            shutil.copy(run.parent / "run-finished-source" / name, run / name)
+    return tamper
+
+
+def _copied(source: str, target: str) -> Callable[[Path], None]:
+    return lambda run: shutil.copy(run / source, run / target)
+
+
 #: (name, base run "partial" or "finished", must be refused, change) of the run directory changes
 RESUME_CHANGES: list[tuple[str, str, bool, Callable[[Path], None]]] = [
     ("partial run untouched", "partial", False, lambda run: None),
@@ -2021,17 +2123,36 @@ RESUME_CHANGES: list[tuple[str, str, bool, Callable[[Path], None]]] = [
     # beyond what a digest can show: the edit resealed as the run seals it; the limits must hold all the same
     ("identification epsilon / 3, digest recomputed", "partial", False, _identification(lambda e: e / 3, True)),
     ("identification epsilon x 10, digest recomputed", "partial", False, _identification(lambda e: e * 10, True)),
+    # issue 34, items 3 and 4: a resume goes on under the config, limits, seed and files it began with
+    ("every seal removed, then epsilon / 3", "partial", True, _both_changes(
+        _seal_removed, _identification(lambda e: e / 3))),
+    ("campaign.toml with [limits] max_current_a 72", "partial", True, _config("limits", "max_current_a", "72.0")),
+    ("finished: campaign.toml with [limits] max_current_a 72", "finished", True,
+     _config("limits", "max_current_a", "72.0")),
+    ("campaign.toml with another learning grid", "partial", True, _config("campaign", "learn_torques_nm",
+                                                                          "[1.0, 3.0]")),
+    ("seed 8 in states/run.json", "partial", True, _json_key("states/run.json", "seed", 8)),
+    ("the finished run's trial 8 and its state mixed in", "partial", True, _from_finished(
+        "trial_008.parquet", "states/trial_008.json")),
+    ("the finished run's states/run.json copied in", "partial", True, _from_finished("states/run.json")),
+    ("the finished run's states/identification.json copied in", "partial", True, _from_finished(
+        "states/identification.json")),
+    ("trial 7 and its state copied over trial 8", "partial", True, _both_changes(
+        _copied("trial_007.parquet", "trial_008.parquet"), _copied("states/trial_007.json", "states/trial_008.json"))),
 ]
 
 
-def resume_case(name: str, base: Path, must_reject: bool, change: Callable[[Path], None]) -> Case:
-    """``ilcpmac run --resume`` of a copy of ``base`` changed: refused in one line before any trial; any trial
-    that runs keeps its true currents within [limits] max_current_a (the probe)."""
+def resume_case(name: str, base: Path, must_reject: bool, change: Callable[[Path], None],
+                args: tuple[str, ...] = ()) -> Case:
+    """``ilcpmac run --resume`` (with ``args``) of a copy of ``base`` changed: refused in one line before any trial;
+    any trial that runs keeps its true currents within [limits] max_current_a (the probe)."""
     def run(folder: Path) -> Run:
         run_dir = folder / "run"
         shutil.copytree(base, run_dir, symlinks=True)
+        (folder / "run-finished-source").symlink_to(base.parent / "run-finished")
         change(run_dir)
-        done, sent = probe("run", "--resume", run_dir, folder=folder, written=None if must_reject else run_dir)
+        done, sent = probe("run", "--resume", run_dir, *args, folder=folder,
+                           written=None if must_reject else run_dir)
         if sent is None:
             done.problem = "the probe printed no count of the trials sent"
         elif must_reject and sent:
@@ -2040,23 +2161,75 @@ def resume_case(name: str, base: Path, must_reject: bool, change: Callable[[Path
     return Case("resume tampering", name, must_reject, run)
 
 
+#: options that would change a resumed run: refused (they were silently ignored)
+RESUME_OPTIONS = [("--seed", "8"), ("--trials", "1"), ("--budget", "5"), ("--out", "elsewhere")]
+
+
 def resume_cases(scratch: Path) -> list[Case]:
-    return [resume_case(name, scratch / f"run-{base}", must, change) for name, base, must, change in RESUME_CHANGES]
+    return [*(resume_case(name, scratch / f"run-{base}", must, change) for name, base, must, change in RESUME_CHANGES),
+            *(resume_case(f"--resume with {' '.join(option)}", scratch / "run-partial", True, lambda run: None, option)
+              for option in RESUME_OPTIONS)]
 
 
 # ---------------------------------------------------------------- 9. import: units, gaps, impossible rows
 
 #: log_a's trial at 10 kHz (about 3 rows per count): rows between two counts feed no count's value
 LOG_10K = "log_10k.csv"
+#: a moteus cogging file of the base bench's motor (8192 bins, two per count) and its mapping
+COGGING, MAP_COGGING = "cogging.json", "map_cogging.toml"
+#: the small campaign's config and run directory (`ilcpmac run`: the grid, then compensated trials)
+RUN_CONFIG, RUN = "campaign.toml", "run"
 
 
-def make_units_base(bench: Path, folder: Path) -> None:
-    """The import group's logs (make_import_base) and LOG_10K, in ``folder``."""
+def make_units_base(bench: Path, folder: Path) -> str | None:
+    """The import group's logs (make_import_base), LOG_10K, a moteus cogging file and its mapping, and a run
+    directory of the small campaign, in ``folder``; a message if the run cannot be made."""
     import tomllib
 
+    sys.path.insert(0, str(ROOT / "tests"))
+    from campaign_helpers import SMALL_CAMPAIGN
+
     make_import_base(bench, folder)
-    cpr = tomllib.loads((bench / "bench.toml").read_text())["motor"]["counts_per_rev"]
-    write_phase_log(folder / LOG_10K, bench / LOGGED[LOG_A], cpr, 10_000.0)
+    motor = tomllib.loads((bench / "bench.toml").read_text())["motor"]
+    write_phase_log(folder / LOG_10K, bench / LOGGED[LOG_A], motor["counts_per_rev"], 10_000.0)
+    write_cogging_file(folder / COGGING, bench, motor["pole_pairs"])
+    (folder / MAP_COGGING).write_text(mapping_bench(bench) + '[log]\nkind = "moteus-cogging"\n')
+    (folder / RUN_CONFIG).write_text(campaign_toml(SMALL_CAMPAIGN))
+    made = run_process([ILCPMAC, "run", str(folder / RUN_CONFIG), "--out", str(folder / RUN)], folder)
+    return None if made.code == 0 else f"cannot make the units group's run directory:\n{made.text[-2000:]}"
+
+
+def write_cogging_file(path: Path, bench: Path, pole_pairs: int, bins: int = 8192) -> None:
+    """A moteus cogging file of bench folder ``bench``'s motor ({"reverse": [...], "forward": [...]}, A): the
+    holding current k_q i_q = -tau_c + s f of a 20 mN m cogging at orders 48 and 96 and 30 mN m of friction,
+    plus 2 mA of seeded scatter per bin."""
+    import json
+
+    from ilcpmac.bench.moteus import q_torque_constant
+
+    k_q = q_torque_constant(np.loadtxt(bench / "backemf.csv", delimiter=",", skiprows=1)[:, 1:], pole_pairs)
+    theta = 2 * np.pi * (np.arange(bins) + 0.5) / bins
+    cogging = 0.02 * np.sin(48 * theta + 0.3) + 0.01 * np.cos(96 * theta)
+    rng = np.random.default_rng(34)
+    path.write_text(json.dumps({key: ((-cogging + sign * 0.03) / k_q + 2e-3 * rng.standard_normal(bins)).tolist()
+                                for key, sign in (("reverse", -1.0), ("forward", 1.0))}))
+
+
+def _cogging_values(fn: Callable[[list[float]], list[float]], key: str = "forward") -> Callable:
+    """The moteus cogging file's ``key`` list (every list: "both") changed by ``fn``."""
+    def mutate(d: Path, rng) -> None:
+        import json
+
+        data = json.loads((d / COGGING).read_text())
+        (d / COGGING).write_text(json.dumps({k: fn(v) if key in (k, "both") else v for k, v in data.items()}))
+    return mutate
+
+
+def _encoded(file: str, encoding: str) -> Callable:
+    """``file`` re-encoded from UTF-8 to ``encoding``."""
+    def mutate(d: Path, rng) -> None:
+        (d / file).write_bytes((d / file).read_text().encode(encoding))
+    return mutate
 
 
 def _quiet_cell(name: str, value: str, file: str = LOG_10K) -> Callable:
@@ -2082,6 +2255,7 @@ def _passwd_like(d: Path, rng) -> None:
 
 
 LOG_10K_ARGS: Args = lambda d: [d / LOG_10K, "--map", d / MAP]  # noqa: E731
+COGGING_ARGS: Args = lambda d: [d / COGGING, "--map", d / MAP_COGGING]  # noqa: E731
 
 #: (name, mutation, logs and mapping, the file the error line must name) of the import cases; each must be refused
 UNIT_MUTATIONS: list[tuple[str, Callable, Args, str]] = [
@@ -2101,6 +2275,25 @@ UNIT_MUTATIONS: list[tuple[str, Callable, Args, str]] = [
     ("'#' starting a row between counts (10 kHz)", _quiet_cell("t", "#0"), LOG_10K_ARGS, LOG_10K),
     ("backemf_file = /etc/passwd", mapping("bench", "backemf_file", '"/etc/passwd"'), PHASE_ARGS, MAP),
     ("backemf_file a passwd-like file outside the folder", _passwd_like, PHASE_ARGS, MAP),
+    # currents and torque in a unit the mapping does not say (issue 34, item 10): judged against [limits]
+    ("i_q in 10 mA read as A (100x)", mapping("log", "current_a_per_unit", "1.0", MAP_Q), Q_ARGS, LOG_Q),
+    ("i_q in mA read as A (1000x)", mapping("log", "current_a_per_unit", "10.0", MAP_Q), Q_ARGS, LOG_Q),
+    ("phase currents in mA read as A", mapping("log", "current_a_per_unit", "1e3"), PHASE_ARGS, LOG_A),
+    ("torque in mN m read as N m", mapping("log", "torque_nm_per_unit", "1e3"), PHASE_ARGS, LOG_A),
+    ("i_q in mA read as A, [limits] of the motor given", _both(
+        mapping("log", "current_a_per_unit", "10.0", MAP_Q),
+        mapping_text(lambda t: t + "\n[limits]\nmax_current_a = 5.0\nmax_torque_nm = 4.0\n", MAP_Q)), Q_ARGS, LOG_Q),
+    ("a log in UTF-16 (its byte-order mark)", _encoded(LOG_A, "utf-16"), PHASE_ARGS, LOG_A),
+    ("a log in UTF-16 LE without a byte-order mark", _encoded(LOG_A, "utf-16-le"), PHASE_ARGS, LOG_A),
+    ("a q-axis log in UTF-16 BE", _encoded(LOG_Q, "utf-16-be"), Q_ARGS, LOG_Q),
+    ("moteus cogging file in mA", _cogging_values(lambda v: [1e3 * x for x in v], "both"), COGGING_ARGS, COGGING),
+    ("moteus cogging file with one bin of 9999 A", _cogging_values(lambda v: v[:100] + [9999.0] + v[101:]),
+     COGGING_ARGS, COGGING),
+    ("moteus cogging file of zeros", _cogging_values(lambda v: [0.0] * len(v), "both"), COGGING_ARGS, COGGING),
+    ("moteus cogging file of 0.5 A in every bin", _cogging_values(lambda v: [0.5] * len(v), "both"), COGGING_ARGS,
+     COGGING),
+    ("moteus cogging file in UTF-16", _encoded(COGGING, "utf-16"), COGGING_ARGS, COGGING),
+    ("moteus cogging file in UTF-32", _encoded(COGGING, "utf-32"), COGGING_ARGS, COGGING),
 ]
 
 
@@ -2113,14 +2306,24 @@ def _nothing_written(folder: Path, out: Path) -> str | None:
     return f"wrote {', '.join(made[:3])} into the output" if made else None
 
 
+def _stray_output(run: Run) -> str | None:
+    """A warning of Python's or of LAPACK's in the output (never the user's to read)."""
+    stray = [line for line in run.text.splitlines() if "Warning:" in line or "** On entry to" in line]
+    return f"printed {stray[0].strip()[:150]}" if stray else None
+
+
 def _refusal_problem(run: Run, names: str) -> str | None:
-    """A refusal's error line that does not name ``names``, or that shows /etc/passwd."""
+    """A refusal's error line that does not name ``names``, that shows /etc/passwd, or that other output
+    precedes (a progress line, a warning: the error is the command's one line)."""
     if "root:x:" in run.text or "/bin/bash" in run.text:
         return "echoed /etc/passwd"
     errors = _error_lines(run.text)
     if errors and names not in errors[0]:
         return f"the error line names no {names}: {errors[0][:150]}"
-    return None
+    others = [line for line in run.text.splitlines() if line.strip() and line not in errors]
+    if errors and others:
+        return f"a line besides the error: {others[0].strip()[:150]}"
+    return _stray_output(run)
 
 
 def unit_case(base: Path, name: str, mutate: Callable, args: Args, names: str) -> Case:
@@ -2148,8 +2351,94 @@ def hash_in_trial_case(bench: Path) -> Case:
     return Case("import units & gaps", "'#' starting a row of a bench folder's trial (identify)", True, run)
 
 
+def _swapped_torque(noise_nm: float) -> Callable[[Path], None]:
+    """Every trial's torque and i_ref_a columns swapped (their headers), the torque column then given
+    ``noise_nm`` of seeded scatter (0: none; a simulated current reference repeats exactly)."""
+    def mutate(d: Path) -> None:
+        rng = np.random.default_rng(34)
+        for trial in TRIALS:
+            header, rows = read_csv(d / trial)
+            i, j = header.index("i_ref_a"), header.index("torque")
+            header[i], header[j] = header[j], header[i]
+            for row in rows if noise_nm else ():
+                row[i] = f"{float(row[i]) + noise_nm * rng.standard_normal():.6f}"
+            write_csv(d / trial, header, rows)
+    return mutate
+
+
+def identify_case(name: str, source: Path, change: Callable[[Path], None], must_reject: bool,
+                  check: Callable[[Run], str | None]) -> Case:
+    """``ilcpmac identify`` of a copy of folder ``source`` changed by ``change``; ``check`` says what is wrong
+    with what it did (and `_stray_output`)."""
+    def run(folder: Path) -> Run:
+        d = folder / "bench"
+        shutil.copytree(source, d, symlinks=True)
+        change(d)
+        out = folder / "result.json"
+        done = ilcpmac("identify", d, "--output", out, folder=folder, written=out)
+        done.problem = check(done) or _stray_output(done)
+        return done
+    return Case("import units & gaps", name, must_reject, run)
+
+
+def _says(text: str, code: int) -> Callable[[Run], str | None]:
+    """A check: exit ``code`` with ``text`` in the output (for exit 2 in the error line, and nothing else)."""
+    def check(run: Run) -> str | None:
+        if run.code != code or text not in run.text:
+            last = [line for line in run.text.splitlines() if line.strip()]
+            return f"exit {run.code} without {text!r}: {last[-1][:150] if last else ''}"
+        return _refusal_problem(run, text) if code == 2 else None
+    return check
+
+
+def _scan_of(base: Path, mapping_change: Callable[[str], str]) -> Callable[[Path], Path]:
+    """A scan folder of the units group's moteus cogging file, imported under its mapping changed by
+    ``mapping_change``."""
+    def make(folder: Path) -> Path:
+        logs = folder / "logs"
+        shutil.copytree(base, logs, symlinks=True, ignore=shutil.ignore_patterns(RUN))
+        edit(logs / MAP_COGGING, mapping_change)
+        made = run_process([ILCPMAC, "import", *map(str, COGGING_ARGS(logs)), "--out", str(folder / "scan")],
+                           folder)
+        if made.code != 0:
+            raise RuntimeError(f"cannot import the scan: {made.text[-500:]}")
+        return folder / "scan"
+    return make
+
+
+def scan_identify_case(name: str, make: Callable[[Path], Path], check: Callable[[Run], str | None]) -> Case:
+    """``ilcpmac identify`` of the scan folder ``make(folder)`` makes (a valid scan: its import is no case)."""
+    def run(folder: Path) -> Run:
+        scan = make(folder)
+        out = folder / "scan.json"
+        done = ilcpmac("identify", scan, "--output", out, folder=folder, written=out)
+        done.problem = check(done) or _stray_output(done)
+        return done
+    return Case("import units & gaps", name, False, run)
+
+
+def identify_garbage_cases(base: Path, bench: Path) -> list[Case]:
+    """``ilcpmac identify`` on what its model does not describe (issue 34, items 10 and 17)."""
+    nyquist = _scan_of(base, lambda t: toml_set(t, "bench", "slots", "2047"))
+    return [
+        identify_case("a campaign's run directory (its grid identified)", base / RUN, lambda d: None, False,
+                      _says("grid trials identified", 0)),
+        identify_case("torque and i_ref_a swapped in every trial", bench, _swapped_torque(0.0), True,
+                      _says("the torque repeats exactly", 2)),
+        identify_case("torque and i_ref_a swapped, the torque with 20 mN m of noise", bench, _swapped_torque(0.02),
+                      True, _says("nothing can be identified from this torque", 2)),
+        identify_case("a bench folder without bench.toml: one line", bench, lambda d: (d / "bench.toml").unlink(),
+                      True, _says("bench.toml", 2)),
+        scan_identify_case("a scan whose cogging order is beyond the counts' Nyquist limit (slots 2047)", nyquist,
+                           _says("cogging: not identified", 0)),
+        scan_identify_case("a moteus scan as written (control)", _scan_of(base, lambda t: t),
+                           _says("cogging (orders 48, 96, ...): ", 0)),
+    ]
+
+
 def unit_cases(base: Path, bench: Path) -> list[Case]:
-    return [unit_case(base, *m) for m in UNIT_MUTATIONS] + [hash_in_trial_case(bench)]
+    return ([unit_case(base, *m) for m in UNIT_MUTATIONS] + [hash_in_trial_case(bench)]
+            + identify_garbage_cases(base, bench))
 
 
 # ---------------------------------------------------------------- 10. sweep: schedulers that are none, magnets
@@ -2334,23 +2623,284 @@ RESULT_CHANGES: list[tuple[str, Callable[[str], str | bytes]]] = [
 ]
 
 
+#: the files of a run directory that export reads besides compensation.json: its [limits] and its encoder
+RUN_LIMIT_FILES = ("campaign.toml", "bench.toml", "backemf.csv")
+
+
+def _placed(source: Path, change: Callable[[str], str | bytes], folder: Path, run_dir: Path | None) -> Path:
+    """``source`` changed by ``change``, written into ``folder`` (made if missing), with the files of the run
+    directory ``run_dir`` that export reads (None: outside a run directory)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in RUN_LIMIT_FILES if run_dir is not None else ():
+        shutil.copy(run_dir / name, folder / name)
+    text = change(source.read_text())
+    path = folder / source.name
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    return path
+
+
 def export_case(name: str, source: Path, change: Callable[[str], str | bytes], must_reject: bool = True,
-                fmt: str = "json") -> Case:
+                fmt: str = "json", args: tuple = (), category: str = "export tables", place: str = "",
+                run_dir: Path | None = None, out_name: str = "out") -> Case:
     """``ilcpmac export`` of ``source`` (a run's compensation.json, given as its run directory, or a result JSON)
-    changed by ``change``: refused in one line naming it, nothing written."""
+    changed by ``change``, with ``args``: refused in one line naming it, nothing written; or (``must_reject``
+    False) written, its C compiling and inert. It is written into the folder ``place`` (default: "run" for a
+    compensation, the case's folder for a result) with the limit files of its run directory (a compensation's
+    own, a result's ``run_dir``: None, outside one)."""
     def run(folder: Path) -> Run:
         is_run = source.name == "compensation.json"
-        path = folder / ("run" if is_run else "") / source.name
-        path.parent.mkdir(exist_ok=True)
-        text = change(source.read_text())
-        path.write_bytes(text if isinstance(text, bytes) else text.encode())
-        out = folder / "out"
-        done = ilcpmac("export", path.parent if is_run else path, "--format", fmt, "--out", out, folder=folder,
-                       written=out)
-        if must_reject:
-            done.problem = _refusal_problem(done, source.name) or _nothing_written(folder, out)
+        within = source.parent if is_run else run_dir
+        path = _placed(source, change, folder / (place or ("run" if within else "")), within)
+        out = folder / out_name
+        done = ilcpmac("export", path.parent if is_run else path, "--format", fmt, *args, "--out", out,
+                       folder=folder, written=out)
+        done.problem = (_refusal_problem(done, source.name) or _nothing_written(folder, out) if must_reject else
+                        _c_problem(out) if done.code == 0 else None)
         return done
-    return Case("export tables", f"{source.stem}: {name}", must_reject, run)
+    return Case(category, f"{source.stem}: {name}", must_reject, run)
+
+
+def _c_problem(out: Path) -> str | None:
+    """The first C source of an export that does not compile (C99, every warning an error), or None."""
+    compiler = shutil.which("gcc") or shutil.which("cc")
+    for source in sorted(out.glob("*.c")) if compiler else ():
+        done = subprocess.run([compiler, "-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror", "-fsyntax-only",
+                               str(source)], capture_output=True, text=True, timeout=60)
+        if done.returncode != 0:
+            return f"{source.name} does not compile: {done.stderr.strip().splitlines()[0][:150]}"
+    if compiler and any("ilcpmac_injected" in p.read_text().replace("*\\/ int ilcpmac_injected", "")
+                        for p in out.glob("*.[ch]")):
+        return "a source path's text is live code in the C"
+    return None
+
+
+def _cogging(n: int, peak_nm: float) -> Callable[[str], str]:
+    """A result whose cogging table has ``n`` counts (order 48) and the peak ``peak_nm``."""
+    def fn(data: dict) -> None:
+        data["cogging"] = {"count": list(range(n)),
+                           "torque": (peak_nm * np.sin(np.arange(n) * 2 * np.pi * 48 / n)).tolist()}
+    return _json_edit(fn)
+
+
+def _peak(key: str, peak_nm: Callable[[float], float]) -> Callable[[str], str]:
+    """The JSON text with the table at ``key`` ("tables_nm" or "cogging.torque") scaled to the peak
+    ``peak_nm(its peak)``."""
+    def fn(data: dict) -> None:
+        *parents, last = key.split(".")
+        node = data
+        for part in parents:
+            node = node[part]
+        table = np.asarray(node[last])
+        peak = np.abs(table).max()
+        node[last] = (table * (peak_nm(peak) / peak)).tolist()
+    return _json_edit(fn)
+
+
+def _calibration(current_scale_b: float) -> Callable[[str], str]:
+    """A result with a calibration whose phase b current scale is ``current_scale_b``."""
+    return _json_edit(lambda d: d.update(calibration={"current_scale": [14.0, current_scale_b, 13.9],
+                                                      "current_offset": [1.5, -2.0, 0.25], "torque_gain": 0.9}))
+
+
+def _as_scan(short_by: int) -> Callable[[str], str]:
+    """The result as a standstill scan's of its counts_per_rev, its cogging table ``short_by`` values short."""
+    def fn(data: dict) -> None:
+        torque = data["cogging"]["torque"]
+        kept = torque[:len(torque) - short_by]
+        data.clear()
+        data.update({"kind": "standstill_scan", "counts_per_rev": len(torque), "cogging_order": 1,
+                     "cogging": {"count": list(range(len(kept))), "torque": kept}})
+    return _json_edit(fn)
+
+
+def _cut_tables(data: dict) -> None:
+    """counts_per_rev one less, and every table one count shorter: a record consistent in itself."""
+    data["counts_per_rev"] -= 1
+    for row in data["tables_nm"]:
+        for table in row:
+            table.pop()
+
+
+#: --torque-constant values a drive format must refuse: a current infinite, nothing, or no number
+BAD_TORQUE_CONSTANTS = ("1e-300", "1e300", "inf", "nan", "0", "-0.1")
+#: a source folder that closes the C comment and opens a declaration (the issue's), a result's folder named run*
+INJECTING, STARRED = "x*/ int ilcpmac_injected = 1; /*", "run*"
+
+
+def export_bound_cases(compensation: Path, result: Path) -> list[Case]:
+    """Export bounds (issue 34, items 6 to 8): a calibration out of range, a torque constant that makes the q-axis
+    current infinite or nothing, tables beyond the run's [limits] or the drive's current, of the wrong length,
+    scales a C float cannot hold: refused; source paths that would break the C, names that are no UTF-8: written,
+    the C compiling and inert."""
+    from ilcpmac.config import LimitSettings
+    from ilcpmac.core.schema import read_toml
+
+    run_dir = compensation.parent
+    limit = read_toml(run_dir / "campaign.toml").get("limits", {}).get("max_correction_nm",
+                                                                        LimitSettings().max_correction_nm)
+    counts = read_toml(run_dir / "bench.toml")["motor"]["counts_per_rev"]
+
+    def case(name: str, source: Path, change: Callable[[str], str | bytes], fmt: str = "json", *args: str,
+             must_reject: bool = True, **kw) -> Case:
+        options = " ".join((f"--format {fmt}",) * (fmt != "json") + args)
+        return export_case(", ".join(filter(None, (name, options))), source, change, must_reject, fmt, args,
+                           "export bounds", **kw)
+
+    unchanged = lambda t: t  # noqa: E731
+    cases = [case(f"calibration current_scale {v!r}", result, _calibration(v), fmt)
+             for v in (0.0, -27.5, 1e10) for fmt in ("csv", "c")]
+    cases += [case("current_scale 1e-300 (0 as a C float)", compensation, _set("calibration.current_scale.1", 1e-300),
+                   "c"),
+              case("current_scale 1e-300 (exact in CSV)", compensation, _set("calibration.current_scale.1", 1e-300),
+                   "csv", must_reject=False),
+              case("torque_gain 1e-300", compensation, _set("calibration.torque_gain", 1e-300), "c")]
+    cases += [case("", result, unchanged, fmt, "--torque-constant", kt) for fmt in ("moteus", "harmonics")
+              for kt in BAD_TORQUE_CONSTANTS]
+    tiny = _peak("tables_nm", lambda _: 1e-36)
+    cases += [case("cogging table of 1e5 N m", result, _peak("cogging.torque", lambda _: 1e5), "moteus",
+                   "--torque-constant", "0.3"),
+              *(case(f"tables_nm at 3.3 x max_correction_nm {limit:g} N m", compensation,
+                     _peak("tables_nm", lambda _: 3.3 * limit), fmt) for fmt in ("json", "c")),
+              case(f"cogging of {counts} counts at 3.3 x max_correction_nm in the run directory", result,
+                   _cogging(counts, 3.3 * limit), "moteus", "--torque-constant", "0.3", run_dir=run_dir),
+              case(f"cogging of {counts} counts asking 1e3 A in the run directory", result,
+                   _cogging(counts, 0.5 * limit), "harmonics", "--torque-constant", f"{0.5 * limit / 1e3!r}",
+                   run_dir=run_dir),
+              case(f"cogging of {counts + 1} counts in a run of {counts}", result, _cogging(counts + 1, 0.1), "c",
+                   run_dir=run_dir),
+              case(f"counts_per_rev and tables of {counts - 1} in a run of {counts}", compensation,
+                   _json_edit(_cut_tables), "csv"),
+              case("a scan's cogging one value short of its counts_per_rev", result, _as_scan(1), "c"),
+              case("position_torque one count longer than cogging", result, _json_edit(lambda d: d.update(
+                  position_torque={"count": list(range(len(d["cogging"]["torque"]) + 1)),
+                                   "torque": d["cogging"]["torque"] + [0.0]}))),
+              case("tables_nm peaking at 1e-36 N m (an int16 scale of 0)", compensation, tiny, "c"),
+              case("tables_nm peaking at 1e-36 N m", compensation, tiny, "c", "--c-type", "float", must_reject=False),
+              case("torques_nm one float apart", compensation, _json_edit(lambda d: d.update(
+                  torques_nm=[d["torques_nm"][0], d["torques_nm"][0] * (1 + 1e-9)])), "c"),
+              case("fade.zero_hz 1e300 (inf as a C float)", compensation, _json_edit(lambda d: d.update(
+                  fade={"full_hz": 0.5, "zero_hz": 1e300})), "c")]
+    cases += [case(f"in a folder {INJECTING!r}", compensation, unchanged, "c", must_reject=False, place=INJECTING),
+              case(f"in a folder {INJECTING!r}", result, unchanged, "c", must_reject=False, place=INJECTING),
+              case(f"in a folder {STARRED!r}", result, unchanged, "c", must_reject=False, place=STARRED),
+              case("in a folder whose name is no UTF-8", result, unchanged, "c", must_reject=False,
+                   place=os.fsdecode(b"src-\xff"))]
+    cases += [case("into a folder whose name is no UTF-8", source, unchanged, fmt, *args, must_reject=False,
+                   out_name=os.fsdecode(b"out-\xff"))
+              for source, fmt, args in ((compensation, "json", ()), (compensation, "csv", ()), (compensation, "c", ()),
+                                        (result, "harmonics", ("--torque-constant", "0.3")),
+                                        (result, "moteus", ("--torque-constant", "0.3")))]
+    return cases
+
+
+#: what the full disk of the full-disk cases has free, bytes: one page of a tmpfs, or the emulated disk's budget
+FULL_DISK_FREE = 4096
+#: ``python -c`` of an emulated full disk (the fallback where no tmpfs can be mounted): ``ilcpmac ARGS`` whose
+#: writes through ilcpmac.core.files (`atomic_write`, `check_writable`) stop at ENOSPC after argv[1] bytes in all
+#: (tests/test_output_and_sweep_garbage.py's full_disk, with a budget)
+_EMULATED_FULL_DISK = """\
+import builtins, errno, os, sys
+import ilcpmac.core.files as files
+left = [int(sys.argv[1])]
+class Full:
+    def __init__(self, f): self.f = f
+    def __enter__(self): return self
+    def __exit__(self, *exc): self.f.close()
+    def __getattr__(self, name): return getattr(self.f, name)
+    def write(self, data):
+        n = min(len(data), left[0])
+        self.f.write(data[:n])
+        left[0] -= n
+        if n < len(data): raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return n
+def open_(file, mode="r", *args, **kwargs):
+    f = builtins.open(file, mode, *args, **kwargs)
+    return Full(f) if "w" in mode else f
+files.open = open_
+from ilcpmac.cli import entry_point
+sys.argv = ["ilcpmac", *sys.argv[2:]]
+entry_point()
+"""
+
+
+def _mount_tmpfs(folder: Path) -> bool:
+    """A 4 MiB tmpfs mounted on ``folder`` (root only); False where none can be."""
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        return False
+    return subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(folder)],
+                          capture_output=True).returncode == 0
+
+
+def _fill(disk: Path) -> None:
+    """Fill the tmpfs ``disk`` but `FULL_DISK_FREE` bytes."""
+    page = 4096
+    with open(disk / "filler", "wb", buffering=0) as f:
+        try:
+            while True:
+                f.write(b"\0" * page)
+        except OSError:
+            pass
+    size = (disk / "filler").stat().st_size
+    os.truncate(disk / "filler", (-(-size // page) - -(-FULL_DISK_FREE // page)) * page)
+
+
+def _files(out: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir())} if out.is_dir() else {}
+
+
+def full_disk_case(source: Path, fmt: str, args: tuple, earlier: Callable[[str], str] | None) -> Case:
+    """``ilcpmac export`` of ``source`` onto a full disk (`FULL_DISK_FREE` bytes free: a tmpfs, else emulated),
+    into an empty folder or over the files of an earlier export of ``earlier(source)``, a smaller record (so that
+    writing in place cannot reuse the old files' room): one line naming the file, exit 2, and the folder as it
+    was (no file truncated, none new beside old ones, no temporary)."""
+    is_run = source.name == "compensation.json"
+
+    def run(folder: Path) -> Run:
+        path = _placed(source, earlier or (lambda t: t), folder / ("run" if is_run else ""),
+                       source.parent if is_run else None)
+        target = path.parent if is_run else path
+        disk = folder / "disk"
+        disk.mkdir()
+        mounted = _mount_tmpfs(disk)
+        out = disk / "out"
+        command = ["export", str(target), "--format", fmt, *args, "--out", str(out)]
+        try:
+            if earlier is not None:
+                first = ilcpmac(*command, folder=folder)
+                if first.code != 0:
+                    first.problem = f"the earlier export failed: {first.text.strip()[-150:]}"
+                    return first
+                shutil.copy(source, path)
+            old = _files(out)
+            if mounted:
+                _fill(disk)
+                done = ilcpmac(*command, folder=folder)
+            else:
+                done = run_process([sys.executable, "-c", _EMULATED_FULL_DISK, str(FULL_DISK_FREE), *command], folder)
+            errors = _error_lines(done.text)
+            left = sorted(p.name for p in out.glob("*") if p.suffix in (".tmp", ".new"))
+            done.problem = (f"left {', '.join(left)}" if left else
+                            "the folder is not as it was" if _files(out) != old else
+                            f"the error names no file in the output: {errors[0][:150]}"
+                            if errors and not errors[0].startswith(f"error: {out}/") else None)
+            return done
+        finally:
+            if mounted:
+                subprocess.run(["umount", str(disk)], capture_output=True)
+    return Case("export full disk", f"{source.stem} --format {fmt}{' ' if args else ''}{' '.join(args)}"
+                f"{' over an earlier export' if earlier else ''}", True, run)
+
+
+def full_disk_cases(compensation: Path, result: Path) -> list[Case]:
+    """Full-disk export (issue 34, item 9): every format into an empty folder, and those whose files grow with
+    the record over an earlier export of a smaller one (tables of zeros; a cogging table of 1024 counts): moteus
+    has 1024 entries whatever the table, harmonics a row per harmonic of the cogging order."""
+    kt = ("--torque-constant", "0.3")
+    zeros, short = _peak("tables_nm", lambda _: 0.0), _cogging(1024, 0.02)
+    formats = ((compensation, "json", (), zeros), (compensation, "csv", (), zeros), (compensation, "c", (), zeros),
+               (result, "c", (), short), (result, "harmonics", kt, None), (result, "moteus", kt, None))
+    return [full_disk_case(source, fmt, args, None) for source, fmt, args, _ in formats] + [
+        full_disk_case(source, fmt, args, earlier) for source, fmt, args, earlier in formats if earlier is not None]
 
 
 def export_cases(compensation: Path, result: Path) -> list[Case]:
@@ -2364,10 +2914,144 @@ def export_cases(compensation: Path, result: Path) -> list[Case]:
             export_case("true in tables_nm, --format c", compensation, _set("tables_nm.0.0.5", True), fmt="c"),
             export_case("NaN in tables_nm, --format csv", compensation, _set("tables_nm.0.0.3", float("nan")),
                         fmt="csv"),
-            *(export_case(name, result, change) for name, change in RESULT_CHANGES)]
+            *(export_case(name, result, change) for name, change in RESULT_CHANGES),
+            *export_bound_cases(compensation, result), *full_disk_cases(compensation, result)]
 
 
 # ---------------------------------------------------------------- the campaign
+
+
+# ---------------------------------------------------------------- 12. api arguments
+
+
+#: a case's Python process: the call, an `IlcpmacError` printed as ``error:`` lines (one per line of its message)
+#: and exit 2; any other exception is a traceback
+API_SNIPPET = """import sys
+from pathlib import Path
+
+import numpy as np
+
+import ilcpmac.api as ilc
+from ilcpmac.core.errors import IlcpmacError
+
+config = {config!r}
+try:
+{call}
+except IlcpmacError as e:
+    for line in str(e).splitlines() or [""]:
+        print(f"error: {{line}}", file=sys.stderr)
+    sys.exit(2)
+"""
+
+#: (name, call, must be rejected, the argument the error line names): each call in a case's empty folder, the
+#: small config as ``config``
+API_CALLS: list[tuple[str, str, bool, str]] = [
+    ("run seed True", "ilc.run(config, out='run', seed=True)", True, "seed"),
+    ("run seed 2.0", "ilc.run(config, out='run', seed=2.0)", True, "seed"),
+    ("run trials 1.5", "ilc.run(config, out='run', trials=1.5)", True, "trials"),
+    ("run trials '2'", "ilc.run(config, out='run', trials='2')", True, "trials"),
+    ("run budget_min nan", "ilc.run(config, out='run', budget_min=float('nan'))", True, "budget_min"),
+    ("run budget_min '5'", "ilc.run(config, out='run', budget_min='5')", True, "budget_min"),
+    ("run budget_min 1e6", "ilc.run(config, out='run', budget_min=1e6)", True, "budget_min"),
+    ("run backend 5", "ilc.run(config, out='run', backend=5)", True, "backend"),
+    ("run backend ''", "ilc.run(config, out='run', backend='')", True, "backend"),
+    ("run address 5", "ilc.run(config, out='run', backend='remote', address=5)", True, "address"),
+    ("run on_event 'print'", "ilc.run(config, out='run', on_event='print')", True, "on_event"),
+    ("run out NUL", "ilc.run(config, out='a\\x00b')", True, "out"),
+    ("run out bytes", "ilc.run(config, out=b'run')", True, "out"),
+    ("run config 5", "ilc.run(5, out='run')", True, "config"),
+    ("run config ''", "ilc.run('', out='run')", True, "config"),
+    ("run resume []", "ilc.run(resume=[])", True, "resume"),
+    ("load_run 5", "ilc.load_run(5)", True, "run_dir"),
+    ("load_run lone surrogate", "ilc.load_run('\\ud800')", True, "run_dir"),
+    ("trial True", "ilc.RunResults(Path('run'), (), {}, 0.0, (), None, None).trial(True)", True, "index"),
+    ("trial_frame 1.0", "ilc.RunResults(Path('run'), (), {}, 0.0, (), None, None).trial_frame(1.0)", True, "index"),
+    ("print_event 5", "ilc.print_event(5)", True, "event"),
+    ("print_event None", "ilc.print_event(None)", True, "event"),
+    ("write_config changes 5", "ilc.write_config('c.toml', 5)", True, "changes"),
+    ("write_config changes a list", "ilc.write_config('c.toml', [('trials', {})])", True, "changes"),
+    ("write_config an object", "ilc.write_config('c.toml', {'trials': {'seed': object()}})", True, "changes"),
+    ("write_config a set", "ilc.write_config('c.toml', {'trials': {'seed': {1, 2}}})", True, "changes"),
+    ("write_config int key", "ilc.write_config('c.toml', {1: {}})", True, "changes"),
+    ("write_config lone surrogate key", "ilc.write_config('c.toml', {'\\ud800': {}})", True, "changes"),
+    ("write_config 2-D array", "ilc.write_config('c.toml', {'trials': {'seed': np.zeros((3, 3))}})", True,
+     "changes"),
+    ("write_config nested 100 deep", "d = {}\n    for _ in range(100):\n        d = {'t': d}\n"
+     "    ilc.write_config('c.toml', d)", True, "changes"),
+    ("write_config cyclic", "d = {}\n    d['t'] = d\n    ilc.write_config('c.toml', d)", True, "changes"),
+    ("write_config base 5", "ilc.write_config('c.toml', {}, base=5)", True, "base"),
+    ("write_config path NUL", "ilc.write_config('a\\x00.toml', {})", True, "path"),
+    ("simulate_bench torque_sensor 'no'", "ilc.simulate_bench(config, 'b', torque_sensor='no')", True,
+     "torque_sensor"),
+    ("simulate_bench torque_sensor 0", "ilc.simulate_bench(config, 'b', torque_sensor=0)", True, "torque_sensor"),
+    ("simulate_bench seed 1.5", "ilc.simulate_bench(config, 'b', seed=1.5)", True, "seed"),
+    ("simulate_bench revolutions True", "ilc.simulate_bench(config, 'b', revolutions=True)", True, "revolutions"),
+    ("simulate_bench on_trial 5", "ilc.simulate_bench(config, 'b', on_trial=5)", True, "on_trial"),
+    ("simulate_bench config a dict", "ilc.simulate_bench({'trials': {}}, 'b')", True, "config"),
+    ("simulate_scan reverse 'no'", "ilc.simulate_scan(config, 's', reverse='no')", True, "reverse"),
+    ("simulate_scan skipped [1.5]", "ilc.simulate_scan(config, 's', skipped_forward=[1.5])", True,
+     "skipped_forward"),
+    ("simulate_scan skipped 3", "ilc.simulate_scan(config, 's', skipped_reverse=3)", True, "skipped_reverse"),
+    ("simulate_scan revolutions 2.0", "ilc.simulate_scan(config, 's', revolutions=2.0)", True, "revolutions"),
+    ("simulate_scan holding 5", "ilc.simulate_scan(config, 's', holding=5)", True, "holding"),
+    ("simulate_scan rate_hz '1000'", "ilc.simulate_scan(config, 's', rate_hz='1000')", True, "rate_hz"),
+    ("simulate_log duration_s inf", "ilc.simulate_log(config, 'l', duration_s=float('inf'))", True, "duration_s"),
+    ("simulate_log encoder_bits '16'", "ilc.simulate_log(config, 'l', encoder_bits='16')", True, "encoder_bits"),
+    ("simulate_log loop None", "ilc.simulate_log(config, 'l', loop=None)", True, "loop"),
+    ("simulate_log seed True", "ilc.simulate_log(config, 'l', seed=True)", True, "seed"),
+    ("identify torque_source 'piezo'", "ilc.identify('bench', torque_source='piezo')", True, "torque_source"),
+    ("identify torque_source array", "ilc.identify('bench', torque_source=np.zeros(3))", True, "torque_source"),
+    ("identify bench_dir 5", "ilc.identify(5)", True, "bench_dir"),
+    ("identify output bytes", "ilc.identify('bench', output=b'r.json')", True, "output"),
+    ("torque_constant bench_dir None", "ilc.torque_constant_nm_per_a(None)", True, "bench_dir"),
+    ("import_logs []", "ilc.import_logs([], 'm.toml', 'o')", True, "logs"),
+    ("import_logs [5]", "ilc.import_logs([5], 'm.toml', 'o')", True, "logs"),
+    ("import_logs 2-D array", "ilc.import_logs(np.array([['a', 'b']]), 'm.toml', 'o')", True, "logs"),
+    ("import_logs trial_format 'xls'", "ilc.import_logs('log.csv', 'm.toml', 'o', trial_format='xls')", True,
+     "trial_format"),
+    ("import_logs mapping 5", "ilc.import_logs('log.csv', 5, 'o')", True, "mapping"),
+    ("import_scan logs ()", "ilc.import_scan((), 'm.toml', 'o')", True, "logs"),
+    ("import_scan out None", "ilc.import_scan('log.csv', 'm.toml', None)", True, "out"),
+    ("export c_type int8", "ilc.export('run', 'c', 'fw', c_type='int8')", True, "c_type"),
+    ("export fmt 'xml'", "ilc.export('run', 'xml', 'fw')", True, "fmt"),
+    ("export fmt None", "ilc.export('run', None, 'fw')", True, "fmt"),
+    ("export torque_constant inf", "ilc.export('r.json', 'moteus', 'fw', torque_constant_nm_per_a=float('inf'))",
+     True, "torque_constant_nm_per_a"),
+    ("export torque_constant True", "ilc.export('r.json', 'moteus', 'fw', torque_constant_nm_per_a=True)", True,
+     "torque_constant_nm_per_a"),
+    ("export rated_torque -1", "ilc.export('run', 'json', 'fw', rated_torque_nm=-1.0)", True, "rated_torque_nm"),
+    ("export content 5", "ilc.export('r.json', 'csv', 'fw', content=5)", True, "content"),
+    ("write_config numpy values", "ilc.write_config('c.toml', {'trials': {'seed': np.int64(4), "
+     "'torque_setpoints_nm': np.array([1.0, 3.0])}}, base=config)", False, ""),
+    ("simulate_scan numpy options", "ilc.simulate_scan(config, 's', seed=np.int64(3), revolutions=np.int64(1), "
+     "rate_hz=np.float32(1000.0), reverse=np.bool_(True))", False, ""),
+    ("simulate_bench numpy seed", "ilc.simulate_bench(config, 'b', seed=np.int64(7), revolutions=np.int64(2), "
+     "torque_sensor=np.bool_(False))", False, ""),
+    # the campaign's grid at 3 revolutions, as its other trials: 2 may hold one whole revolution, too few
+    ("run numpy seed and trials", "ilc.write_config('c.toml', {'trials': {'revolutions': 3}}, base=config)\n"
+     "    ilc.run('c.toml', out='run', seed=np.int64(7), trials=np.int64(1))", False, ""),
+]
+
+
+def api_case(name: str, call: str, must_reject: bool, argument: str, config: Path) -> Case:
+    """``call`` in a Python process (`API_SNIPPET`) in the case's empty folder: refused in one line naming
+    ``argument``, nothing written; or (``must_reject`` False) done, exit 0."""
+    def run(folder: Path) -> Run:
+        snippet = API_SNIPPET.format(config=str(config), call="    " + call)
+        done = run_process([sys.executable, "-c", snippet], folder, written=folder, cwd=folder)
+        if done.code == 2 and must_reject:
+            line = _error_lines(done.text)[-1:]
+            written = sorted(p.name for p in folder.iterdir() if p.name not in ("stdout", "stderr"))
+            if not line or not line[0].startswith(f"error: {argument}: "):
+                done.problem = f"the error line names no {argument}: {line[0] if line else ''}"
+            elif written:
+                done.problem = f"refused, yet wrote {', '.join(written)}"
+        return done
+    return Case("api arguments", name, must_reject, run)
+
+
+def api_cases(config: Path) -> list[Case]:
+    return [api_case(name, call, must_reject, argument, config) for name, call, must_reject, argument in API_CALLS]
 
 
 def progress(v: Verdict) -> None:
@@ -2421,8 +3105,8 @@ def report(verdicts: list[Verdict], wall: dict[str, float]) -> None:
 
 
 #: the groups of cases ``--only`` picks
-GROUPS = ["bench", "config", "emulator", "targets", "import", "scan", "sweep", "stages", "resume", "units",
-          "scheduler", "export"]
+GROUPS = ["bench", "config", "emulator", "targets", "import", "scan", "sweep", "stages", "lying", "resume", "units",
+          "scheduler", "export", "api"]
 
 
 def make_inputs(only: set[str], scratch: Path, config: Path, base: Path, seed: int) -> str | None:
@@ -2431,8 +3115,10 @@ def make_inputs(only: set[str], scratch: Path, config: Path, base: Path, seed: i
     if "import" in only:
         make_import_base(base, scratch / "import-base")
     if "units" in only:
-        make_units_base(base, scratch / "units-base")
-    if only & {"stages", "resume", "export"}:
+        made = make_units_base(base, scratch / "units-base")
+        if made is not None:
+            return made
+    if only & {"stages", "lying", "resume", "export"}:
         make_campaign_configs(scratch)
     if only & {"resume", "export"}:
         made = make_runs(scratch / SMALL_CAMPAIGN_TOML, scratch)
@@ -2499,12 +3185,14 @@ def main() -> int:
                 scratch / "scan-currents", scratch / "scan-torque", scratch / "scan-logs", args.seed)), scratch)),
             ("sweep", "sweep specs", lambda: run_cases(pick(sweep_cases(config)), scratch)),
             ("stages", "stages", lambda: run_cases(pick(stage_cases(scratch / STAGE_CAMPAIGN_TOML)), scratch)),
+            ("lying", "lying values", lambda: run_cases(pick(lying_cases(scratch / STAGE_CAMPAIGN_TOML)), scratch)),
             ("resume", "resume tampering", lambda: run_cases(pick(resume_cases(scratch)), scratch)),
             ("units", "import units & gaps", lambda: run_cases(pick(unit_cases(scratch / "units-base", base)),
                                                                scratch)),
             ("scheduler", "sweep: schedulers & magnets", lambda: run_cases(pick(scheduler_cases(config)), scratch)),
             ("export", "export tables", lambda: run_cases(pick(export_cases(
                 scratch / "run-finished" / "compensation.json", scratch / "result.json")), scratch)),
+            ("api", "api arguments", lambda: run_cases(pick(api_cases(config)), scratch)),
         ]
         for flag, category, stage in stages:
             if flag not in only:

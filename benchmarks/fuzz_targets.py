@@ -804,6 +804,73 @@ BROKEN_STAGES: dict[str, type] = {
 }
 
 
+# ---------------------------------------------------------------- lying values (issue 34, items 1 and 2)
+
+def _claiming(base: type, claimed) -> type:
+    """A subclass of ``base`` whose instances are ``claimed`` to every comparison and arithmetic operator, while the
+    value they hold, as a kernel or a wire encoder reads it, is the one they were made with."""
+    def claims(name: str) -> Callable:
+        method = getattr(base, f"__{name}__")
+        return lambda self, *args: method(base(claimed), *args)
+
+    names = ("lt", "le", "gt", "ge", "eq", "ne", "add", "radd", "sub", "rsub", "mul", "rmul", "truediv", "rtruediv",
+             "neg", "abs")
+    return type(f"Claims{claimed}", (base,), {f"__{name}__": claims(name) for name in names})
+
+
+class _ClaimingArray(np.ndarray):
+    """An array that is ``claimed`` (its attribute) to every ufunc, np.abs, np.isfinite and reductions included,
+    while its buffer holds what it was made with."""
+
+    claimed: np.ndarray
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        plain = [x.claimed if isinstance(x, _ClaimingArray) else x for x in inputs]
+        return getattr(ufunc, method)(*plain, **kwargs)
+
+
+def _claiming_array(held: np.ndarray, claimed: np.ndarray) -> np.ndarray:
+    array = np.array(held, float).view(_ClaimingArray)
+    array.claimed = np.array(claimed, float)
+    return array
+
+
+def _lying(change: Callable) -> Callable:
+    """A ``shape`` answering ``change(request)`` from the learning phase on (the trials after the compensation)."""
+    def shape(self, request):
+        self.calls["shape"] = self.calls.get("shape", 0) + 1
+        return change(request) if self.calls["shape"] > 2 else request
+    return shape
+
+
+def _tripled_from_a_thread(self, request):
+    """The request with a current-scale array the stage keeps, multiplied by 3 from a thread while the trial runs."""
+    held = np.array(request.calibration.current_scale, float)
+    threading.Timer(0.02, lambda: held.__imul__(3.0)).start()
+    return request.with_changes(calibration=type(request.calibration)(
+        held, request.calibration.current_offset, request.calibration.torque_gain))
+
+
+#: stages whose answers lie to the checks by name: (factory, whether the run must be refused) (fuzz group "lying")
+LYING_STAGES: dict[str, tuple[type, bool]] = {
+    "speed a float subclass claiming 0.9 Hz, holding 2.27": (_broken("shape", _lying(
+        lambda r: r.with_changes(speed_setpoint_hz=_claiming(float, 0.9)(2.27)))), True),
+    "set point a float subclass claiming its own, holding 60 N m": (_broken("shape", _lying(
+        lambda r: r.with_changes(torque_setpoint_nm=_claiming(float, r.torque_setpoint_nm)(60.0)))), True),
+    "revolutions an int subclass claiming 6, holding 600": (_broken("shape", _lying(
+        lambda r: r.with_changes(revolutions=_claiming(int, 6)(600)))), True),
+    "feed-forward an ndarray subclass claiming zeros, holding 50 N m": (_broken("shape", _lying(
+        lambda r: r.with_changes(feedforward_nm=_claiming_array(np.full(r.feedforward_nm.shape, 50.0),
+                                                                 r.feedforward_nm)))), False),
+    "current scales an ndarray subclass claiming its own, holding 3x": (_broken("shape", _lying(
+        lambda r: r.with_changes(calibration=type(r.calibration)(_claiming_array(
+            3.0 * r.calibration.current_scale, r.calibration.current_scale), r.calibration.current_offset,
+            r.calibration.torque_gain)))), False),
+    "current scales kept by the stage, tripled from a thread during the trial": (
+        _broken("shape", _lying(lambda r: _tripled_from_a_thread(None, r))), False),
+}
+
+
 class _Entry:
     """An installed stage's entry point, as `ilcpmac.stages.registry` loads it."""
 
@@ -815,6 +882,47 @@ class _Entry:
 
 
 # ---------------------------------------------------------------- the probe: ilcpmac run in a watched process
+
+def _held(value):
+    """What ``value`` holds, read past its class's operators, as the simulator's kernel or a wire encoder reads it."""
+    if isinstance(value, np.ndarray):
+        return np.ndarray.view(value, np.ndarray)
+    if isinstance(value, float):
+        return float.__float__(value)
+    return int.__int__(value) if isinstance(value, int) else value
+
+
+def limits_of(args: list[str]):
+    """The [limits] of the config ``ilcpmac ARGS`` runs (``run CONFIG`` or ``run --resume DIR``), or None."""
+    from ilcpmac.config import load_config
+
+    if len(args) >= 3 and args[:2] == ["run", "--resume"]:
+        path = Path(args[2]) / "campaign.toml"
+    elif len(args) >= 2 and args[0] == "run" and args[1].endswith(".toml"):
+        path = Path(args[1])
+    else:
+        return None
+    try:
+        return load_config(path).limits
+    except Exception:  # the case's own config may be garbage: its run refuses it
+        return None
+
+
+def _extent_breach(request, bench_limits, limits, warmup_revolutions: int) -> str | None:
+    """What of the speed, torque reference, samples or duration the simulator received (the values the request
+    holds) is beyond the limits, or None."""
+    speed, revolutions = _held(request.speed_setpoint_hz), _held(request.revolutions)
+    torque = _held(request.torque_setpoint_nm) + _held(request.feedforward_nm) + _held(request.excitation_nm)
+    if speed > bench_limits.max_speed_hz * (1 + 1e-9):
+        return f"the simulator ran {speed:g} Hz, beyond max_speed_hz {bench_limits.max_speed_hz:g}"
+    if np.abs(torque).max() > bench_limits.max_torque_nm * (1 + 1e-9):
+        return (f"the simulator ran a torque reference of {np.abs(torque).max():g} N m, beyond "
+                f"{bench_limits.max_torque_nm:g}")
+    if limits is not None and (warmup_revolutions + revolutions) / speed > limits.max_trial_duration_s * (1 + 1e-9):
+        return (f"the simulator ran {revolutions} revolutions at {speed:g} Hz, beyond max_trial_duration_s "
+                f"{limits.max_trial_duration_s:g}")
+    return None
+
 
 #: the line the probe prints at its exit: trials sent to the simulator, the largest true phase current, the limit
 PROBE = "fuzz-probe:"
@@ -848,6 +956,10 @@ def probe_main(argv: list[str]) -> None:
             n = seen["requests"]
         if n == interrupt_at:
             raise KeyboardInterrupt
+        breach = _extent_breach(request, self.limits, limits_of(args), self.simulator.warmup_revolutions)
+        if breach is not None:
+            with lock:
+                seen.setdefault("breach", breach)
         trial = run_trial(self, request)
         peak = float(np.abs(trial.i_true_a).max()) if trial.i_true_a is not None else float("inf")
         with lock:
@@ -858,12 +970,14 @@ def probe_main(argv: list[str]) -> None:
     simulated.SimulatorBackend.run_trial = watched
     if "--stage" in opts:
         installed = registry.installed_stages
-        factory = BROKEN_STAGES[opts["--stage"]]
+        factory = BROKEN_STAGES[opts["--stage"]] if opts["--stage"] in BROKEN_STAGES else \
+            LYING_STAGES[opts["--stage"]][0]
         registry.installed_stages = lambda: {**installed(), BROKEN_STAGE: _Entry(factory)}
     if "--stage-call-s" in opts:
         pipeline.STAGE_CALL_S = float(opts["--stage-call-s"])
     atexit.register(lambda: print(f"{PROBE} requests {seen['requests']} peak_true_current_a {seen['peak_a']!r} "
-                                  f"max_current_a {seen['limit_a']!r}", flush=True))
+                                  f"max_current_a {seen['limit_a']!r}"
+                                  + (f"\n{PROBE}-breach {seen['breach']}" if "breach" in seen else ""), flush=True))
     from ilcpmac.cli import entry_point
 
     sys.argv = ["ilcpmac", *args]

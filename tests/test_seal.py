@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from test_rundir import DESCRIPTION, add, new_run
 
 import ilcpmac.campaign
-from ilcpmac.campaign.rundir import RunDir, RunDirError
+from ilcpmac.campaign.rundir import RunDir, RunDirError, RunFiles
 from ilcpmac.cli import main
 from ilcpmac.core.errors import ConfigError
 
@@ -141,3 +141,27 @@ def test_the_cli_refuses_a_swapped_config_in_one_line_before_any_trial(runs):
 def resumes_after_putting_back(path: Path) -> int:
     (path / "campaign.toml").write_text("[campaign]\n")
     return resumes(path)
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"[1, 2, 3]", r"summary.json: unreadable \(a JSON list, not an object\)"),
+    (b'{"trials": ' + b"[" * 100_000 + b"]" * 100_000 + b"}", r"summary.json: unreadable \(nested too deeply\)"),
+    (None, r"summary.json: more than 67108864 bytes \(refused\)"),
+    (b'{"trials": [{"index": 1, "phase": "identify", "role": "grid", "torque_setpoint": 1e308, '
+     b'"speed_setpoint": 0.5}]}', r"summary.json: unreadable \(trials.0: torque_setpoint is 1e\+308, not a number "
+                                  r"within \[-100000, 100000\]\)"),
+])
+def test_a_summary_no_run_writes_is_one_line_and_never_read_whole(runs, content, message):
+    """Issue 34, item 12: ilcpmac report on a summary.json that is a list, nested deeply or holds 1e308 gave a
+    traceback; a sparse 2 GB one was read whole (2.1 GB of memory)."""
+    first, _ = runs
+    path = first / "summary.json"
+    if content is None:
+        with path.open("wb") as f:
+            f.truncate(2 << 30)  # sparse: nothing is written
+    else:
+        path.write_bytes(content)
+    with pytest.raises(RunDirError, match=message):
+        RunFiles(first).read_summary()
+    done = CliRunner().invoke(main, ["report", str(first)])
+    assert done.exit_code == 2 and done.output.count("error:") == 1, done.output

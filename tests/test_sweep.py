@@ -300,8 +300,9 @@ def test_a_scheduler_or_workers_the_sweep_cannot_use_is_one_line(spec_file, smal
     result = CliRunner().invoke(main, ["sweep", str(small_config), "--spec", str(spec_file), "--out",
                                        str(tmp_path / "out"), *args])
     assert result.exit_code == 2, result.output
-    assert re.fullmatch(expected, result.output.splitlines()[-1]), result.output
-    assert "Traceback" not in result.output
+    # the error alone: the tasks' line waits for the cluster (it came first, the fuzz's scheduler group found)
+    (line,) = result.output.splitlines()
+    assert re.fullmatch(expected, line), result.output
 
 
 @pytest.mark.parametrize(("make", "expected"), [

@@ -80,10 +80,12 @@ def sweep(config: Path, spec_path: Path, out_dir: Path, scheduler: str | None, c
     runner = SweepRunner(spec, out_dir)
     try:
         tasks = runner.prepare(resume)
+        # a resumed sweep with nothing left starts no cluster; one that cannot start is the command's one line
+        client = None if not runner.pending(tasks) else \
+            local_client(workers) if scheduler is None else remote_client(scheduler, connect_timeout_s)
         console.print(f"{len(tasks)} {spec.kind} tasks; their configs are in {out_dir / 'tasks'} as each is "
                       "submitted")
-        if runner.pending(tasks):  # a resumed sweep with nothing left starts no cluster
-            client = local_client(workers) if scheduler is None else remote_client(scheduler, connect_timeout_s)
+        if client is not None:
             try:
                 with progress_bar() as progress:
                     runner.run(client, tasks, _Progress(progress))
