@@ -141,38 +141,75 @@ def test_speed_loop_ripple_at_the_cogging_order_exceeds_the_mean(rolling_log):
 
 
 def test_the_log_holds_its_encoders_nearest_line_and_the_mapping_states_the_inertia(write_config, tmp_path):
-    """A current loop's motion does not depend on the encoder: its 12-bit log is its 24-bit log rounded to the
-    nearest line (not truncated); the mapping gives the controller's J and its relative error as uncertainty."""
+    """A 12-bit log holds the nearest line of the true angle (not truncated; the drive commutates at that
+    reading, so its motion is not a 24-bit log's); the mapping gives the controller's J and its relative error
+    as uncertainty."""
+    from ilcpmac.sim.drive_log import LogPlan, drive_log
+    from ilcpmac.sim.simulator import Simulator
+
     config = write_config({**SMALL, "simulator": {"mechanics": {"coulomb_friction_nm": 0.0, "inertia_scale": 1.04}}})
-    positions = {}
-    for bits in (12, 24):
-        out = tmp_path / str(bits)
-        result = run("simulate", str(config), "--out", str(out), "--kind", "log", "--loop", "current",
-                     "--duration-s", "1", "--encoder-bits", str(bits))
-        assert result.exit_code == 0, result.output
-        positions[bits] = np.genfromtxt(out / "drive_log.csv", delimiter=",", names=True)["position"]
-    lines = positions[12] * 2**12 / (2 * np.pi)
+    out = tmp_path / "12"
+    result = run("simulate", str(config), "--out", str(out), "--kind", "log", "--loop", "current", "--duration-s", "1",
+                 "--encoder-bits", "12")
+    assert result.exit_code == 0, result.output
+    position = np.genfromtxt(out / "drive_log.csv", delimiter=",", names=True)["position"]
+    log = drive_log(Simulator(load_config(config).model), LogPlan(loop="current", duration_s=1.0, encoder_bits=12))
+    np.testing.assert_allclose(position, log.columns["position"], rtol=0, atol=1e-9)
+    lines, true = position * 2**12 / (2 * np.pi), log.angle_rad * 2**12 / (2 * np.pi)
     assert np.abs(lines - np.round(lines)).max() < 1e-4
-    fine = positions[24] * 2**12 / (2 * np.pi)
-    assert np.array_equal(np.round(lines), np.round(fine))
-    assert np.abs(fine - np.round(lines)).max() <= 0.5 + 1e-4
-    mapping = read_mapping(tmp_path / "12" / "mapping.toml")
-    truth = json.loads((tmp_path / "12" / "truth.json").read_text())
+    assert np.array_equal(np.round(lines), np.round(true))
+    mapping = read_mapping(out / "mapping.toml")
+    truth = json.loads((out / "truth.json").read_text())
     assert mapping.motor.inertia_kgm2 * 1.04 == pytest.approx(truth["inertia_kgm2"], rel=1e-12)
     assert mapping.motor.inertia_uncertainty == pytest.approx(0.04)
 
 
+def test_a_log_in_wrapped_lines_on_a_1_ms_clock_says_so_in_its_mapping(write_config, tmp_path):
+    """The position in lines of the drive's 16-bit encoder, wrapped once per revolution, and stamps in whole
+    milliseconds: the mapping names the unit, the lines per revolution and the clock's tick; the encoder's truth is
+    in truth.json."""
+    out = tmp_path / "log"
+    result = run("simulate", str(write_config(SMALL)), "--out", str(out), "--kind", "log", "--duration-s", "4",
+                 "--speed-hz", "1", "--position-unit", "counts", "--position-wrap", "--stamp-s", "0.001",
+                 "--jitter-s", "0.002", "--latency-s", "0.0005", "--encoder-bits", "16",
+                 "--encoder-eccentricity-counts", "0.5", "--encoder-harmonics", "2:0.2:1.0")
+    assert result.exit_code == 0, result.output
+    data = np.genfromtxt(out / "drive_log.csv", delimiter=",", names=True)
+    assert np.array_equal(data["position"], np.round(data["position"]))
+    assert data["position"].min() >= 0 and data["position"].max() < 2**16 and np.any(np.diff(data["position"]) < 0)
+    assert np.all(np.diff(data["time"]) > 0) and np.allclose(data["time"] * 1e3, np.round(data["time"] * 1e3))
+    layout = read_mapping(out / "mapping.toml").layout
+    assert (layout.position_unit, layout.position_counts_per_rev, layout.timer_resolution_s) == ("counts", 2**16, 1e-3)
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["host"]["rows"] == data.size and truth["host"]["rows"] + truth["host"]["rows_left_out"] == 4000
+    assert f"{data.size} rows, {truth['host']['rows_left_out']} left out" in " ".join(result.output.split())
+    encoder = truth["drive_encoder"]
+    assert encoder["harmonics"] == {"orders": [2], "counts": [0.2], "phases_rad": [1.0]}
+    theta = 2 * np.pi * np.arange(COUNTS_PER_REV) / COUNTS_PER_REV
+    np.testing.assert_allclose(encoder["error"]["drive_counts"], 0.5 * np.sin(theta) + 0.2 * np.sin(2 * theta + 1.0),
+                               rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("options, message", [
-    (["--kind", "log", "--encoder-bits", "30"], "--encoder-bits: invalid value 30"),
+    (["--kind", "log", "--encoder-bits", "30"], "--encoder-bits: invalid value 30 (the drive's encoder"),
     (["--kind", "scan", "--speed-hz", "1"], "--speed-hz: not for --kind scan"),
+    (["--kind", "scan", "--position-wrap"], "--position-wrap: not for --kind scan"),
     (["--kind", "grid", "--rate-hz", "100"], "--rate-hz: not for --kind grid"),
-    (["--kind", "log", "--rate-hz", "20000"], "--rate-hz: invalid value 20000.0"),
-    (["--kind", "log", "--jitter-s", "0.01"], "--jitter-s: invalid value 0.01"),
+    (["--kind", "log", "--rate-hz", "20000"], "--rate-hz: 20000 Hz is more than half the control rate 20000 Hz"),
+    (["--kind", "log", "--jitter-s", "0.02"], "--jitter-s: invalid value 0.02 (each request"),
+    (["--kind", "log", "--stamp-s", "0.01"], "--stamp-s: invalid value 0.01 (the host clock's tick"),
+    (["--kind", "log", "--duration-s", "0.0001"], "--duration-s: 0.0001 s x 1000 Hz is 0 rows, not within"),
+    (["--kind", "log", "--speed-hz", "11"], "--speed-hz: 11 Hz x the tables' highest order 100 is more than"),
+    (["--kind", "log", "--speed-bandwidth-hz", "300"], "--speed-bandwidth-hz: 300 Hz is more than the control rate"),
+    (["--kind", "log", "--encoder-harmonics", "2:x"], "--encoder-harmonics: invalid value '2:x' (the drive encoder"),
+    (["--kind", "log", "--encoder-bits", "8", "--encoder-eccentricity-counts", "30"],
+     "--encoder-eccentricity-counts: the error's slope E + sum k A_k = 30 lines per rad is more than"),
 ])
 def test_bad_options_exit_2_with_one_line_before_writing(write_config, tmp_path, options, message):
     result = run("simulate", str(write_config(SMALL)), "--out", str(tmp_path / "out"), *options)
     assert result.exit_code == 2
-    assert result.stderr.strip() == f"error: {message}"
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"error: {message}"), line
     assert not (tmp_path / "out").exists()
 
 

@@ -874,9 +874,13 @@ def simulate_log(config: str | Path | CampaignConfig, out: str | Path, *, seed: 
     seed : int or None
         The noise's seed; None: ``[trials] seed``.
     **options
-        The log's settings (`ilcpmac.sim.drive_log.LogPlan`): ``rate_hz`` (rows per s), ``speed_hz`` (the speed
-        reference, Hz), ``duration_s`` (s), ``loop`` ("speed", "position" or "current"), ``current_column`` ("q"
-        or "phases"), ``jitter_s`` (s), ``load_nm`` (N m), ``speed_bandwidth_hz`` (Hz), ``encoder_bits``.
+        The log's settings (`ilcpmac.sim.drive_log.LogPlan`, each field's doc its range): ``rate_hz`` (rows per
+        s), ``speed_hz`` (the speed reference, Hz), ``duration_s`` (s), ``loop`` ("speed", "position" or
+        "current"), ``current_column`` ("q" or "phases"); the host's ``jitter_s``, ``latency_s`` and ``stamp_s``
+        (s); ``position_unit`` ("rad" or "counts"), ``position_wrap`` (bool); ``load_nm`` (N m),
+        ``speed_bandwidth_hz`` (Hz); the drive's encoder: ``encoder_bits``, ``encoder_eccentricity_counts``,
+        ``encoder_eccentricity_phase_rad``, ``encoder_harmonics`` ("ORDER:LINES[:PHASE_RAD],..."),
+        ``encoder_line_error_counts``, ``encoder_seed``.
 
     Returns
     -------

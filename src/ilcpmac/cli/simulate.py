@@ -13,8 +13,10 @@ from ilcpmac.core.errors import IlcpmacError, OptionError
 
 #: the options of one kind only, by kind (--seed serves every kind)
 _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revolutions", "rate_hz"),
-                 "log": ("rate_hz", "speed_hz", "duration_s", "loop", "current_column", "jitter_s", "load_nm",
-                         "encoder_bits")}
+                 "log": ("rate_hz", "speed_hz", "duration_s", "loop", "current_column", "jitter_s", "latency_s",
+                         "stamp_s", "position_unit", "position_wrap", "load_nm", "speed_bandwidth_hz", "encoder_bits",
+                         "encoder_eccentricity_counts", "encoder_eccentricity_phase_rad", "encoder_harmonics",
+                         "encoder_line_error_counts", "encoder_seed")}
 
 
 @main.command()
@@ -38,15 +40,41 @@ _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revoluti
 @click.option("--current-column", type=click.Choice(["q", "phases"]), default=None,
               help="log: i_q, or the phase currents i_a, i_b, i_c (default q).")
 @click.option("--jitter-s", type=float, default=None,
-              help="log: each row's instant drawn within +-JITTER_S of its slot (default 0).")
+              help="log: the host's polling: each request drawn within +-JITTER_S of its slot, the rows in time "
+                   "order, s, within [0, 0.01] (default 0).")
+@click.option("--latency-s", type=float, default=None,
+              help="log: the drive's reading a uniform draw within [0, LATENCY_S] after the host stamps its "
+                   "request, s, within [0, 0.01] (default 0).")
+@click.option("--stamp-s", type=float, default=None,
+              help="log: the host clock's tick: stamps in whole ticks (floor), a row whose stamp repeats the one "
+                   "before left out, s, within [0, 0.001] (default 0: exact to a control period).")
+@click.option("--position-unit", type=click.Choice(["rad", "counts"]), default=None,
+              help="log: the position in rad, or in lines of the drive's encoder (default rad).")
+@click.option("--position-wrap", "position_wrap", is_flag=True,
+              help="log: the position wrapped into one revolution (a count_in_cpr column), not multi-turn.")
 @click.option("--load-nm", type=float, default=None,
               help="log: constant load torque against the motion, N m (default 0.2).")
+@click.option("--speed-bandwidth-hz", type=float, default=None,
+              help="log: the speed loop's crossover, Hz, at most the control rate / 100 (default 30; a soft loop "
+                   "of about 1 Hz stick-slips on a cogging motor).")
 @click.option("--encoder-bits", type=int, default=None,
-              help="log: the drive's encoder, which its loop reads and its log holds in rad: 2^BITS lines per "
-                   "revolution, the reading rounded to the nearest line, independent of [bench] counts_per_rev "
+              help="log: the drive's encoder, read once per control period, which its loop reads and its log "
+                   "holds: 2^BITS lines per revolution, within [8, 24], independent of [bench] counts_per_rev "
                    "(default 20).")
+@click.option("--encoder-eccentricity-counts", type=float, default=None,
+              help="log: the drive encoder's once-per-revolution error, lines (default 0).")
+@click.option("--encoder-eccentricity-phase-rad", type=float, default=None,
+              help="log: its phase at angle 0, rad (default 0).")
+@click.option("--encoder-harmonics", type=str, default=None,
+              help='log: the drive encoder\'s error harmonics, "ORDER:LINES[:PHASE_RAD],..." (e.g. "2:0.3,3:0.1:1.2"; '
+                   "a magnetic encoder's nonlinearity; default none).")
+@click.option("--encoder-line-error-counts", type=float, default=None,
+              help="log: each line's span shifted by a uniform draw within +-this, lines, within [0, 0.5) "
+                   "(default 0).")
+@click.option("--encoder-seed", type=click.IntRange(min=0), default=None,
+              help="log: seed of the lines' errors: the same encoder in every log of that seed (default 0).")
 def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutions: int | None,
-             no_torque_sensor: bool, **log_options) -> None:
+             no_torque_sensor: bool, position_wrap: bool, **log_options) -> None:
     """Simulate CONFIG's grid, scan or drive log into a folder.
 
     grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under the
@@ -59,7 +87,8 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
     from ilcpmac.config import load_config
     from ilcpmac.sim.log_folders import DRIVE_LOG, MAPPING, SCAN_LOG
 
-    given = {"revolutions": revolutions, "no_torque_sensor": no_torque_sensor or None, **log_options}
+    given = {"revolutions": revolutions, "no_torque_sensor": no_torque_sensor or None,
+             "position_wrap": position_wrap or None, **log_options}
     for name, value in given.items():
         if value is not None and name not in _KIND_OPTIONS[kind]:
             raise IlcpmacError(f"--{name.replace('_', '-')}: not for --kind {kind}")
@@ -85,7 +114,8 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
         log = api.simulate_log(cfg, out_dir, seed=seed, **chosen)
     except OptionError as e:
         raise IlcpmacError(f"--{e.name.replace('_', '-')}: {e.why}") from None
-    plan = log.plan
-    console.print(f"wrote {DRIVE_LOG} ({plan.loop} loop, {plan.duration_s:g} s at {plan.rate_hz:g} Hz, "
-                  f"K_t = {log.truth['torque_constant_nm_per_a']:.4g} N m / A), {MAPPING}, backemf.csv and truth.json "
-                  f"to {out_dir}")
+    plan, host = log.plan, log.truth["host"]
+    left_out = f", {host['rows_left_out']} left out for a repeated stamp" if host["rows_left_out"] else ""
+    console.print(f"wrote {DRIVE_LOG} ({plan.loop} loop, {plan.duration_s:g} s at {plan.rate_hz:g} Hz: {host['rows']} "
+                  f"rows{left_out}; K_t = {log.truth['torque_constant_nm_per_a']:.4g} N m / A), {MAPPING}, "
+                  f"backemf.csv and truth.json to {out_dir}")

@@ -62,11 +62,18 @@ def write_simulated_scan(out: str | Path, simulator: Simulator, plan: ScanPlan) 
 
 
 def write_simulated_log(out: str | Path, simulator: Simulator, plan: LogPlan) -> dict:
-    """A rolling drive log (`write_drive_log`) in ``out``: drive_log.csv, mapping.toml (position in rad,
-    measured currents, no torque column, the inertia's uncertainty), backemf.csv, truth.json; returns the truth."""
+    """A rolling drive log (`write_drive_log`) in ``out``: drive_log.csv, mapping.toml (the position's unit, in
+    lines of the drive's encoder its lines per revolution; the host clock's tick as the stamps' quantum when it
+    has one; measured currents, no torque column, the inertia's uncertainty), backemf.csv, truth.json; returns
+    the truth."""
     out = Path(out)
     truth = write_drive_log(out / DRIVE_LOG, simulator, plan)
-    log: dict[str, object] = {"time": "time", "position": "position", "position_unit": "rad", "current": "measured"}
+    log: dict[str, object] = {"time": "time", "position": "position", "position_unit": plan.position_unit,
+                              "current": "measured"}
+    if plan.position_unit == "counts":
+        log["position_counts_per_rev"] = 2**plan.encoder_bits
+    if plan.stamp_s > 0:
+        log["timer_resolution_s"] = plan.stamp_s
     log |= ({"i_q": "i_q"} if plan.current_column == "q" else {"phase_currents": ["i_a", "i_b", "i_c"]})
     _write(out, simulator, {"bench": _bench_table(simulator), "log": log}, truth)
     return truth
