@@ -237,3 +237,23 @@ def test_a_scan_without_cogging_says_so_and_exports_its_position_torque(tmp_path
     with pytest.raises(BenchFormatError, match=r"scan.json: no cogging table \(key 'cogging' is missing or null\)"):
         read_position_table(path)
     assert read_position_table(path, "position-torque").feedforward_nm.size == CPR
+
+
+def test_the_residual_line_says_it_is_the_format_s_and_what_is_known_of_the_table(tmp_path):
+    """Issue 35, item 3: the moteus export's residual (1.1-2.7 %) read as the table's accuracy, 2.6x smaller than its
+    true error. The line now says the residual is the format's, and gives the table's own standard error where its
+    source states one."""
+    path = scan_json(tmp_path)
+    data = json.loads(path.read_text())
+    data["cogging"]["std"] = [0.002] * CPR
+    path.write_text(json.dumps(data))
+    line = export(read_position_table(path), tmp_path / "with", "csv").residual.line("csv")
+    assert "the format's, not the table's accuracy; the table itself is known to 0.002 N m RMS" in line
+    del data["cogging"]["std"]
+    path.write_text(json.dumps(data))
+    line = export(read_position_table(path), tmp_path / "without", "csv").residual.line("csv")
+    assert line.endswith("the format's, not the table's accuracy; its source states no standard error of the table")
+    data["cogging"]["std"] = [-1.0] * CPR
+    path.write_text(json.dumps(data))
+    with pytest.raises(BenchFormatError, match=r"key 'cogging.std': needs one standard error >= 0 per value"):
+        read_position_table(path)

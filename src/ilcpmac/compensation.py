@@ -330,6 +330,9 @@ class PositionTable:
         the bench format's ranges (checked when the record is made: `ValueError` naming the key).
     source : str
         The file it was read from.
+    std_nm : ndarray, shape (counts_per_rev,), or None
+        The table's standard error per count, N m, as its source states it (a scan's, an identification's
+        position torque); None where it states none.
     """
 
     content: str
@@ -337,6 +340,7 @@ class PositionTable:
     orders: np.ndarray
     calibration: SensorCalibration | None
     source: str
+    std_nm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.calibration is not None:
@@ -393,9 +397,11 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
             table, order, calibration = None if found is None else found["torque"], data["cogging_order"], None
             counts = {"counts_per_rev": data["counts_per_rev"]}
             listed = None if found is None else found.get("count")
+            std = None if found is None else found.get("std")
         else:
             result = IdentificationResult.from_json(data)
             table = result.cogging_nm if content == "cogging" else result.position_torque_nm
+            std = None if content == "cogging" else result.position_torque_std_nm
             order, calibration, listed = None, result.calibration, None
             counts = {f"{name}.torque": a.size for name, a in (("cogging", result.cogging_nm),
                                                                ("position_torque", result.position_torque_nm))
@@ -431,8 +437,13 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
         raise BenchFormatError(f"{path}: key 'cogging_order': must be an integer in [1, {tau.size // 2}], "
                                f"got {_shown(order)}")
     orders = np.arange(order if content == "cogging" else 1, tau.size // 2 + 1, order if content == "cogging" else 1)
+    if std is not None:
+        std = _array(std.tolist() if isinstance(std, np.ndarray) else std, 1, str(path), f"{key}.std")
+        if std.size != tau.size or np.any(std < 0):
+            raise BenchFormatError(f"{path}: key '{key}.std': needs one standard error >= 0 per value of "
+                                   f"'{key}.torque' ({tau.size}), got {std.size}")
     try:
-        return PositionTable(content, -tau, orders, calibration, str(path))
+        return PositionTable(content, -tau, orders, calibration, str(path), std)
     except ValueError as e:
         raise BenchFormatError(f"{path}: {e}") from None
 

@@ -82,7 +82,8 @@ _Row = list[str | float]
 
 @dataclass(frozen=True)
 class Residual:
-    """The ripple a format leaves: the exported tables as the target samples them per count, minus the tables.
+    """The ripple a format leaves: the exported tables as the target samples them per count, minus the tables; and,
+    beside it, how well the tables themselves are known, which the format's residual says nothing of.
 
     Attributes
     ----------
@@ -92,30 +93,42 @@ class Residual:
         The torque the percentages are of, N m: a stated rated torque, else the tables' largest peak-to-peak.
     reference : str
         What it is: "rated torque" or "the table's peak-to-peak".
+    table_std_rms_nm : float or None
+        The RMS over the counts of the table's own standard error, as its source states it (an identification's or a
+        scan's), N m; None where the source states none.
     """
 
     rms_nm: float
     peak_nm: float
     reference_nm: float
     reference: str
+    table_std_rms_nm: float | None = None
 
     @classmethod
-    def of(cls, tables_nm: np.ndarray, rendered_nm: np.ndarray, rated_torque_nm: float | None = None) -> Residual:
-        """``rendered_nm`` (same shape as ``tables_nm``, counts on the last axis) against ``tables_nm``."""
+    def of(cls, tables_nm: np.ndarray, rendered_nm: np.ndarray, rated_torque_nm: float | None = None,
+           table_std_nm: np.ndarray | None = None) -> Residual:
+        """``rendered_nm`` (same shape as ``tables_nm``, counts on the last axis) against ``tables_nm``;
+        ``table_std_nm``: the tables' standard error per count, where their source states it."""
         error = np.asarray(rendered_nm, float) - tables_nm
         if rated_torque_nm is None:
             flat = tables_nm.reshape(-1, tables_nm.shape[-1])
             reference_nm, reference = float(np.max(np.ptp(flat, axis=-1))), "the table's peak-to-peak"
         else:
             reference_nm, reference = float(rated_torque_nm), "rated torque"
-        return cls(float(np.sqrt(np.mean(error**2))), float(np.max(np.abs(error))), reference_nm, reference)
+        std = None if table_std_nm is None else float(np.sqrt(np.mean(np.square(table_std_nm))))
+        return cls(float(np.sqrt(np.mean(error**2))), float(np.max(np.abs(error))), reference_nm, reference, std)
 
     def line(self, fmt: str) -> str:
-        """The line ``ilcpmac export`` prints."""
+        """The line ``ilcpmac export`` prints: the format's residual, then what is known of the table's own error,
+        so that the first is never read as the second."""
         def percent(x: float) -> str:
             return f"{100.0 * x / self.reference_nm:.3g} %" if self.reference_nm > 0 else "- %"
+        known = ("its source states no standard error of the table" if self.table_std_rms_nm is None else
+                 f"the table itself is known to {self.table_std_rms_nm:.3g} N m RMS, {percent(self.table_std_rms_nm)}"
+                 " (its source's standard error)")
         return (f"residual ripple of the {fmt} export: {self.rms_nm:.3g} N m RMS, {self.peak_nm:.3g} N m peak "
-                f"({percent(self.rms_nm)}, {percent(self.peak_nm)} of {self.reference} {self.reference_nm:.4g} N m)")
+                f"({percent(self.rms_nm)}, {percent(self.peak_nm)} of {self.reference} {self.reference_nm:.4g} N m): "
+                f"the format's, not the table's accuracy; {known}")
 
 
 @dataclass(frozen=True)
@@ -798,7 +811,8 @@ def export(record: Record, out_dir: Path, fmt: str, c_type: str = "int16", sourc
         writer = write_harmonics if fmt == "harmonics" else write_moteus
         exported = writer(record, out_dir, torque_constant_nm_per_a, run)
     assert exported.rendered_nm is not None
-    residual = Residual.of(tables_of(record), exported.rendered_nm, rated_torque_nm)
+    residual = Residual.of(tables_of(record), exported.rendered_nm, rated_torque_nm,
+                           record.std_nm if isinstance(record, PositionTable) else None)
     return dataclasses.replace(exported, residual=residual, bounds=bounds + exported.bounds)
 
 
