@@ -675,12 +675,14 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
     the joint least-squares fit (docs/identification.md); without a torque sensor, from the encoder's time
     stamps (docs/sensorless.md); a rolling log at one speed by the acceleration method. A scan folder (one
     holding scan.toml): the cogging and the position torque from a slow scan forward and back, friction and
-    hysteresis removed as the mean of the two directions (docs/standstill.md).
+    hysteresis removed as the mean of the two directions (docs/standstill.md). A rolling folder (one holding
+    rolling.toml): the position torque of a drive log kept row by row, the currents averaged by position corrected
+    by J domega/dt where the data support it (docs/rolling-logs.md).
 
     Parameters
     ----------
     bench_dir : str or Path
-        The bench folder (docs/bench-format.md) or scan folder.
+        The bench folder (docs/bench-format.md), scan folder or rolling folder.
     torque_source : {"sensor", "encoder"}, TorqueSource or None
         Of a bench folder: the torque sensor's column, or the torque from the encoder's time stamps; None: the
         sensor where the bench has one.
@@ -701,10 +703,12 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
     OptionError
         An argument of the wrong type, an unknown ``torque_source``.
     IlcpmacError
-        A ``torque_source`` given for a scan, an ``output`` that cannot be written.
+        A ``torque_source`` given for a scan or rolling folder, an ``output`` that cannot be written.
     IdentificationError
         The data cannot support the identification (the message says which estimate and why).
     """
+    from ilcpmac.bench.rolling import ROLLING_FILE, read_rolling
+
     folder = Path(bench_dir)
     if output is not None:
         check_writable(Path(output), IlcpmacError)
@@ -713,6 +717,13 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
         if torque_source is not None:
             raise IlcpmacError(f"torque_source: not for a standstill scan folder ({folder / SCAN_FILE})")
         result = reduce_scan(read_scan(folder))
+    elif (folder / ROLLING_FILE).exists():
+        if torque_source is not None:
+            raise IlcpmacError(f"torque_source: not for a rolling folder ({folder / ROLLING_FILE})")
+        # numba and the fit: only when it runs
+        from ilcpmac.identify.rolling import estimate_rolling, rolling_result
+
+        result = rolling_result(estimate_rolling(read_rolling(folder)))
     else:
         # the identification imports numba and scipy: only when it runs
         from ilcpmac.identify import identify_bench

@@ -17,7 +17,12 @@ A mapping with ``[log] kind = "scan"`` marks its logs as a standstill
 position scan (`ilcpmac.bench.standstill`): their rows are kept as they are,
 in standard units, with the direction of motion, and written as a scan folder;
 with ``[log] kind = "moteus-cogging"``, moteus cogging files
-(`ilcpmac.bench.moteus`) make a scan folder.
+(`ilcpmac.bench.moteus`) make a scan folder. A mapping with ``[log] kind =
+"rolling"`` keeps its logs' rows as they are, their steady part, as a rolling
+folder (`ilcpmac.bench.rolling`, `write_rolling_folder`); a run log the per-count
+path refuses as one it cannot resample (`NotPerCount`: a lap shorter than a
+revolution, rows too coarse for the counts or the harmonics, a gap) is kept so
+too by ``ilcpmac import``, which says so.
 A mapping's optional [limits] (`ImportLimits`) are what the logged values are judged
 against, never converted: a log whose currents, torque or the torque its currents ask for pass
 `LOG_LIMIT_FACTOR` times them, or a scan whose holding torque passes the motor's torque range, is in a wrong
@@ -62,6 +67,7 @@ from ilcpmac.bench.logs import (
     read_log,
 )
 from ilcpmac.bench.moteus import MOTEUS_COGGING, MoteusLog, MoteusMapping, cogging_scan
+from ilcpmac.bench.rolling import Coverage, RollingData, RollingSettings, coverage, steady_rows, write_rolling
 from ilcpmac.bench.standstill import (
     ScanData,
     SensorErrors,
@@ -88,8 +94,9 @@ from ilcpmac.model.motor import backemf_problem
 from ilcpmac.model.tables import backemf_table, q_axis
 
 __all__ = ["ImportMapping", "ImportedBench", "ImportedLog", "InterpolationError", "LogPoint", "MAX_TIME_S",
-           "bench_motor", "import_laps", "import_log", "import_logs", "import_scan", "read_mapping",
-           "resample_to_counts", "reverse_folder", "stamp_resolution_s", "write_scan_folder"]
+           "NotPerCount", "RollingLog", "bench_motor", "import_laps", "import_log", "import_logs", "import_rolling",
+           "import_scan", "read_mapping", "resample_to_counts", "reverse_folder", "stamp_resolution_s",
+           "write_rolling_folder", "write_scan_folder"]
 
 #: finest resolution of the time stamps written (the trial files' 0.1 us)
 MIN_STAMP_RESOLUTION_S = 1e-7
@@ -106,6 +113,12 @@ LOG_RATE_HZ = (10.0, 200e3)
 MIN_LOG_SPEED_HZ = 0.01
 #: most median row intervals between two rows: a longer gap means rows are missing
 MAX_GAP_INTERVALS = 10.0
+
+
+class NotPerCount(BenchFormatError):
+    """A run log the per-count path cannot resample, but a rolling folder can keep as it is (`import_rolling`): a
+    lap shorter than a revolution between turns, rows too coarse for the counts or for [log] highest_harmonic,
+    crossing times too coarse for a log without torque, a gap in its rows, fewer than two counts crossed."""
 
 
 @dataclass(frozen=True)
@@ -273,8 +286,9 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
     by_file = {p.file: (p.torque_setpoint_nm, p.speed_setpoint_hz) for p in parsed}
     if len(by_file) < len(parsed):
         raise ConfigError(f"{path}: [[points]] lists a file twice")
-    if parsed and layout.kind == "scan":
-        raise ConfigError(f'{path}: [[points]]: only for run logs (a standstill scan has no operating point)')
+    if parsed and layout.kind != "run":
+        what = "standstill scan" if layout.kind == "scan" else "rolling log"
+        raise ConfigError(f"{path}: [[points]]: only for run logs (a {what} has no operating point)")
     if "scan" in data and layout.kind != "scan":
         raise ConfigError(f'{path}: [scan]: only for a standstill scan ([log] kind = "scan")')
     errors = SensorErrors.parse(data.get("scan", {}), str(path), "scan")
@@ -309,6 +323,11 @@ def _check_layout(layout: LogLayout, motor: MotorInfo, path: Path) -> None:
         raise ConfigError(f"{path}: [log] phase_currents, i_q: give exactly one")
     if layout.direction is not None and layout.kind != "scan":
         raise ConfigError(f'{path}: [log] direction: only for a standstill scan ([log] kind = "scan")')
+    rolling_keys = [k for k in ("current_filter_s", "cut_transients")
+                    if getattr(layout, k) != getattr(LogLayout, k)]
+    if layout.kind == "scan" and rolling_keys:
+        raise ConfigError(f"{path}: [log] {rolling_keys[0]}: only for a rolling log ([log] kind = \"rolling\", or a "
+                          "run log kept as one)")
     if (layout.position_unit == "counts") != (layout.position_counts_per_rev is not None):
         raise ConfigError(f"{path}: [log] position_counts_per_rev: give it when, and only when, "
                           'position_unit = "counts"')
@@ -414,7 +433,7 @@ def _laps(log: Path, position_counts: np.ndarray, mapping: ImportMapping) -> lis
         for a, b, r in laps:
             span = abs(position_counts[b] - position_counts[a])
             if span < cpr:
-                raise BenchFormatError(
+                raise NotPerCount(
                     f"{log}: lines {_line(layout, a)}-{_line(layout, b)}: a {'reverse' if r else 'forward'} lap of "
                     f"{span / cpr:.3g} revolutions between turns of {layout.position}; in a log that turns each "
                     "lap must cover a whole revolution (a position that dithers, or a partial lap: cut the log)")
@@ -482,14 +501,14 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
     largest = float(step.max())
     resolved = min(math.floor(cpr / (2.0 * largest)), cpr // 2)
     if resolved < layout.highest_harmonic:
-        raise BenchFormatError(
+        raise NotPerCount(
             f"{where}: too coarse: up to {largest:.4g} counts between rows, {cpr / largest:.4g} rows per revolution "
             f"at the fastest, fewer than two per period of harmonic {layout.highest_harmonic} ([log] "
             f"highest_harmonic); the data resolve harmonics up to {resolved}")
     _check_clock(log, where, time_s, first, speed_hz, mapping)
     resolution_s = stamp_resolution_s(time_s, position, layout.timer_resolution_s)
     if layout.torque is None and resolution_s > MAX_TIMER_RESOLUTION_S:
-        raise BenchFormatError(f"{where}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
+        raise NotPerCount(f"{where}: the crossing times resolve {resolution_s:.3g} s only, coarser than "
                                f"{MAX_TIMER_RESOLUTION_S:g} s: too coarse for the torque of the encoder's time stamps "
                                f"(a log without torque; a finer position or time column is needed)")
     current_names = current_columns(layout)
@@ -499,8 +518,10 @@ def _import_lap(log: Path, mapping: ImportMapping, columns: dict[str, np.ndarray
         torque_names))
     count, at, values_at, time_error, value_error = resample_to_counts(time_s, position, values)
     max_rows = min(MAX_REVOLUTIONS * cpr, MAX_TRIAL_ROWS)
-    if count.size > max_rows or count.size < 2:
+    if count.size > max_rows:
         raise BenchFormatError(f"{where}: crosses {count.size} encoder counts; a trial holds 2 to {max_rows}")
+    if count.size < 2:
+        raise NotPerCount(f"{where}: crosses {count.size} encoder counts; a trial holds 2 to {max_rows}")
     if layout.i_q is not None:
         currents = _inverse_park(values_at[:, 0], sign * count, motor, layout.angle_offset_rad)
         current_error = value_error[:, 0]
@@ -562,7 +583,7 @@ def _check_clock(log: Path, where: str, time_s: np.ndarray, first: int, speed_hz
             f"{given:g} in {mapping.path})")
     gap = int(np.argmax(interval_s))
     if interval_s[gap] > MAX_GAP_INTERVALS * median_s:
-        raise BenchFormatError(
+        raise NotPerCount(
             f"{log}: line {_line(layout, first + gap + 1)}: {layout.time} jumps by {interval_s[gap]:.3g} s, "
             f"{interval_s[gap] / median_s:.3g} times the median row interval {median_s:.3g} s (more than "
             f"{MAX_GAP_INTERVALS:g}: rows are missing; cut the log at the gap)")
@@ -609,21 +630,24 @@ def _finest_change(steps: np.ndarray) -> float:
     return float(changes.min()) if changes.size else 0.0
 
 
-def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-    """A log's columns, its time stamps in s (strictly increasing) and its unwrapped position in counts of
-    [bench] counts_per_rev; every row's time, position, currents and torque, once scaled, within what a trial
-    file holds (`MAX_TIME_S`, 2^53 counts, 1e4 A, 1e5 N m), and its currents and torque within
-    `LOG_LIMIT_FACTOR` times [limits] (`_limit_problem`), or the first row beyond is named."""
+def _time_and_position(log: Path, mapping: ImportMapping, shared_stamps: bool = False
+                       ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """A log's columns, its time stamps in s (strictly increasing; non-decreasing with ``shared_stamps``) and its
+    unwrapped position in counts of [bench] counts_per_rev ([log] position_wraps_at, else once per revolution);
+    every row's time, position, currents and torque, once scaled, within what a trial file holds (`MAX_TIME_S`,
+    2^53 counts, 1e4 A, 1e5 N m), and its currents and torque within `LOG_LIMIT_FACTOR` times [limits]
+    (`_limit_problem`), or the first row beyond is named."""
     layout, cpr = mapping.layout, mapping.motor.counts_per_rev
     columns = read_log(log, layout)
     time_s = columns[layout.time] * layout.time_s_per_unit
-    back = np.flatnonzero(np.diff(time_s) <= 0)
+    back = np.flatnonzero(np.diff(time_s) < 0 if shared_stamps else np.diff(time_s) <= 0)
     if back.size:
         raise BenchFormatError(f"{log}: line {layout.header_lines + 2 + back[0]}: {layout.time} does not increase")
     per_rev = 2.0 * np.pi if layout.position_unit == "rad" else layout.position_counts_per_rev
     if per_rev is None:
         raise ConfigError(f'{log}: [log] position_counts_per_rev: missing (position_unit = "counts" needs it)')
     position = columns[layout.position] * (cpr / per_rev)
+    wrap = cpr if layout.position_wraps_at is None else layout.position_wraps_at * cpr / per_rev
     judged = [(name, columns[name] * layout.current_a_per_unit, MAX_CURRENT_A, "max_current_a", "A")
               for name in current_columns(layout)] + (
         [] if layout.torque is None else [(layout.torque, columns[layout.torque] * layout.torque_nm_per_unit,
@@ -640,7 +664,7 @@ def _time_and_position(log: Path, mapping: ImportMapping) -> tuple[dict[str, np.
         problem = _limit_problem(values, key, unit, mapping)
         if problem is not None:
             raise BenchFormatError(f"{log}: line {_line(layout, problem[0])}: {name} {problem[1]}")
-    return columns, time_s, np.unwrap(position, period=cpr)
+    return columns, time_s, np.unwrap(position, period=wrap)
 
 
 def _limit_problem(values: np.ndarray, key: str, unit: str, mapping: ImportMapping) -> tuple[int, str] | None:
@@ -716,6 +740,148 @@ def write_scan_folder(logs: list[Path], mapping: ImportMapping | MoteusMapping, 
     check_scan(joined, str(out))
     write_scan(out, mapping.motor, mapping.backemf_nm_per_a, mapping.sensors, mapping.scan_errors, joined)
     return joined
+
+
+@dataclass(frozen=True)
+class RollingLog:
+    """One log kept as a rolling log's segment (`import_rolling`).
+
+    Attributes
+    ----------
+    log : Path
+    data : RollingData
+        Its steady rows in standard units (segment 1).
+    lines : (int, int)
+        The file lines of the first and last row kept.
+    cut_start_s, cut_end_s : float
+        The seconds left out before and after them (`steady_rows`; 0 with [log] cut_transients = false).
+    rows : int
+        The log's rows.
+    row_rate_hz : float
+        The inverse of the kept rows' median interval.
+    gaps : int
+        Row intervals longer than `MAX_GAP_INTERVALS` median ones (rows missing; the identification does not
+        bridge them).
+    coverage : Coverage
+        What the kept rows cover of a revolution.
+    shared_stamps : int
+        Rows that shared a time stamp with the one before, spread up to the next stamp (`_spread_stamps`).
+    """
+
+    log: Path
+    data: RollingData
+    lines: tuple[int, int]
+    cut_start_s: float
+    cut_end_s: float
+    rows: int
+    row_rate_hz: float
+    gaps: int
+    coverage: Coverage
+    shared_stamps: int = 0
+
+    def text(self) -> str:
+        """What the import kept, one line: rows, lines, seconds left out, rate, gaps and coverage."""
+        cut = ("" if not (self.cut_start_s or self.cut_end_s) else
+               f", {self.cut_start_s:.3g} s at the start and {self.cut_end_s:.3g} s at the end left out (speed not "
+               "settled)")
+        gaps = f", {self.gaps} gap{'s' if self.gaps > 1 else ''} in the rows" if self.gaps else ""
+        shared = (f", {self.shared_stamps} rows sharing a stamp spread up to the next" if self.shared_stamps else "")
+        return (f"{self.data.time_s.size} of {self.rows} rows kept (lines {self.lines[0]}-{self.lines[1]}{cut}), "
+                f"{self.row_rate_hz:.4g} rows/s{gaps}{shared}; {self.coverage.text()}")
+
+
+def import_rolling(log: Path, mapping: ImportMapping) -> RollingLog:
+    """One log as a rolling log's segment: its rows as they are, in standard units (time s, position in counts of
+    [bench] counts_per_rev, unwrapped, the q-axis or phase currents in A, the torque in N m), their steady part
+    (`steady_rows`, unless [log] cut_transients = false).
+
+    Rows that share a time stamp (a host polling faster than its clock's quantum) are spread evenly up to the
+    next stamp (`_spread_stamps`).
+
+    Raises
+    ------
+    BenchFormatError
+        Naming the log: what `_time_and_position` refuses (time going back, a value beyond a bench's bounds or
+        `LOG_LIMIT_FACTOR` times [limits]), rows at a rate off a drive's (`LOG_RATE_HZ`: a time column in the
+        wrong unit), a position or a time that never changes, fewer than 16 rows kept.
+    """
+    layout, cpr = mapping.layout, mapping.motor.counts_per_rev
+    columns, time_s, position = _time_and_position(log, mapping, shared_stamps=True)
+    if np.all(position == position[0]):
+        raise BenchFormatError(f"{log}: {layout.position} never changes (the motor did not turn)")
+    if time_s[-1] == time_s[0]:
+        raise BenchFormatError(f"{log}: {layout.time} never changes")
+    time_s, shared = _spread_stamps(time_s)
+    first, last = steady_rows(time_s, position) if layout.cut_transients else (0, time_s.size - 1)
+    rows = slice(first, last + 1)
+    interval_s = np.diff(time_s[rows])
+    if interval_s.size < 2:
+        raise BenchFormatError(f"{log}: {interval_s.size + 1} rows kept of its steady part; a rolling log needs 16 "
+                               "or more")
+    median_s = float(np.median(interval_s))
+    low_hz, high_hz = LOG_RATE_HZ
+    if not low_hz <= 1.0 / median_s <= high_hz:
+        raise BenchFormatError(f"{log}: {layout.time} gives {1.0 / median_s:.3g} rows per second; a drive logs "
+                               f"{low_hz:g} to {high_hz:g} (wrong [log] time_s_per_unit = {layout.time_s_per_unit:g} "
+                               f"in {mapping.path}?)")
+    scale = layout.current_a_per_unit
+    data = RollingData(
+        time_s[rows], position[rows], np.ones(last - first + 1, np.int64),
+        None if layout.i_q is None else columns[layout.i_q][rows] * scale,
+        None if layout.phase_currents is None else np.column_stack([columns[c][rows] for c in layout.phase_currents])
+        * scale, None if layout.torque is None else columns[layout.torque][rows] * layout.torque_nm_per_unit)
+    return RollingLog(log, data, (_line(layout, first), _line(layout, last)), float(time_s[first] - time_s[0]),
+                      float(time_s[-1] - time_s[last]), int(time_s.size), 1.0 / median_s,
+                      int(np.count_nonzero(interval_s > MAX_GAP_INTERVALS * median_s)),
+                      coverage(position[rows], cpr), shared)
+
+
+def _spread_stamps(time_s: np.ndarray) -> tuple[np.ndarray, int]:
+    """Non-decreasing stamps made increasing: the k rows that share a stamp (a host polling faster than its
+    clock's quantum) spread evenly from it to the next stamp (the last ones' by the median interval between
+    stamps); and how many rows shared one."""
+    starts = np.flatnonzero(np.concatenate([[True], np.diff(time_s) > 0]))
+    if starts.size == time_s.size:
+        return time_s, 0
+    stamps = time_s[starts]
+    step = np.diff(stamps)
+    ends = np.concatenate([stamps[1:], [stamps[-1] + float(np.median(step))]])
+    sizes = np.diff(np.concatenate([starts, [time_s.size]]))
+    within = np.arange(time_s.size) - np.repeat(starts, sizes)
+    spread = np.repeat(stamps, sizes) + within * np.repeat((ends - stamps) / sizes, sizes)
+    return spread, int(time_s.size - starts.size)
+
+
+def write_rolling_folder(logs: list[Path], mapping: ImportMapping, out: Path) -> list[RollingLog]:
+    """Import every log as a rolling log (`import_rolling`) and write them, one segment each, as the rolling folder
+    ``out`` (`ilcpmac.bench.rolling`).
+
+    Nothing is written unless every log imports; a folder that holds a bench.toml already is refused.
+    """
+    _check_new(out)
+    _check_distinct(logs)
+    if mapping.layout.kind == "scan":
+        raise BenchFormatError(f'{mapping.path}: [log] kind = "scan": a scan makes a scan folder (write_scan_folder)')
+    kept = [import_rolling(log, mapping) for log in logs]
+    def joined(parts: list[np.ndarray | None]) -> np.ndarray | None:
+        present = [part for part in parts if part is not None]
+        return np.concatenate(present) if present else None
+
+    data = RollingData(np.concatenate([r.data.time_s for r in kept]),
+                       np.concatenate([r.data.position_counts for r in kept]),
+                       np.concatenate([r.data.segment + k for k, r in enumerate(kept)]),
+                       joined([r.data.i_q_a for r in kept]), joined([r.data.currents_a for r in kept]),
+                       joined([r.data.torque_nm for r in kept]))
+    settings = RollingSettings(current=mapping.layout.current, current_filter_s=mapping.layout.current_filter_s,
+                               angle_offset_rad=mapping.layout.angle_offset_rad,
+                               logs=tuple(r.log.name for r in kept), first_lines=tuple(r.lines[0] for r in kept),
+                               last_lines=tuple(r.lines[1] for r in kept),
+                               cut_start_s=tuple(float(f"{r.cut_start_s:.6g}") for r in kept),
+                               cut_end_s=tuple(float(f"{r.cut_end_s:.6g}") for r in kept))
+    motor = dataclasses.replace(mapping.motor, torque_sensor=mapping.layout.torque is not None,
+                                log_rate_hz=float(f"{min(r.row_rate_hz for r in kept):.6g}"))
+    write_rolling(out, motor, mapping.backemf_nm_per_a, mapping.sensors, settings, data)
+    return kept
 
 
 def _check_new(folder: Path) -> None:

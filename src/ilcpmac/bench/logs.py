@@ -1,8 +1,8 @@
 """Drive logs as columns: the [log] and [limits] tables of a mapping file (`LogLayout`, `ImportLimits`) and the
-bounded reader (`read_log`).
+bounded reader (`read_log`) of text logs (CSV and the like) and NumPy arrays (.npy, `NPY_SUFFIX`).
 
-The importer (`ilcpmac.bench.importer`) resamples what this reads onto encoder counts; a standstill scan folder
-(`ilcpmac.bench.standstill`) reads its samples with it.
+The importer (`ilcpmac.bench.importer`) resamples what this reads onto encoder counts or keeps it as a rolling
+folder (`ilcpmac.bench.rolling`); a standstill scan folder (`ilcpmac.bench.standstill`) reads its samples with it.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.lib.format as npy_format
 
 from ilcpmac.bench.fastcsv import parse_rows
 from ilcpmac.bench.format import MAX_HEADER_BYTES, MAX_TIMER_RESOLUTION_S, loadtxt_problem
@@ -23,8 +24,9 @@ from ilcpmac.core.errors import BenchFormatError
 from ilcpmac.core.files import read_bounded
 from ilcpmac.core.schema import field_like, in_range, setting, shown
 
-__all__ = ["ImportLimits", "LOG_LIMIT_FACTOR", "LogLayout", "MAX_LOG_ROWS", "MAX_LOG_ROW_BYTES", "MAX_SCALE",
-           "MIN_SCALE", "beyond_limit", "current_columns", "named_columns", "read_log", "utf8_text"]
+__all__ = ["ImportLimits", "LOG_KINDS", "LOG_LIMIT_FACTOR", "LogLayout", "MAX_LOG_ROWS", "MAX_LOG_ROW_BYTES",
+           "MAX_SCALE", "MIN_SCALE", "NPY_SUFFIX", "beyond_limit", "current_columns", "named_columns", "read_log",
+           "utf8_text"]
 
 #: most data rows of one log (20 kHz for 200 s) ...
 MAX_LOG_ROWS = 2**22
@@ -32,6 +34,12 @@ MAX_LOG_ROWS = 2**22
 MAX_LOG_ROW_BYTES = 128
 #: range of |current_a_per_unit| and |torque_nm_per_unit|: a scale beyond it is a wrong unit, never a sensor's
 MIN_SCALE, MAX_SCALE = 1e-12, 1e12
+#: a log of this file suffix is a NumPy array (np.save's format), its quantities named by [log] names
+NPY_SUFFIX = ".npy"
+#: the longest header of a .npy file read (numpy's own default bound)
+MAX_NPY_HEADER_BYTES = 10000
+#: what a mapping's [log] kind may say ("moteus-cogging" is `ilcpmac.bench.moteus`'s, with no other key)
+LOG_KINDS = ("run", "scan", "rolling")
 #: how many times its mapping's [limits] a run log's currents, its torque column and the torque its currents ask
 #: for (K . i) may reach: a drive's peak is a few times its rated current, a unit off 100x or 1000x (mA read as A)
 LOG_LIMIT_FACTOR = 10.0
@@ -130,11 +138,25 @@ class LogLayout:
                                        "[1e-12, 1e12]", 1.0)
     highest_harmonic: int = setting(in_range(1, 2**19), "highest harmonic of a revolution the data must resolve "
                                    "(two rows per period or more)", 150)
-    kind: str = setting(_one_of("run", "scan"), '"run" (turning laps, resampled onto counts) or "scan" (a standstill '
-                       'position scan, forward and back); "moteus-cogging" for moteus cogging files, with no other '
-                       "key", "run")
+    kind: str = setting(_one_of(*LOG_KINDS), '"run" (turning laps, resampled onto counts; a log that cannot be is '
+                       'kept as a rolling log), "scan" (a standstill position scan, forward and back) or "rolling" '
+                       "(rows kept as they are, docs/rolling-logs.md); \"moteus-cogging\" for moteus cogging files, "
+                       "with no other key", "run")
     direction: str | None = setting(None, "column of the direction of motion of a scan (> 0 forward, < 0 reverse); "
                                    "without it, the sign of the position's last change", None)
+    names: tuple[str, ...] | None = setting(
+        lambda x: 2 <= len(x) <= 64 and all(x) and len(set(x)) == len(x), "the names of a .npy log's quantities, "
+        "2 to 64 distinct ones: one per row of a (k, n) array or per column of an (n, k) array (instead of a header "
+        "line)", None)
+    position_wraps_at: float | None = setting(
+        in_range(0.0, 2.0**53, low_open=True), "where the logged position wraps to 0, in its own unit (a count_in_cpr "
+        "column, a 16-bit counter); without it, once per revolution or not at all", None)
+    current_filter_s: float | None = setting(
+        in_range(0.0, 10.0), "of a rolling log: the time constant of a first-order filter the drive applied to the "
+        "logged current, s, within [0, 10] (ODrive: 1 / (I_measured_report_filter_k x its current-control rate)); "
+        "without it, fitted from the data", None)
+    cut_transients: bool = setting(None, "of a rolling log: leave out a start and an end where the speed has not "
+                                   "settled (docs/rolling-logs.md)", True)
 
 
 def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
@@ -142,8 +164,15 @@ def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
 
     The file is at most `MAX_LOG_ROWS` rows of `MAX_LOG_ROW_BYTES` on average
     (read bounded), UTF-8 (`utf8_text`); every named column must be in the header and every value
-    finite, or `BenchFormatError` names the file, line and column.
+    finite, or `BenchFormatError` names the file, line and column. A .npy log (`NPY_SUFFIX`) is read by
+    `_read_npy`, its quantities named by [log] names; its messages number its samples as the lines of a CSV of
+    the same rows under one header line.
     """
+    if path.suffix.lower() == NPY_SUFFIX:
+        return _finite(path, _read_npy(path, layout), 1)
+    if layout.names is not None:
+        raise BenchFormatError(f"{path}: [log] names: only for a .npy log (a text log names its columns in its "
+                               "header)")
     raw = utf8_text(path, read_bounded(path, layout.header_lines * MAX_HEADER_BYTES + MAX_LOG_ROWS * MAX_LOG_ROW_BYTES,
                                        BenchFormatError))
     start = 0
@@ -163,14 +192,57 @@ def read_log(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
         raise BenchFormatError(f"{path}: line {layout.header_lines}: no column {shown(missing[0])} (the header "
                                f"has {shown(names)})")
     rows = _rows(path, raw[start:], names, layout)
-    columns = {}
-    for name in wanted:
-        values = rows[:, names.index(name)]
+    return _finite(path, {name: rows[:, names.index(name)] for name in wanted}, layout.header_lines)
+
+
+def _finite(path: Path, columns: dict[str, np.ndarray], header_lines: int) -> dict[str, np.ndarray]:
+    """``columns``, every value a finite number, or `BenchFormatError` naming the line (rows under
+    ``header_lines``) and the column."""
+    for name, values in columns.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
-            raise BenchFormatError(f"{path}: line {layout.header_lines + 1 + bad[0]}: {name} is not a finite number")
-        columns[name] = values
+            raise BenchFormatError(f"{path}: line {header_lines + 1 + bad[0]}: {name} is not a finite number")
     return columns
+
+
+def _read_npy(path: Path, layout: LogLayout) -> dict[str, np.ndarray]:
+    """The named quantities of a .npy log (np.save's format, read without pickles): a real 2-D array of k
+    quantities by n >= 3 samples, or n by k, k = len([log] names); its header is checked (version, dtype, shape
+    against the file's size) before any array is made, the file read bounded."""
+    if layout.names is None:
+        raise BenchFormatError(f"{path}: a .npy log needs [log] names (its quantities, in order)")
+    if layout.header_lines != 1 or layout.delimiter != ",":
+        raise BenchFormatError(f"{path}: [log] header_lines, delimiter: not for a .npy log")
+    k = len(layout.names)
+    raw = read_bounded(path, MAX_NPY_HEADER_BYTES + MAX_LOG_ROWS * k * 8, BenchFormatError)
+    stream = io.BytesIO(raw)
+    try:
+        version = npy_format.read_magic(stream)
+        read_header = {(1, 0): npy_format.read_array_header_1_0, (2, 0): npy_format.read_array_header_2_0}.get(version)
+        if read_header is None:
+            raise ValueError(f"format version {version}")
+        shape, fortran, dtype = read_header(stream, max_header_size=MAX_NPY_HEADER_BYTES)
+    except ValueError as e:
+        raise BenchFormatError(f"{path}: not a .npy array file numpy writes ({e})") from None
+    if dtype.kind not in "fiu" or dtype.hasobject:
+        raise BenchFormatError(f"{path}: holds {dtype}, not real numbers")
+    if len(shape) != 2 or (shape[0] == k) == (shape[1] == k):
+        raise BenchFormatError(f"{path}: an array of shape {shape}; [log] names gives {k} quantities: it needs shape "
+                               f"({k}, n) or (n, {k}), n != {k}")
+    n = shape[1] if shape[0] == k else shape[0]
+    if not 3 <= n <= MAX_LOG_ROWS:
+        raise BenchFormatError(f"{path}: {n} samples; a log holds 3 to {MAX_LOG_ROWS}")
+    offset = stream.tell()
+    if len(raw) - offset != n * k * dtype.itemsize:
+        raise BenchFormatError(f"{path}: {len(raw) - offset} bytes of data for an array of shape {shape} of {dtype} "
+                               "(a truncated or padded file)")
+    array = np.frombuffer(raw, dtype, n * k, offset).reshape(shape, order="F" if fortran else "C").astype(float)
+    by_row = array if shape[0] == k else array.T
+    wanted = _columns(layout)
+    missing = [w for w in wanted if w not in layout.names]
+    if missing:
+        raise BenchFormatError(f"{path}: no quantity {shown(missing[0])} ([log] names has {shown(layout.names)})")
+    return {name: np.ascontiguousarray(by_row[layout.names.index(name)]) for name in wanted}
 
 
 def named_columns(layout: LogLayout) -> list[tuple[str, str]]:

@@ -172,12 +172,15 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     simulated bench), also each estimate's error. A bench without a torque sensor at one operating point (a
     rolling drive log) is identified by the acceleration method (docs/sensorless.md): its position-locked
     torque and friction. A run directory of ``ilcpmac run`` is identified on its grid trials
-    (`ilcpmac.campaign.rundir.campaign_grid`).
+    (`ilcpmac.campaign.rundir.campaign_grid`). A rolling folder (``ilcpmac import`` of logs kept row by row) gets its
+    position torque from the currents averaged by position, corrected by J domega/dt where the data support it
+    (docs/rolling-logs.md).
     An estimate too uncertain to take (`ilcpmac.identify.TOO_UNCERTAIN`, or a scan's cogging) is shown but not
     taken, and ends the command with an error (exit 2) once the result is written.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import read_bench
+    from ilcpmac.bench.rolling import ROLLING_FILE
     from ilcpmac.bench.standstill import SCAN_FILE, identify_scan
     from ilcpmac.core.errors import IdentificationError, IlcpmacError
     from ilcpmac.core.files import atomic_write, check_writable
@@ -193,6 +196,18 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
             console.print(line)
         if scan.too_uncertain is not None:
             raise IdentificationError(f"{bench_dir}: {scan.too_uncertain}")
+        return
+    if (bench_dir / ROLLING_FILE).exists():  # a rolling folder (docs/rolling-logs.md)
+        if torque_source is not None or plots_dir is not None:
+            raise IlcpmacError(f"--{'torque-source' if torque_source is not None else 'plots'}: not for a rolling "
+                               f"folder ({bench_dir / ROLLING_FILE}): its torque is the currents', it has no figures")
+        from ilcpmac.identify.rolling import identify_rolling
+
+        rolling, lines = identify_rolling(bench_dir, output)
+        for message in rolling.messages:
+            console.print(f"[yellow]warning:[/yellow] {message}")
+        for line in lines:
+            console.print(line)
         return
     truth = read_truth(bench_dir)
     with progress_bar() as progress:

@@ -1,4 +1,5 @@
-"""``ilcpmac import``: drive logs (rows at a fixed rate) into a bench folder (one row per encoder count)."""
+"""``ilcpmac import``: drive logs (rows at a fixed rate) into a bench folder (one row per encoder count), a scan
+folder or a rolling folder (rows as they are)."""
 
 from __future__ import annotations
 
@@ -25,15 +26,21 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
     interpolation error (docs/bench-format.md). Reverse laps are mirrored into a second bench folder,
     OUT_DIR-reverse ([motor] mirrored = true). Logs without a torque column make a bench without a torque
     sensor. Logs of a standstill scan ([log] kind = "scan"), or moteus cogging files ([log] kind =
-    "moteus-cogging"), become one scan folder (docs/standstill.md).
+    "moteus-cogging"), become one scan folder (docs/standstill.md). Rolling logs ([log] kind = "rolling"), and
+    run logs that cannot be resampled per count (a position that stick-slips or dithers, less than whole
+    revolutions, rows too sparse for the counts, a gap), are kept row by row as a rolling folder, their steady part
+    (docs/rolling-logs.md); the command says which and why.
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.markup import escape
 
-    from ilcpmac.bench.importer import import_logs, read_mapping, write_scan_folder
+    from ilcpmac.bench.importer import NotPerCount, import_logs, read_mapping, write_scan_folder
     from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
 
     mapping = read_mapping(mapping_file)
+    if not isinstance(mapping, MoteusMapping) and mapping.layout.kind == "rolling":
+        _write_rolling(list(logs), mapping, out_dir)
+        return
     if isinstance(mapping, MoteusMapping) or mapping.layout.kind == "scan":
         scan = write_scan_folder(list(logs), mapping, out_dir)
         forward = int((scan.direction > 0).sum())
@@ -47,7 +54,14 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
         console.print(f"wrote scan.csv, scan.toml, backemf.csv and bench.toml to {out_dir}")
         return
     harmonic = mapping.layout.highest_harmonic
-    for imported in import_logs(list(logs), mapping, out_dir, f".{trial_format}"):
+    try:
+        benches = import_logs(list(logs), mapping, out_dir, f".{trial_format}")
+    except NotPerCount as refusal:
+        console.print(f"kept as a rolling log, its rows as they are (as \\[log] kind = \"rolling\"; "
+                      f"docs/rolling-logs.md), not resampled per count: {escape(str(refusal))}")
+        _write_rolling(list(logs), mapping, out_dir)
+        return
+    for imported in benches:
         mirrored = imported.bench.motor.mirrored
         for name, r in zip(imported.bench.trial_files, imported.laps):
             t, e = r.trial, r.error
@@ -67,3 +81,14 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
                 "backemf.csv mirrored)" if mirrored else "")
         console.print(f"wrote {len(imported.laps)} trials, backemf.csv and bench.toml to "
                       f"{escape(str(imported.folder))}{note}")
+
+
+def _write_rolling(logs: list[Path], mapping, out_dir: Path) -> None:
+    """Write ``logs`` as the rolling folder ``out_dir`` and say what each kept."""
+    from rich.markup import escape
+
+    from ilcpmac.bench.importer import write_rolling_folder
+
+    for kept in write_rolling_folder(logs, mapping, out_dir):
+        console.print(f"{escape(str(kept.log))} -> segment: {escape(kept.text())}")
+    console.print(f"wrote rolling.csv, rolling.toml, backemf.csv and bench.toml to {escape(str(out_dir))}")

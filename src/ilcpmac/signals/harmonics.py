@@ -283,6 +283,16 @@ def every_count(count: np.ndarray, counts_per_rev: int) -> bool:
                 and count[-1] - count[0] + 1 == count.size)
 
 
+def periodic_interpolation(table: np.ndarray, position_counts: np.ndarray) -> np.ndarray:
+    """A per-count ``table`` (counts_per_rev, ...) at real positions (counts, any revolution): linear between the
+    counts, periodic; shape (n, ...)."""
+    cpr = table.shape[0]
+    base = np.floor(position_counts)
+    frac = (position_counts - base).reshape((-1,) + (1,) * (table.ndim - 1))
+    k = base.astype(np.int64) % cpr
+    return (1.0 - frac) * table[k] + frac * table[(k + 1) % cpr]
+
+
 def _at_samples(table: np.ndarray, count: np.ndarray, counts_per_rev: int) -> np.ndarray:
     """``table[count % counts_per_rev]`` for a per-count ``table`` (counts_per_rev, m): a copy per revolution
     where `every_count` (far faster than the gather)."""
