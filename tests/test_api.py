@@ -225,7 +225,7 @@ def test_simulate_log_options_are_checked(work, tmp_path):
 def test_a_simulated_scan_imports_and_identifies_its_cogging(work):
     folder = work["folder"]
     scan = ilc.simulate_scan(work["config"], folder / "scan", seed=3)
-    with pytest.raises(BenchFormatError, match="a scan makes a scan folder"):
+    with pytest.raises(BenchFormatError, match='kind = "scan": not for import_logs \\(import_scan takes it\\)'):
         ilc.import_logs(scan.log, scan.mapping, folder / "not-a-bench")
     data = ilc.import_scan(scan.log, scan.mapping, folder / "scan-folder")
     assert data.currents_a is not None and data.time_s.size > 0

@@ -32,6 +32,8 @@ VALID: dict[str, dict] = {
     "simulate_log": {"config": "c.toml", "out": "l", "seed": 1},
     "import_logs": {"logs": ["log.csv"], "mapping": "m.toml", "out": "o", "trial_format": "csv"},
     "import_scan": {"logs": "log.csv", "mapping": "m.toml", "out": "o"},
+    "import_rolling": {"logs": "log.csv", "mapping": "m.toml", "out": "o"},
+    "import_maps": {"logs": "map.npy", "mapping": "m.toml", "out": "o"},
     "export": {"source": "run", "fmt": "c", "out": "fw", "c_type": "int16", "content": "cogging",
                "torque_constant_nm_per_a": 0.3, "rated_torque_nm": 5.0},
 }

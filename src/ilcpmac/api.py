@@ -43,9 +43,11 @@ import numpy as np
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.bench.format import COLUMN_UNITS, Bench, file_columns, read_bench, read_bench_head
+from ilcpmac.bench.holding_map import HoldingMapMapping, HoldingMaps, import_holding_maps
 from ilcpmac.bench.importer import ImportedBench, ImportMapping, read_mapping
 from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
-from ilcpmac.bench.standstill import SCAN_FILE, TRUTH_FILE, ScanData, ScanResult, read_scan, reduce_scan
+from ilcpmac.bench.rolling import RollingData
+from ilcpmac.bench.standstill import TRUTH_FILE, ScanData, ScanResult
 from ilcpmac.campaign import service
 from ilcpmac.campaign.events import CampaignMessage, CampaignStart, NoEvents
 from ilcpmac.campaign.floors import PointFloor
@@ -62,13 +64,15 @@ from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.export import C_TYPES, FORMATS, Exported, export_source
 
 if TYPE_CHECKING:
+    from ilcpmac.identify.map_decomposition import MapDecomposition
     from ilcpmac.sim.drive_log import LogPlan
     from ilcpmac.sim.standstill import ScanPlan
 
-__all__ = ["COLUMN_UNITS", "DEFAULT_CONFIG", "CampaignEvent", "ImportedBench", "PointSummary", "RunResults",
-           "ScanData", "ScanResult", "SimulatedBench", "SimulatedLog", "TrialColumns", "export", "identify",
-           "import_logs", "import_scan", "load_run", "print_event", "run", "simulate_bench", "simulate_log",
-           "simulate_scan", "torque_constant_nm_per_a", "write_config"]
+__all__ = ["COLUMN_UNITS", "DEFAULT_CONFIG", "CampaignEvent", "HoldingMaps", "ImportedBench", "PointSummary",
+           "RollingData", "RunResults", "ScanData", "ScanResult", "SimulatedBench", "SimulatedLog", "TrialColumns",
+           "export", "identify", "import_logs", "import_maps", "import_rolling", "import_scan", "load_run",
+           "print_event", "run", "simulate_bench", "simulate_log", "simulate_scan", "torque_constant_nm_per_a",
+           "write_config"]
 
 #: a simulated log's plan: `ilcpmac.sim.standstill.ScanPlan` or `ilcpmac.sim.drive_log.LogPlan`
 PlanT = TypeVar("PlanT")
@@ -201,8 +205,9 @@ _ARGUMENTS: dict[str, _Kind] = {
                     lambda value: isinstance(value, CampaignConfig) or _is_path(value)),
     "logs": _kind("a path or a non-empty list of paths",
                   lambda value: _is_path(value) or (_is_list(value, _is_path) and len(value) > 0)),
-    "mapping": _kind("a mapping file's path, an ImportMapping or a MoteusMapping",
-                     lambda value: isinstance(value, ImportMapping | MoteusMapping) or _is_path(value)),
+    "mapping": _kind("a mapping file's path, an ImportMapping, a MoteusMapping or a HoldingMapMapping",
+                     lambda value: isinstance(value, ImportMapping | MoteusMapping | HoldingMapMapping)
+                     or _is_path(value)),
     "changes": _Kind(_tables_problem, _plain),
     "backend": _kind("an installed backend's name or a Backend",
                      lambda value: isinstance(value, Backend) or (_is_text(value) and value != "")),
@@ -666,7 +671,7 @@ def load_run(run_dir: str | Path) -> RunResults:
 
 @_checked
 def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None = None,
-             output: str | Path | None = None) -> IdentificationResult | ScanResult:
+             output: str | Path | None = None) -> IdentificationResult | ScanResult | MapDecomposition:
     """Identify a bench folder or a standstill scan folder (``ilcpmac identify``).
 
     A bench folder: the total system gain delta epsilon, the torque sensor's gain delta, the current sensors'
@@ -677,12 +682,14 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
     holding scan.toml): the cogging and the position torque from a slow scan forward and back, friction and
     hysteresis removed as the mean of the two directions (docs/standstill.md). A rolling folder (one holding
     rolling.toml): the position torque of a drive log kept row by row, the currents averaged by position corrected
-    by J domega/dt where the data support it (docs/rolling-logs.md).
+    by J domega/dt where the data support it (docs/rolling-logs.md). A holding-map folder (one holding
+    holding_map.toml): a drive's own map decomposed into the current sensors' offsets and scale, the cogging and the
+    rest (docs/drive-maps.md).
 
     Parameters
     ----------
     bench_dir : str or Path
-        The bench folder (docs/bench-format.md), scan folder or rolling folder.
+        The bench folder (docs/bench-format.md), scan, rolling or holding-map folder.
     torque_source : {"sensor", "encoder"}, TorqueSource or None
         Of a bench folder: the torque sensor's column, or the torque from the encoder's time stamps; None: the
         sensor where the bench has one.
@@ -692,9 +699,10 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
 
     Returns
     -------
-    IdentificationResult or ScanResult
-        A bench's estimates with their standard errors (``*_std``), or a scan's; ``messages`` says why an estimate
-        is missing or uncertain (one too uncertain to take is left out: ``diagnostics["too_uncertain"]``).
+    IdentificationResult, ScanResult or MapDecomposition
+        A bench's or a rolling log's estimates with their standard errors (``*_std``), a scan's, or a map's parts;
+        ``messages`` says why an estimate is missing or uncertain (one too uncertain to take is left out:
+        ``diagnostics["too_uncertain"]``).
 
     Raises
     ------
@@ -703,29 +711,23 @@ def identify(bench_dir: str | Path, *, torque_source: str | TorqueSource | None 
     OptionError
         An argument of the wrong type, an unknown ``torque_source``.
     IlcpmacError
-        A ``torque_source`` given for a scan or rolling folder, an ``output`` that cannot be written.
+        A ``torque_source`` given for a scan, rolling or holding-map folder, an ``output`` that cannot be written.
     IdentificationError
         The data cannot support the identification (the message says which estimate and why).
     """
-    from ilcpmac.bench.rolling import ROLLING_FILE, read_rolling
+    # the identifications import numba and scipy: only when they run
+    from ilcpmac.identify.folders import folder_kind
 
     folder = Path(bench_dir)
     if output is not None:
         check_writable(Path(output), IlcpmacError)
-    result: IdentificationResult | ScanResult
-    if (folder / SCAN_FILE).exists():
+    result: IdentificationResult | ScanResult | MapDecomposition
+    kind = folder_kind(folder)
+    if kind is not None:
         if torque_source is not None:
-            raise IlcpmacError(f"torque_source: not for a standstill scan folder ({folder / SCAN_FILE})")
-        result = reduce_scan(read_scan(folder))
-    elif (folder / ROLLING_FILE).exists():
-        if torque_source is not None:
-            raise IlcpmacError(f"torque_source: not for a rolling folder ({folder / ROLLING_FILE})")
-        # numba and the fit: only when it runs
-        from ilcpmac.identify.rolling import estimate_rolling, rolling_result
-
-        result = rolling_result(estimate_rolling(read_rolling(folder)))
+            raise IlcpmacError(f"torque_source: not for {kind.what} ({folder / kind.marker})")
+        result = kind.result(folder)
     else:
-        # the identification imports numba and scipy: only when it runs
         from ilcpmac.identify import identify_bench
 
         bench, grid = campaign_grid(folder, read_bench(folder, extras=False))
@@ -908,9 +910,25 @@ def simulate_log(config: str | Path | CampaignConfig, out: str | Path, *, seed: 
     return _simulate_drive("log", config, out, seed, options)
 
 
-def _mapping(mapping: str | Path | ImportMapping | MoteusMapping) -> ImportMapping | MoteusMapping:
+AnyMapping = ImportMapping | MoteusMapping | HoldingMapMapping
+
+
+def _mapping(mapping: str | Path | AnyMapping) -> AnyMapping:
     """``mapping`` read (`read_mapping`: `ConfigError` naming the file and key), or as it is."""
-    return mapping if isinstance(mapping, ImportMapping | MoteusMapping) else read_mapping(mapping)
+    return mapping if isinstance(mapping, ImportMapping | MoteusMapping | HoldingMapMapping) else read_mapping(mapping)
+
+
+def _logs_mapping(mapping: str | Path | AnyMapping, kinds: tuple[str, ...], this: str) -> ImportMapping:
+    """``mapping`` read, a mapping of logs of one of ``kinds`` ([log] kind), else `BenchFormatError` naming the
+    function that takes it (``this``: the caller's own)."""
+    read = _mapping(mapping)
+    if isinstance(read, ImportMapping) and read.layout.kind in kinds:
+        return read
+    kind = "moteus-cogging" if isinstance(read, MoteusMapping) else "holding-map" if isinstance(
+        read, HoldingMapMapping) else read.layout.kind
+    takes = {"run": "import_logs", "rolling": "import_rolling", "scan": "import_scan", "moteus-cogging": "import_scan",
+             "holding-map": "import_maps"}[kind]
+    raise BenchFormatError(f'{read.path}: [log] kind = "{kind}": not for {this} ({takes} takes it)')
 
 
 def _paths(logs: str | Path | Sequence[str | Path]) -> list[Path]:
@@ -955,13 +973,85 @@ def import_logs(logs: str | Path | Sequence[str | Path], mapping: str | Path | I
         An argument of the wrong type (no logs, an unknown ``trial_format``).
     """
     # the importer's resampling imports numba: only when it runs
+    from ilcpmac.bench.importer import NotPerCount
     from ilcpmac.bench.importer import import_logs as write_bench_folders
 
+    read = _logs_mapping(mapping, ("run",), "import_logs")
+    try:
+        return tuple(write_bench_folders(_paths(logs), read, Path(out), f".{trial_format}"))
+    except NotPerCount as e:
+        raise NotPerCount(f"{e} (import_rolling keeps such a log as it is)") from None
+
+
+@_checked
+def import_rolling(logs: str | Path | Sequence[str | Path], mapping: str | Path | ImportMapping,
+                   out: str | Path) -> RollingData:
+    """Import drive logs as they are into a rolling folder (``ilcpmac import`` of logs the per-count path cannot
+    resample, or with ``[log] kind = "rolling"``; docs/rolling-logs.md), which `identify` takes: positions that turn
+    or dither, less than whole revolutions, host-polled rows, 100 Hz telemetry.
+
+    Parameters
+    ----------
+    logs : str, Path or sequence of them
+        The logs, one segment each.
+    mapping : str, Path or ImportMapping
+        Their mapping file (a run's or a rolling log's), or one read.
+    out : str or Path
+        The rolling folder to write (it must hold no bench.toml yet).
+
+    Returns
+    -------
+    RollingData
+        The rows written, the transients cut and the coverage per position (`ilcpmac.bench.rolling`).
+
+    Raises
+    ------
+    ConfigError
+        The mapping cannot be read (one line naming the file and key).
+    BenchFormatError
+        A log cannot be imported, the mapping is a scan's or a map's, or ``out`` holds a bench already; nothing is
+        written unless every log imports.
+    """
+    from ilcpmac.bench.importer import write_rolling_folder
+    from ilcpmac.bench.rolling import read_rolling
+
+    read = _logs_mapping(mapping, ("run", "rolling"), "import_rolling")
+    write_rolling_folder(_paths(logs), read, Path(out))
+    return read_rolling(Path(out)).data
+
+
+@_checked
+def import_maps(logs: str | Path | Sequence[str | Path], mapping: str | Path | HoldingMapMapping,
+                out: str | Path) -> HoldingMaps:
+    """Import a drive's own holding maps (ODrive's anticogging map, any per-count array: npy, CSV, JSON) into a
+    holding-map folder (``ilcpmac import`` with ``[log] kind = "holding-map"``; docs/drive-maps.md), which
+    `identify` decomposes.
+
+    Parameters
+    ----------
+    logs : str, Path or sequence of them
+        The maps, one motor's, on the same measured positions.
+    mapping : str, Path or HoldingMapMapping
+        Their mapping file, or one read.
+    out : str or Path
+        The folder to write.
+
+    Returns
+    -------
+    HoldingMaps
+        The maps on their measured positions (`ilcpmac.bench.holding_map`).
+
+    Raises
+    ------
+    ConfigError
+        The mapping cannot be read (one line naming the file and key).
+    BenchFormatError
+        A map cannot be imported, the mapping is no holding map's, or ``out`` holds one already.
+    """
     read = _mapping(mapping)
-    if isinstance(read, MoteusMapping):
-        raise BenchFormatError(f'{read.path}: [log] kind = "moteus-cogging": moteus cogging files make a scan folder '
-                               "(import_scan)")
-    return tuple(write_bench_folders(_paths(logs), read, Path(out), f".{trial_format}"))
+    if not isinstance(read, HoldingMapMapping):
+        raise BenchFormatError(f'{read.path}: not a holding map\'s mapping ([log] kind = "holding-map")')
+    return import_holding_maps(_paths(logs), read, Path(out))
 
 
 @_checked
@@ -995,10 +1085,9 @@ def import_scan(logs: str | Path | Sequence[str | Path], mapping: str | Path | I
     from ilcpmac.bench.importer import write_scan_folder
 
     read = _mapping(mapping)
-    if isinstance(read, ImportMapping) and read.layout.kind != "scan":
-        raise BenchFormatError(f'{read.path}: not a scan\'s mapping ([log] kind = "scan" or "moteus-cogging"): '
-                               "drive logs make a bench folder (import_logs)")
-    return write_scan_folder(_paths(logs), read, Path(out))
+    if isinstance(read, MoteusMapping):
+        return write_scan_folder(_paths(logs), read, Path(out))
+    return write_scan_folder(_paths(logs), _logs_mapping(read, ("scan",), "import_scan"), Path(out))
 
 
 @_checked

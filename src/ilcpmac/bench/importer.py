@@ -57,6 +57,7 @@ from ilcpmac.bench.format import (
     read_backemf_csv,
     write_bench,
 )
+from ilcpmac.bench.holding_map import HOLDING_MAP, HoldingMapMapping, holding_map_mapping
 from ilcpmac.bench.logs import (
     LOG_LIMIT_FACTOR,
     ImportLimits,
@@ -254,9 +255,10 @@ class ImportedBench:
     laps: tuple[ImportedLog, ...]
 
 
-def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
-    """Read and check a mapping file, of logs or (``[log] kind = "moteus-cogging"``) of moteus cogging files;
-    each problem raises `ConfigError` naming the file and key."""
+def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping | HoldingMapMapping:
+    """Read and check a mapping file, of logs, (``[log] kind = "moteus-cogging"``) of moteus cogging files or
+    (``kind = "holding-map"``) of a drive's holding maps (`ilcpmac.bench.holding_map`); each problem raises
+    `ConfigError` naming the file and key."""
     path = Path(path)
     data = read_toml(path)
     known = ("bench", "log", "points", "scan", "limits")
@@ -267,6 +269,11 @@ def read_mapping(path: str | Path) -> ImportMapping | MoteusMapping:
         if name not in data:
             raise ConfigError(f"{path}: missing table [{name}]")
     bench = parse_section(data["bench"], BenchSettings, str(path), "bench")
+    if isinstance(data["log"], dict) and data["log"].get("kind") == HOLDING_MAP:  # a map needs no inertia
+        limits = parse_section(data.get("limits", {}), ImportLimits, str(path), "limits")
+        motor = MotorInfo(bench.pole_pairs, bench.slots, bench.counts_per_rev, bench.inertia_kgm2 or 1.0)
+        backemf = None if bench.backemf_file is None and bench.backemf is None else _backemf(bench, motor, path)
+        return holding_map_mapping(data, bench, limits, path, backemf)
     if bench.inertia_kgm2 is None:
         raise ConfigError(f"{path}: [bench] inertia_kgm2: missing (a bench folder needs it)")
     limits = parse_section(data.get("limits", {}), ImportLimits, str(path), "limits")

@@ -180,34 +180,26 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     """
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from ilcpmac.bench.format import read_bench
-    from ilcpmac.bench.rolling import ROLLING_FILE
-    from ilcpmac.bench.standstill import SCAN_FILE, identify_scan
     from ilcpmac.core.errors import IdentificationError, IlcpmacError
     from ilcpmac.core.files import atomic_write, check_writable
     from ilcpmac.core.torque_source import TorqueSource
     from ilcpmac.identify import STEPS, TOO_UNCERTAIN, identify_bench
+    from ilcpmac.identify.folders import folder_kind
 
     check_writable(output, IlcpmacError)
-    if (bench_dir / SCAN_FILE).exists():  # a standstill scan folder (docs/standstill.md)
-        scan, lines = identify_scan(bench_dir, output)
-        for message in scan.messages:
-            console.print(f"[yellow]warning:[/yellow] {message}")
-        for line in lines:
-            console.print(line)
-        if scan.too_uncertain is not None:
-            raise IdentificationError(f"{bench_dir}: {scan.too_uncertain}")
-        return
-    if (bench_dir / ROLLING_FILE).exists():  # a rolling folder (docs/rolling-logs.md)
+    kind = folder_kind(bench_dir)
+    if kind is not None:  # a scan, rolling or holding-map folder (ilcpmac.identify.folders)
         if torque_source is not None or plots_dir is not None:
-            raise IlcpmacError(f"--{'torque-source' if torque_source is not None else 'plots'}: not for a rolling "
-                               f"folder ({bench_dir / ROLLING_FILE}): its torque is the currents', it has no figures")
-        from ilcpmac.identify.rolling import identify_rolling
-
-        rolling, lines = identify_rolling(bench_dir, output)
-        for message in rolling.messages:
+            raise IlcpmacError(f"--{'torque-source' if torque_source is not None else 'plots'}: not for {kind.what} "
+                               f"({bench_dir / kind.marker}): its torque is what the folder holds, it has no figures")
+        result, lines = kind.identify(bench_dir, output)
+        for message in result.messages:
             console.print(f"[yellow]warning:[/yellow] {message}")
         for line in lines:
             console.print(line)
+        too_uncertain = getattr(result, "too_uncertain", None)
+        if too_uncertain is not None:
+            raise IdentificationError(f"{bench_dir}: {too_uncertain}")
         return
     truth = read_truth(bench_dir)
     with progress_bar() as progress:

@@ -34,10 +34,15 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
     # imported when the command runs (ilcpmac.cli's docstring says why)
     from rich.markup import escape
 
+    from ilcpmac.bench.holding_map import HoldingMapMapping, import_holding_maps, import_lines
     from ilcpmac.bench.importer import NotPerCount, import_logs, read_mapping, write_scan_folder
     from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
 
     mapping = read_mapping(mapping_file)
+    if isinstance(mapping, HoldingMapMapping):  # a drive's own maps (docs/drive-maps.md)
+        for line in import_lines(import_holding_maps(list(logs), mapping, out_dir), out_dir):
+            console.print(escape(line))
+        return
     if not isinstance(mapping, MoteusMapping) and mapping.layout.kind == "rolling":
         _write_rolling(list(logs), mapping, out_dir)
         return
