@@ -50,6 +50,22 @@ _WIDE_BOMS = ((codecs.BOM_UTF32_LE, "UTF-32"), (codecs.BOM_UTF32_BE, "UTF-32"), 
               (codecs.BOM_UTF16_BE, "UTF-16"))
 
 
+def column_names(path: Path, named_by: str) -> list[str]:
+    """The column names on the first line of the samples file ``path`` (bounded read), which ``named_by`` (a
+    folder's settings file and key, for the error) names; `BenchFormatError` naming it otherwise."""
+    if not path.is_file():
+        raise BenchFormatError(f"{path}: no such file (named by {named_by})")
+    try:
+        with open(path, "rb") as f:
+            line = f.readline(MAX_HEADER_BYTES)
+    except OSError as e:
+        raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
+    try:
+        return [n.strip() for n in utf8_text(path, line).decode("utf-8").strip().split(",")]
+    except UnicodeDecodeError:
+        raise BenchFormatError(f"{path}: line 1: the column names are not UTF-8 text") from None
+
+
 def utf8_text(path: Path, raw: bytes) -> bytes:
     """The bytes of a text file without a UTF-8 byte-order mark (a spreadsheet's "CSV UTF-8" writes one).
 

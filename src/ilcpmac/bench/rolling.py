@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
-from ilcpmac.bench.format import BENCH_FILE, MAX_HEADER_BYTES, bench_toml_text, read_bench_head, write_backemf_csv
-from ilcpmac.bench.logs import MAX_LOG_ROWS, LogLayout, read_log, utf8_text
+from ilcpmac.bench.format import BENCH_FILE, bench_toml_text, read_bench_head, write_backemf_csv
+from ilcpmac.bench.logs import MAX_LOG_ROWS, LogLayout, column_names, read_log
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, MotorInfo, SensorCalibration
@@ -285,7 +285,7 @@ def read_rolling(folder: str | Path) -> Rolling:
     samples = folder / settings.file
     if not samples.resolve().is_relative_to(folder.resolve()):
         raise BenchFormatError(f"{path}: [rolling] file: {settings.file!r} leads outside the folder (refused)")
-    header = _header(samples)
+    header = column_names(samples, f"{ROLLING_FILE} [rolling] file")
     phases = set(PHASE_COLUMNS) <= set(header)
     if phases == (I_Q_COLUMN in header):
         raise BenchFormatError(f"{samples}: line 1: needs the column {I_Q_COLUMN} or the columns "
@@ -310,21 +310,6 @@ def read_rolling(folder: str | Path) -> Rolling:
         raise BenchFormatError(f"{path}: [rolling] logs: {len(settings.logs)} logs for the {segments} segments of "
                                f"{samples.name}")
     return Rolling(folder, head.motor, head.backemf_nm_per_a, head.sensors, settings, rolling)
-
-
-def _header(path: Path) -> list[str]:
-    """The column names on the first line of ``path`` (bounded read)."""
-    if not path.is_file():
-        raise BenchFormatError(f"{path}: no such file (named by {ROLLING_FILE} [rolling] file)")
-    try:
-        with open(path, "rb") as f:
-            line = f.readline(MAX_HEADER_BYTES)
-    except OSError as e:
-        raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
-    try:
-        return [n.strip() for n in utf8_text(path, line).decode("utf-8").strip().split(",")]
-    except UnicodeDecodeError:
-        raise BenchFormatError(f"{path}: line 1: the column names are not UTF-8 text") from None
 
 
 def write_rolling(folder: str | Path, motor: MotorInfo, backemf_nm_per_a: np.ndarray,

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ilcpmac.bench.fastcsv import format_rows
-from ilcpmac.bench.format import BENCH_FILE, MAX_HEADER_BYTES, bench_toml_text, read_bench_head, write_backemf_csv
-from ilcpmac.bench.logs import ImportLimits, LogLayout, beyond_limit, read_log, utf8_text
+from ilcpmac.bench.format import BENCH_FILE, bench_toml_text, read_bench_head, write_backemf_csv
+from ilcpmac.bench.logs import ImportLimits, LogLayout, beyond_limit, column_names, read_log
 from ilcpmac.core.errors import BenchFormatError, ConfigError
 from ilcpmac.core.files import atomic_write, read_bounded
 from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, MotorInfo, SensorCalibration
@@ -41,7 +41,7 @@ from ilcpmac.signals.harmonics import filtered, harmonic_amplitudes, harmonic_ba
 
 __all__ = ["CURRENT_COLUMNS", "MAX_RELATIVE_STD", "SCAN_DATA_FILE", "SCAN_FILE", "ScanData", "ScanResult",
            "SensorErrors", "holding_problem", "identify_scan", "logged_holding_nm", "read_scan", "reduce_scan",
-           "unresolved_cogging", "write_scan"]
+           "truth_tables", "unresolved_cogging", "write_scan"]
 
 #: the file that makes a folder a scan folder, and the samples' file it names by default
 SCAN_FILE = "scan.toml"
@@ -276,7 +276,7 @@ def read_scan(folder: str | Path) -> Scan:
     samples = folder / name
     if not samples.resolve().is_relative_to(folder.resolve()):
         raise BenchFormatError(f"{path}: [scan] file: {name!r} leads outside the folder (refused)")
-    header = _header(samples)
+    header = column_names(samples, f"{SCAN_FILE} [scan] file")
     kind = CURRENT_COLUMNS if set(CURRENT_COLUMNS) <= set(header) else (TORQUE_COLUMN,)
     if (TORQUE_COLUMN in header) == (kind == CURRENT_COLUMNS):
         raise BenchFormatError(f"{samples}: line 1: needs the columns {', '.join(CURRENT_COLUMNS)} or "
@@ -291,21 +291,6 @@ def read_scan(folder: str | Path) -> Scan:
                     columns.get(TORQUE_COLUMN))
     check_scan(scan, str(samples))
     return Scan(folder, head.motor, head.backemf_nm_per_a, head.sensors, errors, scan, name)
-
-
-def _header(path: Path) -> list[str]:
-    """The column names on the first line of ``path`` (bounded read)."""
-    if not path.is_file():
-        raise BenchFormatError(f"{path}: no such file (named by {SCAN_FILE} [scan] file)")
-    try:
-        with open(path, "rb") as f:
-            line = f.readline(MAX_HEADER_BYTES)
-    except OSError as e:
-        raise BenchFormatError(f"{path}: cannot read ({e.strerror or e})") from None
-    try:
-        return [n.strip() for n in utf8_text(path, line).decode("utf-8").strip().split(",")]
-    except UnicodeDecodeError:
-        raise BenchFormatError(f"{path}: line 1: the column names are not UTF-8 text") from None
 
 
 def check_scan(scan: ScanData, where: str) -> None:
@@ -562,8 +547,9 @@ def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
-def _truth_tables(folder: Path) -> dict[str, np.ndarray]:
-    """The "cogging" and "position_torque" tables of the folder's truth.json (a simulated scan's), if any."""
+def truth_tables(folder: Path) -> dict[str, np.ndarray]:
+    """The "cogging" and "position_torque" tables of the folder's truth.json (a simulated scan's or log's), if
+    any."""
     path = folder / TRUTH_FILE
     if not path.is_file():
         return {}
@@ -580,7 +566,7 @@ def identify_scan(folder: str | Path, output: str | Path) -> tuple[ScanResult, l
     to print; with a truth.json (a simulated scan's), the RMS errors against it."""
     folder = Path(folder)
     result = reduce_scan(read_scan(folder))
-    truth_nm = _truth_tables(folder)
+    truth_nm = truth_tables(folder)
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(output, json.dumps(result.to_json(), indent=1, allow_nan=False))

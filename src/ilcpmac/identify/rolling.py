@@ -87,9 +87,9 @@ import numpy as np
 from numba import njit
 
 from ilcpmac.bench.rolling import Rolling, RollingData, coverage, read_rolling
-from ilcpmac.bench.standstill import TRUTH_FILE
-from ilcpmac.core.errors import BenchFormatError, IdentificationError
-from ilcpmac.core.files import atomic_write, read_bounded
+from ilcpmac.bench.standstill import truth_tables
+from ilcpmac.core.errors import IdentificationError
+from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import IdentificationResult, MethodEstimates
 from ilcpmac.core.schema import finite_json
 from ilcpmac.core.torque_source import TorqueSource
@@ -892,20 +892,6 @@ def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
-def _truth(folder: Path) -> dict[str, np.ndarray]:
-    """The "cogging" and "position_torque" tables of the folder's truth.json (a simulated log's), if any."""
-    import json
-
-    path = folder / TRUTH_FILE
-    if not path.is_file():
-        return {}
-    try:
-        data = json.loads(read_bounded(path, 2**26, BenchFormatError))
-        return {key: np.asarray(data[key]["torque"], float) for key in ("cogging", "position_torque") if key in data}
-    except (ValueError, KeyError, TypeError) as e:
-        raise BenchFormatError(f"{path}: unreadable ({e})") from None
-
-
 def identify_rolling(folder: str | Path, output: str | Path) -> tuple[IdentificationResult, list[str]]:
     """``ilcpmac identify ROLLING_FOLDER``: the rolling identification, its result JSON written to ``output``; the
     result and the lines to print (with a truth.json, a simulated log's, the errors against it)."""
@@ -931,7 +917,7 @@ def identify_rolling(folder: str | Path, output: str | Path) -> tuple[Identifica
         lines.append(f"  order {h + 1}: {1e3 * abs(e.harmonics_nm[h]):.4g} ± {1e3 * math.sqrt(e.variance_nm2[h]):.2g} "
                      f"mN m ({e.choices()[h]}; baseline {1e3 * abs(e.baseline_nm[h]):.4g})")
     for key, estimated in (("cogging", result.cogging_nm), ("position_torque", result.position_torque_nm)):
-        true = _truth(folder).get(key)
+        true = truth_tables(folder).get(key)
         if true is not None and estimated is not None and true.shape == estimated.shape and np.ptp(true) > 0:
             true = true - true.mean()
             base = e.table_nm(e.baseline_nm, cogging_only=key == "cogging")
