@@ -140,8 +140,9 @@ def test_the_inertial_gain_of_sparse_rows_is_divided_out(rate_hz, order):
     current = (inertia * acceleration - tau + 0.2) / k_t
     data = RollingData(t, theta / (2 * np.pi) * cpr, np.ones(t.size, np.int64), current, None, None)
     e = estimate_rolling(Rolling(Path("synthetic"), motor, backemf, None, RollingSettings(current_filter_s=0.0), data))
-    assert e.harmonics_nm[order - 1] == pytest.approx(-0.004j, abs=2e-6)
+    assert e.corrected_nm[order - 1] == pytest.approx(-0.004j, abs=2e-6)
     assert abs(e.baseline_nm[order - 1] + 0.004j) > 1e-3
+    assert abs(e.harmonics_nm[order - 1] + 0.004j) <= 2.0 * math.sqrt(e.variance_nm2[order - 1])
 
 
 def test_a_current_loop_log_gets_its_position_torque_from_the_acceleration_alone(tmp_path):

@@ -33,9 +33,9 @@ from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, MotorInfo, SensorCalibration
 from ilcpmac.core.schema import in_range, param, parse_section, read_toml, section_toml, setting, shown
 
-__all__ = ["CURRENT_KINDS", "Coverage", "MAX_SEGMENTS", "ROLLING_DATA_FILE", "ROLLING_FILE", "Rolling",
-           "RollingData", "RollingSettings", "SETTLE_WINDOWS", "check_rolling", "coverage", "read_rolling",
-           "rolling_seconds", "steady_rows", "write_rolling"]
+__all__ = ["CURRENT_KINDS", "Coverage", "MAX_SEGMENTS", "POSITION_DECIMALS", "ROLLING_DATA_FILE", "ROLLING_FILE",
+           "Rolling", "RollingData", "RollingSettings", "SETTLE_WINDOWS", "TIME_DECIMALS", "check_rolling", "coverage",
+           "read_rolling", "rolling_seconds", "steady_rows", "write_rolling"]
 
 #: the file that makes a folder a rolling folder, and the samples' file it names by default
 ROLLING_FILE = "rolling.toml"
@@ -47,6 +47,8 @@ PHASE_COLUMNS = ("i_a", "i_b", "i_c")
 TORQUE_COLUMN = "torque"
 #: what the logged currents are ([log] current of the mapping)
 CURRENT_KINDS = ("commanded", "measured")
+#: the decimals rolling.csv keeps of its times (s) and positions (counts): what a quantum read off them must pass
+TIME_DECIMALS, POSITION_DECIMALS = 7, 6
 #: most logs one rolling folder holds
 MAX_SEGMENTS = 256
 #: the fewest rows a segment keeps
@@ -324,7 +326,7 @@ def write_rolling(folder: str | Path, motor: MotorInfo, backemf_nm_per_a: np.nda
     if data.torque_nm is not None:
         names.append(TORQUE_COLUMN)
         columns.append(data.torque_nm)
-    decimals = [7, 6, 0] + [6] * (len(names) - 3)
+    decimals = [TIME_DECIMALS, POSITION_DECIMALS, 0] + [6] * (len(names) - 3)
     folder.mkdir(parents=True, exist_ok=True)
     write_backemf_csv(folder / "backemf.csv", backemf_nm_per_a)
     body = format_rows(np.column_stack(columns), np.array(decimals))

@@ -18,40 +18,48 @@ current averaged by position, here as the least-squares Fourier fit over the row
 stands for (coverage-aware). It is biased by the inertial torque J domega/dt wherever the speed ripples, and by a
 report filter F of the logged current (a first-order lag of time constant T: ODrive's
 I_measured_report_filter_k). (3) removes both, at the price of the noise and the encoder errors of domega/dt.
-They are combined per harmonic by their measured errors (eq. 6), so that the result is never worse than (2) in
-expectation, and says per harmonic which it took. A phase-current log's q current is its torque K . i over k_q.
+They are combined per harmonic by their measured errors (eq. 6): a correction is taken only where it stands
+clear of its errors, so that the result is not worse than (2), and says per harmonic which it took (none: the
+result is (2), said in a message). A phase-current log's q current is its torque K . i over k_q.
 
 Estimator
 ---------
-Rows are grouped into blocks of about ``1 / (4 H f)`` s (f the mean speed in Hz, H the highest harmonic; shorter
-where the log would give fewer than `BLOCKS_PER_COLUMN` blocks per coefficient, or than `FILTER_BLOCKS` per
-filter time constant; at least one row interval; never across a segment's end or a gap in its rows), and (1) over
-k_q is summed over each block b with the time weights w_k (half the row intervals each side), in q-axis amperes:
+A block is one row (where the log's rows times the 2 H + 3 columns stay within `MAX_DESIGN_ENTRIES`; else the
+fewest rows that do, and at least about ``1 / (4 H f)`` s, f the mean speed in Hz, H the highest harmonic;
+never across a segment's end or a gap in its rows), and (1) over k_q is summed over each block b with the time
+weights w_k (half the row intervals each side), in q-axis amperes:
 
     sum_k w_k i_q,k = F[ J A_b / k_q - sum_h tau_h sum_k w_k e^{j h theta_k} / k_q + f W_b / k_q ]   (4)
 
-A_b = omega(b's end) - omega(b's start), the speed at each block edge the secant over a window of about the block
-(no differentiation of the rows' noise), k_q the block's mean. (4) is linear in tau_h, J and f: one weighted
-least squares over the blocks (weights 1 / W_b). A_b passes harmonic h with the gain g_h = sinc(h f D_w)
-sinc(h f dt) against the row sums (D_w the edge window, dt the row interval), divided out of J's part of tau_h.
+A_b = omega(b's end) - omega(b's start), the speed at each block edge the mean position of the m rows after it less
+that of the m rows before over their mean times (m half a block; for one-row blocks a secant, A_b the position's
+second difference, which any estimate linear in the rows' positions matches in what it tells of harmonic h;
+blocks of several rows fold the positions' error above their own rate), k_q the block's mean. (4) is linear in
+tau_h, J and f: one weighted least squares over the blocks (weights 1 / W_b). A_b passes harmonic h with the
+gain g_h = D_m(h dtheta) sinc(h f m dt) sinc(h f dt) against the row sums (D_m the m-row mean's Dirichlet
+kernel, dtheta and dt a row interval's angle and time), divided out of J's part of tau_h (and of A_b's error
+beyond the position-locked motion).
 F is the drive's filter on every column (block means, first order, exact for a current linear between block
 centres), with one column per run for the filter's state at its start; T is stated (rolling.toml) or found:
 
     y + T' dy/dt = (4)'s right side unfiltered,  T' > 0,  RSS(0) > `FILTER_GAIN` RSS(T'),   (5)
     K_c ln(RSS(0) / RSS(T')) > `FILTER_SIGNIFICANCE`;   then T = argmin RSS_measured(T)
 
-first whether there is a filter: the unfiltered fit (J as given, or free) with the current advanced by the
-inverse filter, T' its least-squares value (biased low by the current's noise in dy/dt; A_b's noise the same at
-every T'; K_c the clusters below, a conservative count of independent residuals); then its time constant in the
+first whether there is a filter, on blocks of about ``1 / (4 H f)`` s (at least `BLOCKS_PER_COLUMN` per
+coefficient): the unfiltered fit (J as given, or free) with the current advanced by the inverse filter, T' its
+least-squares value (biased low by the current's noise in dy/dt; A_b's noise the same at every T'; K_c the
+clusters below, a conservative count of independent residuals); then its time constant in the
 measured domain, over a grid of log T refined by a parabola, its residuals summed over runs of `FILTER_GROUP`
 blocks first; log T's standard error from the parabola's curvature, through the fit at log T +- it.
 
 Inertia: J given with a relative standard uncertainty u_J ([motor] inertia_uncertainty) enters (4) as a prior
 observation J0 +- u_J J0; the data add what their non-periodic motion tells of J (a speed loop's noise, a
 stick-slip's jumps). The noise of A_b (the position's quantum q_theta and the stamps' quantum q_t over the
-speed) biases that part towards zero; its expected square is taken out of the normal equations, and the data
-are taken to identify J only where that leaves more than half of J's information. Without u_J (J unknown), J is
-the data's where they identify it at 3 standard errors, else 0 (the baseline's inertial term).
+speed, or what the third differences of the position less its smooth part show, the larger: stamps even in
+time though the positions were read at a host's jittered instants) biases that part towards zero; its expected
+square is taken out of the normal equations, and the data are taken to identify J only where that leaves more
+than half of J's information. Without u_J (J unknown), J is the data's where they identify it at 3 standard
+errors, else 0 (the baseline's inertial term).
 
 Errors: the cluster-robust ("sandwich") covariance over `CLUSTERS` runs of consecutive blocks, of (2), (3) and
 their difference d_h = tau_F,h - tau_B,h: it holds the currents' noise, the timing jitter and what (1) does not
@@ -61,15 +69,20 @@ model, as far as they do not repeat with position. What repeats with position is
 
 (`QUANTISER_BOUND` = 2), a_q,h what a quantiser of the logged position's quantum (a 12-16-bit position read once
 per control cycle is a deterministic function of position at a steady speed) makes of A_b's harmonic h on the
-log's own motion (`_quantiser_bias`). The combination, per harmonic, with V_d = var(d_h) + sigma_enc,h^2 + the
-prior's and the filter's parts:
+log's own motion, at least (h Omega)^2 q / sqrt(3 U) (U distinct readings a revolution: its error spread evenly;
+`_quantiser_bias`). The combination, per harmonic, with V_d = var(d_h) + sigma_enc,h^2 + the prior's and the
+filter's parts, and V'_d the same with the quantiser's RMS bias sigma_enc,h / 2:
 
-    c2_h = max(|d_h|^2 - V_d, 0),   g_h = c2_h / (c2_h + V_d),   tau_h = tau_B,h + g_h d_h   (6)
+    |d_h|^2 > ln(n / alpha) V'_d:   g_h = 1 - `SHRINK` V'_d / |d_h|^2,  else 0;   tau_h = tau_B,h + g_h d_h   (6)
 
-the minimum-variance (Wiener) weight of the correction; its stated variance is var(tau_B,h + g_h d_h) + g_h^2
-(sigma_enc,h^2 + the prior's and the fitted filter's parts) + (1 - g_h)^2 |d_h|^2 (the correction's part left out
-is the baseline's bias), plus, for rows sparse enough that H reaches half the Nyquist order, what folds from
-above it (`_folded_power`).
+(n the harmonics of its kind: the orders a motor's torque is expected at, multiples of the cogging order and of
+6 x pole pairs, with alpha = `SELECTION_EXPECTED`, the others with `SELECTION`): a correction is taken where its
+noise alone would pass at any of them with a chance alpha, shrunk near the threshold, where a correction's bias
+beyond its measured error would cost most; nearly the Wiener weight far above it. Its stated variance is
+var(tau_B,h + g_h d_h) + g_h^2 (sigma_enc,h^2 + the prior's and the fitted filter's parts) + (1 - g_h)^2 |d_h|^2
+(the correction's part left out is the baseline's bias), plus what folds from above the rows' Nyquist order:
+for rows sparse enough that H reaches half of it, the top quarter's mean power (`_folded_power`), and the
+currents' torque ripple, k_q's orders above it times the mean current, where it folds (`_ripple_folds`).
 
 Harmonics: 1..H with H = min(twice the cogging order, counts_per_rev / 2 - 1, the highest order below
 (1 - `NYQUIST_MARGIN`) f_s / (2 f), the rows' Nyquist order at the median row rate f_s); a cogging order up to
@@ -86,11 +99,11 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ilcpmac.bench.rolling import Rolling, RollingData, coverage, read_rolling
+from ilcpmac.bench.rolling import POSITION_DECIMALS, TIME_DECIMALS, Rolling, RollingData, coverage, read_rolling
 from ilcpmac.bench.standstill import truth_tables
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.files import atomic_write
-from ilcpmac.core.records import IdentificationResult, MethodEstimates
+from ilcpmac.core.records import IdentificationResult, MethodEstimates, MotorInfo
 from ilcpmac.core.schema import finite_json
 from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.model.tables import q_axis
@@ -113,9 +126,6 @@ FILTER_GRID = 16
 #: report filter of tens of row intervals leaves much of the torque unexplained without it (the ODrive logs: 5.8
 #: with anticogging off, 1.9 with it on); an unfiltered log within a few % (the simulated logs: 1.0-1.05)
 FILTER_GAIN = 1.5
-#: the most block durations a filter's time constant spans: with a filter, blocks are made this fine (a row at
-#: the least), as the filter of the block means is exact for a current linear within a block only
-FILTER_BLOCKS = 40
 #: blocks whose residuals the choice of the filter's time constant sums before squaring (eq. 5): A_b's noise, a
 #: difference from edge to edge, cancels within them
 FILTER_GROUP = 8
@@ -132,8 +142,11 @@ FOLDED_MULTIPLES = 2
 #: the orders within this fraction below the rows' Nyquist order are not estimated: the mean speed's own scatter
 #: puts them on either side of it
 NYQUIST_MARGIN = 0.02
-#: the fewest blocks per coefficient of the fit: a short log gets shorter blocks (at least a row interval)
+#: the fewest blocks per coefficient of eq. (5)'s test for a filter, on blocks of about 1 / (4 H f) s
 BLOCKS_PER_COLUMN = 8
+#: the most entries (blocks x columns) of eq. (4)'s design: a block is one row where the log's rows x (2 H + 3)
+#: stay within it, else the fewest rows that do
+MAX_DESIGN_ENTRIES = 5_000_000
 #: the least travel of a rolling log, revolutions
 MIN_TRAVEL = 0.05
 #: draws of the Monte Carlo of A_b's noise, and phases of the quantiser whose bias eq. (7) averages
@@ -144,6 +157,14 @@ QUANTISER_PHASES = 8
 QUANTISER_BOUND = 2.0
 #: the position ripple's harmonics the quantiser's motion keeps: above this many times a quantiser's level
 RIPPLE_LEVEL = 3.0
+#: the chance that the correction's noise alone passes eq. (6)'s threshold |d_h|^2 > ln(n / alpha) V_d at any of
+#: n harmonics (|d_h|^2 / V_d of noise alone is exponential of mean 1): alpha at the orders a motor's torque is
+#: expected at (multiples of the cogging order and of 6 x pole pairs), and at the n others
+SELECTION_EXPECTED = 1e-2
+SELECTION = 1e-3
+#: eq. (6)'s weight of a correction that passes, g_h = 1 - SHRINK V_d / |d_h|^2: the Wiener weight's (SHRINK 1)
+#: near the threshold, where a bias of the correction's beyond V_d would cost most, shrunk
+SHRINK = 2.0
 #: g_h below this is "baseline", above 1 - it "corrected", in between "combined"
 CHOICE = 0.1
 
@@ -155,8 +176,9 @@ class RollingEstimate:
     Attributes
     ----------
     harmonics_nm, variance_nm2 : ndarray, shapes (H,), complex and real
-        tau_h as combined (eq. 6; 0 where not estimated) and E|d tau_h|^2, N m (one-sided amplitudes:
-        tau(theta) = Re sum_h tau_h e^{j h theta}).
+        tau_h as combined (eq. 6; 0 where not estimated) and E|d tau_h|^2 (where not estimated, what the rows
+        hold there: the combined estimate's square and variance), N m (one-sided amplitudes: tau(theta) = Re
+        sum_h tau_h e^{j h theta}).
     baseline_nm, baseline_variance_nm2 : ndarray, shape (H,)
         Eq. (2) and its measured variance (its bias not included).
     corrected_nm, correction_variance_nm2 : ndarray, shape (H,)
@@ -241,8 +263,9 @@ class RollingEstimate:
         return table_from_amplitudes(np.concatenate([[0.0], np.where(keep, values, 0.0)]), self.counts_per_rev)
 
     def table_std_nm(self, cogging_only: bool = False) -> np.ndarray:
-        """The standard error of `table_nm` per count: sqrt(sum_h E|d tau_h|^2 / 2), N m."""
-        keep = self.estimated & (self.cogging_band if cogging_only else True)
+        """The standard error of `table_nm` per count: sqrt(sum_h E|d tau_h|^2 / 2) (the harmonics left out with
+        theirs), N m."""
+        keep = self.cogging_band if cogging_only else np.ones(self.harmonics_nm.size, bool)
         return np.full(self.counts_per_rev, math.sqrt(float(np.sum(self.variance_nm2[keep])) / 2.0))
 
     def choices(self) -> list[str]:
@@ -284,8 +307,8 @@ class _Blocks:
     ``current`` sum w i_q; ``rate`` sum w di_q/dt; ``inverse_gain`` the mean of 1 / k_q; ``angle`` sum w theta;
     ``fourier`` [W, sum w cos h theta, sum w sin h theta, ...] (n_b, 1 + 2H); ``inertial`` A_b; ``width`` W_b;
     ``centre_s`` the weighted mean time; ``run`` the run (between gaps or segment ends) of each block; ``edges``
-    the rows (global) of the secants at each block's start and end edge, (n_b, 4): start from, start to, end from,
-    end to; ``gain`` g_h, shape (H,).
+    the rows (global) of the windows at each block's start and end edge, (n_b, 4): start from, start to, end from,
+    end to, ``window_rows`` (m) of them each side of the edge; ``gain`` g_h, shape (H,).
     """
 
     current: np.ndarray
@@ -299,12 +322,25 @@ class _Blocks:
     run: np.ndarray
     edges: np.ndarray
     gain: np.ndarray
+    window_rows: int
 
     def inertial_of(self, time_s: np.ndarray, signal: np.ndarray) -> np.ndarray:
-        """A_b of a per-row ``signal`` (an angle, rad) as of the position: the secants' difference per block."""
-        e = self.edges
-        return ((signal[e[:, 3]] - signal[e[:, 2]]) / (time_s[e[:, 3]] - time_s[e[:, 2]])
-                - (signal[e[:, 1]] - signal[e[:, 0]]) / (time_s[e[:, 1]] - time_s[e[:, 0]]))
+        """A_b of a per-row ``signal`` (an angle, rad) as of the position: the edges' speeds' difference per block."""
+        speeds = _edge_speeds(time_s, signal, self.edges, self.window_rows)
+        return speeds[:, 1] - speeds[:, 0]
+
+
+def _edge_speeds(time_s: np.ndarray, signal: np.ndarray, edges: np.ndarray, m: int) -> np.ndarray:
+    """The speed at each block's start and end edge (n_b, 2): the mean of ``signal``'s m rows after the edge less
+    the mean of its m rows before, over the same of the times (a secant of the rows either side for m = 1; for
+    more, every row of the window counts, so that the blocks do not fold a position's error between them)."""
+    if m == 1:
+        return (signal[edges[:, [1, 3]]] - signal[edges[:, [0, 2]]]) / (time_s[edges[:, [1, 3]]]
+                                                                          - time_s[edges[:, [0, 2]]])
+    means = np.lib.stride_tricks.sliding_window_view(signal, m).mean(axis=1)
+    times = np.lib.stride_tricks.sliding_window_view(time_s, m).mean(axis=1)
+    left = edges[:, [0, 2]]
+    return (means[left + m] - means[left]) / (times[left + m] - times[left])
 
 
 def _current_rows(rolling: Rolling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -348,26 +384,29 @@ def _runs(data: RollingData) -> list[slice]:
     return runs
 
 
+def _window_rows(block_rows: int) -> int:
+    """m, the rows each side of a block's edge whose means make the speed there (`_edge_speeds`)."""
+    return max(1, block_rows // 2)
+
+
 def _blocks(data: RollingData, theta: np.ndarray, rows_: tuple[np.ndarray, np.ndarray, np.ndarray], top: int,
-            block_s: float) -> tuple[_Blocks, list[int]]:
-    """The blocks of eq. (4) over every run long enough to hold one with its edge windows, and the runs' sizes in
-    blocks. ``theta`` the rows' angle, rad; ``rows_`` `_current_rows`'."""
+            block_rows: int) -> tuple[_Blocks, list[int]]:
+    """The blocks of eq. (4), ``block_rows`` rows each, over every run long enough to hold one with its edge
+    windows, and the runs' sizes in blocks. ``theta`` the rows' angle, rad; ``rows_`` `_current_rows`'."""
     parts: list[dict] = []
     sizes = []
     for run_index, rows in enumerate(_runs(data)):
         t, th = data.time_s[rows], theta[rows]
         n = t.size
         dt = np.diff(t)
-        median = float(np.median(dt)) if dt.size else 0.0
-        m = max(1, int(round(block_s / (2.0 * median)))) if median > 0 else 1
+        m = _window_rows(block_rows)
         if n < 2 * m + 4:
             continue
         w = np.zeros(n)
         w[:-1] += dt / 2.0
         w[1:] += dt / 2.0
         inner = np.arange(m, n - m)  # rows whose block edges have their windows inside the run
-        block = np.floor(np.cumsum(w[inner]) / block_s - 1e-9).astype(np.int64)
-        block = np.unique(block, return_inverse=True)[1]
+        block = np.arange(inner.size) // block_rows
         count = int(block[-1]) + 1
         first = np.searchsorted(block, np.arange(count))
         last = np.append(first[1:], inner.size) - 1
@@ -383,10 +422,13 @@ def _blocks(data: RollingData, theta: np.ndarray, rows_: tuple[np.ndarray, np.nd
             sums[:, 1 + 2 * h] = np.bincount(block, weights=weights * power.real, minlength=count)
             sums[:, 2 + 2 * h] = np.bincount(block, weights=weights * power.imag, minlength=count)
         orders = np.arange(1, top + 1)[None, :]
-        window = (th[edges[:, [1, 3]]] - th[edges[:, [0, 2]]]).reshape(-1, 1)
         row = (th[np.column_stack([starts, ends]) + 1] - th[np.column_stack([starts, ends])]).reshape(-1, 1)
-        gain = np.mean(np.sinc(orders * window / (2 * np.pi)) * np.sinc(orders * row / (2 * np.pi)), axis=0)
-        speeds = (th[edges[:, [1, 3]]] - th[edges[:, [0, 2]]]) / (t[edges[:, [1, 3]]] - t[edges[:, [0, 2]]])
+        half = orders * row / 2.0  # the edge's speed: an m-row mean's Dirichlet kernel, the means m rows apart
+        apart = np.abs(np.sin(half)) > 1e-12
+        dirichlet = np.where(apart, np.sin(m * half) / np.where(apart, m * np.sin(half), 1.0), 1.0)
+        gain = np.mean(dirichlet * np.sinc(orders * m * row / (2 * np.pi)) * np.sinc(orders * row / (2 * np.pi)),
+                       axis=0)
+        speeds = _edge_speeds(t, th, edges, m)
         parts.append({"current": np.bincount(block, weights=weights * rows_[0][rows][inner], minlength=count),
                       "rate": np.bincount(block, weights=weights * rows_[1][rows][inner], minlength=count),
                       "inverse_gain": np.bincount(block, weights=weights * rows_[2][rows][inner], minlength=count)
@@ -401,7 +443,7 @@ def _blocks(data: RollingData, theta: np.ndarray, rows_: tuple[np.ndarray, np.nd
                                   "between gaps)")
     joined = {key: np.concatenate([p[key] for p in parts]) for key in parts[0] if key != "gain"}
     gain = np.sum([p["gain"] for p in parts], axis=0) / sum(sizes)
-    return _Blocks(**joined, gain=gain), sizes
+    return _Blocks(**joined, gain=gain, window_rows=_window_rows(block_rows)), sizes
 
 
 @njit(cache=True)
@@ -494,33 +536,36 @@ def _variance(influence: np.ndarray, top: int, clusters: int) -> np.ndarray:
     return scale * (np.sum(re**2, axis=0) + np.sum(im**2, axis=0))
 
 
-def _quantum(steps: np.ndarray) -> float:
-    """The smallest |change| between successive ``steps`` above 1e-6 of the largest |step| (a quantised position
-    or clock makes every change a multiple of its quantum), or 0."""
+def _quantum(steps: np.ndarray, resolution: float) -> float:
+    """The smallest |change| between successive ``steps`` above 1e-6 of the largest |step| and 4 ``resolution``
+    (the values' own rounding: rolling.csv's decimals, a change of steps holding three of them), or 0: a quantised
+    position or clock makes every change a multiple of its quantum."""
     changes = np.abs(np.diff(steps))
     scale = float(np.abs(steps).max()) if steps.size else 0.0
-    changes = changes[changes > 1e-6 * scale]
+    changes = changes[changes > max(1e-6 * scale, 4.0 * resolution)]
     return float(changes.min()) if changes.size else 0.0
 
 
-def _position_noise_rad2(data: RollingData, theta: np.ndarray, quantum_rad: float, speed_rad_s: float) -> float:
-    """The variance of one row's position error, rad^2: the smaller of the quanta's (q_theta^2 + (Omega q_t)^2) / 12
-    and the third differences' robust estimate (white noise: E d3^2 = 20 sigma^2)."""
-    q_t = _quantum(np.concatenate([np.diff(data.time_s[rows]) for rows in data.segments]))
-    third = np.concatenate([np.diff(theta[rows], 3) for rows in data.segments])
+def _position_noise_rad2(data: RollingData, quantum_rad: float, speed_rad_s: float, motion: _Motion) -> float:
+    """The variance of one row's position error, rad^2: the larger of the quanta's (q_theta^2 + (Omega q_t)^2) / 12
+    and the robust estimate from the third differences of the position less its smooth part (white noise:
+    E d3^2 = 20 sigma^2), which holds what the quanta do not show: stamps even in time but not the instants the
+    positions were read at (a host's jitter), a position estimator's own noise."""
+    q_t = _quantum(np.concatenate([np.diff(data.time_s[rows]) for rows in data.segments]), 10.0**-TIME_DECIMALS)
+    third = np.concatenate([np.diff(motion.residual[motion.run == r], 3) for r in np.unique(motion.run)])
     robust = float(np.median(third**2)) / 0.4549 / 20.0 if third.size else 0.0
-    return min((quantum_rad**2 + (speed_rad_s * q_t) ** 2) / 12.0, robust)
+    return max((quantum_rad**2 + (speed_rad_s * q_t) ** 2) / 12.0, robust)
 
 
-def _edge_noise(grid: _Grid, speed_noise: float, tau_s: float) -> float:
+def _edge_noise(grid: _Grid, time_s: np.ndarray, position_std_rad: float, tau_s: float) -> float:
     """E sum_b (noise of J's column, as the design has it)^2 / W_b: Monte Carlo over `NOISE_DRAWS` draws of
-    independent edge-speed errors of standard deviation ``speed_noise`` (seeded)."""
-    if speed_noise <= 0.0:
+    independent errors of the rows' positions of standard deviation ``position_std_rad`` through A_b (seeded)."""
+    if position_std_rad <= 0.0:
         return 0.0
     rng = np.random.default_rng(0)
     total = 0.0
     for _ in range(NOISE_DRAWS):
-        noise = np.concatenate([np.diff(rng.standard_normal(size + 1) * speed_noise) for size in grid.sizes])
+        noise = grid.blocks.inertial_of(time_s, rng.standard_normal(time_s.size) * position_std_rad)
         total += float(np.sum(grid.filtered(noise[:, None], tau_s)[:, 0] ** 2 / grid.blocks.width))
     return total / NOISE_DRAWS
 
@@ -534,16 +579,29 @@ def _projector(design: np.ndarray, weight: np.ndarray) -> np.ndarray:
     return np.linalg.pinv(normal + ridge * np.eye(normal.shape[0]), hermitian=True) @ (x * root).T
 
 
-def _quantiser_bias(time_s: np.ndarray, theta: np.ndarray, quantum_rad: float, grid: _Grid,
-                    projector: np.ndarray, tau_s: float, top: int) -> np.ndarray:
-    """|a_h| of eq. (7) per harmonic, rad/s^2 (J times it is sigma_enc,h): what a quantiser of ``quantum_rad`` makes
-    of A_b's harmonics on this log's own motion, RMS over `QUANTISER_PHASES` phases of the quantiser.
+def _cluster_scores(projector: np.ndarray, residual: np.ndarray, cluster: np.ndarray, clusters: int) -> np.ndarray:
+    """Per cluster, what its blocks' ``residual`` (unweighted) adds to the coefficients ``projector`` (`_projector`)
+    makes of it, shape (clusters, p)."""
+    per = np.zeros((clusters, projector.shape[0]))
+    np.add.at(per, cluster, (projector * residual).T)
+    return per
 
-    The motion is the logged position's smooth part: per run a quadratic in time and the position-locked ripple,
-    harmonics 1..H fitted over the blocks, those of them within `RIPPLE_LEVEL` times the level q / sqrt(3 R) a
-    quantiser's error spreads over the R / 2 orders of R rows per revolution left out (they hold that error); the
-    quantiser's error at the rows (q round((theta + u) / q) - theta - u, u the phase) is passed through A_b, the
-    drive's filter and the fit as the position is, g_h divided out."""
+
+@dataclass(frozen=True)
+class _Motion:
+    """The logged position's smooth part at the rows the blocks' edge windows span (``rows``, their runs ``run``):
+    ``smooth`` and ``residual`` (the position less it), rad."""
+
+    rows: np.ndarray
+    run: np.ndarray
+    smooth: np.ndarray
+    residual: np.ndarray
+
+
+def _smooth_motion(time_s: np.ndarray, theta: np.ndarray, quantum_rad: float, grid: _Grid, top: int) -> _Motion:
+    """The logged position's smooth part: per run a quadratic in time and the position-locked ripple, harmonics
+    1..H fitted over the blocks, those of them within `RIPPLE_LEVEL` times the level q / sqrt(3 R) a quantiser's
+    error spreads over the R / 2 orders of R rows per revolution left out (they hold that error)."""
     blocks = grid.blocks
     runs = np.unique(blocks.run)
     start = {r: blocks.centre_s[np.argmax(blocks.run == r)] for r in runs}
@@ -552,26 +610,55 @@ def _quantiser_bias(time_s: np.ndarray, theta: np.ndarray, quantum_rad: float, g
     angle = np.column_stack([blocks.fourier[:, 1:], *drift])
     coefficients = _projector(angle, 1.0 / blocks.width) @ blocks.angle
     row_run = np.full(time_s.size, -1)
-    row_run[blocks.edges.ravel()] = np.repeat(blocks.run, 4)
+    for r in runs:  # the rows of a run's edge windows, first to last
+        mine = blocks.edges[blocks.run == r]
+        row_run[mine.min():mine.max() + 1] = r
     rows = np.flatnonzero(row_run >= 0)
     harmonic = coefficients[:2 * top:2] - 1j * coefficients[1:2 * top:2]
     rows_per_rev = rows.size / max(float(np.ptp(theta[rows])) / (2 * np.pi), 1.0)
-    harmonic[np.abs(harmonic) < RIPPLE_LEVEL * quantum_rad / math.sqrt(3.0 * rows_per_rev)] = 0.0
-    smooth = np.zeros(time_s.size)
-    smooth[rows] = np.real(np.exp(1j * np.outer(theta[rows], np.arange(1, top + 1))) @ harmonic)
+    level = RIPPLE_LEVEL * quantum_rad / math.sqrt(3.0 * rows_per_rev)
+    harmonic[np.abs(harmonic) < level] = 0.0
+    harmonic[_sawtooth_orders(2 * np.pi / quantum_rad, rows_per_rev, level / quantum_rad, top) - 1] = 0.0
+    smooth = np.real(np.exp(1j * np.outer(theta[rows], np.arange(1, top + 1))) @ harmonic)
     for k, r in enumerate(runs):
-        mine = rows[row_run[rows] == r]
-        smooth[mine] += sum(coefficients[2 * top + 3 * k + power] * (time_s[mine] - start[r]) ** power
+        mine = row_run[rows] == r
+        smooth[mine] += sum(coefficients[2 * top + 3 * k + power] * (time_s[rows[mine]] - start[r]) ** power
                             for power in range(3))
+    return _Motion(rows, row_run[rows], smooth, theta[rows] - smooth)
+
+
+def _sawtooth_orders(lines_per_rev: float, rows_per_rev: float, level: float, top: int) -> np.ndarray:
+    """The orders 1..top within one of where a quantiser's error of a steady motion lies: L lines and R rows per
+    revolution make it a sawtooth of L / R lines per row, its harmonic k (amplitude q / (pi k), above ``level``
+    quanta) at k L mod R, folded into [0, R / 2]."""
+    orders = []
+    for k in range(1, max(1, int(1.0 / (np.pi * level))) + 1):
+        alias = abs(k * lines_per_rev - round(k * lines_per_rev / rows_per_rev) * rows_per_rev)
+        orders += [o for o in (math.floor(alias), math.ceil(alias)) if 1 <= o <= top]
+    return np.unique(np.array(orders, dtype=np.int64))
+
+
+def _quantiser_bias(time_s: np.ndarray, motion: _Motion, quantum_rad: float, speed_rad_s: float, grid: _Grid,
+                    projector: np.ndarray, tau_s: float, top: int) -> np.ndarray:
+    """|a_h| of eq. (7) per harmonic, rad/s^2 (J times it is sigma_enc,h): what a quantiser of ``quantum_rad`` makes
+    of A_b's harmonics on this log's own motion (`_smooth_motion`), RMS over `QUANTISER_PHASES` phases of the
+    quantiser: the quantiser's error at the rows (q round((theta + u) / q) - theta - u, u the phase) passed through
+    A_b, the drive's filter and the fit as the position is, g_h divided out; at least what an error of variance
+    q^2 / 12 spread evenly over the U distinct readings of a revolution makes of harmonic h, (h Omega)^2 q /
+    sqrt(3 U) (a motion whose ripple, below the quanta, the smooth part leaves out scatters the quantiser's lines
+    over the orders: the servo's 12-bit log at 6 Hz, benchmarks/rolling_logs.py)."""
+    blocks = grid.blocks
     bias = np.zeros(top)
     for phase in (np.arange(QUANTISER_PHASES) + 0.5) / QUANTISER_PHASES:
-        shifted = smooth + phase * quantum_rad
+        shifted = motion.smooth + phase * quantum_rad
         error = np.zeros(time_s.size)
-        error[rows] = quantum_rad * np.round(shifted[rows] / quantum_rad) - shifted[rows]
+        error[motion.rows] = quantum_rad * np.round(shifted / quantum_rad) - shifted
         inertial = blocks.inertial_of(time_s, error)
         inertial = grid.filtered(inertial[:, None], tau_s)[:, 0]
         bias += np.abs(_harmonics(projector @ inertial, top)) ** 2
-    return np.sqrt(bias / QUANTISER_PHASES) / np.maximum(blocks.gain, MIN_GAIN)
+    readings = np.unique(np.round(np.mod(motion.smooth + motion.residual, 2 * np.pi) / quantum_rad)).size
+    spread = (np.arange(1, top + 1) * speed_rad_s) ** 2 * quantum_rad / math.sqrt(3.0 * readings)
+    return np.maximum(np.sqrt(bias / QUANTISER_PHASES) / np.maximum(blocks.gain, MIN_GAIN), spread)
 
 
 def _folded_power(harmonics: np.ndarray, estimated: np.ndarray, cogging_order: int, nyquist: int) -> float:
@@ -586,6 +673,29 @@ def _folded_power(harmonics: np.ndarray, estimated: np.ndarray, cogging_order: i
     orders = np.arange(1, top + 1)
     band = (orders >= math.ceil(0.75 * top)) & estimated & (orders % cogging_order != 0)
     return float(np.mean(np.abs(harmonics[band]) ** 2)) if band.any() else 0.0
+
+
+def _expected_orders(motor: MotorInfo, top: int) -> np.ndarray:
+    """Whether each harmonic 1..top is one a motor's position torque and its currents' torque ripple are expected
+    at: a multiple of the cogging order or of 6 x pole pairs."""
+    orders = np.arange(1, top + 1)
+    return (orders % motor.cogging_order == 0) | (orders % (6 * motor.pole_pairs) == 0)
+
+
+def _ripple_folds(k_q: np.ndarray, current_a: float, rows_per_rev: float, top: int) -> np.ndarray:
+    """E|d tau_h|^2 per harmonic 1..top that the currents' torque ripple above the rows' Nyquist order folds onto,
+    N^2 m^2: k_q's order o (a back-EMF's harmonics 5 and 7 make 6 x pole pairs) times the mean current, at
+    |o - k R| (R rows per revolution; both orders either side where it is not whole). Neither estimate removes
+    it: the current does not carry a ripple above the speed loop's bandwidth, the rotor's acceleration does, and
+    sampled below its Nyquist order the acceleration reads as that of the order it folds onto."""
+    amplitude = 2.0 * np.abs(np.fft.rfft(k_q))[1:] / k_q.size * abs(current_a)
+    power = np.zeros(top)
+    for order in np.flatnonzero(np.arange(1, amplitude.size + 1) >= rows_per_rev / 2.0) + 1:
+        alias = abs(order - round(order / rows_per_rev) * rows_per_rev)
+        for h in {math.floor(alias), math.ceil(alias)}:
+            if 1 <= h <= top:
+                power[h - 1] += amplitude[order - 1] ** 2
+    return power
 
 
 def _nyquist_folds(cogging_order: int, rows_per_rev: float, top: int) -> tuple[np.ndarray, dict[int, int]]:
@@ -604,11 +714,13 @@ def _nyquist_folds(cogging_order: int, rows_per_rev: float, top: int) -> tuple[n
 
 @dataclass(frozen=True)
 class _Grid:
-    """The blocks of one block duration and what the fits on them share: the weights 1 / W_b, the clusters of
-    the sandwich covariance, J's prior, and the design of eq. (4) at a filter time constant."""
+    """The blocks of one size (``block_rows`` rows, ``block_s`` their mean duration) and what the fits on them
+    share: the weights 1 / W_b, the clusters of the sandwich covariance, J's prior, and the design of eq. (4) at a
+    filter time constant."""
 
     blocks: _Blocks
     sizes: list[int]
+    block_rows: int
     block_s: float
     weight: np.ndarray
     cluster: np.ndarray
@@ -617,14 +729,14 @@ class _Grid:
 
     @classmethod
     def of(cls, data: RollingData, theta: np.ndarray, rows: tuple[np.ndarray, np.ndarray, np.ndarray], top: int,
-           block_s: float, prior: tuple[float, float] | None) -> _Grid:
-        blocks, sizes = _blocks(data, theta, rows, top, block_s)
+           block_rows: int, prior: tuple[float, float] | None) -> _Grid:
+        blocks, sizes = _blocks(data, theta, rows, top, block_rows)
         n_b = blocks.width.size
         if n_b < 2 * (2 * top + 4):
-            raise IdentificationError(f"rolling log: {n_b} blocks of {1e3 * block_s:.3g} ms for {2 * top + 1} "
+            raise IdentificationError(f"rolling log: {n_b} blocks of {block_rows} row(s) for {2 * top + 1} "
                                       f"Fourier coefficients (harmonics 1..{top}): too few rows")
         clusters = max(2, min(CLUSTERS, n_b // 8))
-        return cls(blocks, sizes, block_s, 1.0 / blocks.width,
+        return cls(blocks, sizes, block_rows, float(np.sum(blocks.width)) / n_b, 1.0 / blocks.width,
                    np.minimum(np.arange(n_b) * clusters // n_b, clusters - 1), clusters, prior)
 
     @property
@@ -674,24 +786,27 @@ def estimate_rolling(rolling: Rolling, max_harmonic: int | None = None) -> Rolli
     nyquist = int(math.ceil(rows_per_rev / 2.0 * (1.0 - NYQUIST_MARGIN))) - 1
     wanted = FOLDED_MULTIPLES * motor.cogging_order if max_harmonic is None else max_harmonic
     top = max(1, min(wanted, cpr // 2 - 1, nyquist))
-    block_s = max(min(1.0 / (4.0 * top * abs(speed_hz)), duration / (BLOCKS_PER_COLUMN * (2 * top + 2))),
-                  1.0 / row_rate_hz)
+    block_rows = 1
+    if d.time_s.size * (2 * top + 3) > MAX_DESIGN_ENTRIES:
+        block_rows = max(math.ceil(d.time_s.size * (2 * top + 3) / MAX_DESIGN_ENTRIES),
+                         round(rows_per_rev / (4.0 * top)))
     theta = 2.0 * np.pi * d.position_counts / cpr
     rows = _current_rows(rolling)
     inertial_column = 2 * top + 1
     given = motor.inertia_uncertainty
     prior = None if given is None else (motor.inertia_kgm2, given * motor.inertia_kgm2)
-    grid = _Grid.of(d, theta, rows, top, block_s, prior)
+    grid = _Grid.of(d, theta, rows, top, block_rows, prior)
     # eq. (5), the current's filter
     stated = rolling.settings.current_filter_s
     tau_log_std = 0.0
     if stated is not None:
         tau_s, tau_source = stated, "stated" if stated > 0 else "none"
     else:
-        tau_s, tau_source, tau_log_std = _fitted_filter(grid, duration)
-    if 0.0 < tau_s < FILTER_BLOCKS * grid.block_s and grid.block_s * row_rate_hz > 1.0:
-        grid = _Grid.of(d, theta, rows, top, max(tau_s / FILTER_BLOCKS, 1.0 / row_rate_hz), prior)
-    blocks, weight, cluster, clusters, block_s = grid.blocks, grid.weight, grid.cluster, grid.clusters, grid.block_s
+        coarse_rows = max(block_rows, min(round(rows_per_rev / (4.0 * top)),
+                                          d.time_s.size // (BLOCKS_PER_COLUMN * (2 * top + 2))))
+        coarse = grid if coarse_rows == block_rows else _Grid.of(d, theta, rows, top, coarse_rows, prior)
+        tau_s, tau_source, tau_log_std = _fitted_filter(grid, coarse, duration)
+    blocks, weight, cluster, clusters = grid.blocks, grid.weight, grid.cluster, grid.clusters
     messages: list[str] = []
     # eq. (2), the baseline
     baseline_fit = _solve(grid.filtered(blocks.fourier, 0.0), blocks.current, weight)
@@ -699,14 +814,16 @@ def estimate_rolling(rolling: Rolling, max_harmonic: int | None = None) -> Rolli
     baseline_influence = baseline_fit.scores(cluster, clusters)
     design = grid.design
     # J: what the data tell beyond A_b's noise (eq. 7's quanta), and the prior
-    quantum = _quantum(np.concatenate([np.diff(theta[r]) for r in d.segments]))
-    speed_noise = math.sqrt(2.0 * _position_noise_rad2(d, theta, quantum, omega)) / block_s
+    quantum = _quantum(np.concatenate([np.diff(theta[r]) for r in d.segments]),
+                       2.0 * np.pi * 10.0**-POSITION_DECIMALS / cpr)
+    motion = _smooth_motion(d.time_s, theta, quantum, grid, top)
+    position_std = math.sqrt(_position_noise_rad2(d, quantum, omega, motion))
     x = design(tau_s)
     without = np.delete(x, inertial_column, axis=1)
     projector = _projector(without, weight)
     projection = projector @ x[:, inertial_column]
     a_h = -_harmonics(projection, top)
-    noise = _edge_noise(grid, speed_noise, tau_s)
+    noise = _edge_noise(grid, d.time_s, position_std, tau_s)
     plain = _solve(x, blocks.current, weight)
     identifies = noise < (1.0 - J_INFORMATION) / plain.inverse[inertial_column, inertial_column]
     prior_part = np.zeros(2 * top + 1)
@@ -728,25 +845,35 @@ def estimate_rolling(rolling: Rolling, max_harmonic: int | None = None) -> Rolli
         fit = _solve(without, blocks.current - prior[0] * x[:, inertial_column], weight)
         inertia, inertia_var, source = prior[0], prior[1] ** 2, "given"
         prior_part = prior[1] * projection[:2 * top + 1]
-    influence = fit.scores(cluster, clusters)[:, :2 * top + 1]
-    # eq. (3) with A's gain divided out, and its difference from (2) with its errors
+    # eq. (3) with A's gain divided out, and its difference from (2) with its errors: the division stretches what
+    # A_b holds beyond the position-locked motion (its noise) as it stretches the motion, which the fit's
+    # residuals do not see
     usable = blocks.gain >= MIN_GAIN
+    stretch = np.repeat(inertia * (1.0 / np.maximum(blocks.gain, MIN_GAIN) - 1.0), 2)
+    influence = fit.scores(cluster, clusters)[:, :2 * top + 1]
+    influence[:, 1:] -= stretch * _cluster_scores(projector, x[:, inertial_column] - without @ projection, cluster,
+                                                  clusters)[:, 1:2 * top + 1]
     corrected = _harmonics(fit.beta, top) + inertia * (1.0 / np.maximum(blocks.gain, MIN_GAIN) - 1.0) * a_h
     difference = influence - baseline_influence[:, :2 * top + 1]
     bias = np.zeros(top)
     if inertia != 0.0 and quantum > 0.0:
-        bias = QUANTISER_BOUND * abs(inertia) * _quantiser_bias(d.time_s, theta, quantum, grid, projector, tau_s,
-                                                                top)
+        bias = QUANTISER_BOUND * abs(inertia) * _quantiser_bias(d.time_s, motion, quantum, omega, grid, projector,
+                                                                tau_s, top)
     d_h = corrected - baseline
     filter_var = np.zeros(top)
     if tau_log_std > 0.0:  # the fitted filter's uncertainty, through the fit at log T +- its standard error
         up, down = (_harmonics(grid.fit_at(tau_s * math.exp(sign * tau_log_std)).beta, top) for sign in (1, -1))
         filter_var = np.abs(up - down) ** 2 / 4.0
-    systematic = _prior_variance(prior_part, top) + bias**2 + filter_var
+    systematic = _prior_variance(prior_part, top) / np.maximum(blocks.gain, MIN_GAIN) ** 2 + bias**2 + filter_var
     d_var = np.where(usable, _variance(difference, top, clusters) + systematic, np.inf)
-    # eq. (6)
-    signal = np.maximum(np.abs(d_h) ** 2 - d_var, 0.0)
-    g = np.where(usable, signal / np.maximum(signal + d_var, 1e-300), 0.0)
+    # eq. (6), on the quantiser's RMS bias (its bound is for the stated error)
+    likely = d_var - (1.0 - QUANTISER_BOUND**-2) * bias**2
+    power = np.abs(d_h) ** 2
+    expected = _expected_orders(motor, top)
+    threshold = np.where(expected, math.log(max(int(expected.sum()), 1) / SELECTION_EXPECTED),
+                         math.log(max(int((~expected).sum()), 1) / SELECTION))
+    taken = usable & (power > threshold * likely)
+    g = np.where(taken, 1.0 - SHRINK * likely / np.maximum(power, 1e-300), 0.0)
     combined = baseline + g * np.where(usable, d_h, 0.0)
     mixed = baseline_influence[:, :2 * top + 1].copy()
     for column in (1 + 2 * np.arange(top), 2 + 2 * np.arange(top)):
@@ -755,21 +882,27 @@ def estimate_rolling(rolling: Rolling, max_harmonic: int | None = None) -> Rolli
                 + (1.0 - g) ** 2 * np.where(usable, np.abs(d_h) ** 2, 0.0))
     aliased, folds = _nyquist_folds(motor.cogging_order, rows_per_rev, top)
     folded = _folded_power(combined, ~aliased, motor.cogging_order, nyquist)
-    variance = variance + folded
+    ripple = _ripple_folds(k_q_table(rolling), float(np.sum(blocks.current) / np.sum(blocks.width)), rows_per_rev,
+                           top)
+    variance = variance + folded + ripple
     cover = coverage(d.position_counts, cpr, d.segment)
+    # a harmonic a cogging order folds onto is left out (taken as 0): what the rows hold there, its own torque or the
+    # fold, is its error
+    left_out = np.abs(combined) ** 2 + variance
     estimate = RollingEstimate(
-        np.where(aliased, 0.0, combined), np.where(aliased, 0.0, variance), baseline,
+        np.where(aliased, 0.0, combined), np.where(aliased, left_out, variance), baseline,
         _variance(baseline_influence, top, clusters), corrected, d_var, bias, g, ~aliased, cpr, motor.cogging_order,
         nyquist, speed_hz, row_rate_hz, float(np.mean(k_q_table(rolling))), inertia, math.sqrt(inertia_var), source,
         tau_s, tau_source, float(fit.beta[0]), quantum, folded, d.time_s.size, blocks.width.size, len(d.segments),
         cover.revolutions, cover.text(), ())
-    return replace(estimate, messages=tuple(_messages(estimate, rolling, folds, wanted) + messages))
+    return replace(estimate, messages=tuple(_messages(estimate, rolling, folds, ripple, wanted) + messages))
 
 
-def _fitted_filter(grid: _Grid, duration: float) -> tuple[float, str, float]:
-    """Eq. (5): the logged current's filter, found (T > 0) where the unfiltered fit with the torque advanced by the
-    filter, y + T dy/dt (the inverse filter; A_b's noise the same at every T), explains `FILTER_GAIN` times more
-    of the residual power with a significant T > 0; then T the measured-domain fit's least residual power, summed
+def _fitted_filter(grid: _Grid, coarse: _Grid, duration: float) -> tuple[float, str, float]:
+    """Eq. (5): the logged current's filter, found (T > 0) where, on the ``coarse`` blocks (the current's rate of
+    change is noise on a row's), the unfiltered fit with the torque advanced by the filter, y + T dy/dt (the
+    inverse filter; A_b's noise the same at every T), explains `FILTER_GAIN` times more of the residual power with
+    a significant T > 0; then T, on ``grid``'s blocks, the measured-domain fit's least residual power, summed
     over runs of `FILTER_GROUP` blocks, over `FILTER_GRID` values from twice the block to a quarter of the log (at
     most `MAX_FILTER_S`), refined by a parabola in log T; and the standard error of log T, from the parabola's
     curvature a as for `CLUSTERS` independent residuals: sqrt(P(T) / (K_c a)) (the grid's step where the minimum is
@@ -777,13 +910,13 @@ def _fitted_filter(grid: _Grid, duration: float) -> tuple[float, str, float]:
     longest = min(MAX_FILTER_S, duration / 4.0)
     if longest <= 2.0 * grid.block_s:
         return 0.0, "none", 0.0
-    base = grid.fit_at(0.0)
-    rate = grid.blocks.rate * np.sqrt(grid.weight)
+    base = coarse.fit_at(0.0)
+    rate = coarse.blocks.rate * np.sqrt(coarse.weight)
     rate_left = rate - base.design @ (base.inverse @ (base.design.T @ rate))
     slope = -float(base.residual @ rate_left) / max(float(rate_left @ rate_left), 1e-300)
     explained = float(base.residual @ base.residual) / max(float(np.sum((base.residual + slope * rate_left) ** 2)),
                                                            1e-300)
-    if not (slope > 0 and explained > FILTER_GAIN and grid.clusters * math.log(explained) > FILTER_SIGNIFICANCE):
+    if not (slope > 0 and explained > FILTER_GAIN and coarse.clusters * math.log(explained) > FILTER_SIGNIFICANCE):
         return 0.0, "none", 0.0
     n_b = grid.blocks.width.size
     group = np.minimum(np.arange(n_b) // FILTER_GROUP, max(n_b // FILTER_GROUP - 1, 0))
@@ -823,8 +956,10 @@ def k_q_table(rolling: Rolling) -> np.ndarray:
     return np.sum(rolling.backemf_nm_per_a * q_axis(theta_e + rolling.settings.angle_offset_rad), axis=1)
 
 
-def _messages(e: RollingEstimate, rolling: Rolling, folds: dict[int, int], wanted: int) -> list[str]:
-    """What the rolling identification took, assumed and left out."""
+def _messages(e: RollingEstimate, rolling: Rolling, folds: dict[int, int], ripple_nm2: np.ndarray,
+              wanted: int) -> list[str]:
+    """What the rolling identification took, assumed and left out (``folds`` `_nyquist_folds`', ``ripple_nm2``
+    `_ripple_folds`')."""
     choices = e.choices()
     counts = {c: choices.count(c) for c in ("corrected", "combined", "baseline", "aliased")}
     top = e.harmonics_nm.size
@@ -841,7 +976,10 @@ def _messages(e: RollingEstimate, rolling: Rolling, folds: dict[int, int], wante
         out.append(f"cogging orders above the Nyquist order fold ({folded}): the harmonics within one of a fold are "
                    "not estimated, taken as 0")
     out.append(f"per harmonic: {counts['corrected']} corrected, {counts['combined']} combined, {counts['baseline']} "
-               f"baseline (the correction within its measured error)")
+               f"baseline (the correction not clear of its measured error)")
+    if not np.any(e.weight > 0):
+        out.append("no correction clears its measured error: the result is the baseline's, the q current averaged "
+                   "by position (the rows or the encoder too coarse for J domega/dt at this speed)")
     out.append({"given": f"inertia: J = {e.inertia_kgm2:.4g} +- {e.inertia_std_kgm2:.2g} kg m^2, as given (the data "
                          "do not tell J apart from the position torque)",
                 "given and data": f"inertia: J = {e.inertia_kgm2:.4g} +- {e.inertia_std_kgm2:.2g} kg m^2, the given "
@@ -865,6 +1003,11 @@ def _messages(e: RollingEstimate, rolling: Rolling, folds: dict[int, int], wante
         out.append(f"sparse rows: content above the Nyquist order folds onto every harmonic, "
                    f"{1e3 * math.sqrt(e.folded_nm2):.2g} mN m each (the top quarter of the orders, the cogging's left "
                    "out): in the standard errors")
+    if np.any(ripple_nm2 > 0):
+        worst = int(np.argmax(ripple_nm2))
+        out.append(f"sparse rows: the currents' torque ripple above the Nyquist order (k_q's orders times the mean "
+                   f"current) folds onto {int(np.sum(ripple_nm2 > 0))} harmonic(s), up to "
+                   f"{1e3 * math.sqrt(ripple_nm2[worst]):.2g} mN m (order {worst + 1}): in their standard errors")
     if rolling.data.torque_nm is not None:
         out.append("the log's torque column is kept in the folder, not used (the currents' torque is)")
     out.append(f"friction: {e.friction_nm:.4g} N m at the log's speed (Coulomb and viscous not separated)")
