@@ -4,6 +4,7 @@ wrapped positions, shared stamps, the steady part and the coverage; every bad fi
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 
 import numpy as np
@@ -218,11 +219,12 @@ def test_a_position_that_wraps_at_a_counter_s_length_is_unwrapped_by_position_wr
     wrapped = (50000 + counts) % 65536 - 32768  # as an int16 counter reads it, wrapping once in the log
     log = _save_npy(tmp_path / "run.npy", t, wrapped, 1.0 + 0.1 * np.sin(t * 7))
     layout = NPY_LOG.replace("8192", "10000")
-    default = import_rolling(log, read_mapping(_mapping(tmp_path, layout)))
     stated = import_rolling(log, read_mapping(_mapping(tmp_path, layout, "position_wraps_at = 65536.0\n")))
     travel = COUNTS_PER_REV * 3.2
     assert stated.data.position_counts[-1] - stated.data.position_counts[0] == pytest.approx(travel, rel=1e-3)
-    assert default.data.position_counts[-1] - default.data.position_counts[0] != pytest.approx(travel, rel=1e-2)
+    with pytest.raises(BenchFormatError, match=r"lines 194[0-9]-194[0-9]: the position jumps: .* a counter that "
+                                               r"wraps without \[log\] position_wraps_at"):
+        import_rolling(log, read_mapping(_mapping(tmp_path, layout)))  # unwrapped once per revolution: a jump
 
 
 def test_rows_sharing_a_stamp_are_spread_up_to_the_next_one(tmp_path):
@@ -240,7 +242,7 @@ def test_rows_sharing_a_stamp_are_spread_up_to_the_next_one(tmp_path):
 
 def test_a_run_log_the_per_count_path_refuses_is_kept_as_a_rolling_log_and_says_so(tmp_path):
     t, p, i = _rolling_motion(seconds=6.0)
-    p[300:310] -= np.linspace(0, 150, 10)  # the rotor runs back some 70 counts: a reverse lap
+    p[300:330] -= 150 * np.sin(np.pi * np.arange(30) / 30) ** 2  # the rotor runs back smoothly: a reverse lap
     log = tmp_path / "run.csv"
     log.write_text("t,pos,iq\n" + "".join(f"{a:.7f},{b:.4f},{c:.6f}\n" for a, b, c in zip(t, p, i)))
     mapping = _mapping(tmp_path, NPY_LOG.replace('kind = "rolling"\n', "").replace('names = ["t", "pos", "iq"]\n', ""))
@@ -273,3 +275,51 @@ def test_any_bytes_in_an_npy_log_are_read_or_refused_in_one_line(tmp_path_factor
         import_rolling(log, mapping)
     except BenchFormatError as e:
         assert "\n" not in str(e)
+
+
+PHASE_LOG = """\
+[log]
+kind = "rolling"
+time = "t"
+position = "theta"
+position_unit = "rad"
+phase_currents = ["ia", "ib", "ic"]
+current = "measured"
+"""
+
+
+def _phase_log(path: Path, theta_of=lambda theta: theta) -> Path:
+    """A rolling motion logged with the phase currents a drive commutates at 8 pole pairs, its position in rad
+    (``theta_of`` of the true one)."""
+    t, p, i = _rolling_motion(seconds=6.0)
+    theta = 2 * np.pi * p / 8192
+    phases = i[:, None] * np.sin(8 * theta[:, None] - 2 * np.pi * np.arange(3) / 3)
+    rows = np.column_stack([t, theta_of(theta), phases])
+    path.write_text("t,theta,ia,ib,ic\n" + "".join(",".join(f"{v:.9g}" for v in row) + "\n" for row in rows))
+    return path
+
+
+@pytest.mark.parametrize("theta_of, message", [
+    (lambda theta: theta * 180 / np.pi,
+     r"lines 2-3001: the phase currents do not turn \[bench\] pole_pairs = 8 electrical periods per revolution of "
+     r"the position \(coherence 0\.\d+, below 0\.5\): a wrong pole_pairs, position unit or scale\?"),
+    (lambda theta: np.where(np.arange(theta.size) == 1500, 0.0, theta),
+     r"lines 1501-1503: the position jumps: -?[\d.e+]+ rad/s\^2 where 10 x \[limits\] max_torque_nm / \[bench\] "
+     r"inertia_kgm2 allows [\d.e+]+ \(a glitch, a counter that wraps without \[log\] position_wraps_at, or a wrong "
+     r"position unit or scale\?\)"),
+    (lambda theta: theta / 10,
+     r"lines 2-3001: the position spans 0\.\d+ revolutions of \d+ counts, fewer than 0\.5: no harmonic of the "
+     r"revolution is told from the others \(a wrong position unit or scale\?\)"),
+])
+def test_a_rolling_log_at_odds_with_a_motor_s_motion_is_refused_in_one_line(tmp_path, theta_of, message):
+    """Kept row by row, a log no longer had the per-count path's checks: a position in degrees, a glitch of one row
+    and a span a tenth of the true one imported as rolling logs (benchmarks/fuzz.py's import group)."""
+    good = _phase_log(tmp_path / "good.csv")
+    mapping = _mapping(tmp_path, PHASE_LOG)
+    import_rolling(good, read_mapping(mapping))  # the true motion imports
+    bad = _phase_log(tmp_path / "bad.csv", theta_of)
+    result = CliRunner().invoke(main, ["import", str(bad), "--map", str(mapping), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2, result.output
+    (line,) = result.output.splitlines()  # the error alone: "kept as a rolling log" came first
+    assert re.fullmatch(rf"error: \S+bad\.csv: {message}", line), line
+    assert not (tmp_path / "out").exists()

@@ -832,6 +832,14 @@ def import_rolling(log: Path, mapping: ImportMapping) -> RollingLog:
                                f"{low_hz:g} to {high_hz:g} (wrong [log] time_s_per_unit = {layout.time_s_per_unit:g} "
                                f"in {mapping.path}?)")
     scale = layout.current_a_per_unit
+    problem = _motion_problem(time_s[rows], position[rows], mapping) or _commutation_problem(
+        position[rows], None if layout.phase_currents is None else
+        np.column_stack([columns[c][rows] for c in layout.phase_currents]), mapping)
+    if problem is not None:
+        (row, last_row), why = problem
+        where = (f"line {_line(layout, first + row)}" if row == last_row else
+                 f"lines {_line(layout, first + row)}-{_line(layout, first + last_row)}")
+        raise BenchFormatError(f"{log}: {where}: {why}")
     data = RollingData(
         time_s[rows], position[rows], np.ones(last - first + 1, np.int64),
         None if layout.i_q is None else columns[layout.i_q][rows] * scale,
@@ -841,6 +849,78 @@ def import_rolling(log: Path, mapping: ImportMapping) -> RollingLog:
                       float(time_s[-1] - time_s[last]), int(time_s.size), 1.0 / median_s,
                       int(np.count_nonzero(interval_s > MAX_GAP_INTERVALS * median_s)),
                       coverage(position[rows], cpr), shared)
+
+
+#: the least span of a rolling log's position, revolutions: over a shorter arc the harmonics of the revolution are
+#: not told apart (a scan is refused below half a revolution too)
+MIN_ROLLING_SPAN_REV = 0.5
+#: how many times the acceleration [limits] max_torque_nm gives [bench] inertia_kgm2 a rolling log's position may
+#: show between rows (beside its quantum's share): a drive's peak torque is a few times its rated one, and an inertia
+#: may be off by a few times; beyond it a row is a glitch, or the position's unit or scale is wrong
+ACCELERATION_FACTOR = 10.0
+#: the least coherence |mean exp(j (arg s^2 - 2 p theta))| of the phase currents' space vector s with the position's
+#: electrical angle p theta: a few per cent of ripple or noise leave it near 1, a wrong pole_pairs or position unit
+#: spreads it around the circle (near 0)
+MIN_COMMUTATION_COHERENCE = 0.5
+
+
+def _motion_problem(time_s: np.ndarray, position: np.ndarray,
+                    mapping: ImportMapping) -> tuple[tuple[int, int], str] | None:
+    """The first rows (first, last) of a rolling log's steady part at odds with a motor's motion, and why, or None.
+
+    Its span under `MIN_ROLLING_SPAN_REV`; two rows more than half a revolution apart (a position that wraps
+    without [log] position_wraps_at, a wrong unit or scale, rows too sparse for the speed); an acceleration beyond
+    `ACCELERATION_FACTOR` times [limits] max_torque_nm over [bench] inertia_kgm2, beside what its quantum (the
+    least step between rows) makes of two intervals (a glitch, a wrong unit).
+    """
+    cpr = mapping.motor.counts_per_rev
+    span = float(np.ptp(position)) / cpr
+    if span < MIN_ROLLING_SPAN_REV:
+        return (0, position.size - 1), (
+            f"the position spans {span:.3g} revolutions of {cpr} counts, fewer than {MIN_ROLLING_SPAN_REV:g}: no "
+            "harmonic of the revolution is told from the others (a wrong position unit or scale?)")
+    step = np.diff(position)
+    apart = np.flatnonzero(np.abs(step) > cpr / 2)
+    if apart.size:
+        return (int(apart[0]), int(apart[0]) + 1), (
+            f"the position moves {step[apart[0]] / cpr:+.3g} revolutions from the row before: a position that wraps "
+            "([log] position_wraps_at), a wrong unit or scale, or rows too sparse for the speed")
+    moved = np.abs(step[step != 0])
+    quantum_rad = 2.0 * np.pi / cpr * float(moved.min()) if moved.size else 0.0
+    dt = np.diff(time_s)
+    theta = 2.0 * np.pi / cpr * position
+    accel = 2.0 * np.diff(np.diff(theta) / dt) / (dt[1:] + dt[:-1])
+    bound = ACCELERATION_FACTOR * mapping.limits.max_torque_nm / mapping.motor.inertia_kgm2
+    beyond = np.flatnonzero(np.abs(accel) > bound + 4.0 * quantum_rad / (dt[1:] * dt[:-1]))
+    if beyond.size:
+        run = beyond[: np.argmax(np.diff(np.append(beyond, -1)) != 1) + 1]  # the first run of rows beyond it
+        k = int(run[np.argmax(np.abs(accel[run]))])
+        return (int(run[0]) + 1, int(run[-1]) + 1), (
+            f"the position jumps: {accel[k]:.3g} rad/s^2 where {ACCELERATION_FACTOR:g} x [limits] max_torque_nm / "
+            f"[bench] inertia_kgm2 allows {bound:.3g} (a glitch, a counter that wraps without [log] "
+            "position_wraps_at, or a wrong position unit or scale?)")
+    return None
+
+
+def _commutation_problem(position: np.ndarray, currents: np.ndarray | None,
+                         mapping: ImportMapping) -> tuple[tuple[int, int], str] | None:
+    """Why a rolling log's phase currents do not turn [bench] pole_pairs electrical periods per revolution of its
+    position (`MIN_COMMUTATION_COHERENCE`), or None; nothing to check without phase currents (an i_q log) or over
+    less than one electrical period."""
+    motor = mapping.motor
+    theta = 2.0 * np.pi / motor.counts_per_rev * position
+    if currents is None or motor.pole_pairs * float(np.ptp(theta)) < 2.0 * np.pi:
+        return None
+    space = currents @ (2.0 / 3.0 * np.exp(2j * np.pi * np.arange(3) / 3.0))
+    square = space**2
+    turning = square[np.abs(square) > 0] * np.exp(-2j * motor.pole_pairs * theta[np.abs(square) > 0])
+    coherence = float(np.abs(np.mean(turning / np.abs(turning)))) if turning.size else 0.0
+    if coherence >= MIN_COMMUTATION_COHERENCE:
+        return None
+    return (0, position.size - 1), (
+        f"the phase currents do not turn [bench] pole_pairs = {motor.pole_pairs} electrical periods per revolution "
+        f"of the position (coherence {coherence:.2g}, below {MIN_COMMUTATION_COHERENCE:g}): a wrong pole_pairs, "
+        "position unit or scale?")
 
 
 def _spread_stamps(time_s: np.ndarray) -> tuple[np.ndarray, int]:

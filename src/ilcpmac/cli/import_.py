@@ -62,9 +62,8 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
     try:
         benches = import_logs(list(logs), mapping, out_dir, f".{trial_format}")
     except NotPerCount as refusal:
-        console.print(f"kept as a rolling log, its rows as they are (as \\[log] kind = \"rolling\"; "
-                      f"docs/rolling-logs.md), not resampled per count: {escape(str(refusal))}")
-        _write_rolling(list(logs), mapping, out_dir)
+        _write_rolling(list(logs), mapping, out_dir, "kept as a rolling log, its rows as they are (as \\[log] kind = "
+                       f"\"rolling\"; docs/rolling-logs.md), not resampled per count: {escape(str(refusal))}")
         return
     for imported in benches:
         mirrored = imported.bench.motor.mirrored
@@ -88,12 +87,16 @@ def import_(logs: tuple[Path, ...], mapping_file: Path, out_dir: Path, trial_for
                       f"{escape(str(imported.folder))}{note}")
 
 
-def _write_rolling(logs: list[Path], mapping, out_dir: Path) -> None:
-    """Write ``logs`` as the rolling folder ``out_dir`` and say what each kept."""
+def _write_rolling(logs: list[Path], mapping, out_dir: Path, why: str | None = None) -> None:
+    """Write ``logs`` as the rolling folder ``out_dir`` and say why (``why``, once it is written: a refusal stays
+    the command's one line) and what each kept."""
     from rich.markup import escape
 
     from ilcpmac.bench.importer import write_rolling_folder
 
-    for kept in write_rolling_folder(logs, mapping, out_dir):
+    kept_logs = write_rolling_folder(logs, mapping, out_dir)
+    if why is not None:
+        console.print(why)
+    for kept in kept_logs:
         console.print(f"{escape(str(kept.log))} -> segment: {escape(kept.text())}")
     console.print(f"wrote rolling.csv, rolling.toml, backemf.csv and bench.toml to {escape(str(out_dir))}")
