@@ -130,6 +130,10 @@ class CampaignSettings:
         lambda x: x in [source.value for source in TorqueSource],
         '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md) '
         'or "both" (the two fused); left out: "sensor" where the bench has a torque sensor, else "encoder"', None)
+    backend: str = setting(
+        lambda x: isinstance(x, str) and re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", x) is not None,
+        "the installed backend the trials run on (ilcpmac backends lists them; its options in [backends.NAME]); "
+        "ilcpmac run --backend overrides it", "sim")
 
 
 @dataclass(frozen=True)
@@ -252,6 +256,9 @@ class CampaignConfig:
     excitation : its multisine.
     campaign, limits, pipeline : ``ilcpmac run`` settings.
     stage_options : each stage's ``[stages.NAME]`` table, checked by the stage itself.
+    backend_options : each backend's ``[backends.NAME]`` table, checked by the backend itself (`BackendSetup`).
+    drive_options : the ``[drive]`` table of a drive campaign (no torque sensor, no load: docs/moteus.md), checked
+        by that campaign; None without one.
     model : the simulated drive ([bench] with the truth of [simulator.*]); None without [simulator].
     """
 
@@ -263,6 +270,8 @@ class CampaignConfig:
     limits: LimitSettings = LimitSettings()
     pipeline: PipelineSettings = PipelineSettings()
     stage_options: dict = dataclasses.field(default_factory=dict, compare=False)
+    backend_options: dict = dataclasses.field(default_factory=dict, compare=False)
+    drive_options: dict | None = dataclasses.field(default=None, compare=False)
     model: MotorModel | None = None
 
     def learned_torques_nm(self) -> tuple[float, ...]:
@@ -510,7 +519,7 @@ def load_config(path: str | Path) -> CampaignConfig:
     path = config_path(path)
     data, chained = _chain_tables(path, ())
     origins = _Origins(path, chained)
-    known = {"bench", "simulator", "trials", "excitation", "stages"} | set(RUN_SECTIONS)
+    known = {"bench", "simulator", "trials", "excitation", "stages", "backends", "drive"} | set(RUN_SECTIONS)
     unknown = sorted(set(data) - known)
     if unknown:
         raise ConfigError(f"{origins[unknown[0]]}: unknown table [{toml_name(unknown[0])}] "
@@ -536,12 +545,21 @@ def load_config(path: str | Path) -> CampaignConfig:
             hint = f' (drop = ["stages.{name}"] leaves it out)' if f"stages.{name}" in origins else ""
             raise ConfigError(f"{origins[f'stages.{name}']}: [stages.{toml_name(name)}] configures a stage that "
                               f"[pipeline] stages does not list{hint}")
+    backend_options = data.get("backends", {})
+    if not isinstance(backend_options, dict):
+        raise ConfigError(f"{origins['backends']}: [backends] must be a table of [backends.NAME] tables")
+    for name, table in backend_options.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{origins[f'backends.{name}']}: [backends.{toml_name(name)}] must be a table")
+    drive_options = data.get("drive")
+    if drive_options is not None and not isinstance(drive_options, dict):
+        raise ConfigError(f"{origins['drive']}: [drive] must be a table")
     model = None
     if "simulator" in data:
         model = _simulated_drive(data["simulator"], bench, path, origins)
     config = CampaignConfig(path=path, bench=bench, grid=parsed("trials", TrialGrid),
-                            excitation=parsed("excitation", Excitation), stage_options=stage_options, model=model,
-                            **run)
+                            excitation=parsed("excitation", Excitation), stage_options=stage_options,
+                            backend_options=backend_options, drive_options=drive_options, model=model, **run)
     check_config(config)
     return config
 

@@ -3,9 +3,17 @@
 from __future__ import annotations
 
 from ilcpmac.backends.base import Backend, ProgressCallback, report_progress_to
+from ilcpmac.backends.drive import DriveBackend, DriveTrial
 from ilcpmac.core.errors import SafetyError
-from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest
-from ilcpmac.pipeline.safety import MalformedRequest, SafetyLimits, limit_violation, owned_request
+from ilcpmac.core.records import BenchDescription, DriveTrialRequest, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.pipeline.safety import (
+    MalformedRequest,
+    SafetyLimits,
+    drive_violation,
+    limit_violation,
+    owned_drive_request,
+    owned_request,
+)
 
 __all__ = ["LimitGuard"]
 
@@ -54,6 +62,30 @@ class LimitGuard:
             raise SafetyError(f"trial at {owned.torque_setpoint_nm!r} N m, {owned.speed_setpoint_hz!r} Hz "
                               f"refused before it reached the backend: {why}")
         return self.backend.run_trial(owned)
+
+    def run_drive_trial(self, request: DriveTrialRequest) -> DriveTrial:
+        """A drive trial (`DriveBackend`), checked as `run_trial` checks a bench trial."""
+        return self._drive().run_drive_trial(self._drive_checked(request, "trial"))
+
+    def store_table(self, request: DriveTrialRequest) -> None:
+        """A table written to a drive's flash (`DriveBackend`), checked as a trial that runs it."""
+        self._drive().store_table(self._drive_checked(request, "table"))
+
+    def _drive(self) -> DriveBackend:
+        if not isinstance(self.backend, DriveBackend):
+            raise SafetyError(f"a drive trial refused: the {type(self.backend).__name__} backend drives no drive "
+                              "without a load (it has no run_drive_trial, store_table or drive_limits)")
+        return self.backend
+
+    def _drive_checked(self, request: DriveTrialRequest, what: str) -> DriveTrialRequest:
+        try:
+            owned = owned_drive_request(request)
+        except MalformedRequest as e:
+            raise SafetyError(f"a drive {what} refused before it reached the backend: {e}") from None
+        why = drive_violation(owned, self.description, self.limits)
+        if why is not None:
+            raise SafetyError(f"drive {what} at {owned.speed_hz!r} Hz refused before it reached the backend: {why}")
+        return owned
 
     def set_progress(self, callback: ProgressCallback | None) -> None:
         report_progress_to(self.backend, callback)

@@ -8,7 +8,7 @@ exactly as it picks a built-in one. A factory is ``factory(setup: BackendSetup)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.config import CampaignConfig
@@ -27,10 +27,15 @@ class BackendSetup:
     config : the campaign config (its [bench], [limits] and [trials]; `CampaignConfig.simulated_model` for a
         simulator).
     address : where the bench is (``--address``), for backends that need one; None if not given.
+    options : the backend's own ``[backends.NAME]`` table of the config, as read (the backend parses and checks
+        it, with the schema kit, before any motion); empty if the config has none.
+    write_config : the user's word that the backend may write the drive's flash (``--write-config``).
     """
 
     config: CampaignConfig
     address: str | None = None
+    options: dict = field(default_factory=dict)
+    write_config: bool = False
 
 
 def installed_backends() -> dict[str, PluginEntry]:

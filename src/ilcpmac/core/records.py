@@ -225,6 +225,43 @@ class TrialRequest:
 
 
 @dataclass(frozen=True)
+class DriveTrialRequest:
+    """One rolling trial of a drive without a load (docs/moteus.md): its own velocity loop turning the rotor at
+    ``speed_hz`` with its own position table (the drive's format: ``table_values`` x ``table_scale_a`` amperes of
+    q current at commutation positions k / len(table_values) of a revolution, linearly interpolated).
+
+    Attributes
+    ----------
+    speed_hz : float
+        Signed mechanical speed of the commutation encoder, Hz (rev/s); negative runs in reverse.
+    settle_s, seconds : float
+        Seconds run before recording, and recorded.
+    table_values : ndarray of int, shape (table size,)
+        The table's entries (int8 for moteus).
+    table_scale_a : float
+        Amperes per entry unit (moteus's motor.cogging_dq_scale), >= 0.
+    seed : int
+        32-bit seed of every random draw of an emulated drive (ignored by real drives).
+    """
+
+    speed_hz: float
+    settle_s: float
+    seconds: float
+    table_values: np.ndarray
+    table_scale_a: float
+    seed: int = 0
+
+    @property
+    def duration_s(self) -> float:
+        """The motor's running time of the trial, s."""
+        return self.settle_s + self.seconds
+
+    def table_current_a(self) -> np.ndarray:
+        """The table's q current at its entries, A."""
+        return np.asarray(self.table_values, np.float64) * self.table_scale_a
+
+
+@dataclass(frozen=True)
 class TrialData:
     """One trial, one row per encoder count in acquisition order.
 

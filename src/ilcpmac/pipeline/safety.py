@@ -22,7 +22,14 @@ import numpy as np
 
 from ilcpmac.config import LimitSettings
 from ilcpmac.core.errors import ConfigError, IdentificationError, SafetyError
-from ilcpmac.core.records import BenchDescription, BenchLimits, SensorCalibration, TrialRequest, immutable
+from ilcpmac.core.records import (
+    BenchDescription,
+    BenchLimits,
+    DriveTrialRequest,
+    SensorCalibration,
+    TrialRequest,
+    immutable,
+)
 from ilcpmac.model.tables import current_references, dead_counts
 from ilcpmac.stages.base import Identified
 
@@ -390,6 +397,69 @@ def extent_violation(request: TrialRequest, counts_per_rev: int, limits: SafetyL
     if duration > limits.max_trial_duration_s * (1.0 + ROUNDING):
         return (f"the trial lasts {duration:.4g} s ({limits.warmup_revolutions} warm-up and {revolutions} "
                 f"revolutions at {speed:g} Hz), beyond {limits.text('max_trial_duration_s', 's')}")
+    return None
+
+
+#: entries of a drive's position table, at most (moteus: 1024)
+MAX_DRIVE_TABLE = 2**16
+#: the longest a drive trial settles before recording, s
+MAX_DRIVE_SETTLE_S = 60.0
+
+
+def owned_drive_request(request: object) -> DriveTrialRequest:
+    """``request`` copied once into values the host owns, as `owned_request` does for a bench trial: builtin
+    ``float`` and ``int``, an `immutable` int64 table of whole entries within int8.
+
+    Raises
+    ------
+    MalformedRequest
+        For no valid drive request: not a `DriveTrialRequest`, a speed that is 0 or not finite, a settle time
+        outside [0, `MAX_DRIVE_SETTLE_S`], recorded seconds not positive, a table that is not 1 to `MAX_DRIVE_TABLE`
+        whole entries within [-127, 127], a scale negative or not finite, a seed out of range.
+    """
+    if not isinstance(request, DriveTrialRequest):
+        raise MalformedRequest(f"a drive request must be a DriveTrialRequest, got {_what(request)}")
+    if not isinstance(request.table_values, np.ndarray) or request.table_values.ndim != 1 \
+            or not 1 <= request.table_values.size <= MAX_DRIVE_TABLE:
+        raise MalformedRequest(f"table_values must be an array of 1 to {MAX_DRIVE_TABLE} entries")
+    table = _owned_table(request.table_values, "table_values", request.table_values.shape)
+    if not np.all((table == np.rint(table)) & (np.abs(table) <= 127)):
+        raise MalformedRequest("table_values must be whole numbers within [-127, 127] (int8)")
+    owned = DriveTrialRequest(
+        speed_hz=_owned_float(request.speed_hz, "speed"), settle_s=_owned_float(request.settle_s, "settle_s"),
+        seconds=_owned_float(request.seconds, "seconds"), table_values=immutable(table.astype(np.int64)),
+        table_scale_a=_owned_float(request.table_scale_a, "table_scale_a"), seed=_owned_int(request.seed, "seed"))
+    if not (math.isfinite(owned.speed_hz) and owned.speed_hz != 0):
+        raise MalformedRequest(f"speed must be finite and not 0, got {owned.speed_hz} Hz")
+    if not 0 <= owned.settle_s <= MAX_DRIVE_SETTLE_S:
+        raise MalformedRequest(f"settle_s must be 0 to {MAX_DRIVE_SETTLE_S:g} s, got {owned.settle_s}")
+    if not 0 < owned.seconds < math.inf:
+        raise MalformedRequest(f"seconds must be positive and finite, got {owned.seconds}")
+    if not 0 <= owned.table_scale_a < math.inf:
+        raise MalformedRequest(f"table_scale_a must be finite and not negative, got {owned.table_scale_a}")
+    if not 0 <= owned.seed < 2**32:
+        raise MalformedRequest(f"seed must be a 32-bit unsigned integer, got {owned.seed}")
+    return owned
+
+
+def drive_violation(owned: DriveTrialRequest, description: BenchDescription, limits: SafetyLimits) -> str | None:
+    """Why ``owned``, a drive request as `owned_drive_request` copied it, breaks a limit, or None: its speed
+    (max_speed_hz), its running time (max_trial_duration_s), its table's peak current (max_current_a) and that
+    current's torque at most, whatever the commutation, the back-EMF table's largest sum over the phases of
+    |K_p| per ampere (max_correction_nm)."""
+    speed = abs(owned.speed_hz)
+    if speed > limits.max_speed_hz * (1.0 + ROUNDING):
+        return f"speed {owned.speed_hz:g} Hz exceeds {limits.text('max_speed_hz', 'Hz')} in magnitude"
+    if owned.duration_s > limits.max_trial_duration_s * (1.0 + ROUNDING):
+        return (f"the trial runs {owned.duration_s:.4g} s ({owned.settle_s:g} s settling, {owned.seconds:g} s "
+                f"recorded), beyond {limits.text('max_trial_duration_s', 's')}")
+    peak_a = float(np.max(np.abs(owned.table_current_a())))
+    if peak_a > limits.max_current_a * (1.0 + ROUNDING):
+        return f"the table asks {peak_a:.4g} A of q current, beyond {limits.text('max_current_a', 'A')}"
+    peak_nm = peak_a * float(np.max(np.sum(np.abs(description.backemf_nm_per_a), axis=1)))
+    if peak_nm > limits.max_correction_nm * (1.0 + ROUNDING):
+        return (f"the table's {peak_a:.4g} A make up to {peak_nm:.4g} N m, beyond "
+                f"{limits.text('max_correction_nm', 'N m')}")
     return None
 
 
