@@ -55,6 +55,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from numba import njit, uint64
@@ -69,8 +70,10 @@ from ilcpmac.model.motor import MotorModel
 from ilcpmac.model.tables import q_axis
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator
 
-__all__ = ["LOOPS", "POSITION_UNITS", "STEPS_PER_PERIOD", "DriveLog", "LogPlan", "drive_log", "encoder_terms",
-           "highest_order", "torque_per_ampere", "write_drive_log"]
+__all__ = ["LOOPS", "POSITION_UNITS", "STEPS_PER_PERIOD", "DriveLog", "LogPlan", "current_noise_a",
+           "current_torque_per_ampere", "drive_log", "drive_tables", "encoder_terms", "fine_point", "highest_order",
+           "known_torque_constant", "position_torque", "read_encoder", "rotor_speed", "torque_per_ampere",
+           "write_drive_log"]
 
 #: the loops a log's drive closes
 LOOPS = ("speed", "position", "current")
@@ -252,13 +255,60 @@ def _at(tables, base, frac, column):
     return (1.0 - frac) * tables[base, column] + frac * tables[base + 1, column]
 
 
+@njit(cache=True, inline="always")
+def fine_point(theta, n_fine):
+    """The row of a revolution's table of ``n_fine`` rows below the angle ``theta`` (rad, any turn) and the
+    fraction of a row beyond it."""
+    u = (theta / (2.0 * np.pi) % 1.0) * n_fine
+    base = min(int(u), n_fine - 1)
+    return base, u - base
+
+
+@njit(cache=True, inline="always")
+def read_encoder(theta, tables, base, frac, lines, line_error, encoder_seed):
+    """The drive encoder's line (multi-turn) at the true angle ``theta``: the line whose span holds the angle plus
+    e(theta) (``tables`` column 3, at `fine_point` ``base``, ``frac``)."""
+    x = theta / (2.0 * np.pi) * lines + _at(tables, base, frac, 3)
+    count = math.floor(x + 0.5)
+    if line_error > 0.0:
+        if x < count - 0.5 + _line_shift(count, lines, encoder_seed, line_error):
+            count -= 1
+        elif x >= count + 0.5 + _line_shift(count + 1, lines, encoder_seed, line_error):
+            count += 1
+    return count
+
+
+@njit(cache=True, inline="always")
+def current_torque_per_ampere(tables, base, frac, delta):
+    """k(theta, delta) = k_q cos delta + k_d sin delta, N m / A, at `fine_point` ``base``, ``frac``."""
+    return math.cos(delta) * _at(tables, base, frac, 0) + math.sin(delta) * _at(tables, base, frac, 1)
+
+
+@njit(cache=True, inline="always")
+def position_torque(tables, base, frac):
+    """tau_pos, N m, at `fine_point` ``base``, ``frac``."""
+    return _at(tables, base, frac, 2)
+
+
+@njit(cache=True, inline="always")
+def rotor_speed(omega, applied_nm, dry_nm, dt, inertia):
+    """The rotor's speed a period ``dt`` after ``omega`` under ``applied_nm`` and dry friction ``dry_nm``, static
+    as kinetic (the module's docstring)."""
+    if omega == 0.0:
+        if abs(applied_nm) > dry_nm:
+            return dt * (applied_nm - math.copysign(dry_nm, applied_nm)) / inertia
+        return 0.0
+    direction = 1.0 if omega > 0.0 else -1.0
+    after = omega + dt * (applied_nm - dry_nm * direction) / inertia
+    return after if after * direction > 0.0 else 0.0
+
+
 @njit(cache=True)
 def _roll(tables, lines, line_error, encoder_seed, pole_pairs, steps, dt, inertia, dry_nm, omega_ref, loop,
           k_p, w_i, k_theta, a_filter, a_current, i_hold, read_steps, out_count, out_i_q, out_angle):
     """Run ``steps`` control periods; at each step of ``read_steps`` (non-decreasing) write the encoder's
-    reading (lines), the flowing i_q and the true angle to the next row. ``tables`` (n + 1 rows over a
-    revolution, the first repeated last): k_q, k_d (N m / A), tau_pos (N m), e (lines). ``loop``: 0 speed,
-    1 position, 2 current. Returns the rows written."""
+    reading (lines), the flowing i_q and the true angle to the next row. ``tables`` (`drive_tables`). ``loop``:
+    0 speed, 1 position, 2 current. Returns the rows written."""
     n_fine = tables.shape[0] - 1
     two_pi = 2.0 * np.pi
     theta, omega, i_q, integral = 0.0, omega_ref, i_hold, i_hold
@@ -266,16 +316,8 @@ def _roll(tables, lines, line_error, encoder_seed, pole_pairs, steps, dt, inerti
     count_before = 0
     row = 0
     for k in range(steps):
-        u = (theta / two_pi % 1.0) * n_fine
-        base = min(int(u), n_fine - 1)
-        frac = u - base
-        x = theta / two_pi * lines + _at(tables, base, frac, 3)
-        count = math.floor(x + 0.5)
-        if line_error > 0.0:
-            if x < count - 0.5 + _line_shift(count, lines, encoder_seed, line_error):
-                count -= 1
-            elif x >= count + 0.5 + _line_shift(count + 1, lines, encoder_seed, line_error):
-                count += 1
+        base, frac = fine_point(theta, n_fine)
+        count = read_encoder(theta, tables, base, frac, lines, line_error, encoder_seed)
         theta_m = count * two_pi / lines
         raw = omega_ref if k == 0 else (count - count_before) * two_pi / lines / dt
         count_before = count
@@ -296,18 +338,34 @@ def _roll(tables, lines, line_error, encoder_seed, pole_pairs, steps, dt, inerti
             out_i_q[row] = i_q
             out_angle[row] = theta
             row += 1
-        delta = pole_pairs * (theta_m - theta)
-        k_q = math.cos(delta) * _at(tables, base, frac, 0) + math.sin(delta) * _at(tables, base, frac, 1)
-        applied = k_q * i_q + _at(tables, base, frac, 2)
-        if omega == 0.0:
-            if abs(applied) > dry_nm:
-                omega = dt * (applied - math.copysign(dry_nm, applied)) / inertia
-        else:
-            direction = 1.0 if omega > 0.0 else -1.0
-            after = omega + dt * (applied - dry_nm * direction) / inertia
-            omega = after if after * direction > 0.0 else 0.0
+        k_q = current_torque_per_ampere(tables, base, frac, pole_pairs * (theta_m - theta))
+        omega = rotor_speed(omega, k_q * i_q + position_torque(tables, base, frac), dry_nm, dt, inertia)
         theta += dt * omega
     return row
+
+
+def drive_tables(simulator: Simulator, encoder_error_lines: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """The rolling kernels' tables, n + 1 rows over a revolution (the first repeated last, n the simulator's
+    fine rows): k_q, k_d (N m / A), tau_pos (N m), and e(theta) = ``encoder_error_lines(angle_rad)`` (lines)."""
+    m = simulator.model
+    n_fine = m.encoder.counts_per_rev * OVERSAMPLE
+    pole_pairs = m.winding.pole_pairs
+    return np.ascontiguousarray(np.column_stack([
+        torque_per_ampere(pole_pairs, simulator.fine[:, :3], n_fine),
+        torque_per_ampere(pole_pairs, simulator.fine[:, :3], n_fine, math.pi / 2), simulator.fine[:, 3],
+        encoder_error_lines(2.0 * np.pi * np.arange(n_fine + 1) / n_fine)]))
+
+
+def known_torque_constant(simulator: Simulator) -> float:
+    """K*_t, the mean of k_q the controller knows (its back-EMF table, without backemf_scale), N m / A."""
+    m = simulator.model
+    return float(torque_per_ampere(m.winding.pole_pairs, simulator.backemf_counts, m.encoder.counts_per_rev).mean())
+
+
+def current_noise_a(model: MotorModel) -> float:
+    """The white noise of a phase current's reading, A RMS ([simulator.current_sensors] noise_counts over the
+    mean current scale); an i_q reading's is sqrt(2/3) of it."""
+    return model.current_sensors.noise_counts / float(np.mean(model.controller.calibration().current_scale))
 
 
 def _host(plan: LogPlan, control_hz: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, int]:
@@ -340,13 +398,10 @@ def drive_log(simulator: Simulator, plan: LogPlan) -> DriveLog:
     read_steps, stamps, left_out = _host(plan, control_hz, rng)
     rows = read_steps.size
     pole_pairs = m.winding.pole_pairs
-    n_fine = cpr * OVERSAMPLE
-    k_q_fine = torque_per_ampere(pole_pairs, simulator.fine[:, :3], n_fine)
-    tables = np.ascontiguousarray(np.column_stack([
-        k_q_fine, torque_per_ampere(pole_pairs, simulator.fine[:, :3], n_fine, math.pi / 2), simulator.fine[:, 3],
-        plan.encoder_error_counts(2.0 * np.pi * np.arange(n_fine + 1) / n_fine)]))
+    tables = drive_tables(simulator, plan.encoder_error_counts)
+    k_q_fine = tables[:, 0]
     k_t_true = float(k_q_fine[:-1].mean())
-    k_t_known = float(torque_per_ampere(pole_pairs, simulator.backemf_counts, cpr).mean())
+    k_t_known = known_torque_constant(simulator)
     hold_nm = m.mechanics.coulomb_friction_nm + plan.load_nm
     w_c = 2.0 * np.pi * plan.speed_bandwidth_hz
     k_p = m.mechanics.inertia_kgm2 * w_c / k_t_known
@@ -360,7 +415,7 @@ def drive_log(simulator: Simulator, plan: LogPlan) -> DriveLog:
                     angle)
     if written != rows:
         raise SimulationError(f"the log wrote {written} of its {rows} rows")
-    sigma_a = m.current_sensors.noise_counts / float(np.mean(m.controller.calibration().current_scale))
+    sigma_a = current_noise_a(m)
     reading_rad = count * (2.0 * np.pi / lines)
     position = np.mod(count, lines) if plan.position_wrap else count
     columns = {"time": stamps, "position": position * (2.0 * np.pi / lines) if plan.position_unit == "rad"
