@@ -122,7 +122,7 @@ def test_table_uploaded_is_what_the_drive_holds(backend):
 def test_limits_read_from_the_drive(config):
     b = _backend(config, DriveSpec(max_current_a=7.0, max_velocity_hz=5.0, fault_temperature_c=60.0,
                                    motor_fault_temperature_c=50.0))
-    assert b.drive_limits() == DriveLimits(7.0, 5.0, 50.0)
+    assert b.drive_limits() == DriveLimits(7.0, 5.0, 50.0, config.model.controller.bandwidth_hz)
     b.close()
 
 

@@ -18,7 +18,7 @@ from ilcpmac.export import MOTEUS_TABLE_SIZE, MoteusTable
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.sim import moteus_drive
 from ilcpmac.sim.drive_log import drive_tables
-from ilcpmac.sim.moteus_drive import MODES, DriveSpec, EmulatedDrive
+from ilcpmac.sim.moteus_drive import MODES, X_I_COMP, DriveSpec, EmulatedDrive
 from ilcpmac.sim.simulator import OVERSAMPLE, Simulator
 
 ACTUATOR = Path(__file__).resolve().parents[1] / "benchmarks" / "motors" / "small-actuator.toml"
@@ -211,6 +211,22 @@ def test_many_small_advances_equal_one_large_one(model):
     assert one.status() == many.status()
 
 
+def test_the_current_loop_s_bandwidth_is_servo_pid_dq_hz_and_sets_the_lag_of_the_table_s_current(model):
+    """A constant table current through the first-order lag reaches 1 - e^-1 of itself in 1 / (2 pi f) s."""
+    reached = []
+    for bandwidth_hz in (model.controller.bandwidth_hz, 50.0):
+        drive = EmulatedDrive(model, QUIET)
+        assert drive.config["servo.pid_dq_hz"] == model.controller.bandwidth_hz
+        drive.set_config("servo.pid_dq_hz", bandwidth_hz)
+        drive.set_config("motor.cogging_dq_scale", 0.01)
+        for k in range(1024):
+            drive.set_config(f"motor.cogging_dq_comp.{k}", 100)
+        drive.command_position(0.0, watchdog_timeout_s=math.nan)
+        drive.advance(1.0 / (2 * math.pi * bandwidth_hz))
+        reached.append(drive._state[X_I_COMP] / 1.0)
+    np.testing.assert_allclose(reached, 1 - math.exp(-1), rtol=0.02)  # to the whole control period
+
+
 def test_conf_set_changes_ram_and_only_conf_write_reaches_the_flash(model):
     drive = EmulatedDrive(model, QUIET)
     before = dict(drive.flash)
@@ -230,6 +246,7 @@ def test_conf_set_changes_ram_and_only_conf_write_reaches_the_flash(model):
     ("servo.max_current_A", 0.0, SimulationError), ("servo.max_current_A", math.inf, SimulationError),
     ("servo.pid_position.kp", -1.0, SimulationError), ("servo.fault_temperature", -math.inf, SimulationError),
     ("servo.max_velocity", "5", SimulationError), ("servo.max_velocity", True, SimulationError),
+    ("servo.pid_dq_hz", 0.0, SimulationError), ("servo.pid_dq_hz", 4001.0, SimulationError),
 ])
 def test_conf_set_refuses_what_the_drive_would_not_hold(model, name, value, error):
     drive = EmulatedDrive(model, QUIET)

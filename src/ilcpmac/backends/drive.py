@@ -29,11 +29,15 @@ class DriveLimits:
         Largest mechanical speed it runs at, Hz (inf: none set).
     max_temperature_c : float
         Temperature at which it faults (the lower of its board's and its motor's), deg C (inf: none set).
+    current_bandwidth_hz : float or None
+        Not a limit but what bounds the speeds one table serves in both directions: its current loop's bandwidth
+        (moteus: servo.pid_dq_hz), Hz; None where the drive does not say.
     """
 
     max_current_a: float
     max_speed_hz: float
     max_temperature_c: float
+    current_bandwidth_hz: float | None = None
 
 
 @dataclass(frozen=True)

@@ -320,7 +320,7 @@ class EmulatedDrive:
             "servo.max_current_A": spec.max_current_a, "servo.max_velocity": spec.max_velocity_hz,
             "servo.max_velocity_derate": _VELOCITY_DERATE_HZ, "servo.fault_temperature": spec.fault_temperature_c,
             "servo.motor_fault_temperature": spec.motor_fault_temperature_c,
-            "servo.default_timeout_s": _DEFAULT_TIMEOUT_S,
+            "servo.default_timeout_s": _DEFAULT_TIMEOUT_S, "servo.pid_dq_hz": model.controller.bandwidth_hz,
             "servo.pid_position.kp": 2.0 * math.pi * inertia_w * 2.0 * math.pi * spec.velocity_bandwidth_hz,
             "servo.pid_position.kd": 2.0 * math.pi * 2.0 * inertia_w, "motor.cogging_dq_scale": 0.0,
             **{f"{_TABLE_PREFIX}{k}": 0.0 for k in range(MOTEUS_TABLE_SIZE)}}
@@ -342,6 +342,11 @@ class EmulatedDrive:
             if not (value.is_integer() and _INT8[0] <= value <= _INT8[1]):
                 raise SimulationError(f"conf set {name}: {shown(value)} is not an int8")
             self._table_a[int(name[len(_TABLE_PREFIX):])] = value * _float32(self.config["motor.cogging_dq_scale"])
+        elif name == "servo.pid_dq_hz":  # the current loop's bandwidth: the corner of its first-order lag
+            if not (finite_number(value) and 0 < value <= self._rate_hz / 10):
+                raise SimulationError(f"conf set {name}: {shown(value)} is not a bandwidth within (0, control rate "
+                                      f"/ 10 = {self._rate_hz / 10:g}] Hz")
+            self._consts[C_A_CURRENT] = 1.0 - math.exp(-2.0 * math.pi * value / self._rate_hz)
         elif name == "motor.cogging_dq_scale":
             if not finite_number(value):
                 raise SimulationError(f"conf set {name}: {shown(value)} is not finite")

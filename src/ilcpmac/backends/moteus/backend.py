@@ -66,6 +66,8 @@ FAULT_NAMES = {
 LIMIT_NAMES = ("servo.max_current_A", "servo.max_velocity", "servo.fault_temperature",
                "servo.motor_fault_temperature")
 OUTPUT_RATIO_NAME = "motor_position.rotor_to_output_ratio"
+#: the current loop's bandwidth, Hz (firmware of 2024 on; older ones: unknown)
+CURRENT_BANDWIDTH_NAME = "servo.pid_dq_hz"
 TABLE_SCALE_NAME = "motor.cogging_dq_scale"
 TABLE_ENTRY_NAME = "motor.cogging_dq_comp.{}"
 #: tries of a stop command before the backend gives up on it (the drive's watchdog stops it then)
@@ -187,7 +189,7 @@ class MoteusBackend:
     def drive_limits(self) -> DriveLimits:
         """servo.max_current_A, servo.max_velocity (the output's, as the rotor's speed) and the lower of
         servo.fault_temperature and servo.motor_fault_temperature, read with ``conf get`` (NaN, infinite or absent:
-        unbounded)."""
+        unbounded); and the current loop's bandwidth servo.pid_dq_hz (absent: None)."""
         return self._run(self._drive_limits())
 
     def run_drive_trial(self, request: DriveTrialRequest) -> DriveTrial:
@@ -218,7 +220,9 @@ class MoteusBackend:
     async def _drive_limits(self) -> DriveLimits:
         if self._limits is None:
             current, velocity, fet, motor = [await self._config_value(name) for name in LIMIT_NAMES]
-            self._limits = DriveLimits(current, velocity / abs(await self._output_ratio()), min(fet, motor))
+            bandwidth = await self._config_value(CURRENT_BANDWIDTH_NAME)
+            self._limits = DriveLimits(current, velocity / abs(await self._output_ratio()), min(fet, motor),
+                                       bandwidth if math.isfinite(bandwidth) and bandwidth > 0 else None)
         return self._limits
 
     async def _trial(self, request: DriveTrialRequest) -> DriveTrial:
