@@ -50,7 +50,7 @@ from ilcpmac.signals.harmonics import harmonic_amplitudes
 __all__ = ["C_TYPES", "FLOAT32_TINY", "FORMATS", "INT16_FULL_SCALE", "MOTEUS_INT8_MAX", "MOTEUS_TABLE_SIZE",
            "POSITION_FORMATS", "RUN_CONFIG", "Bound", "Exported", "Int16Tables", "MoteusTable", "Residual", "RunLimits",
            "export", "export_source", "feedforward_column", "read_source", "write_c", "write_csv", "write_harmonics",
-           "write_json", "write_moteus"]
+           "moteus_entries", "write_json", "write_moteus"]
 
 #: what ``ilcpmac export --format`` writes
 FORMATS = ("json", "csv", "c", "harmonics", "moteus")
@@ -683,13 +683,19 @@ def write_harmonics(table: PositionTable, out_dir: Path, torque_constant_nm_per_
     return Exported(_write_all(out_dir, {HARMONICS_FILE: _text(rows)}), rendered_nm=rendered, bounds=(bound,))
 
 
-def _moteus_current_a(table: PositionTable, torque_constant_nm_per_a: float) -> np.ndarray:
-    """The feed-forward in q-axis amperes at the 1024 positions k / 1024 by its Fourier series (orders up to 511,
-    what 1024 entries hold), each order n divided by sinc^2(n / 1024), the linear interpolation's response to it."""
-    orders = np.arange(min(table.counts_per_rev // 2, MOTEUS_TABLE_SIZE // 2 - 1) + 1)
-    c = harmonic_amplitudes(table.feedforward_nm)[orders] / np.sinc(orders / MOTEUS_TABLE_SIZE) ** 2
+def moteus_entries(per_count: np.ndarray) -> np.ndarray:
+    """A table per count of a revolution as moteus's 1024 entries at positions k / 1024 that the firmware's linear
+    interpolation turns back into it: its Fourier series (orders up to 511, what 1024 entries hold), each order n
+    divided by sinc^2(n / 1024), the linear interpolation's response to it."""
+    orders = np.arange(min(per_count.size // 2, MOTEUS_TABLE_SIZE // 2 - 1) + 1)
+    c = harmonic_amplitudes(per_count)[orders] / np.sinc(orders / MOTEUS_TABLE_SIZE) ** 2
     theta = mechanical_angles_rad(MOTEUS_TABLE_SIZE)
-    return np.real(np.exp(1j * np.outer(theta, orders)) @ c) / torque_constant_nm_per_a
+    return np.real(np.exp(1j * np.outer(theta, orders)) @ c)
+
+
+def _moteus_current_a(table: PositionTable, torque_constant_nm_per_a: float) -> np.ndarray:
+    """The feed-forward in q-axis amperes at moteus's 1024 entries (`moteus_entries`)."""
+    return moteus_entries(table.feedforward_nm) / torque_constant_nm_per_a
 
 
 @dataclass(frozen=True)

@@ -87,7 +87,7 @@ def load_campaign_config(path: str | Path) -> CampaignConfig:
 
 
 def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | None = None,
-        backend: str | Backend = "sim", address: str | None = None, trials: int | None = None,
+        backend: str | Backend | None = None, address: str | None = None, trials: int | None = None,
         seed: int | None = None, budget_min: float | None = None, resume: str | Path | None = None,
         events: CampaignEvents | None = None, identify: Identifier | None = None,
         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None = None) -> CampaignResult:
@@ -99,8 +99,9 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     config : the campaign's config file, or a loaded config (its file's text is what the run directory keeps);
         None: the packaged seed-bench.toml (`DEFAULT_CONFIG`).
     out : the run directory to create (default runs/<config name>-<date>-<time>).
-    backend : where trials run: an installed backend's name (``ilcpmac backends``), built here and closed at the
-        end, or a `Backend`, which stays the caller's to close.
+    backend : where trials run: an installed backend's name (``ilcpmac backends``), built here from the config's
+        ``[backends.NAME]`` table and closed at the end, or a `Backend`, which stays the caller's to close; None:
+        the config's [campaign] backend.
     address : where the bench is, for backends built by name that need it.
     trials : most learning trials per learned point (overrides [campaign] learn_trials).
     seed : overrides [trials] seed.
@@ -155,7 +156,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         if lock is None:
             made = None if path.exists() else path
             lock = RunDir.lock(path, new=True)
-        bench = build_backend(backend, BackendSetup(cfg, address)) if isinstance(backend, str) else backend
+        bench = built_backend(cfg, backend, address) if backend is None or isinstance(backend, str) else backend
         try:
             description = bench.describe()
             # before anything is written
@@ -171,7 +172,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
             summary = _run(cfg, bench, description, run_dir, plan, seed, resume_dir is not None, events, identify,
                            extra_stages)
         finally:
-            if isinstance(backend, str):
+            if backend is None or isinstance(backend, str):
                 bench.close()
     finally:
         if lock is not None:
@@ -181,6 +182,13 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     identification = summary["identification"]
     return CampaignResult(run_dir.path, plan, summary, records_of(summary),
                           None if identification is None else IdentificationResult.from_json(identification))
+
+
+def built_backend(cfg: CampaignConfig, name: str | None, address: str | None, write_config: bool = False) -> Backend:
+    """The installed backend ``name`` (None: the config's [campaign] backend) built from the config and its
+    ``[backends.NAME]`` table."""
+    name = name or cfg.campaign.backend
+    return build_backend(name, BackendSetup(cfg, address, cfg.backend_options.get(name, {}), write_config))
 
 
 def _run(cfg: CampaignConfig, backend: Backend, description: BenchDescription, run_dir: RunDir, plan: CampaignPlan,

@@ -242,9 +242,10 @@ class LiveCampaign:
 @click.argument("config", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Run directory to create (default runs/<config name>-<date>-<time>).")
-@click.option("--backend", "backend_kind", default="sim", show_default=True,
+@click.option("--backend", "backend_kind", default=None,
               help="Where trials run: any installed backend (ilcpmac backends lists them): sim, the simulator; "
-                   "remote, a bench target (docs/protocol.md).")
+                   "remote, a bench target (docs/protocol.md); moteus, a moteus drive (docs/moteus.md). Default: "
+                   "the config's [campaign] backend, sim if it names none.")
 @click.option("--address", help="Where the bench is, for backends that need it (remote: HOST:PORT).")
 @click.option("--trials", type=click.IntRange(min=1), default=None,
               help="Most learning trials per learned point (overrides [campaign] learn_trials).")
@@ -257,8 +258,12 @@ class LiveCampaign:
                    "(docs/campaign.md, \"Bench time\"); the plan says before the first trial what it takes.")
 @click.option("--resume", "resume_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Continue the run in this directory from its last complete trial.")
-def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: str | None, trials: int | None,
-        seed: int | None, budget_min: float | None, resume_dir: Path | None) -> None:
+@click.option("--write-config", is_flag=True,
+              help="A drive campaign ([drive], docs/moteus.md) writes its final table into the drive's flash "
+                   "(moteus: conf write); without it nothing persists in the drive.")
+def run(config: Path | None, out_dir: Path | None, backend_kind: str | None, address: str | None,
+        trials: int | None, seed: int | None, budget_min: float | None, resume_dir: Path | None,
+        write_config: bool) -> None:
     """Run a campaign: identify, learn, validate a compensation.
 
     With no CONFIG, runs the packaged seed-bench.toml on the simulator. Every trial is
@@ -268,12 +273,29 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str, address: s
     # imported when the command runs (ilcpmac.cli's docstring says why)
     import ilcpmac.campaign
     from ilcpmac.campaign.floors import floors_of
+    from ilcpmac.campaign.service import DEFAULT_CONFIG
+    from ilcpmac.config import load_config, packaged_config
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
+    loaded = None if resume_dir is not None else load_config(config or packaged_config(DEFAULT_CONFIG))
+    if loaded is not None and loaded.drive_options is not None:
+        from ilcpmac.cli.drive import run_drive
+
+        given = [name for name, value in (("--trials", trials), ("--seed", seed), ("--budget", budget_min))
+                 if value is not None]
+        if given:
+            raise click.UsageError(f"{', '.join(given)}: not for a drive campaign ({loaded.path} has [drive]: its "
+                                   "[drive] table sets its trials and motor time)")
+        run_drive(loaded, out_dir, backend_kind, address, write_config)
+        return
+    if write_config:
+        raise click.UsageError("--write-config: only for a drive campaign (a config with a [drive] table, "
+                               "docs/moteus.md)")
     events = LiveCampaign(console)
     try:
-        result = ilcpmac.campaign.run(config, out=out_dir, backend=backend_kind, address=address, trials=trials,
-                                      seed=seed, budget_min=budget_min, resume=resume_dir, events=events)
+        result = ilcpmac.campaign.run(loaded or config, out=out_dir, backend=backend_kind, address=address,
+                                      trials=trials, seed=seed, budget_min=budget_min, resume=resume_dir,
+                                      events=events)
     except KeyboardInterrupt:
         if events.path is None:
             raise

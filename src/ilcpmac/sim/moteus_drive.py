@@ -64,6 +64,8 @@ MODES = {"stopped": MODE_STOPPED, "fault": MODE_FAULT, "position": MODE_POSITION
 FAULT_NONE, FAULT_OVER_TEMPERATURE, FAULT_LIMIT_MAX_VELOCITY, FAULT_LIMIT_MAX_CURRENT = 0, 38, 96, 99
 FAULTS = {"none": FAULT_NONE, "kOverTemperature": FAULT_OVER_TEMPERATURE,
           "kLimitMaxVelocity": FAULT_LIMIT_MAX_VELOCITY, "kLimitMaxCurrent": FAULT_LIMIT_MAX_CURRENT}
+#: the truth's bins per [bench] count (`EmulatedDrive.truth`)
+TRUTH_SUB_BINS = 16
 #: the longest one `EmulatedDrive.advance` runs, s
 MAX_ADVANCE_S = 3600.0
 #: moteus's defaults of the settings DriveSpec leaves to the drive
@@ -204,7 +206,8 @@ def _table_current(table_a, position):
 @njit(cache=True)
 def _run(tables, table_a, consts, settings, state, truth, steps):
     """Run ``steps`` control periods from ``state``, updating it and the ``truth`` sums (rows: residual, tau_pos,
-    periods; a column per [bench] count) in place. Indices: the module's C_, S_ and X_ constants."""
+    periods; a column per `TRUTH_SUB_BINS`th of a [bench] count, the first centred on count 0) in place. Indices:
+    the module's C_, S_ and X_ constants."""
     n_fine = tables.shape[0] - 1
     counts = truth.shape[1]
     two_pi = 2.0 * np.pi
@@ -252,7 +255,7 @@ def _run(tables, table_a, consts, settings, state, truth, steps):
             state[X_FAULT] = FAULT_OVER_TEMPERATURE
         k = current_torque_per_ampere(tables, base, frac, consts[C_POLE_PAIRS] * (reading - theta))
         tau_pos = position_torque(tables, base, frac)
-        column = int(math.floor(theta / two_pi * counts + 0.5)) % counts
+        column = int(math.floor(theta / two_pi * counts + 0.5 * TRUTH_SUB_BINS)) % counts
         truth[0, column] += tau_pos + k * state[X_I_COMP]
         truth[1, column] += tau_pos
         truth[2, column] += 1.0
@@ -308,7 +311,7 @@ class EmulatedDrive:
         self._state[X_COUNT] = math.floor(self._tables[0, 3] + 0.5)
         self._state[X_TEMPERATURE_C] = spec.ambient_temperature_c
         self._table_a = np.zeros(MOTEUS_TABLE_SIZE)
-        self._truth = np.zeros((3, model.encoder.counts_per_rev))
+        self._truth = np.zeros((3, TRUTH_SUB_BINS * model.encoder.counts_per_rev))
         self._rng = np.random.default_rng(seed)
         self._noise_q_a = (current_noise_a(model) * math.sqrt(2.0 / 3.0) if spec.current_noise_a is None
                            else spec.current_noise_a)
@@ -433,11 +436,17 @@ class EmulatedDrive:
     def truth(self, counts_per_rev: int) -> tuple[np.ndarray, np.ndarray]:
         """Since `truth_reset`, per [bench] count (``counts_per_rev`` must be the model's): the mean true
         position-locked residual torque (tau_pos plus the table's flowing current's torque) and tau_pos alone,
-        N m, by true angle; NaN at counts the rotor did not visit."""
+        N m, by true angle; NaN at counts the rotor did not visit. Each count's is the mean of its
+        `TRUTH_SUB_BINS` sub-bins' means (those visited), so that how long the rotor dwelt where within a count
+        does not weigh in: the box average over the count, whatever the speed's ripple."""
         cpr = self.model.encoder.counts_per_rev
         if counts_per_rev != cpr:
             raise SimulationError(f"truth: counts_per_rev {shown(counts_per_rev)} is not the model's [bench] "
                                   f"counts_per_rev {cpr}")
         periods = self._truth[2]
         with np.errstate(invalid="ignore", divide="ignore"):
-            return self._truth[0] / periods, self._truth[1] / periods
+            means = (self._truth[:2] / periods).reshape(2, cpr, TRUTH_SUB_BINS)
+        visited = np.isfinite(means)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            residual, position = np.where(visited, means, 0.0).sum(axis=2) / visited.sum(axis=2)
+        return residual, position
