@@ -23,6 +23,7 @@ from ilcpmac.campaign.drive import (
     lagged_a,
     learned_table,
     run_drive_campaign,
+    unapplied,
     zero_table,
 )
 from ilcpmac.config import CampaignConfig, load_config
@@ -211,6 +212,26 @@ def test_one_table_for_both_directions_leaves_the_sine_of_the_current_s_lag(actu
     for v in speeds:
         left = tau + k_q * lagged_a(best, v, bandwidth_hz)
         assert np.sqrt(np.mean(left**2)) == pytest.approx(0.02 / np.sqrt(2) * np.sin(np.arctan(0.1)), rel=0.05)
+
+
+def test_what_one_table_cannot_apply_is_stated_with_what_it_would_gain(actuator):
+    """`unapplied`: a table per direction would cancel the order-84 term the one table leaves sin(atan(0.1)) of;
+    the table's torque at orders p and 2p (the current sensors' ripple) is stated."""
+    cpr = EmulatedDriveBackend(actuator).description.motor.counts_per_rev
+    theta = 2 * np.pi * np.arange(cpr) / cpr
+    k_q = np.full(cpr, 0.075)
+    tau = 0.02 * np.sin(84 * theta + 0.3)
+    speed_hz = 1000.0 * 0.1 / 84
+    table = MoteusTable.of(0.003 / 0.075 * np.sin(7 * np.arange(MOTEUS_TABLE_SIZE) * 2 * np.pi / MOTEUS_TABLE_SIZE),
+                           "test")
+    said = unapplied([tau, tau], k_q, table, (speed_hz, -speed_hz), 7, 1000.0)
+    for one, own in zip(said.one_table_nm, said.own_table_nm):
+        # its own table leaves the format's floor alone: order 84's interpolation images, 1.2 % of it
+        assert one == pytest.approx(0.02 / np.sqrt(2) * np.sin(np.arctan(0.1)), rel=0.05)
+        assert own == pytest.approx(0.012 * 0.02 / np.sqrt(2), rel=0.2)
+    assert said.electrical_nm == pytest.approx(0.003 / np.sqrt(2), rel=0.01)
+    unknown = unapplied([tau, tau], k_q, table, (speed_hz, -speed_hz), 7, None)
+    assert unknown.one_table_nm is None and "states no current loop bandwidth" in unknown.lines((1.0, -1.0))[0]
 
 
 # ---------------------------------------------------------------- campaigns on the emulated drive

@@ -61,6 +61,14 @@ def test_a_drive_campaign_through_the_moteus_library_learns_the_drive_s_own_tabl
      r"\[drive\] seconds: .* records .* revolutions; a trial needs 2 or more"),
     ("[drive]\nspeed = 1.0\n", (), r"\[drive\] unknown key 'speed'"),
     ("[backends.moteus]\nid = 200\n", (), r"\[backends.moteus\] id"),
+    *[(f"[drive]\n{key} = {value}\n", (), rf"\[drive\] {key}") for key, value in (
+        ("speeds_hz", "[nan]"), ("speeds_hz", "[0.0]"), ("speeds_hz", "[1.0, 1.0]"), ("speeds_hz", "[1e308]"),
+        ("iterations", "-1"), ("iterations", "1.5"), ("gain", "0.0"), ("gain", "inf"), ("seconds", "1e9"),
+        ("settle_s", "61.0"), ("max_motor_time_s", "-1.0"), ("verify", '"yes"'))],
+    *[(f"[backends.moteus]\n{key} = {value}\n", (), rf"\[backends.moteus\] {key}") for key, value in (
+        ("query_rate_hz", "1e9"), ("transport", '"serial"'), ("watchdog_timeout_s", "0.0"), ("max_lost_polls", "0"),
+        ("poll_timeout_s", "nan"))],
+    ("[backends.moteus.emulated]\nmax_current_a = -1.0\n", (), r"max_current_a"),
     ("", ("--trials", "3"), r"--trials: not for a drive campaign"),
     ("", ("--backend", "sim"), r"the SimulatorBackend backend drives no drive without a load"),
 ])

@@ -76,8 +76,9 @@ from ilcpmac.identify.rolling import RollingEstimate, estimate_rolling, k_q_tabl
 from ilcpmac.pipeline.safety import MalformedRequest, SafetyLimits, drive_violation, owned_drive_request
 
 __all__ = ["DRIVE_PLOT_FILE", "DRIVE_RESULT_FILE", "DriveCampaignResult", "DrivePlan", "DrivePoint", "DriveSettings",
-           "LAG_SHARE", "MeasuredTrial", "drive_plan", "drive_settings", "floor_table", "lagged_a", "learned_table",
-           "measured_trial", "residual_nm", "ripple_rms", "run_drive_campaign", "zero_table"]
+           "LAG_SHARE", "MeasuredTrial", "Unapplied", "drive_plan", "drive_settings", "floor_table", "lagged_a",
+           "learned_table", "measured_trial", "residual_nm", "ripple_rms", "run_drive_campaign", "unapplied",
+           "zero_table"]
 
 DRIVE_RESULT_FILE = "drive_result.json"
 DRIVE_PLOT_FILE = "drive_residual"
@@ -388,6 +389,63 @@ class DrivePoint:
 
 
 @dataclass(frozen=True)
+class Unapplied:
+    """What the drive's one position table cannot apply, and what it would gain (moteus: one table for every speed,
+    direction and load, applied in position mode only; no per-phase current-sensor correction).
+
+    Attributes
+    ----------
+    one_table_nm, own_table_nm : tuple of float, or None
+        Per point of the plan, what the best one table for every point leaves of the uncompensated estimate
+        through the current's lag (eq. 3, `floor_table`), and what a table of the point's own would leave (a
+        per-operating-point feed-forward), N m; None where the drive states no current loop bandwidth.
+    electrical_nm : float
+        The final table's torque at orders pole_pairs and 2 pole_pairs (RMS over a revolution, N m), where the
+        current sensors' offset and scale errors make their ripple.
+    """
+
+    one_table_nm: tuple[float, ...] | None
+    own_table_nm: tuple[float, ...] | None
+    electrical_nm: float
+
+    def lines(self, speeds_hz: tuple[float, ...]) -> list[str]:
+        """What it says to a reader."""
+        if self.one_table_nm is None or self.own_table_nm is None:
+            out = ["the drive states no current loop bandwidth: what one table for both directions costs is not known"]
+        else:
+            pairs = ", ".join(f"{v:+g} Hz {1e3 * own:.2g} instead of {1e3 * one:.2g}"
+                              for v, one, own in zip(speeds_hz, self.one_table_nm, self.own_table_nm))
+            out = ["the drive holds one table for every speed and direction (in position mode only): a table of each "
+                   f"point's own, which it cannot apply, would leave about (mN m, the estimate through the current's "
+                   f"lag) {pairs}"]
+        out.append(f"the table holds {1e3 * self.electrical_nm:.2g} mN m at orders p and 2p, where the current "
+                   "sensors' offset and scale errors ripple, as learned at the no-load current: the drive has no "
+                   "per-phase current-sensor correction, and a scale error's ripple grows with the load, which no "
+                   "position table follows")
+        return out
+
+    def to_json(self) -> dict:
+        return {"one_table_nm": None if self.one_table_nm is None else list(self.one_table_nm),
+                "own_table_nm": None if self.own_table_nm is None else list(self.own_table_nm),
+                "electrical_nm": self.electrical_nm}
+
+
+def unapplied(taus: list[np.ndarray], k_q: np.ndarray, table: MoteusTable, speeds_hz: tuple[float, ...],
+              pole_pairs: int, bandwidth_hz: float | None) -> Unapplied:
+    """`Unapplied` from the uncompensated trials' position torques per count (their rho^ is tau^_pos), one per
+    signed speed, and the final table."""
+    own = one = None
+    if bandwidth_hz is not None:
+        joint = _table_at_counts_a(floor_table(taus, k_q, speeds_hz, bandwidth_hz), k_q.size)
+        one = tuple(ripple_rms(t + k_q * lagged_a(joint, v, bandwidth_hz)) for t, v in zip(taus, speeds_hz))
+        own = tuple(ripple_rms(t + k_q * lagged_a(_table_at_counts_a(floor_table([t], k_q, (v,), bandwidth_hz),
+                                                                     k_q.size), v, bandwidth_hz))
+                    for t, v in zip(taus, speeds_hz))
+    amplitudes = np.abs(np.fft.rfft(k_q * _table_at_counts_a(table, k_q.size)) / k_q.size * 2)
+    return Unapplied(one, own, float(np.sqrt(np.sum(amplitudes[[pole_pairs, 2 * pole_pairs]] ** 2) / 2)))
+
+
+@dataclass(frozen=True)
 class DriveCampaignResult:
     """What a drive campaign learned and measured.
 
@@ -403,6 +461,8 @@ class DriveCampaignResult:
         flowed as commanded (`floor_table` without the lag; emulated drives), N m: the format's own floor, below
         each point's (`DrivePoint.true_floor_nm`).
     motor_time_planned_s, motor_time_used_s : float
+    unapplied : Unapplied
+        What the drive's table cannot apply, and what it would gain.
     usable : bool
         False where the result is too uncertain to use (``messages`` says why).
     stored : bool
@@ -416,6 +476,7 @@ class DriveCampaignResult:
     format_floor_nm: float | None
     motor_time_planned_s: float
     motor_time_used_s: float
+    unapplied: Unapplied
     usable: bool
     stored: bool
     messages: tuple[str, ...]
@@ -427,6 +488,7 @@ class DriveCampaignResult:
             out.append(f"the floor at each point: the best one {MOTEUS_TABLE_SIZE}-entry int8 table for every speed "
                        "and direction, its current through the drive's current loop; without the loop's lag "
                        f"{1e3 * self.format_floor_nm:.3g} mN m")
+        out += self.unapplied.lines(self.plan.signed_speeds_hz)
         out.append(f"motor time: {self.motor_time_used_s:.4g} s of {self.motor_time_planned_s:.4g} s planned")
         return out + list(self.messages)
 
@@ -436,7 +498,8 @@ class DriveCampaignResult:
             "speeds_hz": list(self.plan.speeds_hz), "rounds": list(self.plan.rounds),
             "settle_s": self.plan.settle_s, "seconds": self.plan.seconds,
             "motor_time_planned_s": self.motor_time_planned_s, "motor_time_used_s": self.motor_time_used_s,
-            "format_floor_nm": self.format_floor_nm, "usable": self.usable, "stored": self.stored,
+            "format_floor_nm": self.format_floor_nm, "unapplied": self.unapplied.to_json(), "usable": self.usable,
+            "stored": self.stored,
             "points": [{"speed_hz": p.speed_hz, "uncompensated_nm": p.uncompensated_nm, "final_nm": p.final_nm,
                         "final_std_nm": p.final_std_nm, "true_uncompensated_nm": p.true_uncompensated_nm,
                         "true_final_nm": p.true_final_nm, "true_floor_nm": p.true_floor_nm} for p in self.points],
@@ -557,8 +620,10 @@ def run_drive_campaign(config: CampaignConfig, backend: Backend, out_dir: Path,
                               b.std_nm, _true_rms(a, true_position=True), _true_rms(b), floor)
                    for a, b, floor in zip(first, last, floors))
     messages = _usability(points, settings.verify)
-    result = DriveCampaignResult(plan, points, table, format_floor, plan.motor_time_s, used_s, not messages, False,
-                                 tuple(messages))
+    result = DriveCampaignResult(plan, points, table, format_floor, plan.motor_time_s, used_s,
+                                 unapplied([m.residual_nm for m in first], k_q, table, plan.signed_speeds_hz,
+                                           description.motor.pole_pairs, bandwidth_hz),
+                                 not messages, False, tuple(messages))
     out_dir.mkdir(parents=True, exist_ok=True)
     if write_config:
         guard.store_table(plan.requests(len(plan.rounds) - 1, table)[0])

@@ -70,6 +70,9 @@ OUTPUT_RATIO_NAME = "motor_position.rotor_to_output_ratio"
 CURRENT_BANDWIDTH_NAME = "servo.pid_dq_hz"
 TABLE_SCALE_NAME = "motor.cogging_dq_scale"
 TABLE_ENTRY_NAME = "motor.cogging_dq_comp.{}"
+#: the real seconds the emulated transport's reply is waited for at most (a guard against a hang: it answers
+#: within the call)
+EMULATED_TIMEOUT_S = 10.0
 #: tries of a stop command before the backend gives up on it (the drive's watchdog stops it then)
 STOP_TRIES = 3
 #: the part of a trial's settling time over which its velocity command ramps up from 0
@@ -131,6 +134,10 @@ class MoteusBackend:
         self.stream = moteus.Stream(self.controller)
         self._clock: Callable[[], float] = getattr(device, "clock", time.monotonic)
         self._sleep: Callable[[float], Awaitable[None]] = getattr(device, "sleep", asyncio.sleep)
+        #: the real seconds a poll's reply is waited for: the setting on a real transport; on the emulated one,
+        #: which answers (or loses a reply) within the call on its own clock, only a guard against a hang, so that
+        #: how loaded this machine is never loses a poll there
+        self._poll_timeout_s = settings.poll_timeout_s if device is None else EMULATED_TIMEOUT_S
         self._limits: DriveLimits | None = None
         self._ratio: float | None = None
         self._quiet = False
@@ -358,7 +365,7 @@ class MoteusBackend:
     async def _timed(self, command: Awaitable[Any]) -> Any:
         """``command``'s reply, or None without one within poll_timeout_s."""
         try:
-            async with asyncio.timeout(self.settings.poll_timeout_s):
+            async with asyncio.timeout(self._poll_timeout_s):
                 return await command
         except TimeoutError:
             return None
@@ -377,7 +384,7 @@ class MoteusBackend:
         why = "no reply"
         for _ in range(STOP_TRIES):
             try:
-                async with asyncio.timeout(self.settings.poll_timeout_s):
+                async with asyncio.timeout(self._poll_timeout_s):
                     reply = await self.controller.set_stop(query=True)
             except TimeoutError:
                 continue
