@@ -85,6 +85,30 @@ def _hooked(config, act, **kw) -> MoteusBackend:
     return b
 
 
+class SlowHost(asyncio.SelectorEventLoop):
+    """An event loop on a host so loaded that 20 ms of real time pass between any two looks at its clock."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._late_s = 0.0
+
+    def time(self) -> float:
+        self._late_s += 0.02
+        return super().time() + self._late_s
+
+
+def test_how_loaded_the_host_is_loses_no_poll_of_the_emulated_drive(config):
+    """The emulated transport answers within the call, on its own clock: a poll's reply waited for in real time
+    (10 ms, poll_timeout_s) was dropped on a loaded machine, and two runs of one config differed."""
+    settings = parse_settings({"transport": "emulated", "query_rate_hz": RATE_HZ}, "test.toml")
+    drive = EmulatedDrive(config.simulated_model(), DriveSpec(), seed=3)
+    b = MoteusBackend(settings, moteus_description(config, RATE_HZ), EmulatedMoteusDevice(drive, seed=4),
+                      loop=SlowHost())
+    trial = b.run_drive_trial(_request(seconds=0.1))
+    assert trial.lost == 0 and trial.polls == trial.data.time_s.size == pytest.approx(0.1 * RATE_HZ, abs=2)
+    b.close()
+
+
 def test_is_a_drive_backend(backend):
     assert isinstance(backend, DriveBackend)
     assert backend.max_parallel_trials == 1
