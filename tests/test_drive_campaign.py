@@ -276,3 +276,20 @@ def test_the_law_converges_with_k_q_known_10_percent_wrong(actuator, tmp_path):
     print("\n".join(events))
     for point in result.points:
         assert point.true_final_nm < point.true_uncompensated_nm / 8
+
+
+def test_the_api_runs_a_drive_campaign_into_a_new_folder_and_refuses_a_grid_config(actuator, tmp_path):
+    import ilcpmac.api as ilc
+    from ilcpmac.core.errors import OptionError
+
+    config = with_drive(actuator, speeds_hz=[1.0], seconds=3.0, settle_s=0.5, iterations=0)
+    lines: list[str] = []
+    result = ilc.run_drive(config, out=tmp_path / "run", backend=EmulatedDriveBackend(actuator), on_event=lines.append)
+    assert result.path == tmp_path / "run" and (result.path / DRIVE_RESULT_FILE).is_file()
+    assert lines[0].startswith("drive campaign: 2 rounds") and len(result.points) == 2
+    with pytest.raises(ConfigError, match="exists and is not an empty directory"):
+        ilc.run_drive(config, out=tmp_path / "run", backend=EmulatedDriveBackend(actuator))
+    with pytest.raises(ConfigError, match=r"no \[drive\] table: run_drive runs a drive campaign"):
+        ilc.run_drive(actuator, out=tmp_path / "grid")
+    with pytest.raises(OptionError, match="write_config"):
+        ilc.run_drive(config, out=tmp_path / "other", write_config="yes")  # type: ignore[arg-type]

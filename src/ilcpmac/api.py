@@ -56,7 +56,7 @@ from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles, campaign_grid
 from ilcpmac.compensation import CONTENTS
 from ilcpmac.config import CampaignConfig, config_path, load_config, packaged_config
-from ilcpmac.core.errors import BenchFormatError, IlcpmacError, OptionError
+from ilcpmac.core.errors import BenchFormatError, ConfigError, IlcpmacError, OptionError
 from ilcpmac.core.files import atomic_write, check_writable
 from ilcpmac.core.records import IdentificationResult, TrialData
 from ilcpmac.core.schema import finite_number, shown, toml_text
@@ -64,6 +64,7 @@ from ilcpmac.core.torque_source import TorqueSource
 from ilcpmac.export import C_TYPES, FORMATS, Exported, export_source
 
 if TYPE_CHECKING:
+    from ilcpmac.campaign.drive import DriveCampaignResult
     from ilcpmac.identify.map_decomposition import MapDecomposition
     from ilcpmac.sim.drive_log import LogPlan
     from ilcpmac.sim.standstill import ScanPlan
@@ -71,8 +72,8 @@ if TYPE_CHECKING:
 __all__ = ["COLUMN_UNITS", "DEFAULT_CONFIG", "CampaignEvent", "HoldingMaps", "ImportedBench", "PointSummary",
            "RollingData", "RunResults", "ScanData", "ScanResult", "SimulatedBench", "SimulatedLog", "TrialColumns",
            "export", "identify", "import_logs", "import_maps", "import_rolling", "import_scan", "load_run",
-           "print_event", "run", "simulate_bench", "simulate_log", "simulate_scan", "torque_constant_nm_per_a",
-           "write_config"]
+           "print_event", "run", "run_drive", "simulate_bench", "simulate_log", "simulate_scan",
+           "torque_constant_nm_per_a", "write_config"]
 
 #: a simulated log's plan: `ilcpmac.sim.standstill.ScanPlan` or `ilcpmac.sim.drive_log.LogPlan`
 PlanT = TypeVar("PlanT")
@@ -217,7 +218,7 @@ _ARGUMENTS: dict[str, _Kind] = {
                         lambda value: finite_number(value) and 0 < value <= MAX_BUDGET_MIN, float),
     **dict.fromkeys(("torque_constant_nm_per_a", "rated_torque_nm"),
                     _kind("a finite number > 0", lambda value: finite_number(value) and value > 0, float)),
-    "torque_sensor": _BOOL,
+    **dict.fromkeys(("torque_sensor", "write_config"), _BOOL),
     "torque_source": _kind("'sensor', 'encoder' or a TorqueSource",
                            lambda value: isinstance(value, TorqueSource) or (isinstance(value, str)
                                                                              and value in ("sensor", "encoder")),
@@ -569,7 +570,7 @@ def write_config(path: str | Path, changes: dict, base: str | Path | None = None
 
 @_checked
 def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | None = None,
-        backend: str | Backend = "sim", address: str | None = None, seed: int | None = None,
+        backend: str | Backend | None = None, address: str | None = None, seed: int | None = None,
         trials: int | None = None, budget_min: float | None = None, resume: str | Path | None = None,
         on_event: Callable[[CampaignEvent], None] | None = None) -> RunResults:
     """Run a campaign (``ilcpmac run``): identify, learn a compensation over the operating range, validate it where
@@ -582,9 +583,10 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         seed-bench.toml.
     out : str or Path or None
         The run directory to create (default ``runs/<config name>-<date>-<time>``).
-    backend : str or Backend
+    backend : str or Backend or None
         Where trials run: an installed backend's name ("sim", the simulator; "remote", a bench at ``address``;
-        plugins: ``ilcpmac backends``), or a `Backend` instance, which stays the caller's to close.
+        plugins: ``ilcpmac backends``), or a `Backend` instance, which stays the caller's to close; None: the
+        config's ``[campaign] backend`` ("sim" where it names none).
     address : str or None
         HOST:PORT of the bench, for a backend that needs one.
     seed : int or None
@@ -618,6 +620,50 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
                          budget_min=budget_min, resume=resume,
                          events=None if on_event is None else _Callback(on_event))
     return RunResults.from_summary(result.path, result.summary)
+
+
+@_checked
+def run_drive(config: str | Path | CampaignConfig, *, out: str | Path | None = None,
+              backend: str | Backend | None = None, address: str | None = None, write_config: bool = False,
+              on_event: Callable[[str], None] | None = None) -> DriveCampaignResult:
+    """Run the drive campaign of a config with a ``[drive]`` table (``ilcpmac run`` of it, docs/moteus.md): a drive
+    without a torque sensor or a load learns its own position table in closed loop.
+
+    Parameters
+    ----------
+    config : str, Path or CampaignConfig
+        The config (``configs/moteus-emulated.toml``: an emulated moteus through mjbots' library).
+    out : str or Path or None
+        The directory to write (default ``runs/<config name>-<date>-<time>``), new or empty.
+    backend : str or Backend or None
+        An installed drive backend's name ("moteus"), built from the config's ``[backends.NAME]`` table, or a
+        `DriveBackend` instance, which stays the caller's to close; None: the config's ``[campaign] backend``.
+    address : str or None
+        Where the drive is, for a backend that takes it (moteus: the fdcanusb's port or the socketcan interface).
+    write_config : bool
+        Write the final table into the drive's flash at the end (moteus: ``conf write``).
+    on_event : callable or None
+        Called with each line as it happens (the plan, each trial, the result).
+
+    Returns
+    -------
+    DriveCampaignResult
+        Per speed and direction the residual uncompensated and final, measured (and true on an emulated drive),
+        the floor, the final table, the motor time, what the drive's table cannot apply; its files in ``path``.
+
+    Raises
+    ------
+    ConfigError
+        Before any motion, for a config or a plan the drive's own limits or [limits] refuse.
+    IlcpmacError
+        A backend or safety error a trial stopped on (the drive is stopped on every path).
+    """
+    cfg = _config(config)
+    if cfg.drive_options is None:
+        raise ConfigError(f"{cfg.path}: no [drive] table: run_drive runs a drive campaign (docs/moteus.md); a grid "
+                          "campaign is run()")
+    return service.run_drive(cfg, out=out, backend=backend, address=address, write_config=write_config,
+                             on_event=on_event)
 
 
 @_checked

@@ -451,6 +451,8 @@ class DriveCampaignResult:
 
     Attributes
     ----------
+    path : Path
+        The directory its files are in.
     plan : DrivePlan
     points : tuple of DrivePoint
         Per speed and direction, in the plan's order.
@@ -470,6 +472,7 @@ class DriveCampaignResult:
     messages : tuple of str
     """
 
+    path: Path
     plan: DrivePlan
     points: tuple[DrivePoint, ...]
     table: MoteusTable
@@ -620,7 +623,7 @@ def run_drive_campaign(config: CampaignConfig, backend: Backend, out_dir: Path,
                               b.std_nm, _true_rms(a, true_position=True), _true_rms(b), floor)
                    for a, b, floor in zip(first, last, floors))
     messages = _usability(points, settings.verify)
-    result = DriveCampaignResult(plan, points, table, format_floor, plan.motor_time_s, used_s,
+    result = DriveCampaignResult(out_dir, plan, points, table, format_floor, plan.motor_time_s, used_s,
                                  unapplied([m.residual_nm for m in first], k_q, table, plan.signed_speeds_hz,
                                            description.motor.pole_pairs, bandwidth_hz),
                                  not messages, False, tuple(messages))

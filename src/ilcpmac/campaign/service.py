@@ -34,11 +34,12 @@ from ilcpmac.pipeline.safety import SafetyLimits, check_plan
 from ilcpmac.stages.registry import check_stage_options
 
 if TYPE_CHECKING:
+    from ilcpmac.campaign.drive import DriveCampaignResult
     from ilcpmac.identify import Identifier
     from ilcpmac.stages.base import Stage, StageSetup
 
-__all__ = ["DEFAULT_CONFIG", "CampaignResult", "check_campaign_config", "load_campaign_config", "run",
-           "simulate_bench", "simulated_bench"]
+__all__ = ["DEFAULT_CONFIG", "CampaignResult", "built_backend", "check_campaign_config", "default_run_dir",
+           "load_campaign_config", "run", "run_drive", "simulate_bench", "simulated_bench"]
 
 #: the packaged config `run` runs with no config
 DEFAULT_CONFIG = "seed-bench.toml"
@@ -152,7 +153,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         # the overrides obey the same ranges as the file; an unknown stage or option stops here, not after the grid
         check_campaign_config(cfg, extra_stages)
         seed = cfg.grid.seed
-        path = resume_dir or out_dir or Path("runs") / f"{cfg.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+        path = resume_dir or out_dir or default_run_dir(cfg)
         if lock is None:
             made = None if path.exists() else path
             lock = RunDir.lock(path, new=True)
@@ -182,6 +183,34 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     identification = summary["identification"]
     return CampaignResult(run_dir.path, plan, summary, records_of(summary),
                           None if identification is None else IdentificationResult.from_json(identification))
+
+
+def default_run_dir(cfg: CampaignConfig) -> Path:
+    """runs/<config name>-<date>-<time>: where a run goes when no directory is given."""
+    return Path("runs") / f"{cfg.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def run_drive(cfg: CampaignConfig, *, out: str | Path | None = None, backend: str | Backend | None = None,
+              address: str | None = None, write_config: bool = False,
+              on_event: Callable[[str], None] | None = None) -> DriveCampaignResult:
+    """The drive campaign of a config with a [drive] table (``ilcpmac run`` of it; docs/moteus.md), written into
+    ``out`` (default `default_run_dir`; refused where it exists and is not empty).
+
+    ``backend``: an installed backend's name, built from the config's ``[backends.NAME]`` table and closed at the
+    end (None: the config's [campaign] backend), or a `DriveBackend` instance, which stays the caller's to close.
+    ``write_config``: the final table into the drive's flash at the end. ``on_event``: each line as it happens."""
+    from ilcpmac.campaign.drive import run_drive_campaign
+
+    path = Path(out) if out is not None else default_run_dir(cfg)
+    if path.exists() and (not path.is_dir() or any(path.iterdir())):
+        raise ConfigError(f"--out {path}: exists and is not an empty directory: a drive campaign writes a new one")
+    if backend is not None and not isinstance(backend, str):
+        return run_drive_campaign(cfg, backend, path, on_event, write_config)
+    drive = built_backend(cfg, backend, address, write_config)
+    try:
+        return run_drive_campaign(cfg, drive, path, on_event, write_config)
+    finally:
+        drive.close()
 
 
 def built_backend(cfg: CampaignConfig, name: str | None, address: str | None, write_config: bool = False) -> Backend:

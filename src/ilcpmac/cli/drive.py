@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import shlex
 import sys
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,7 +11,6 @@ import click
 from rich.text import Text
 
 from ilcpmac.cli import console
-from ilcpmac.core.errors import ConfigError
 
 if TYPE_CHECKING:
     from ilcpmac.config import CampaignConfig
@@ -20,25 +18,19 @@ if TYPE_CHECKING:
 
 def run_drive(config: CampaignConfig, out_dir: Path | None, backend_name: str | None, address: str | None,
               write_config: bool) -> None:
-    """Run the drive campaign of ``config`` on its backend (``backend_name``, else its [campaign] backend) into
-    ``out_dir`` (default runs/<config name>-<date>-<time>), printing each trial's line and the result."""
+    """Run the drive campaign of ``config`` (`ilcpmac.campaign.service.run_drive`), printing each trial's line, the
+    result and the files written."""
     # imported when the command runs (ilcpmac.cli's docstring says why)
-    from ilcpmac.campaign.drive import run_drive_campaign
-    from ilcpmac.campaign.service import built_backend
+    from ilcpmac.campaign.service import run_drive as run
 
-    path = out_dir or Path("runs") / f"{config.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}"
-    if path.exists() and (not path.is_dir() or any(path.iterdir())):
-        raise ConfigError(f"--out {path}: exists and is not an empty directory: a drive campaign writes a new one")
-    backend = built_backend(config, backend_name, address, write_config)
     try:
-        result = run_drive_campaign(config, backend, path, lambda line: console.print(Text(line)), write_config)
+        result = run(config, out=out_dir, backend=backend_name, address=address, write_config=write_config,
+                           on_event=lambda line: console.print(Text(line)))
     except KeyboardInterrupt:
         click.echo("error: interrupted: the drive was told to stop; nothing was written to its flash", err=True)
         sys.exit(130)
-    finally:
-        backend.close()
-    written = ", ".join(sorted(p.name for p in path.iterdir()))
+    written = ", ".join(sorted(p.name for p in result.path.iterdir()))
     store = ("" if result.stored else "\nthe drive's flash is unchanged; to store the table: ilcpmac run "
              f"{shlex.quote(str(config.path))} --write-config, or send moteus_cogging.txt's conf set lines, then "
              "conf write")
-    console.print(Text(f"wrote {written} in {path}{store}"), soft_wrap=True)
+    console.print(Text(f"wrote {written} in {result.path}{store}"), soft_wrap=True)
