@@ -304,39 +304,24 @@ def learned_table(table: MoteusTable, mean_residual_nm: np.ndarray, k_q: np.ndar
     return MoteusTable.of(entries_a, "drive campaign: the learned table")
 
 
-def _interpolation(counts_per_rev: int) -> np.ndarray:
-    """The matrix (counts_per_rev, 1024) of the firmware's linear interpolation of entries at each count."""
-    p = np.arange(counts_per_rev) / counts_per_rev
-    size = MOTEUS_TABLE_SIZE
-    left = np.minimum(size - 1, np.floor(size * p).astype(np.int64))
-    fraction = (p - left / size) * size
-    matrix = np.zeros((counts_per_rev, size))
-    rows = np.arange(counts_per_rev)
-    matrix[rows, left] += 1.0 - fraction
-    matrix[rows, (left + 1) % size] += fraction
-    return matrix
-
-
 def floor_table(position_torques_nm: list[np.ndarray], k_q: np.ndarray, speeds_hz: tuple[float, ...],
                 bandwidth_hz: float | None) -> MoteusTable:
     """The best one table of the drive's format for per-count position torques, one per signed speed of
-    ``speeds_hz``: the 1024 entries x whose current, interpolated as the firmware does (I) and flowing through
-    the current loop at each speed (eq. 3, L_p; ``bandwidth_hz`` None: as commanded), cancels them together in
-    least squares, min_x sum_p |tau_p + k_q L_p I x|^2 over the counts where tau_p is known (not NaN), quantised
-    as `MoteusTable.of` does. A table cannot turn its phase with the direction: at +-f it leaves about
-    sin(atan(h f / f_c)) of harmonic h."""
-    interpolation = _interpolation(k_q.size)
-    spectrum = np.fft.rfft(interpolation, axis=0)
-    orders = np.arange(spectrum.shape[0])
-    blocks, targets = [], []
-    for tau, speed in zip(position_torques_nm, speeds_hz):
-        gain = np.ones(orders.size) if bandwidth_hz is None else 1.0 / (1.0 + 1j * orders * speed / bandwidth_hz)
-        flowing = np.fft.irfft(gain[:, None] * spectrum, k_q.size, axis=0)
-        known = np.isfinite(tau)
-        blocks.append((k_q[:, None] * flowing)[known])
-        targets.append(-tau[known])
-    entries_a, *_ = np.linalg.lstsq(np.vstack(blocks), np.concatenate(targets), rcond=None)
-    return MoteusTable.of(entries_a, "drive campaign: the floor's table")
+    ``speeds_hz``: the current whose torque, flowing through the current loop at each speed (eq. 3; ``bandwidth_hz``
+    None: as commanded), cancels them together in least squares, harmonic by harmonic of c_p = -tau_p / k_q:
+
+        x_h = sum_p conj(G_p,h) c_p,h / sum_p |G_p,h|^2,   G_p,h = 1 / (1 + j h f_p / f_c),
+
+    brought to the format's 1024 entries as eq. (2) is and quantised (`MoteusTable.of`); counts where a tau_p is
+    not known (NaN: not visited) count as 0. A table cannot turn its phase with the direction: at +-f it leaves
+    about sin(atan(h f / f_c)) of harmonic h."""
+    currents = np.array([np.nan_to_num(-tau / k_q) for tau in position_torques_nm])
+    spectra = np.fft.rfft(currents, axis=1)
+    orders = np.arange(spectra.shape[1])
+    gains = (np.ones_like(spectra) if bandwidth_hz is None else
+             1.0 / (1.0 + 1j * np.outer(speeds_hz, orders) / bandwidth_hz))
+    best = np.sum(np.conj(gains) * spectra, axis=0) / np.sum(np.abs(gains) ** 2, axis=0)
+    return MoteusTable.of(moteus_entries(np.fft.irfft(best, k_q.size)), "drive campaign: the floor's table")
 
 
 def ripple_rms(values_nm: np.ndarray) -> float:
