@@ -22,6 +22,8 @@ VALID: dict[str, dict] = {
     "write_config": {"path": "c.toml", "changes": {}, "base": "base.toml"},
     "run": {"config": "c.toml", "out": "run", "backend": "sim", "address": "localhost:1", "seed": 1, "trials": 1,
             "budget_min": 5.0, "resume": None, "on_event": print},
+    "run_drive": {"config": "c.toml", "out": "run", "backend": "moteus", "address": "/dev/ttyACM0",
+                  "write_config": False, "on_event": print},
     "print_event": {"event": None},  # no valid event without a campaign: its only argument is always hostile
     "load_run": {"run_dir": "run"},
     "identify": {"bench_dir": "bench", "torque_source": "sensor", "output": "r.json"},
@@ -49,7 +51,7 @@ HOSTILE: dict[tuple[str, ...], list] = {
     ("logs",): [[], [5], 5, b"x", [""], ["a\0b"], [[]], np.zeros((2, 2)), np.array([], dtype=str), {"a": 1}],
     INTEGERS: [True, False, 1.5, 2.0, "3", np.float64(2.0), np.bool_(True), float("nan"), [], np.array([1]), 1j],
     NUMBERS: [True, "5", float("inf"), float("-inf"), float("nan"), -1.0, 0, [], 1j, np.array([1.0]), 10**400],
-    ("torque_sensor",): ["no", "yes", "", 0, 1, np.int64(1), 1.0, [], object()],
+    ("torque_sensor", "write_config"): ["no", "yes", "", 0, 1, np.int64(1), 1.0, [], object()],
     CHOICES: ["int8", "", "CSV", 5, True, b"csv", ["csv"], np.zeros(3), object()],
     ("backend",): [5, "", b"sim", object(), ["sim"], "a\0b"],
     ("address",): [5, b"x", "a\0b", ["h:1"]],
