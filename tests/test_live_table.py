@@ -475,3 +475,18 @@ def test_ctrl_c_in_a_run_names_the_folder_to_resume(tmp_path, write_config, monk
     done = CliRunner().invoke(main, ["run", str(write_config(SMALL_CAMPAIGN)), "--out", str(out)])
     assert done.exit_code == 130
     assert done.output.strip().splitlines()[-1] == f"error: interrupted; continue with ilcpmac run --resume '{out}'"
+
+
+def test_the_torque_source_chosen_names_the_table_s_figures_from_then_on(plan):
+    """With "auto" the campaign starts identified with "both" and chooses after the grid: the live table's
+    figures are named by the choice (`TorqueSourceChosen`), not by the start's source."""
+    from ilcpmac.campaign.events import TorqueSourceChosen
+    from ilcpmac.core.torque_source import ChoiceReason, TorqueSource, TorqueSourceChoice
+
+    out = io.StringIO()
+    view = CampaignView(Console(file=out), plan, "run", [], Clock(), source="both")
+    choice = TorqueSourceChoice(TorqueSource.SENSOR, True, ChoiceReason.CORRECTED, 0.001, 0.002, 0.0015, 0.05,
+                                0.01, 0.03)
+    view.message(TorqueSourceChosen(choice))
+    assert view.source == "sensor" and "torque from the sensor (auto): the encoder needs a graduation correction" \
+        in " ".join(out.getvalue().split())

@@ -49,8 +49,8 @@ def test_a_wrong_torque_source_is_one_line_naming_the_key(write_config, value, w
 def test_the_default_source_follows_the_bench(seed_config):
     with_sensor, without = (SimpleNamespace(motor=SimpleNamespace(torque_sensor=has)) for has in (True, False))
     seed_config = dataclasses.replace(seed_config, campaign=dataclasses.replace(seed_config.campaign,
-                                                                                torque_source=None))
-    assert torque_source(seed_config, with_sensor) is TorqueSource.SENSOR
+                                                                                torque_source="auto"))
+    assert torque_source(seed_config, with_sensor) is TorqueSource.BOTH  # identified with both, chosen after
     assert torque_source(seed_config, without) is TorqueSource.ENCODER
     for chosen in ("sensor", "both"):
         config = dataclasses.replace(seed_config, campaign=dataclasses.replace(seed_config.campaign,
@@ -59,11 +59,12 @@ def test_the_default_source_follows_the_bench(seed_config):
             torque_source(config, without)
 
 
-@pytest.mark.parametrize("chosen, said", [("encoder", " = 'encoder'"), ("both", " = 'both'"), (None, "")])
-def test_the_encoder_s_torque_needs_three_revolutions_a_grid_trial(seed_config, chosen, said):
+@pytest.mark.parametrize("chosen, has_sensor, said", [("encoder", True, " = 'encoder'"), ("both", True, " = 'both'"),
+                                                      ("auto", False, " = 'auto'")])
+def test_the_encoder_s_torque_needs_three_revolutions_a_grid_trial(seed_config, chosen, has_sensor, said):
     """The fuzz's small config (2 grid revolutions, the seed's "both") raised a ValueError traceback in the
     identification's graduation error: the encoder's torque needs two whole revolutions."""
-    without = SimpleNamespace(motor=SimpleNamespace(torque_sensor=chosen is not None))
+    without = SimpleNamespace(motor=SimpleNamespace(torque_sensor=has_sensor))
     config = dataclasses.replace(seed_config, grid=dataclasses.replace(seed_config.grid, revolutions=2),
                                  campaign=dataclasses.replace(seed_config.campaign, torque_source=chosen))
     with pytest.raises(ConfigError, match=rf"\[trials\] revolutions = 2: \[campaign\] torque_source{said} reads the "

@@ -36,7 +36,7 @@ from ilcpmac.core.schema import (
     toml_name,
     toml_text,
 )
-from ilcpmac.core.torque_source import TorqueSource
+from ilcpmac.core.torque_source import AUTO, SETTING_VALUES
 from ilcpmac.model.motor import (
     BackEmf,
     Cogging,
@@ -126,10 +126,12 @@ class CampaignSettings:
     validate_revolutions: int = setting(
         in_range(MIN_REVOLUTIONS, 2**24), "recorded revolutions per validation trial at the slowest learned speed "
         f"(more at a faster speed), at least {MIN_REVOLUTIONS}", 32)
-    torque_source: str | None = setting(
-        lambda x: x in [source.value for source in TorqueSource],
-        '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md) '
-        'or "both" (the two fused); left out: "sensor" where the bench has a torque sensor, else "encoder"', None)
+    torque_source: str = setting(
+        lambda x: x in SETTING_VALUES,
+        '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md), '
+        '"both" (the two fused) or "auto": the one of least expected error, chosen after the grid from the encoder\'s '
+        'graduation error measured against the sensor and the two noises (docs/sensorless.md, "auto"; "encoder" '
+        'without a torque sensor)', AUTO)
     backend: str = setting(
         lambda x: isinstance(x, str) and re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", x) is not None,
         "the installed backend the trials run on (ilcpmac backends lists them; its options in [backends.NAME]); "

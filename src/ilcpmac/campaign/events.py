@@ -11,11 +11,11 @@ from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.validation import PointResult
 from ilcpmac.compensation import FadeOut
-from ilcpmac.core.torque_source import TorqueSource
+from ilcpmac.core.torque_source import TorqueSource, TorqueSourceChoice
 
 __all__ = ["CampaignEvents", "CampaignMessage", "CampaignStart", "CompensationBeatsNone", "CompensationWorse",
            "CompensationWritten", "FloorsExpected", "GridStarted", "GuardEvent", "Identifying", "NoEvents",
-           "PipelineNote", "PlanStated", "Resumed"]
+           "PipelineNote", "PlanStated", "Resumed", "TorqueSourceChosen"]
 
 
 @dataclass(frozen=True)
@@ -130,6 +130,18 @@ class PipelineNote:
 
 
 @dataclass(frozen=True)
+class TorqueSourceChosen:
+    """What measures the torque from the grid's identification on, and why (`TorqueSourceChoice`; "auto" decides
+    it there)."""
+
+    choice: TorqueSourceChoice
+
+    @property
+    def text(self) -> str:
+        return self.choice.text
+
+
+@dataclass(frozen=True)
 class GuardEvent:
     """The guard acted: the measured ripple at ``set_point`` grew twice in a row, so its correction went back to
     that of trial ``reverted_to_trial`` and its learning gain was halved to ``learning_gain``."""
@@ -235,8 +247,9 @@ class AlreadyComplete:
 
 
 #: what the campaign says between its trials
-CampaignMessage = (PlanStated | GridStarted | Identifying | FloorsExpected | PipelineNote | GuardEvent
-                   | CompensationWritten | CompensationWorse | CompensationBeatsNone | Resumed | AlreadyComplete)
+CampaignMessage = (PlanStated | GridStarted | Identifying | FloorsExpected | PipelineNote | TorqueSourceChosen
+                   | GuardEvent | CompensationWritten | CompensationWorse | CompensationBeatsNone | Resumed
+                   | AlreadyComplete)
 
 
 class CampaignEvents(Protocol):

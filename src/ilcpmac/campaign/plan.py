@@ -18,10 +18,11 @@ from ilcpmac.config import MIN_REVOLUTIONS, CampaignConfig
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import BenchDescription, TrialRequest
 from ilcpmac.core.seeds import trial_seed
-from ilcpmac.core.torque_source import TorqueSource
+from ilcpmac.core.torque_source import AUTO, ChoiceReason, TorqueSource, TorqueSourceChoice
 from ilcpmac.pipeline.safety import SafetyLimits, check_plan, torque_violation, trust_edges
 
-__all__ = ["INDEPENDENT_ROLES", "MAX_BUDGET_MIN", "CampaignPlan", "Step", "records_at", "torque_source"]
+__all__ = ["INDEPENDENT_ROLES", "MAX_BUDGET_MIN", "CampaignPlan", "Step", "preset_choice", "records_at",
+           "torque_source"]
 
 #: roles of trials that neither learn nor depend on learning (the campaign runs them at once)
 INDEPENDENT_ROLES = ("grid", "baseline", "validate")
@@ -38,27 +39,42 @@ class Step:
     request: TrialRequest
 
 
-def torque_source(config: CampaignConfig, description: BenchDescription) -> TorqueSource:
-    """[campaign] torque_source, or its default (`TorqueSource.default`): the sensor unless the bench's
-    description says it has no torque sensor (``motor.torque_sensor`` False), then the encoder.
+def preset_choice(config: CampaignConfig, description: BenchDescription) -> TorqueSourceChoice | None:
+    """What measures the torque when it is fixed before the grid: [campaign] torque_source named, or "auto" on a
+    bench without a torque sensor (the encoder) or with grid trials too short for the encoder's torque (fewer than
+    `MIN_REVOLUTIONS`: the sensor); None where "auto" chooses after the grid (`choose_torque_source`).
 
-    Raises `ConfigError` for a source that reads a torque sensor the bench does not have, and for one that reads
-    the encoder when the grid's trials record fewer than `MIN_REVOLUTIONS` (the encoder's torque needs two whole
-    revolutions, and a trial need not begin at a revolution's start).
+    Raises `ConfigError` for a named source that reads a torque sensor the bench does not have, and for one that
+    reads the encoder when the grid's trials record fewer than `MIN_REVOLUTIONS` (the encoder's torque needs two
+    whole revolutions, and a trial need not begin at a revolution's start).
     """
     has_sensor = description.motor.torque_sensor
-    chosen = TorqueSource.default(has_sensor) if config.campaign.torque_source is None else \
-        TorqueSource(config.campaign.torque_source)
-    said = "" if config.campaign.torque_source is None else f" = {chosen.value!r}"
-    if chosen.reads_sensor and not has_sensor:
+    short = config.grid.revolutions < MIN_REVOLUTIONS
+    named = config.campaign.torque_source
+    if named == AUTO:
+        if has_sensor:
+            return TorqueSourceChoice(TorqueSource.SENSOR, True, ChoiceReason.SHORT_GRID) if short else None
+        chosen = TorqueSourceChoice(TorqueSource.ENCODER, True, ChoiceReason.NO_SENSOR)
+    else:
+        chosen = TorqueSourceChoice(TorqueSource(named), False, ChoiceReason.CONFIG)
+    said = f" = {named!r}"
+    if chosen.source.reads_sensor and not has_sensor:
         raise ConfigError(f"{config.path}: [campaign] torque_source{said}: the bench has no torque "
                           f'sensor (use "{TorqueSource.ENCODER.value}")')
-    if chosen.reads_encoder and config.grid.revolutions < MIN_REVOLUTIONS:
+    if chosen.source.reads_encoder and short:
         raise ConfigError(f"{config.path}: [trials] revolutions = {config.grid.revolutions}: [campaign] "
-                          f"torque_source{said} reads the encoder's time stamps{'' if said else ' (the default here)'}"
-                          f", whose torque needs at least {MIN_REVOLUTIONS} recorded revolutions per trial (two "
-                          'whole ones); record more, or use torque_source = "sensor"')
+                          f"torque_source{said} reads the encoder's time stamps"
+                          f"{' (the bench has no torque sensor)' if chosen.automatic else ''}, whose torque needs at "
+                          f"least {MIN_REVOLUTIONS} recorded revolutions per trial (two whole ones); record more, or "
+                          'use torque_source = "sensor"')
     return chosen
+
+
+def torque_source(config: CampaignConfig, description: BenchDescription) -> TorqueSource:
+    """What the grid is identified with and measured by: the `preset_choice`'s source, or "both" where "auto" chooses
+    after the grid (the sensor's identification and the encoder's graduation error against it)."""
+    preset = preset_choice(config, description)
+    return TorqueSource.BOTH if preset is None else preset.source
 
 
 def records_at(records: list[TrialRecord], point: Point, roles: tuple[str, ...]) -> list[TrialRecord]:

@@ -20,7 +20,9 @@ Phases (report ch. 1-4, then beyond):
 
 The torque ripple is measured by [campaign] torque_source (`TorqueMeasurement`, docs/sensorless.md): the
 torque sensor, the encoder's time stamps, or both fused; the identification uses the encoder with
-"encoder", the sensor otherwise, and with "both" the encoder too for its graduation error.
+"encoder", the sensor otherwise, and with "both" the encoder too for its graduation error. "auto" identifies the
+grid as "both" does and then chooses the source of least expected error (`choose_torque_source`), recorded with
+the identification so that a resumed run keeps it.
 
 The next trial is always a function of the trials done so far and the states
 saved with them, so ``--resume`` continues exactly where a run stopped and
@@ -54,9 +56,10 @@ from ilcpmac.campaign.events import (
     PipelineNote,
     PlanStated,
     Resumed,
+    TorqueSourceChosen,
 )
 from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
-from ilcpmac.campaign.plan import CampaignPlan, Step, records_at, torque_source
+from ilcpmac.campaign.plan import CampaignPlan, Step, preset_choice, records_at, torque_source
 from ilcpmac.campaign.record import FIGURE_KEYS, LEARN_PHASE, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir, RunDirError
 from ilcpmac.campaign.state import LearnedPoint, TrialState
@@ -65,13 +68,20 @@ from ilcpmac.compensation import Compensation
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import IdentificationError, IlcpmacError, SafetyError
 from ilcpmac.core.records import ENCODER_ERROR_KEYS, BenchDescription, IdentificationResult, TrialData, TrialRequest
-from ilcpmac.core.torque_source import TorqueSource
+from ilcpmac.core.torque_source import TorqueSource, TorqueSourceChoice, choose_torque_source
 from ilcpmac.identify import Identifier, encoder_error_fields
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.pipeline import Pipeline, built_stages
 from ilcpmac.pipeline.safety import identified_truth, unconfirmed_scale_violation
-from ilcpmac.signals.encoder_torque import AGAINST_SENSOR_FALSE_ALARM, encoder_error_table, significant_encoder_error
+from ilcpmac.signals.encoder_torque import (
+    AGAINST_SENSOR_FALSE_ALARM,
+    FALSE_ALARM,
+    brake_viscous_nm_s,
+    encoder_error_gain,
+    encoder_error_table,
+    significant_encoder_error,
+)
 from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
 from ilcpmac.stages.registry import stage_needs
@@ -105,6 +115,17 @@ def _reduction(before: RippleFigures | None, after: RippleFigures | None) -> flo
     return None
 
 
+def _graduation_error_left_counts2(estimate: np.ndarray, variance: np.ndarray, applied: np.ndarray) -> np.ndarray:
+    """The expected |e_h - applied_h|^2 per harmonic, counts^2: the graduation error the stamps keep after the
+    correction ``applied`` (`significant_encoder_error` of ``estimate`` at `AGAINST_SENSOR_FALSE_ALARM`, whose error
+    has ``variance``). The error believed present is the estimate's part that stands out at the looser
+    `FALSE_ALARM` (shrunk by its Wiener factor s = rho / (1 + rho)); what is left of it is its part not applied,
+    plus the Wiener residual s var_h; elsewhere 0 (noise alone)."""
+    believed = significant_encoder_error(estimate, variance, FALSE_ALARM)
+    shrink = np.divide(np.abs(believed), np.abs(estimate), out=np.zeros(estimate.size), where=believed != 0)
+    return np.abs(believed - applied) ** 2 + shrink * variance
+
+
 class CampaignRunner:
     """Runs (or resumes) a campaign.
 
@@ -131,7 +152,11 @@ class CampaignRunner:
         self.identify = identify
         self.events = events
         self.description: BenchDescription = run_dir.description
-        self.torque_source = torque_source(config, self.description)
+        #: what the grid is identified with (`torque_source`), and what measures from the identification on: the
+        #: choice fixed before the grid (`preset_choice`), else "auto"'s from the grid
+        self.identification_source = torque_source(config, self.description)
+        self.choice: TorqueSourceChoice | None = preset_choice(config, self.description)
+        self.torque_source = self.identification_source
         self.plan = plan or CampaignPlan.build(config, self.description, seed)
         #: every request of every phase passes the limits here (the identified sensors join them later)
         self.backend = LimitGuard(backend, self.description, self.plan.limits)
@@ -355,22 +380,29 @@ class CampaignRunner:
         mean = measurement.gain(request.calibration) * measurement.mean_torque_nm(request)
         return spectrum.figures(mean, m.pole_pairs, m.cogging_order)
 
-    def _identification(self, grid_trials: list[TrialData]) -> IdentificationResult:
-        """The identification of the grid trials (with "both", the graduation error measured against the sensor)."""
+    def _identification(self, grid_trials: list[TrialData]) -> tuple[IdentificationResult, TorqueSourceChoice]:
+        """The identification of the grid trials (with "both" and "auto", the graduation error measured against the
+        sensor), and what measures from it on: the choice fixed before the grid, or "auto"'s (`_auto_choice`)."""
         bench = self._grid_bench(grid_trials)
-        result = (self.identify(bench) if self.torque_source.reads_sensor
-                  else self.identify(bench, torque_source=TorqueSource.ENCODER))
-        if self.torque_source.fuses:  # the sensor's estimates, and the encoder's graduation error against it
+        source = self.identification_source
+        result = self.identify(bench) if source.reads_sensor else self.identify(bench, torque_source=source)
+        choice = self.choice
+        if source.fuses:  # the sensor's estimates, and the encoder's graduation error against it
             unknown: dict[str, typing.Any] = dict.fromkeys(name for _, name in ENCODER_ERROR_KEYS)
-            self._set_identified(replace(result, **unknown))
-            result = self._with_graduation_error(result, grid_trials)
-        return result
+            self._set_identified(replace(result, **unknown), source)
+            result, estimate, variance, applied = self._with_graduation_error(result, grid_trials)
+            if choice is None:
+                choice = self._auto_choice(grid_trials, estimate, variance, applied)
+        assert choice is not None  # `preset_choice` is None only where the identification fuses
+        return result, choice
 
     def _identify(self, grid_trials: list[TrialData]) -> None:
         """Identify from the grid; measured ripple of the grid trials follows from it."""
         self.events.message(Identifying())
         n = len(grid_trials)
-        result = self._identification(grid_trials)
+        result, self.choice = self._identification(grid_trials)
+        self.torque_source = self.choice.source
+        self.events.message(TorqueSourceChosen(self.choice))
         self._set_identified(result)
         self.identification_json = result.to_json()
         cpr, H = self.description.motor.counts_per_rev, self.config.campaign.ripple_harmonics
@@ -380,18 +412,19 @@ class CampaignRunner:
                    for i, trial, request in zip(range(1, n + 1), grid_trials, self.grid)]
         self.records[:n] = [replace(r, measured=self._measured_figures(request, spectrum))
                             for r, request, spectrum in zip(self.records, self.grid, spectra)]
-        self.run_dir.write_identification({"result": self.identification_json,
+        self.run_dir.write_identification({"result": self.identification_json, "torque_source": self.choice.to_json(),
                                            "grid_records": [r.to_json() for r in self.records[:n]]})
         self.run_dir.write_summary(self.summary())
         if all(s is not None for s in spectra):
             self.events.message(self._floors_expected([s for s in spectra if s is not None]))
 
     def _with_graduation_error(self, result: IdentificationResult, grid_trials: list[TrialData]
-                               ) -> IdentificationResult:
+                               ) -> tuple[IdentificationResult, np.ndarray, np.ndarray, np.ndarray]:
         """``result`` with the encoder's graduation error measured against the torque sensor over the grid
         (`TorqueMeasurement.graduation_error`: no model of the torque, which a grid of few speeds and
         revolutions does not pin down), only what stands out of its noise (`significant_encoder_error` at
-        `AGAINST_SENSOR_FALSE_ALARM`)."""
+        `AGAINST_SENSOR_FALSE_ALARM`); and the estimate's harmonics e_h, h = 0..N_c / 2 - 1, counts, their
+        variance and the part applied."""
         assert self.measurement is not None
         cpr = self.description.motor.counts_per_rev
         trials = [replace(trial, request=request) for trial, request in zip(grid_trials, self.grid)]
@@ -401,22 +434,18 @@ class CampaignRunner:
         return replace(result, **fields, messages=(*result.messages, (
             f"encoder error (the encoder against the torque sensor over the grid): once per revolution "
             f"{fields['encoder_eccentricity_counts']:.3g} +- {fields['encoder_eccentricity_std_counts']:.2g} counts, "
-            f"line to line {fields['encoder_line_rms_counts']:.3g} counts RMS (what stands out of the noise)")))
+            f"line to line {fields['encoder_line_rms_counts']:.3g} counts RMS (what stands out of the noise)"))), \
+            estimate, variance, applied
 
     def _floors_expected(self, spectra: list[TorqueSpectrum]) -> FloorsExpected:
         """`FloorsExpected` from the grid's measured ``spectra`` (in the measurement's units) and true ones."""
         assert self.measurement is not None
         measurement, grid = self.measurement, self.grid
-        span_t = np.ptp([r.torque_setpoint_nm for r in grid]) or 1.0
-        span_s = np.ptp([r.speed_setpoint_hz for r in grid]) or 1.0
         ranges: dict[str, list] = {"measured": [], "true": []}
         for points in (self.plan.learned, self.plan.validated):
             found: dict[str, list[float]] = {"measured": [], "true": []}
             for point in points:
-                k = min(range(len(grid)), key=lambda i: abs(grid[i].torque_setpoint_nm - point[0]) / span_t
-                        + abs(grid[i].speed_setpoint_hz - point[1]) / span_s)
-                final = self.plan.base_request(point, 0)
-                scale = (grid[k].revolutions / grid[k].speed_setpoint_hz) / (final.revolutions / point[1])
+                k, final, scale = self._nearest_grid(point)
                 true_units = measurement.in_true_units(spectra[k], grid[k].speed_setpoint_hz, grid[k].calibration)
                 found["measured"].append(expected_noise_pp(true_units.variance_nm2 * scale, true_units.counts_per_rev)
                                          / measurement.mean_torque_nm(final))
@@ -430,6 +459,69 @@ class CampaignRunner:
         return FloorsExpected((ranges["measured"][0], ranges["measured"][1]),
                               None if all(r is None for r in true_ranges) else (true_ranges[0], true_ranges[1]))
 
+    def _nearest_grid(self, point: Point) -> tuple[int, TrialRequest, float]:
+        """The grid trial nearest ``point`` (0-based; torque and speed each relative to the grid's span), the
+        point's last trial (uncompensated) and its duration's ratio to the grid trial's: what scales the grid
+        trial's noise variance to the last trial's."""
+        grid = self.grid
+        span_t = np.ptp([r.torque_setpoint_nm for r in grid]) or 1.0
+        span_s = np.ptp([r.speed_setpoint_hz for r in grid]) or 1.0
+        k = min(range(len(grid)), key=lambda i: abs(grid[i].torque_setpoint_nm - point[0]) / span_t
+                + abs(grid[i].speed_setpoint_hz - point[1]) / span_s)
+        final = self.plan.base_request(point, 0)
+        return k, final, (grid[k].revolutions / grid[k].speed_setpoint_hz) / (final.revolutions / point[1])
+
+    def _auto_choice(self, grid_trials: list[TrialData], estimate: np.ndarray, variance: np.ndarray,
+                     applied: np.ndarray) -> TorqueSourceChoice:
+        """"auto"'s source from the grid (`choose_torque_source`; docs/sensorless.md, "auto"): per learned point,
+        from the grid trial nearest it (`_nearest_grid`), the sensor's and the encoder's noise in its last trial,
+        and the torque the graduation error left in the stamps makes there (eq. 4) with the bound "both" weighs it
+        by; the graduation error's ``estimate`` against the sensor, its ``variance`` and the part ``applied``
+        (`_with_graduation_error`). The measurement is the fusing one that corrects nothing yet."""
+        assert self.measurement is not None
+        measurement, cpr = self.measurement, self.description.motor.counts_per_rev
+        H = self.config.campaign.ripple_harmonics
+        h = np.arange(H + 1)
+        left = _graduation_error_left_counts2(estimate, variance, applied)[1: H + 1]
+        noise: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        rows = []
+        for point in self.plan.learned:
+            k, final, scale = self._nearest_grid(point)
+            if k not in noise:
+                trial, request = grid_trials[k], self.grid[k]
+                assert trial.torque_nm is not None  # the identification read it
+                sensor = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, cpr, H).divided_by(
+                    measurement.sensor_response(h, request.speed_setpoint_hz, request.calibration))
+                encoder = measurement.encoder_spectrum(replace(trial, request=request), cpr, H)
+                noise[k] = sensor.variance_nm2[1:], encoder.variance_nm2[1:]
+            mean = measurement.mean_torque_nm(final)
+            speed = 2.0 * np.pi * point[1]
+            m2 = np.abs(encoder_error_gain(h[1:], cpr, self.description.motor.inertia_kgm2, speed,
+                                           brake_viscous_nm_s(mean, speed))) ** 2
+            trials = range(self.config.campaign.learn_trials + 1)
+            averaging = sum(self.config.trial_revolutions(point, i) for i in trials) / final.revolutions
+            rows.append((noise[k][0] * scale, noise[k][1] * scale, m2 * left, m2 * np.abs(applied[1: H + 1]) ** 2,
+                         averaging, mean**2))
+        sensor_var, encoder_var, bias2, bound2, averages, mean2 = (np.array(column) for column in zip(*rows))
+        per = mean2[:, None]
+        return choose_torque_source(sensor_var / per, encoder_var / per, bias2 / per, bound2 / per, averages, (
+            float(np.sqrt(np.sum(np.abs(estimate[1:]) ** 2) / 2.0)), float(np.sqrt(np.sum(variance[1:]) / 2.0)),
+            float(np.sqrt(np.sum(np.abs(applied[1:]) ** 2) / 2.0))))
+
+    def _saved_choice(self, saved: dict) -> TorqueSourceChoice:
+        """The torque source states/identification.json recorded; `RunDirError` naming the file when it holds none,
+        or another than the config fixes (`preset_choice`)."""
+        where = self.run_dir.files.identification
+        try:
+            choice = TorqueSourceChoice.from_json(saved["torque_source"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise RunDirError(f"{where}: torque_source: no torque source choice recorded ({e}); the run cannot go "
+                              "on from it") from None
+        if choice != self.choice if self.choice is not None else not choice.automatic:
+            raise RunDirError(f"{where}: torque_source {choice.source.value!r} is not what [campaign] torque_source "
+                              f"= {self.config.campaign.torque_source!r} gives; the run cannot go on from it")
+        return choice
+
     def _point_spectra(self, ran: TrialRequest, analysis: TrialAnalysis) -> PointSpectra:
         """What the floors need of a trial that ran ``ran`` (`PointSpectra`), from its analysis."""
         assert self.measurement is not None and analysis.measured is not None
@@ -442,16 +534,18 @@ class CampaignRunner:
         return Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
                      tuple(grid_trials), self.run_dir.trial_names(len(grid_trials)))
 
-    def _set_identified(self, result: IdentificationResult) -> None:
+    def _set_identified(self, result: IdentificationResult, source: TorqueSource | None = None) -> None:
         """Take the identification: the stages start from it, the limits bound the flowing current with it, the
-        torque measurement relates to the true torque with it (`TorqueMeasurement`).
+        torque measurement on ``source`` (None: `torque_source`) relates to the true torque with it
+        (`TorqueMeasurement`).
 
         Raises `IdentificationError` when it lacks an estimate the pipeline (`PIPELINE_NEEDS`, or
         `SENSORLESS_PIPELINE_NEEDS` on the encoder) or a configured stage (its factory's ``needs``) needs.
         Raises `SafetyError` when, with no back-EMF table in the config to confirm the bench's, it would move a
         current scale beyond the trust region (`unconfirmed_scale_violation`).
         """
-        pipeline = PIPELINE_NEEDS if self.torque_source.reads_sensor else SENSORLESS_PIPELINE_NEEDS
+        source = source or self.torque_source
+        pipeline = PIPELINE_NEEDS if source.reads_sensor else SENSORLESS_PIPELINE_NEEDS
         needs = {"the pipeline": pipeline, **{f"stage {name!r}": needed for name, needed in stage_needs(
             list(self.config.pipeline.stages), self.extra_stages).items()}}
         missing = {who: result.missing(needed) for who, needed in needs.items()}
@@ -468,11 +562,11 @@ class CampaignRunner:
             raise SafetyError(f"{self.config.path}: {untrusted}")
         self.identified = identified
         self.backend.truth = identified_truth(self.identified)
-        if not self.torque_source.reads_encoder:
+        if not source.reads_encoder:
             self.measurement = TorqueMeasurement(self.identified)
             return
         self.measurement = TorqueMeasurement(
-            self.identified, self.torque_source, self.description.motor.inertia_kgm2,
+            self.identified, source, self.description.motor.inertia_kgm2,
             timer_resolution_s(self._grid_bench(self._grid_trials())), result.encoder_error_counts)
 
     def _start_pipeline(self) -> None:
@@ -601,6 +695,8 @@ class CampaignRunner:
             else:
                 self._check_identification(saved["result"])
                 self.identification_json = saved["result"]
+                self.choice = self._saved_choice(saved)
+                self.torque_source = self.choice.source
                 self._set_identified(IdentificationResult.from_json(saved["result"]))
                 self.records[: len(self.grid)] = [TrialRecord.from_json(r) for r in saved["grid_records"]]
         last = self.run_dir.state(done)
@@ -614,7 +710,7 @@ class CampaignRunner:
         """The saved identification against the grid trials' on disk, identified again: the current the stages may
         set flows through it (`LimitGuard`), so a file edited, resealed or copied from another run must not stand
         in for the data. `RunDirError` naming the file where an estimate differs beyond `IDENTIFIED_RTOL`."""
-        fresh = self._identification(self._grid_trials()).to_json()
+        fresh = self._identification(self._grid_trials())[0].to_json()
         for key in ("total_system_gain", "torque_sensor_gain", "epsilon", "alpha", "beta"):
             a, b = saved.get(key), fresh.get(key)
             if (a is None) != (b is None) or (a is not None and not np.allclose(
@@ -643,7 +739,8 @@ class CampaignRunner:
         for r in self.records:
             motor_time[r.phase] = motor_time.get(r.phase, 0.0) + (r.motor_time_s or 0.0)
         summary = {"units": dict(SUMMARY_UNITS), "trials": [r.to_json() for r in self.records],
-                   "identification": self.identification_json, "final": final,
+                   "identification": self.identification_json,
+                   "torque_source": None if self.choice is None else self.choice.to_json(), "final": final,
                    "validation": [r.to_json() for r in self._results() if not r.learned],
                    "points": [{**r.to_json(), **(floors[r.point].to_json() if r.point in floors else {})}
                               for r in self._results()],

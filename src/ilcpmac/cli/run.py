@@ -93,7 +93,12 @@ class CampaignView:
 
     def message(self, message: CampaignMessage) -> None:
         """Say ``message`` above the display; unwrapped where the console is no terminal (a file, a pipe), so that
-        no line breaks mid-sentence at a width nobody reads it at."""
+        no line breaks mid-sentence at a width nobody reads it at. The torque source chosen names the table's
+        figures from then on."""
+        from ilcpmac.campaign.events import TorqueSourceChosen
+
+        if isinstance(message, TorqueSourceChosen):
+            self.source = message.choice.source.value
         self.console.print(Text(message.text, style="bold"), soft_wrap=not self.console.is_terminal)
 
     def end(self, how: str) -> None:
