@@ -523,22 +523,25 @@ def _true_rms(measured: MeasuredTrial, true_position: bool = False) -> float | N
 
 
 def _plot(first: list[MeasuredTrial], last: list[MeasuredTrial], plan: DrivePlan, path: Path) -> None:
+    """Per direction, the residual by position uncompensated and, on its own scale, with the final table."""
     from ilcpmac import plotting
 
-    fig, axes = plotting.figure(2, 2.6)
-    for axis, sign, name in zip(axes, (1.0, -1.0), ("forward", "reverse")):
+    fig, axes = plotting.figure(4, 2.2)
+    for k_axis, (sign, name) in enumerate(((1.0, "forward"), (-1.0, "reverse"))):
+        before, after = axes[2 * k_axis], axes[2 * k_axis + 1]
         for speed, colour in plotting.group_colours(plan.speeds_hz).items():
             k = plan.signed_speeds_hz.index(sign * speed)
             degrees = plotting.mechanical_degrees(np.arange(first[k].residual_nm.size), first[k].residual_nm.size)
-            axis.plot(degrees, 1e3 * first[k].residual_nm, color=colour, lw=0.5, alpha=0.5,
-                      label=f"{speed:g} Hz uncompensated")
-            axis.plot(degrees, 1e3 * last[k].residual_nm, color=colour, lw=1.0, label=f"{speed:g} Hz final")
+            before.plot(degrees, 1e3 * first[k].residual_nm, color=colour, lw=0.6, label=f"{speed:g} Hz")
+            after.plot(degrees, 1e3 * last[k].residual_nm, color=colour, lw=0.8, label=f"{speed:g} Hz measured")
             true = last[k].trial.true_residual_nm
             if true is not None:
-                axis.plot(degrees, 1e3 * (true - true.mean()), color=colour, lw=0.8, ls=":",
-                          label=f"{speed:g} Hz final, true")
-        axis.set_ylabel(f"{name} residual (mN m)")
-        plotting.legend(axis, ncol=3)
+                after.plot(degrees, 1e3 * (true - np.nanmean(true)), color=colour, lw=0.8, ls=":",
+                           label=f"{speed:g} Hz true")
+        before.set_ylabel(f"{name}, none (mN m)")
+        after.set_ylabel(f"{name}, final (mN m)")
+        plotting.legend(before, ncol=3)
+        plotting.legend(after, ncol=4)
     plotting.angle_axis(axes[-1])
     plotting.save(fig, path)
 
