@@ -200,3 +200,33 @@ def test_an_identification_edited_behind_the_digests_is_refused_on_resume(config
                                           r"holds no seal)"):
         campaign.run(resume=run, backend=bench)
     assert bench.calls == 0
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda choice: {**choice, "source": "encoder"}, r"torque_source 'encoder' \(least_error\) is not what the grid "
+                                                     r"trials on disk choose \('(both|sensor)', "),
+    (lambda choice: None, r"torque_source: no torque source choice recorded"),
+])
+def test_a_torque_source_choice_edited_behind_its_digest_is_refused_on_resume(write_config, tmp_path, edit, message):
+    """"auto" chooses after the grid and records the choice: resealed with another source (or none), a resume
+    would have measured with what the file said, not with what the grid trials on disk choose."""
+    import hashlib
+
+    config = load_config(write_config({**SMALL_CAMPAIGN, "campaign": {**SMALL_CAMPAIGN["campaign"],
+                                                                      "torque_source": "auto"}}))
+    run = stopped(config, tmp_path / "run", 8)
+    path = run / "states" / "identification.json"
+    data = json.loads(path.read_text())
+    assert data["torque_source"]["automatic"] and data["torque_source"]["reason"] == "least_error"
+    changed = edit(data["torque_source"])
+    data.pop("sha256")
+    if changed is None:
+        del data["torque_source"]
+    else:
+        data["torque_source"] = changed
+    data["sha256"] = hashlib.sha256(json.dumps(data, allow_nan=False).encode()).hexdigest()
+    path.write_text(json.dumps(data))
+    bench = Bench(config)
+    with pytest.raises(RunDirError, match=message):
+        campaign.run(resume=run, backend=bench)
+    assert bench.calls == 0

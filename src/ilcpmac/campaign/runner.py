@@ -508,9 +508,10 @@ class CampaignRunner:
             float(np.sqrt(np.sum(np.abs(estimate[1:]) ** 2) / 2.0)), float(np.sqrt(np.sum(variance[1:]) / 2.0)),
             float(np.sqrt(np.sum(np.abs(applied[1:]) ** 2) / 2.0))))
 
-    def _saved_choice(self, saved: dict) -> TorqueSourceChoice:
+    def _saved_choice(self, saved: dict, fresh: TorqueSourceChoice) -> TorqueSourceChoice:
         """The torque source states/identification.json recorded; `RunDirError` naming the file when it holds none,
-        or another than the config fixes (`preset_choice`)."""
+        another than the config fixes (`preset_choice`), or another than the grid trials on disk choose
+        (``fresh``: a file edited and resealed must not change what measures)."""
         where = self.run_dir.files.identification
         try:
             choice = TorqueSourceChoice.from_json(saved["torque_source"])
@@ -520,6 +521,10 @@ class CampaignRunner:
         if choice != self.choice if self.choice is not None else not choice.automatic:
             raise RunDirError(f"{where}: torque_source {choice.source.value!r} is not what [campaign] torque_source "
                               f"= {self.config.campaign.torque_source!r} gives; the run cannot go on from it")
+        if (choice.source, choice.reason) != (fresh.source, fresh.reason):
+            raise RunDirError(f"{where}: torque_source {choice.source.value!r} ({choice.reason.name.lower()}) is not "
+                              f"what the grid trials on disk choose ({fresh.source.value!r}, "
+                              f"{fresh.reason.name.lower()}); the run cannot go on from it")
         return choice
 
     def _point_spectra(self, ran: TrialRequest, analysis: TrialAnalysis) -> PointSpectra:
@@ -693,9 +698,9 @@ class CampaignRunner:
             if saved is None:
                 self._identify(self._grid_trials())
             else:
-                self._check_identification(saved["result"])
+                fresh = self._check_identification(saved["result"])
                 self.identification_json = saved["result"]
-                self.choice = self._saved_choice(saved)
+                self.choice = self._saved_choice(saved, fresh)
                 self.torque_source = self.choice.source
                 self._set_identified(IdentificationResult.from_json(saved["result"]))
                 self.records[: len(self.grid)] = [TrialRecord.from_json(r) for r in saved["grid_records"]]
@@ -706,17 +711,20 @@ class CampaignRunner:
             self.pipeline.restore(last.pipeline)
         self.events.message(Resumed(done, self.run_dir.path))
 
-    def _check_identification(self, saved: dict) -> None:
+    def _check_identification(self, saved: dict) -> TorqueSourceChoice:
         """The saved identification against the grid trials' on disk, identified again: the current the stages may
         set flows through it (`LimitGuard`), so a file edited, resealed or copied from another run must not stand
-        in for the data. `RunDirError` naming the file where an estimate differs beyond `IDENTIFIED_RTOL`."""
-        fresh = self._identification(self._grid_trials())[0].to_json()
+        in for the data. `RunDirError` naming the file where an estimate differs beyond `IDENTIFIED_RTOL`; else
+        the torque source those trials choose."""
+        identified, choice = self._identification(self._grid_trials())
+        fresh = identified.to_json()
         for key in ("total_system_gain", "torque_sensor_gain", "epsilon", "alpha", "beta"):
             a, b = saved.get(key), fresh.get(key)
             if (a is None) != (b is None) or (a is not None and not np.allclose(
                     np.asarray(a, float), np.asarray(b, float), rtol=IDENTIFIED_RTOL, atol=0.0)):
                 raise RunDirError(f"{self.run_dir.files.identification}: {key} {a} is not what the grid trials on "
                                   f"disk give ({b}); the run cannot go on from it")
+        return choice
 
     def summary(self, complete: bool = False) -> dict:
         """summary.json: the units of its figures, every trial, the identification, the final figures of the
