@@ -24,8 +24,9 @@ def run_drive(config: CampaignConfig, out_dir: Path | None, backend_name: str | 
     from ilcpmac.campaign.service import run_drive as run
 
     try:
-        result = run(config, out=out_dir, backend=backend_name, address=address, write_config=write_config,
-                           on_event=lambda line: console.print(Text(line)))
+        with console.status("drive campaign running: a line as each trial ends"):
+            result = run(config, out=out_dir, backend=backend_name, address=address, write_config=write_config,
+                         on_event=lambda line: console.print(Text(line)))
     except KeyboardInterrupt:
         click.echo("error: interrupted: the drive was told to stop; nothing was written to its flash", err=True)
         sys.exit(130)
