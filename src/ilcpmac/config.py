@@ -537,22 +537,13 @@ def load_config(path: str | Path) -> CampaignConfig:
     if bench.backemf_file is not None and bench.backemf is not None:
         raise ConfigError(f"{path}: [bench] backemf_file and [bench.backemf] both give the back-EMF: give one")
     run = {name: parsed(name, cls) for name, cls in RUN_SECTIONS.items()}
-    stage_options = data.get("stages", {})
-    if not isinstance(stage_options, dict):
-        raise ConfigError(f"{origins['stages']}: [stages] must be a table of [stages.NAME] tables")
-    for name, table in stage_options.items():
-        if not isinstance(table, dict):
-            raise ConfigError(f"{origins[f'stages.{name}']}: [stages.{toml_name(name)}] must be a table")
+    stage_options = _named_tables(data, "stages", origins)
+    for name in stage_options:
         if name not in run["pipeline"].stages:
             hint = f' (drop = ["stages.{name}"] leaves it out)' if f"stages.{name}" in origins else ""
             raise ConfigError(f"{origins[f'stages.{name}']}: [stages.{toml_name(name)}] configures a stage that "
                               f"[pipeline] stages does not list{hint}")
-    backend_options = data.get("backends", {})
-    if not isinstance(backend_options, dict):
-        raise ConfigError(f"{origins['backends']}: [backends] must be a table of [backends.NAME] tables")
-    for name, table in backend_options.items():
-        if not isinstance(table, dict):
-            raise ConfigError(f"{origins[f'backends.{name}']}: [backends.{toml_name(name)}] must be a table")
+    backend_options = _named_tables(data, "backends", origins)
     drive_options = data.get("drive")
     if drive_options is not None and not isinstance(drive_options, dict):
         raise ConfigError(f"{origins['drive']}: [drive] must be a table")
@@ -564,6 +555,18 @@ def load_config(path: str | Path) -> CampaignConfig:
                             backend_options=backend_options, drive_options=drive_options, model=model, **run)
     check_config(config)
     return config
+
+
+def _named_tables(data: dict, section: str, origins: _Origins) -> dict:
+    """The config's ``[SECTION.NAME]`` tables by name (none: empty), each checked by what it configures; a
+    ``[SECTION]`` or a ``[SECTION.NAME]`` that is not a table is a `ConfigError` naming where it is."""
+    tables = data.get(section, {})
+    if not isinstance(tables, dict):
+        raise ConfigError(f"{origins[section]}: [{section}] must be a table of [{section}.NAME] tables")
+    for name, table in tables.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{origins[f'{section}.{name}']}: [{section}.{toml_name(name)}] must be a table")
+    return tables
 
 
 def _simulated_drive(tables: object, bench: BenchSettings, path: Path, origins: _Origins) -> MotorModel:
