@@ -319,3 +319,28 @@ def test_without_the_moteus_library_the_backend_says_what_to_install(monkeypatch
     with pytest.raises(ConfigError, match=r"needs mjbots' moteus library, an optional extra: pip install "
                                           r"'ilcpmac\[moteus\]'"):
         from_setup(None)  # type: ignore[arg-type]
+
+
+def test_a_rotor_still_faster_than_the_trial_is_never_commanded_beyond_the_speed_checked(config):
+    """The velocity command ramped from the rotor's speed as the drive reports it: a rotor still coasting at 3 Hz
+    from before made the first commands of a 0.5 Hz trial 3 Hz, a speed the guard never checked (and tripped the
+    current limit). Now the drive is held stopped while it coasts down, and where it does not within the settling
+    time the trial is refused in one line, nothing beyond 0.5 Hz commanded."""
+    b = _backend(config)
+    drive = b.device.drive
+    drive.command_position(3.0, watchdog_timeout_s=math.nan)
+    drive.advance(1.0)
+    assert drive.status().velocity_hz > 2.5
+    commanded: list[float] = []
+    command = drive.command_position
+
+    def recorded(velocity_hz, **kw):
+        commanded.append(abs(velocity_hz))
+        command(velocity_hz, **kw)
+
+    drive.command_position = recorded
+    with pytest.raises(BackendError, match=r"the rotor still turns at 2\.\d+ Hz, faster than the trial's 0\.5 Hz, "
+                                           r"after its settling time: let it stop first"):
+        b.run_drive_trial(_request(speed_hz=0.5, seconds=0.1))
+    assert all(v <= 0.5 for v in commanded) and drive.status().mode == STOPPED
+    b.close()

@@ -294,9 +294,12 @@ class MoteusBackend:
         `RAMP_FRACTION`, so the loop's torque stays small), then ``seconds`` recorded."""
         s = self.settings
         ratio = await self._output_ratio()
-        first = await self._timed(self.controller.query())
-        initial_hz = first.values.get(Register.VELOCITY, 0.0) if first is not None else 0.0
         target_hz = request.speed_hz * ratio
+        # the ramp starts at the rotor's speed as the drive reports it, but never commands more than the speed the
+        # guard checked: a reply's velocity (NaN, a glitch) is not a checked value, and a rotor still coasting
+        # faster from before is left to coast down, stopped, within the settling time
+        measured_hz = await self._coasted_below(abs(target_hz), self._clock() + request.settle_s)
+        initial_hz = min(max(measured_hz, -abs(target_hz)), abs(target_hz))
         drive = self.device.drive if isinstance(self.device, EmulatedMoteusDevice) else None
         period_s = 1.0 / s.query_rate_hz
         start_s = self._clock()
@@ -355,6 +358,21 @@ class MoteusBackend:
         return DriveTrial(request=request, data=data, polls=polls, lost=lost,
                           max_temperature_c=hottest if math.isfinite(hottest) else math.nan,
                           true_residual_nm=truth[0], true_position_torque_nm=truth[1])
+
+    async def _coasted_below(self, limit_hz: float, deadline_s: float) -> float:
+        """The rotor's speed (0 where the drive does not say), once at most ``limit_hz`` in magnitude: stopped and
+        polled until then; `BackendError` where it still turns faster at ``deadline_s``."""
+        while True:
+            reply = await self._timed(self.controller.set_stop(query=True))
+            measured_hz = float(reply.values.get(Register.VELOCITY, 0.0)) if reply is not None else 0.0
+            measured_hz = measured_hz if math.isfinite(measured_hz) else 0.0
+            if abs(measured_hz) <= limit_hz:
+                return measured_hz
+            if self._clock() >= deadline_s:
+                raise BackendError(f"moteus id {self.settings.id}: the rotor still turns at {measured_hz:.3g} Hz, "
+                                   f"faster than the trial's {limit_hz:g} Hz, after its settling time: let it stop "
+                                   "first (a longer [drive] settle_s)")
+            await self._sleep(1.0 / self.settings.query_rate_hz)
 
     async def _poll(self, velocity_hz: float):
         """One position-mode command (position NaN, the output's ``velocity_hz``, the watchdog) with a query; None
