@@ -265,8 +265,13 @@ class MoteusBackend:
     async def _prepare(self) -> None:
         """Telemetry off (once), and the drive stopped (which also clears a fault or a watchdog timeout)."""
         if not self._quiet:
-            await self.stream.write_message(b"tel stop")
-            await self.stream.flush_read(timeout=TEL_STOP_FLUSH_S)
+            if isinstance(self.device, EmulatedMoteusDevice):
+                # it sends no telemetry: its answer alone is read. Flushing for TEL_STOP_FLUSH_S of real time read
+                # as often as the host's speed allowed, each read advancing its clock, and made two runs differ
+                await self._console("tel stop")
+            else:
+                await self.stream.write_message(b"tel stop")
+                await self.stream.flush_read(timeout=TEL_STOP_FLUSH_S)  # what telemetry was under way
             self._quiet = True
         problem = await self._stop()
         if problem is not None:
