@@ -237,3 +237,59 @@ def test_the_config_reference_names_every_key_a_config_may_hold():
         for key, value in keys.items():
             if not isinstance(value, dict):
                 assert f"| `{key}` |" in section, (table, key)
+
+
+def test_a_config_of_its_bench_and_limits_alone_derives_the_seed_benchs_set_points(write_config):
+    from ilcpmac.config import LEARN_SECONDS, VALIDATE_SECONDS
+
+    cfg = load_config(write_config(drop=["trials.torque_setpoints_nm", "trials.speed_setpoints_hz",
+                                         "limits.max_correction_nm", "campaign.learn_torques_nm",
+                                         "campaign.learn_speeds_hz", "campaign.learn_revolutions",
+                                         "campaign.validate_torques_nm", "campaign.validate_speeds_hz",
+                                         "campaign.validate_revolutions"]))
+    assert cfg.grid.torque_setpoints_nm == (1.0, 2.0, 3.0, 4.0, 5.0)  # eighths of max_torque_nm 8
+    assert cfg.grid.speed_setpoints_hz == (0.5, 0.75, 1.0)  # sixths of max_speed_hz 1.5
+    assert cfg.limits.correction_nm() == 1.5  # 0.1875 x 8
+    assert cfg.learned_points() == load_config(SEED_CONFIG).learned_points()
+    # lengths in seconds at any speed: 80 s at the least learned torque, T_least / T of it elsewhere
+    assert cfg.trial_revolutions((1.0, 0.5)) == round(LEARN_SECONDS * 0.5)
+    assert cfg.trial_revolutions((1.0, 1.5)) == round(LEARN_SECONDS * 1.5)
+    assert cfg.trial_revolutions((5.0, 1.5)) == math.ceil(LEARN_SECONDS / 5 * 1.5)
+    assert cfg.trial_revolutions((2.0, 1.0)) == round(VALIDATE_SECONDS * 1.0)
+    # --budget scales the seconds
+    assert cfg.with_trial_lengths(0.5).trial_revolutions((1.0, 1.5)) == round(LEARN_SECONDS * 1.5 / 2)
+
+
+def test_learn_seconds_are_one_or_one_per_learned_torque(write_config):
+    path = write_config({"campaign": {"learn_seconds": [10.0, 20.0]}}, drop=["campaign.learn_revolutions"])
+    with pytest.raises(ConfigError, match=r"\[campaign\] learn_seconds: give one number, or one per learned "
+                                          r"torque \(3: 1, 3, 5 N m\)"):
+        load_config(path)
+
+
+@pytest.mark.parametrize("counts, speed_hz, rate_hz, recorded", [
+    (4096, 1.5, 20000.0, 4096),         # the seed bench: every count
+    (2**20, 1.5, 20000.0, 4096),        # a 20-bit encoder: every 256th line
+    (2**16, 6.0, 20000.0, 1024),        # 6144 rows / s at 6 Hz
+    (3000, 1.5, 20000.0, 3000),
+    (4096, 1.5, 2000.0, 512),           # half the control rate over the speed: 666, and 4096's divisor below it
+    (2**14, 30.0, 20000.0, 256),        # 4 x ripple_harmonics = 600 wanted, but 20 kHz / 2 / 30 Hz = 333 allow 256
+])
+def test_the_recorded_counts_follow_the_encoder_the_speed_and_the_ripple_band(write_config, counts, speed_hz,
+                                                                               rate_hz, recorded):
+    changes = {"bench": {"counts_per_rev": counts}, "limits": {"max_speed_hz": speed_hz},
+               "simulator.controller": {"control_rate_hz": rate_hz, "bandwidth_hz": min(140.0, rate_hz / 20)},
+               "simulator.encoder": {"eccentricity_counts": 0.2, "line_std_counts": 0.05}}
+    path = write_config(changes, drop=["trials.speed_setpoints_hz", "campaign.learn_speeds_hz",
+                                       "campaign.validate_speeds_hz"])
+    if recorded < 2 * 145:  # the excitation's 144 harmonics need more: the config says so, naming the key
+        with pytest.raises(ConfigError, match=r"\[excitation\] harmonics: 144 is beyond the Nyquist limit of "
+                                              rf"\[bench\] record_counts_per_rev \(left out: derived\) {recorded}"):
+            load_config(path)
+        return
+    cfg = load_config(path)
+    assert cfg.recorded_counts_per_rev() == recorded
+    encoder = cfg.recorded_model().encoder
+    assert encoder.counts_per_rev == recorded
+    b = counts // recorded
+    assert encoder.eccentricity_counts == pytest.approx(0.2 / b) and encoder.line_std_counts == pytest.approx(0.05 / b)

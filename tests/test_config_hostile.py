@@ -112,9 +112,18 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"bench.calibration": {"current_offset_counts": [0.0, 1e300, 0.0]}},
      r"\[bench\.calibration\] current_offset_counts"),
     ({"bench.calibration": {"torque_gain_v_per_nm": -0.9}}, r"\[bench\.calibration\] torque_gain_v_per_nm"),
-    ({"simulator.controller": {"control_rate_hz": 2000.0, "bandwidth_hz": 100.0}},
-     r"\[trials\] speed_setpoints_hz: 1 Hz x \[bench\] counts_per_rev 4096 is more than half of "
+    ({"simulator.controller": {"control_rate_hz": 2000.0, "bandwidth_hz": 100.0},
+      "bench": {"record_counts_per_rev": 4096}},
+     r"\[trials\] speed_setpoints_hz: 1 Hz x \[bench\] record_counts_per_rev 4096 is more than half of "
      r"\[simulator\.controller\] control_rate_hz 2000"),
+    ({"bench": {"record_counts_per_rev": 1000}}, r"\[bench\] record_counts_per_rev: 1000 does not divide "
+                                                 r"counts_per_rev 4096"),
+    ({"bench": {"record_counts_per_rev": 256}},
+     r"\[excitation\] harmonics: 144 is beyond the Nyquist limit of \[bench\] record_counts_per_rev 256"),
+    ({"campaign": {"learn_seconds": [10.0], "learn_revolutions": [4]}},
+     r"\[campaign\] learn_revolutions, learn_seconds: give one of them"),
+    ({"campaign": {"validate_seconds": -1.0}}, r"\[campaign\] validate_seconds: invalid value -1"),
+    ({"limits": {"max_correction_fraction": 1.5}}, r"\[limits\] max_correction_fraction: invalid value 1\.5"),
     ({"simulator.current_sensors": {"epsilon": 0.0}}, r"\[simulator\.current_sensors\] epsilon"),
     ({"simulator.current_sensors": {"alpha": [0.0, 1.0, 1.0]}}, r"\[simulator\.current_sensors\] alpha"),
     ({"simulator.current_sensors": {"noise_counts": -1.0}}, r"\[simulator\.current_sensors\] noise_counts"),

@@ -33,7 +33,7 @@ def test_another_motor_runs_as_long_as_its_plan_said_and_ends_near_its_floors(tm
     import ilcpmac.campaign
 
     cfg = load_config(other_motors.config(changes, tmp_path / "motor.toml"))
-    description = SimulatorBackend(cfg.simulated_model(), cfg.limits.bench_limits(),
+    description = SimulatorBackend(cfg.recorded_model(), cfg.limits.bench_limits(),
                                    cfg.grid.warmup_revolutions).describe()
     stated_s = CampaignPlan.build(cfg, description, 2009).motor_time_s()
     result = ilcpmac.campaign.run(cfg, out=tmp_path / "run", seed=2009)

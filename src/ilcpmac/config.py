@@ -21,7 +21,7 @@ from importlib import resources
 from pathlib import Path
 
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import BenchLimits, SensorCalibration
+from ilcpmac.core.records import MOTOR_RANGES, BenchLimits, SensorCalibration
 from ilcpmac.core.schema import (
     all_of,
     field_like,
@@ -61,6 +61,22 @@ MAX_OPERATING_POINTS = 32
 MIN_REVOLUTIONS = 3
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
+#: a grid [trials] leaves out: its torques as eighths of [limits] max_torque_nm and its speeds as sixths of
+#: max_speed_hz (the seed bench's: 1 to 5 N m of 8, 0.5 to 1 Hz of 1.5), each rounded to 3 significant digits
+GRID_TORQUE_EIGHTHS = (1, 2, 3, 4, 5)
+GRID_SPEED_SIXTHS = (2, 3, 4)
+#: the last learning trial's duration at the least learned torque where [campaign] leaves the lengths out, s;
+#: at a larger torque T it lasts T_least / T as long (the current sensors' noise, about constant in N m, falls
+#: as 1 / sqrt(duration) and the floor as 1 / T: the least torque's floor bounds the run's)
+LEARN_SECONDS = 80.0
+#: a validation trial's duration where [campaign] leaves its length out, s
+VALIDATE_SECONDS = 20.0
+#: where [bench] record_counts_per_rev is left out, the recorded counts per revolution stay within the most of
+#: RECORD_COUNTS and RECORD_ROWS_PER_S / [limits] max_speed_hz (the seed bench's 4096 at 1.5 Hz), and at least
+#: RECORD_PER_HARMONIC x [campaign] ripple_harmonics, the resolution the ripple band needs
+RECORD_COUNTS = 4096
+RECORD_ROWS_PER_S = 6144.0
+RECORD_PER_HARMONIC = 4
 
 
 def _positive(x) -> bool:
@@ -94,11 +110,16 @@ class CampaignSettings:
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
         f"speeds learned at, Hz: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
         "slowest speed, [limits] max_speed_hz and midway", None)
-    learn_revolutions: tuple[int, ...] = setting(
+    learn_revolutions: tuple[int, ...] | None = setting(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(MIN_REVOLUTIONS, 2**24)),
         "recorded revolutions of a learned point's last learning trial at the slowest learned speed (more at a "
         "faster speed, fewer in earlier trials: `CampaignConfig.trial_revolutions`): one for all learned torques, "
-        f"or one per learned torque, at least {MIN_REVOLUTIONS}", (32,))
+        f"or one per learned torque, at least {MIN_REVOLUTIONS}; or learn_seconds", None)
+    learn_seconds: tuple[float, ...] | None = setting(
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e5, low_open=True)),
+        "recorded duration of a learned point's last learning trial, s, at any speed: one for all learned torques, "
+        f"or one per learned torque; left out with learn_revolutions: {LEARN_SECONDS:g} s at the least learned "
+        "torque, T_least / T of it at torque T", None)
     learn_growth: float = setting(
         in_range(1.0, 16.0), "each learning trial at a point records this many times the revolutions of the one "
         "before it (the compensation trial first), up to learn_revolutions; 1: all as long; within [1, 16]", 2.0)
@@ -123,9 +144,12 @@ class CampaignSettings:
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
         "speeds validated at, Hz: distinct positive values; left out: the slowest, middle and fastest learned "
         "speed; empty: no validation", None)
-    validate_revolutions: int = setting(
+    validate_revolutions: int | None = setting(
         in_range(MIN_REVOLUTIONS, 2**24), "recorded revolutions per validation trial at the slowest learned speed "
-        f"(more at a faster speed), at least {MIN_REVOLUTIONS}", 32)
+        f"(more at a faster speed), at least {MIN_REVOLUTIONS}; or validate_seconds", None)
+    validate_seconds: float | None = setting(
+        in_range(0.0, 1e5, low_open=True), "recorded duration of a validation trial, s, at any speed; left out with "
+        f"validate_revolutions: {VALIDATE_SECONDS:g} s", None)
     torque_source: str = setting(
         lambda x: x in SETTING_VALUES,
         '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md), '
@@ -147,7 +171,12 @@ class LimitSettings:
         _positive, "|current reference| per phase, and the flowing current once the sensors are identified, A", 30.0)
     max_torque_nm: float = setting(_positive, "|torque reference| per count, N m", 8.0)
     max_speed_hz: float = setting(_positive, "speed set point, Hz", 1.5)
-    max_correction_nm: float = setting(_positive, "|torque feed-forward| per count (clipped), N m", 1.5)
+    max_correction_nm: float | None = setting(
+        _positive, "|torque feed-forward| per count (clipped), N m; left out: max_correction_fraction x "
+        "max_torque_nm", None)
+    max_correction_fraction: float = setting(
+        in_range(0.0, 1.0, low_open=True), "the |torque feed-forward| bound where max_correction_nm is left out, "
+        "relative to max_torque_nm, within (0, 1]", 0.1875)
     max_scale_deviation: float = setting(
         lambda x: 0 < x < 1, "trust region of each phase's current scale around the bench's calibration or the "
         "identified sensors, relative", 0.1)
@@ -161,6 +190,12 @@ class LimitSettings:
         _positive, "recorded encoder counts per trial (revolutions x counts_per_rev)", 2_000_000)
     max_trial_duration_s: float = setting(
         _positive, "duration of one trial, warm-up included, s", 600.0)
+
+    def correction_nm(self) -> float:
+        """The |torque feed-forward| bound per count, N m: max_correction_nm, or max_correction_fraction x
+        max_torque_nm where it is left out."""
+        given = self.max_correction_nm
+        return self.max_correction_fraction * self.max_torque_nm if given is None else given
 
     def bench_limits(self) -> BenchLimits:
         """The limits a bench built from this config (the simulator, the emulator) accepts."""
@@ -206,6 +241,12 @@ class BenchSettings:
     pole_pairs: int = field_like(Winding, "pole_pairs")
     slots: int = field_like(Winding, "slots")
     counts_per_rev: int = field_like(Encoder, "counts_per_rev")
+    record_counts_per_rev: int | None = setting(
+        in_range(*MOTOR_RANGES["counts_per_rev"]), "counts per revolution the trials are recorded, stored and "
+        "analysed at: a divisor of counts_per_rev, each recorded count the edge of every (counts_per_rev / "
+        "record_counts_per_rev)-th line (docs/campaign.md, \"Recorded resolution\"); left out: the largest divisor "
+        f"within {RECORD_COUNTS} and {RECORD_ROWS_PER_S:g} / [limits] max_speed_hz (and half the simulated control "
+        f"rate over it), at least {RECORD_PER_HARMONIC} x [campaign] ripple_harmonics", None)
     inertia_kgm2: float | None = field_like(Mechanics, "inertia_kgm2", default=None)
     inertia_uncertainty: float | None = setting(
         in_range(0.0, 1.0), "relative standard uncertainty of the inertia, within [0, 1] (0.05: known to 5 %); "
@@ -298,19 +339,21 @@ class CampaignConfig:
 
         [campaign] learn_revolutions at a learned torque, else validate_revolutions, hold at the slowest
         learned speed; a faster trial records as many more as keep it as long, since the current-sensor
-        noise left in its synchronous average falls with its duration, not its revolutions. ``learned``:
-        how many trials the pipeline learned from at the point before this one (the compensation trial is
-        the 0th); trial k of K = learn_trials records learn_growth^(K - k) times fewer (at least
-        `MIN_REVOLUTIONS`): a trial's noise matters only once the ripple it leaves is small (docs/campaign.md,
-        "Bench time"). None: the longest, the last.
+        noise left in its synchronous average falls with its duration, not its revolutions. Where the lengths
+        are given in seconds, or left out (`trial_seconds`), the trial records as many revolutions as last that
+        long at the point's speed. ``learned``: how many trials the pipeline learned from at the point before
+        this one (the compensation trial is the 0th); trial k of K = learn_trials records learn_growth^(K - k)
+        times fewer (at least `MIN_REVOLUTIONS`): a trial's noise matters only once the ripple it leaves is
+        small (docs/campaign.md, "Bench time"). None: the longest, the last.
         """
         c = self.campaign
         torques = self.learned_torques_nm()
-        if point[0] not in torques:
-            base = c.validate_revolutions
+        base = c.validate_revolutions if point[0] not in torques else \
+            None if c.learn_revolutions is None else _one_per(c.learn_revolutions, torques, point[0])
+        if base is not None:
+            last = max(base, math.ceil(base * point[1] / self.learned_speeds_hz()[0] - 1e-9))
         else:
-            base = c.learn_revolutions[0 if len(c.learn_revolutions) == 1 else torques.index(point[0])]
-        last = max(base, math.ceil(base * point[1] / self.learned_speeds_hz()[0] - 1e-9))
+            last = max(MIN_REVOLUTIONS, math.ceil(self.trial_seconds(point) * point[1] - 1e-9))
         if learned is None:
             return last
         shrink = c.learn_growth ** max(c.learn_trials - learned, 0)
@@ -327,17 +370,48 @@ class CampaignConfig:
         check_config(config)
         return config
 
-    def with_trial_lengths(self, factor: float) -> CampaignConfig:
-        """This config with [campaign] learn_revolutions and validate_revolutions ``factor`` times as many
-        (rounded up, at least `MIN_REVOLUTIONS`): the trials after the grid, as ``--budget`` sizes them."""
+    def trial_seconds(self, point: tuple[float, float]) -> float:
+        """The recorded duration of the last trial at ``point`` where its length is in seconds, s: [campaign]
+        learn_seconds at a learned torque, else validate_seconds; left out, `LEARN_SECONDS` at the least learned
+        torque and T_least / T of it at torque T, `VALIDATE_SECONDS` at a validation point."""
         c = self.campaign
+        torques = self.learned_torques_nm()
+        if point[0] not in torques:
+            return VALIDATE_SECONDS if c.validate_seconds is None else c.validate_seconds
+        if c.learn_seconds is None:
+            return LEARN_SECONDS * torques[0] / point[0]
+        return _one_per(c.learn_seconds, torques, point[0])
+
+    def with_trial_lengths(self, factor: float) -> CampaignConfig:
+        """This config with its trials after the grid ``factor`` times as long, as ``--budget`` sizes them: [campaign]
+        learn_revolutions and validate_revolutions ``factor`` times as many (rounded up, at least
+        `MIN_REVOLUTIONS`), or the trials' seconds (`trial_seconds`) ``factor`` times as many."""
+        c = self.campaign
+        torques = self.learned_torques_nm()
 
         def scaled(n: int) -> int:
             return max(MIN_REVOLUTIONS, math.ceil(n * factor - 1e-9))
 
-        return dataclasses.replace(self, campaign=dataclasses.replace(
-            c, learn_revolutions=tuple(map(scaled, c.learn_revolutions)),
-            validate_revolutions=scaled(c.validate_revolutions)))
+        learn = {"learn_revolutions": tuple(map(scaled, c.learn_revolutions))} if c.learn_revolutions is not None \
+            else {"learn_seconds": tuple(factor * self.trial_seconds((t, 0.0)) for t in torques)}
+        validate = {"validate_revolutions": scaled(c.validate_revolutions)} if c.validate_revolutions is not None \
+            else {"validate_seconds": factor * (VALIDATE_SECONDS if c.validate_seconds is None else c.validate_seconds)}
+        return dataclasses.replace(self, campaign=dataclasses.replace(c, **learn, **validate))
+
+    def recorded_counts_per_rev(self) -> int:
+        """The counts per revolution the trials are recorded at: [bench] record_counts_per_rev; left out, the
+        largest divisor of counts_per_rev within `RECORD_COUNTS` and `RECORD_ROWS_PER_S` / [limits] max_speed_hz,
+        or `RECORD_PER_HARMONIC` x [campaign] ripple_harmonics where that is more, and within half the simulated
+        control rate over max_speed_hz (a count needs two control periods)."""
+        cpr, given = self.bench.counts_per_rev, self.bench.record_counts_per_rev
+        if given is not None:
+            return given
+        fastest = self.limits.max_speed_hz
+        most = max(min(RECORD_COUNTS, RECORD_ROWS_PER_S / fastest),
+                   RECORD_PER_HARMONIC * self.campaign.ripple_harmonics)
+        if self.model is not None:
+            most = min(most, self.model.controller.control_rate_hz / (2.0 * fastest))
+        return next(n for n in range(min(cpr, int(most)), 0, -1) if cpr % n == 0)
 
     def learned_points(self) -> list[tuple[float, float]]:
         """The operating points learned at, (torque N m, speed Hz), torque by torque."""
@@ -363,6 +437,20 @@ class CampaignConfig:
             raise ConfigError(f"{self.path}: no [simulator] tables: the simulator backend and ilcpmac emulate "
                               "need the simulated drive (see configs/seed-bench.toml)")
         return self.model
+
+    def recorded_model(self) -> MotorModel:
+        """The simulated drive as its trials record it, at `recorded_counts_per_rev` (`Encoder.recorded_at`): what
+        the simulator backend, ``ilcpmac emulate`` and ``ilcpmac simulate`` run; `ConfigError` without
+        [simulator]."""
+        model, recorded = self.simulated_model(), self.recorded_counts_per_rev()
+        if recorded == model.encoder.counts_per_rev:
+            return model
+        return dataclasses.replace(model, encoder=model.encoder.recorded_at(recorded))
+
+
+def _one_per(values: tuple, torques: tuple[float, ...], torque: float):
+    """The value of ``values`` (one for all learned ``torques``, or one per torque) at learned ``torque``."""
+    return values[0 if len(values) == 1 else torques.index(torque)]
 
 
 #: optional tables of ``ilcpmac run``
@@ -550,11 +638,21 @@ def load_config(path: str | Path) -> CampaignConfig:
     model = None
     if "simulator" in data:
         model = _simulated_drive(data["simulator"], bench, path, origins)
-    config = CampaignConfig(path=path, bench=bench, grid=parsed("trials", TrialGrid),
+    grid = parse_section(data["trials"], TrialGrid, str(path), "trials", _derived_grid(data["trials"], run["limits"]),
+                         sources=origins)
+    config = CampaignConfig(path=path, bench=bench, grid=grid,
                             excitation=parsed("excitation", Excitation), stage_options=stage_options,
                             backend_options=backend_options, drive_options=drive_options, model=model, **run)
     check_config(config)
     return config
+
+
+def _derived_grid(trials: object, limits: LimitSettings) -> dict[str, tuple[float, ...]]:
+    """The set points [trials] ``trials`` leaves out, from [limits] (`GRID_TORQUE_EIGHTHS`, `GRID_SPEED_SIXTHS`)."""
+    derived = {"torque_setpoints_nm": [limits.max_torque_nm * n / 8 for n in GRID_TORQUE_EIGHTHS],
+               "speed_setpoints_hz": [limits.max_speed_hz * n / 6 for n in GRID_SPEED_SIXTHS]}
+    given = trials if isinstance(trials, dict) else derived
+    return {key: tuple(float(f"{v:.3g}") for v in values) for key, values in derived.items() if key not in given}
 
 
 def _named_tables(data: dict, section: str, origins: _Origins) -> dict:
@@ -627,16 +725,24 @@ def check_config(config: CampaignConfig) -> None:
 
 def _run_problem(config: CampaignConfig) -> str | None:
     """The first problem of the grid, the campaign and the limits together, or None."""
-    cpr = config.bench.counts_per_rev
     grid, campaign, limits = config.grid, config.campaign, config.limits
+    given = config.bench.record_counts_per_rev
+    if given is not None and config.bench.counts_per_rev % given:
+        return f"[bench] record_counts_per_rev: {given} does not divide counts_per_rev {config.bench.counts_per_rev}"
+    cpr, counts_key = config.recorded_counts_per_rev(), _counts_key(config)
     for key, harmonics in (("[excitation] harmonics", config.excitation.harmonics),
                            ("[campaign] ripple_harmonics", campaign.ripple_harmonics)):
         if harmonics >= cpr // 2:
-            return f"{key}: {harmonics} is beyond the Nyquist limit of [bench] counts_per_rev {cpr}"
+            return f"{key}: {harmonics} is beyond the Nyquist limit of {counts_key} {cpr}"
     torques, speeds = config.learned_torques_nm(), config.learned_speeds_hz()
-    if len(campaign.learn_revolutions) not in (1, len(torques)):
-        return (f"[campaign] learn_revolutions: give one number, or one per learned torque "
-                f"({len(torques)}: {', '.join(f'{t:g}' for t in torques)} N m)")
+    for kind in ("learn", "validate"):
+        if getattr(campaign, f"{kind}_revolutions") is not None and getattr(campaign, f"{kind}_seconds") is not None:
+            return f"[campaign] {kind}_revolutions, {kind}_seconds: give one of them"
+    for key in ("learn_revolutions", "learn_seconds"):
+        given = getattr(campaign, key)
+        if given is not None and len(given) not in (1, len(torques)):
+            return (f"[campaign] {key}: give one number, or one per learned torque "
+                    f"({len(torques)}: {', '.join(f'{t:g}' for t in torques)} N m)")
     drop = 0.0 if config.model is None else config.model.unexplained.saturation_per_a2 * limits.max_current_a**2
     if drop >= 1:
         return (f"[simulator.unexplained] saturation_per_a2: times [limits] max_current_a squared is {drop:.3g}: "
@@ -665,14 +771,22 @@ def _run_problem(config: CampaignConfig) -> str | None:
     return problem
 
 
+def _counts_key(config: CampaignConfig) -> str:
+    """The key that gives the recorded counts per revolution, as a message names it."""
+    if config.bench.record_counts_per_rev is not None:
+        return "[bench] record_counts_per_rev"
+    derived = config.recorded_counts_per_rev() != config.bench.counts_per_rev
+    return "[bench] record_counts_per_rev (left out: derived)" if derived else "[bench] counts_per_rev"
+
+
 def _trial_problem(config: CampaignConfig, speed_key: str, speeds_hz: tuple[float, ...], revolutions_key: str,
                    revolutions: int) -> str | None:
     """What makes trials of ``revolutions`` at ``speeds_hz`` too large, too long or too fast, or None."""
-    cpr = config.bench.counts_per_rev
+    cpr, counts_key = config.recorded_counts_per_rev(), _counts_key(config)
     limits, warmup = config.limits, config.grid.warmup_revolutions
     samples = revolutions * cpr
     if samples > limits.max_samples_per_trial:
-        return (f"{revolutions_key}: {revolutions} x [bench] counts_per_rev {cpr} = {samples} samples, "
+        return (f"{revolutions_key}: {revolutions} x {counts_key} {cpr} = {samples} samples, "
                 f"beyond [limits] max_samples_per_trial {limits.max_samples_per_trial}")
     slowest, fastest = min(speeds_hz), max(speeds_hz)
     duration = (warmup + revolutions) / slowest
@@ -684,7 +798,7 @@ def _trial_problem(config: CampaignConfig, speed_key: str, speeds_hz: tuple[floa
         return None
     rate = config.model.controller.control_rate_hz
     if fastest * cpr > rate / 2:
-        return (f"{speed_key}: {fastest:g} Hz x [bench] counts_per_rev {cpr} is more than half of "
+        return (f"{speed_key}: {fastest:g} Hz x {counts_key} {cpr} is more than half of "
                 f"[simulator.controller] control_rate_hz {rate:g} counts per second (each count needs two control "
                 "periods)")
     return None

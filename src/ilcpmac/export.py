@@ -199,6 +199,12 @@ class RunLimits:
         """The `Bound` of ``quantity`` at [limits] ``key``."""
         return Bound(quantity, peak, getattr(self.limits, key), unit, f"[limits] {key} of {self.config}")
 
+    def correction_bound(self, peak: float) -> Bound:
+        """The `Bound` of the |feed-forward| (`LimitSettings.correction_nm`)."""
+        key = "max_correction_nm" if self.limits.max_correction_nm is not None else \
+            "max_correction_fraction x max_torque_nm"
+        return Bound("|feed-forward|", peak, self.limits.correction_nm(), "N m", f"[limits] {key} of {self.config}")
+
 
 @dataclass(frozen=True)
 class Exported:
@@ -768,7 +774,7 @@ def _record_bounds(record: Record, where: str, run: RunLimits | None) -> tuple[B
     if record.counts_per_rev != run.counts_per_rev:
         raise BenchFormatError(f"{where}: {record.counts_per_rev} counts per revolution, but the run's encoder has "
                                f"{run.counts_per_rev} ({run.config.parent / BENCH_FILE})")
-    bounds = [run.bound("|feed-forward|", peak, "max_correction_nm", "N m").checked(at)]
+    bounds = [run.correction_bound(peak).checked(at)]
     if isinstance(record, Compensation):
         bounds += [run.bound("|torque set point|", float(np.abs(record.torques_nm).max()), "max_torque_nm",
                              "N m").checked(f"{where}: key 'torques_nm'"),

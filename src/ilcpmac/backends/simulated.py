@@ -45,7 +45,7 @@ class SimulatorBackend:
                               "takes no address; for a bench at that address give --backend remote (or the "
                               "backend that drives it)")
         config = setup.config
-        return cls(config.simulated_model(), config.limits.bench_limits(), config.grid.warmup_revolutions)
+        return cls(config.recorded_model(), config.limits.bench_limits(), config.grid.warmup_revolutions)
 
     def describe(self) -> BenchDescription:
         return simulated_description(self.simulator, self.limits)

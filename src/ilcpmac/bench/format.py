@@ -797,10 +797,17 @@ def check_bench(config: CampaignConfig, description) -> None:
     [bench] describes: pole pairs, slots and counts per revolution, and the inertia, back-EMF and
     calibration where [bench] gives them."""
     bench, motor = config.bench, description.motor
-    for key in ("pole_pairs", "slots", "counts_per_rev"):
+    for key in ("pole_pairs", "slots"):
         if getattr(bench, key) != getattr(motor, key):
             raise ConfigError(f"{config.path}: [bench] {key} {getattr(bench, key)} differs from the bench's "
                               f"{getattr(motor, key)}")
+    recorded = config.recorded_counts_per_rev()
+    if recorded != motor.counts_per_rev:
+        how = "" if recorded == bench.counts_per_rev else f" recorded at {recorded} ([bench] record_counts_per_rev)"
+        hint = f" (it records them: record_counts_per_rev = {motor.counts_per_rev})" \
+            if recorded != bench.counts_per_rev and bench.counts_per_rev % motor.counts_per_rev == 0 else ""
+        raise ConfigError(f"{config.path}: [bench] counts_per_rev {bench.counts_per_rev}{how} differs from the "
+                          f"bench's {motor.counts_per_rev}{hint}")
     if bench.inertia_kgm2 is not None and not math.isclose(bench.inertia_kgm2, motor.inertia_kgm2, rel_tol=1e-9):
         raise ConfigError(f"{config.path}: [bench] inertia_kgm2 {bench.inertia_kgm2:g} differs from the bench's "
                           f"{motor.inertia_kgm2:g}")

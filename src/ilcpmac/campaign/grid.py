@@ -20,7 +20,7 @@ def grid_requests(config: CampaignConfig, calibration: SensorCalibration, seed: 
     Each trial gets its own seeded multisine phases, so that position-locked
     disturbances do not correlate with the excitation across trials.
     """
-    cpr = config.bench.counts_per_rev
+    cpr = config.recorded_counts_per_rev()
     exc = config.excitation
     requests: list[TrialRequest] = []
     for torque in config.grid.torque_setpoints_nm:

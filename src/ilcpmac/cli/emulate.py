@@ -84,7 +84,7 @@ def emulate(port: int, host: str, config: Path | None, max_current: float, max_t
            [("drop", drop), ("stall", stall), ("corrupt", corrupt), ("wrong_version", wrong_version),
             ("restart", restart)] if spec is not None},
         stall_s=stall_s)
-    backend = SimulatorBackend(cfg.simulated_model(), BenchLimits(max_current, max_torque, max_speed),
+    backend = SimulatorBackend(cfg.recorded_model(), BenchLimits(max_current, max_torque, max_speed),
                                cfg.grid.warmup_revolutions)
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])

@@ -8,7 +8,7 @@ Each dataclass is one TOML section of a campaign config (see
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Callable
 
 import numpy as np
@@ -226,6 +226,17 @@ class Encoder:
         return line_errors_counts(self.counts_per_rev, self.eccentricity_counts, self.eccentricity_phase_rad,
                                   self.line_std_counts, self.line_seed)
 
+    def recorded_at(self, counts_per_rev: int) -> Encoder:
+        """This encoder as a trial records it at ``counts_per_rev``, a divisor of its own N: the edge of every b-th
+        line, b = N / counts_per_rev. Line b c errs by e_bc of N's counts, e_bc / b of the recorded ones: the
+        eccentricity is divided by b, and so is the lines' random error (drawn for the recorded lines: the same
+        statistics, not the same lines)."""
+        b = self.counts_per_rev // counts_per_rev
+        if b * counts_per_rev != self.counts_per_rev:
+            raise ValueError(f"{counts_per_rev} does not divide the encoder's {self.counts_per_rev} counts")
+        return replace(self, counts_per_rev=counts_per_rev, eccentricity_counts=self.eccentricity_counts / b,
+                       line_std_counts=self.line_std_counts / b)
+
 
 @dataclass(frozen=True)
 class Excitation:
@@ -246,10 +257,12 @@ class TrialGrid:
 
     torque_setpoints_nm: tuple[float, ...] = param(
         all_of(length_in(1, MAX_GRID_SETPOINTS), in_range(0.0, 1e4, low_open=True)),
-        f"torque set points, N m, positive, 1 to {MAX_GRID_SETPOINTS} of them")
+        f"torque set points, N m, positive, 1 to {MAX_GRID_SETPOINTS} of them; a campaign config may leave them "
+        "out: [limits] max_torque_nm x 1/8, 2/8 .. 5/8")
     speed_setpoints_hz: tuple[float, ...] = param(
         all_of(length_in(1, MAX_GRID_SETPOINTS), in_range(0.0, 1e3, low_open=True)),
-        f"mechanical speed set points, Hz, positive, 1 to {MAX_GRID_SETPOINTS} of them")
+        f"mechanical speed set points, Hz, positive, 1 to {MAX_GRID_SETPOINTS} of them; a campaign config may "
+        "leave them out: [limits] max_speed_hz x 1/3, 1/2, 2/3")
     revolutions: int = param(in_range(1, 2**24), "recorded revolutions per trial, at least 1")
     warmup_revolutions: int = param(in_range(1, 2**24), "revolutions simulated and dropped first, at least 1")
     seed: int = param(in_range(0, 2**63 - 1), "seed of every random generator, 0..2^63-1")

@@ -84,7 +84,7 @@ class SafetyLimits:
     @classmethod
     def of_campaign(cls, settings: LimitSettings, bench: BenchLimits, warmup_revolutions: int) -> "SafetyLimits":
         """The config's [limits], never beyond what the bench accepts."""
-        return cls(settings.max_correction_nm, min(settings.max_current_a, bench.max_current_a),
+        return cls(settings.correction_nm(), min(settings.max_current_a, bench.max_current_a),
                    min(settings.max_torque_nm, bench.max_torque_nm), min(settings.max_speed_hz, bench.max_speed_hz),
                    settings.max_scale_deviation, settings.max_offset_deviation_a,
                    settings.max_torque_gain_deviation, settings.max_samples_per_trial,
