@@ -250,3 +250,25 @@ def test_the_progress_throttle_passes_a_fraction_per_interval_and_every_start_an
         now[0] = t
         throttle(fraction)
     assert passed == [0.0, 0.3, 1.0, 0.0, 0.1]
+
+
+def test_a_fine_encoder_is_recorded_at_the_derived_resolution_and_a_bench_that_records_every_count_says_so(
+        write_config):
+    """A 2^16-count encoder records 4096 counts per revolution (every 16th line): the simulator backend describes
+    and runs them, the plan accepts them; a bench describing every count is refused naming the key."""
+    from ilcpmac.backends.simulated import SimulatorBackend
+    from ilcpmac.campaign.grid import grid_requests
+
+    cfg = load_config(write_config({"bench": {"counts_per_rev": 2**16},
+                                    "simulator.encoder": {"eccentricity_counts": 0.3}}))
+    backend = SimulatorBackend.from_setup(BackendSetup(cfg))
+    description = backend.describe()
+    assert description.motor.counts_per_rev == 4096 == cfg.recorded_counts_per_rev()
+    plan = CampaignPlan.build(cfg, description, 1)
+    trial = backend.run_trial(dataclasses.replace(grid_requests(cfg, description.calibration, 1, 3)[0], seed=1))
+    assert plan.grid[0].excitation_nm.shape == (4096,) and trial.count.max() < 3 * 4096 + 4096
+    native = SimulatorBackend(cfg.simulated_model(), cfg.limits.bench_limits()).describe()
+    with pytest.raises(ConfigError, match=r"\[bench\] counts_per_rev 65536 recorded at 4096 \(\[bench\] "
+                                          r"record_counts_per_rev\) differs from the bench's 65536 \(it records "
+                                          r"them: record_counts_per_rev = 65536\)"):
+        CampaignPlan.build(cfg, native, 1)

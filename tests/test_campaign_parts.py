@@ -438,3 +438,13 @@ def test_trials_that_neither_learn_nor_wait_for_learning_come_together_as_the_pl
     assert batches[0] == ["grid"] * len(plan.grid)
     assert batches[1] == ["baseline"] * len(plan.learned)
     assert batches[-1] == ["baseline", "validate"] * len(plan.validated)
+
+
+def test_the_plan_says_at_what_resolution_the_trials_record_and_what_that_holds_of_the_band():
+    from ilcpmac.campaign.events import PlanStated
+
+    plain = PlanStated({"identify": 15}, {"identify": 60.0})
+    assert "recorded" not in plain.text
+    text = PlanStated({"identify": 15}, {"identify": 60.0}, recorded=(4096, 2**20), harmonics=150).text
+    assert "trials recorded at 4096 of the encoder's 1048576 counts per revolution (every 256th line)" in text
+    assert f"harmonic 150 x {np.sinc(150 / 4096):.4f}" in text  # np.sinc(x) = sin(pi x) / (pi x)

@@ -24,7 +24,7 @@ class BackendSetup:
 
     Attributes
     ----------
-    config : the campaign config (its [bench], [limits] and [trials]; `CampaignConfig.simulated_model` for a
+    config : the campaign config (its [bench], [limits] and [trials]; `CampaignConfig.recorded_model` for a
         simulator).
     address : where the bench is (``--address``), for backends that need one; None if not given.
     options : the backend's own ``[backends.NAME]`` table of the config, as read (the backend parses and checks

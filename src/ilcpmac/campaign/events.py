@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -54,6 +55,9 @@ class PlanStated:
     budget_s : the ``--budget`` the plan was sized to, s; None without one.
     scale : the trials after the grid against the config's (`CampaignConfig.with_trial_lengths`); 1 without a
         budget.
+    recorded : (recorded, encoder) counts per revolution where the trials record fewer than the encoder has
+        (`CampaignConfig.recorded_counts_per_rev`); None where they record every count.
+    harmonics : [campaign] ripple_harmonics H, the band whose feed-forward the recorded resolution holds.
     """
 
     trials: dict[str, int]
@@ -61,6 +65,8 @@ class PlanStated:
     exact: bool = True
     budget_s: float | None = None
     scale: float = 1.0
+    recorded: tuple[int, int] | None = None
+    harmonics: int = 150
 
     @property
     def text(self) -> str:
@@ -69,6 +75,12 @@ class PlanStated:
                            for phase, t in self.motor_time_s.items())
         head = (f"plan: {sum(self.trials.values())} trials, {'at most ' if not self.exact else ''}{minutes(total)} "
                 f"of motor time ({phases}; warm-ups included)")
+        if self.recorded is not None:
+            n, cpr = self.recorded
+            held = math.sin(math.pi * self.harmonics / n) / (math.pi * self.harmonics / n)
+            head += (f"\ntrials recorded at {n} of the encoder's {cpr} counts per revolution (every "
+                     f"{cpr // n}th line); the feed-forward held over a recorded count delivers harmonic "
+                     f"{self.harmonics} x {held:.4f}")
         if self.budget_s is None:
             return head
         return (f"{head}\nbudget {minutes(self.budget_s)}: the trials after the grid {self.scale:.2f}x the config's; "

@@ -234,8 +234,10 @@ class CampaignRunner:
         trials: dict[str, int] = {}
         for step in self.plan.steps_left(self.records):
             trials[step.phase] = trials.get(step.phase, 0) + 1
+        recorded, cpr = self.config.recorded_counts_per_rev(), self.config.bench.counts_per_rev
         return PlanStated(trials, self.plan.bench_time_left(self.records), not self.plan.stops_early(),
-                          self.plan.budget_s, self.plan.scale)
+                          self.plan.budget_s, self.plan.scale, None if recorded == cpr else (recorded, cpr),
+                          self.config.campaign.ripple_harmonics)
 
     def _loop(self) -> None:
         while (step := self.next_step()) is not None:
