@@ -733,3 +733,9 @@ def test_a_plugin_stages_stale_option_is_refused_before_the_first_trial(tmp_path
                                           r"\(known: orders\)$"):
         ilcpmac.campaign.run(config, out=tmp_path / "run", extra_stages={"declared": Declared})
     assert not (tmp_path / "run").exists()
+
+
+def test_the_ilc_learns_the_campaigns_ripple_band_unless_its_cutoff_is_given(fast):
+    assert IterativeLearningControl(StageSetup(fast.describe(), identified(fast), 60))._max_harmonic == 60
+    assert IterativeLearningControl(StageSetup(fast.describe(), identified(fast), 60,
+                                               {"q_cutoff_harmonic": 40}))._max_harmonic == 40

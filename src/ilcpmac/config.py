@@ -134,8 +134,9 @@ class CampaignSettings:
     baseline_revolutions: int = setting(
         in_range(MIN_REVOLUTIONS, 2**24), "recorded revolutions of each uncompensated trial, at every speed (its "
         f"ripple stands hundreds of times above the noise), at least {MIN_REVOLUTIONS}", MIN_REVOLUTIONS)
-    ripple_harmonics: int = setting(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, "
-                                   "below counts_per_rev / 2", 150)
+    ripple_harmonics: int = setting(in_range(1, 2**23), "H: ripple is measured over harmonics 1..H, below the "
+                                   "recorded counts_per_rev / 2; left out: 150, or twice the cogging order "
+                                   "lcm(slots, 2 pole_pairs) where that is more", 150)
     validate_torques_nm: tuple[float, ...] | None = setting(
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
         "torques validated at, N m: distinct positive values; left out: midway between the learned torques; "
@@ -624,7 +625,9 @@ def load_config(path: str | Path) -> CampaignConfig:
     bench = parsed("bench", BenchSettings)
     if bench.backemf_file is not None and bench.backemf is not None:
         raise ConfigError(f"{path}: [bench] backemf_file and [bench.backemf] both give the back-EMF: give one")
-    run = {name: parsed(name, cls) for name, cls in RUN_SECTIONS.items()}
+    run = {name: parsed(name, cls) for name, cls in RUN_SECTIONS.items() if name != "campaign"}
+    run["campaign"] = parse_section(data.get("campaign", {}), CampaignSettings, str(path), "campaign",
+                                    _derived_band(data.get("campaign", {}), bench), sources=origins)
     stage_options = _named_tables(data, "stages", origins)
     for name in stage_options:
         if name not in run["pipeline"].stages:
@@ -653,6 +656,14 @@ def _derived_grid(trials: object, limits: LimitSettings) -> dict[str, tuple[floa
                "speed_setpoints_hz": [limits.max_speed_hz * n / 6 for n in GRID_SPEED_SIXTHS]}
     given = trials if isinstance(trials, dict) else derived
     return {key: tuple(float(f"{v:.3g}") for v in values) for key, values in derived.items() if key not in given}
+
+
+def _derived_band(campaign: object, bench: BenchSettings) -> dict[str, int]:
+    """[campaign] ripple_harmonics where ``campaign`` leaves it out and twice the cogging order is more than its
+    default: the cogging's first two multiples within the band."""
+    twice = 2 * math.lcm(bench.slots, 2 * bench.pole_pairs)
+    left_out = isinstance(campaign, dict) and "ripple_harmonics" not in campaign
+    return {"ripple_harmonics": twice} if left_out and twice > CampaignSettings.ripple_harmonics else {}
 
 
 def _named_tables(data: dict, section: str, origins: _Origins) -> dict:
@@ -716,6 +727,10 @@ def check_config(config: CampaignConfig) -> None:
         problem = problem or (None if obj is None else section_problem(name, obj))
     if config.model is not None:
         problem = problem or model_problem(config.model, model_key)
+        if problem is None and config.bench.counts_per_rev % config.recorded_counts_per_rev() == 0:
+            counts_key = _counts_key(config)
+            problem = model_problem(config.recorded_model(), lambda table, key: counts_key if (
+                table, key) == ("encoder", "counts_per_rev") else model_key(table, key))
     elif bench.backemf is not None:
         problem = problem or backemf_problem(bench.backemf, bench.pole_pairs, bench.counts_per_rev, model_key)
     problem = problem or _run_problem(config)

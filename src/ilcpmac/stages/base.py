@@ -264,12 +264,16 @@ class Stage(Protocol):
 
 
 def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[str, Any]:
-    """A stage's options over its defaults; unknown keys and wrong types raise `ConfigError`."""
+    """A stage's options over its defaults; unknown keys and wrong types raise `ConfigError` (an option whose
+    default is None, left out, is typed by its range's check)."""
     unknown = sorted(set(options) - set(defaults))
     if unknown:
         raise ConfigError(f"[stages.{stage}] unknown key {unknown[0]!r} (known: {', '.join(defaults)})")
     values = dict(defaults)
     for key, value in options.items():
+        if defaults[key] is None:  # an option left out by default: its range checks what it may be
+            values[key] = value
+            continue
         kind = type(defaults[key])
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)

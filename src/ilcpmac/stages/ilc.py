@@ -59,7 +59,7 @@ from ilcpmac.stages.base import Frame, StageSetup, check_options
 
 DEFAULTS = {
     "learning_gain": 1.0,
-    "q_cutoff_harmonic": 150,
+    "q_cutoff_harmonic": None,
     "estimation": "kalman",
     "process_noise_nm": 1e-5,
     "significance": 2.0,
@@ -70,7 +70,8 @@ DEFAULTS = {
 RANGES = {
     "learning_gain": (in_range(0.0, 10.0, low_open=True),
                       "gamma, within (0, 10]; convergence asks for less (checked on the identified model)"),
-    "q_cutoff_harmonic": (in_range(1, 2**23), "highest learned harmonic, below counts_per_rev / 2"),
+    "q_cutoff_harmonic": (lambda x: x is None or (type(x) is int and 1 <= x <= 2**23),
+                          "highest learned harmonic, below counts_per_rev / 2; left out: [campaign] ripple_harmonics"),
     "estimation": (lambda x: x in ("kalman", "fixed"), '"kalman" or "fixed"'),
     "process_noise_nm": (in_range(0.0, 1e3), "N m per trial, within [0, 1e3]"),
     "significance": (in_range(0.0, 100.0), "standard deviations, within [0, 100]"),
@@ -107,15 +108,16 @@ class IterativeLearningControl:
     def __init__(self, setup: StageSetup) -> None:
         opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
         cpr = setup.description.motor.counts_per_rev
-        if not opts["q_cutoff_harmonic"] < cpr // 2:
-            raise ConfigError(f"[stages.ilc] q_cutoff_harmonic: {opts['q_cutoff_harmonic']} is beyond the "
+        cutoff = setup.max_harmonic if opts["q_cutoff_harmonic"] is None else opts["q_cutoff_harmonic"]
+        if not cutoff < cpr // 2:
+            raise ConfigError(f"[stages.ilc] q_cutoff_harmonic: {cutoff} is beyond the "
                               f"Nyquist limit of {cpr} counts per revolution")
         self.options = opts
         self._cpr = cpr
         self._setup = setup
-        self._max_harmonic = min(setup.max_harmonic, opts["q_cutoff_harmonic"])
+        self._max_harmonic = min(setup.max_harmonic, cutoff)
         self._h = np.arange(1, self._max_harmonic + 1)
-        self._q = q_filter(self._h, opts["q_cutoff_harmonic"])
+        self._q = q_filter(self._h, cutoff)
         self._memory: dict[str, dict[str, np.ndarray]] = {}
         self._trials: dict[str, int] = {}
 
