@@ -302,3 +302,15 @@ def test_the_ripple_band_left_out_holds_the_coggings_first_two_multiples(write_c
     assert load_config(write_config(actuator, drop=["campaign.ripple_harmonics"])).campaign.ripple_harmonics == 168
     assert load_config(write_config(actuator)).campaign.ripple_harmonics == 150
     assert load_config(write_config(drop=["campaign.ripple_harmonics"])).campaign.ripple_harmonics == 150
+
+
+def test_a_simulated_order_beyond_the_recorded_resolution_is_refused_naming_the_recorded_counts(write_config):
+    """2^18 counts at up to 12 Hz record 512 per revolution: an unexplained order of 300 lies beyond their
+    Nyquist limit, and the error names the derived recorded counts, not the encoder's."""
+    path = write_config({"bench": {"counts_per_rev": 2**18}, "limits": {"max_speed_hz": 12.0},
+                         "simulator.unexplained": {"orders": [20, 36, 300]}},
+                        drop=["trials.speed_setpoints_hz", "campaign.learn_speeds_hz", "campaign.validate_speeds_hz"])
+    with pytest.raises(ConfigError, match=r"\[simulator\.unexplained\] orders: mechanical order 300 \(order\) is "
+                                          r"beyond the Nyquist limit of \[bench\] record_counts_per_rev \(left out: "
+                                          r"derived\) 512$"):
+        load_config(path)
