@@ -23,14 +23,18 @@ The floor is the expected peak-to-peak of independent harmonics of variance v_h 
 band 1..H (`expected_noise_pp`), as a fraction of the mean torque. A validation point learns nothing: its
 learning part is that of the learned points its feed-forward is interpolated from, weighted as the compensation
 weighs their tables (`interpolation_weights`): their learning noise w^2, the ripple they left w (it is there
-too); and the feed-forward there is an interpolation, whose error no trial removes. Where three or more points
-were learned along an axis, the quadratic through the three nearest estimates that error: the floor's harmonics
-are centred on the difference between the quadratic's feed-forward and the bilinear one (`interpolation_error`),
-not on zero.
+too); and the feed-forward there is an interpolation, whose error no trial removes: the floor's harmonics are
+centred on the torque the ideal feed-forward there, u*, would deliver beyond the bilinear one, G^ (u* - u)
+(`interpolation_error`), not on zero. Along an axis of three or more learned points, u* is the quadratic through
+the three nearest tables (their curvature shows the loop's and the ripple's alike); along a speed axis of one or
+two, it is what each table cancels, G^(f_p) u_p, seen through the identified response at the point's speed,
+G^(f_p) / G^(f) u_p, interpolated as the compensation does: the ripple the tables cancel is taken as linear in
+speed between them, and its curvature in speed (the back-EMF's tracking error through the loop, say) is left out.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +46,7 @@ from ilcpmac.core.schema import shown
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
 
-__all__ = ["SIGNIFICANCE", "LearningFloor", "PointFloor", "PointSpectra", "RippleEstimate", "floors_of",
+__all__ = ["SIGNIFICANCE", "LearningFloor", "PointFloor", "PointSpectra", "Response", "RippleEstimate", "floors_of",
            "interpolation_error", "learning_floors", "point_floors", "stands_out", "unresolved_power"]
 
 #: standard deviations an estimated harmonic stands out by to count as ripple a learner learns (`stands_out`)
@@ -251,14 +255,30 @@ def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:
     return weights
 
 
+#: the identified torque response G^ at harmonics h at a speed, Hz (`StageSetup.torque_response` at the
+#: compensation's calibration)
+Response = Callable[[np.ndarray, float], np.ndarray]
+
+
 def interpolation_error(tables_nm: np.ndarray, torques_nm: np.ndarray, speeds_hz: np.ndarray, point: Point,
-                        max_harmonic: int) -> np.ndarray:
-    """Harmonics 0..H of the quadratic feed-forward at ``point`` (`_axis_weights` along torque and speed) less
-    the bilinear one (`interpolation_weights`) from the learned ``tables_nm`` (n_T, n_S, counts_per_rev), N m:
-    the estimated error of the interpolation there (zero at a learned point, and along an axis of one or two)."""
-    quadratic = np.outer(_axis_weights(torques_nm, point[0]), _axis_weights(speeds_hz, point[1]))
-    difference = np.tensordot(quadratic - interpolation_weights(torques_nm, speeds_hz, *point), tables_nm, axes=2)
-    return harmonic_amplitudes(difference, max_harmonic)
+                        max_harmonic: int, response: Response | None = None) -> np.ndarray:
+    """Harmonics 0..H of the torque the ideal feed-forward u* at ``point`` delivers beyond the bilinear one u
+    (`interpolation_weights`) from the learned ``tables_nm`` (n_T, n_S, counts_per_rev), G^ (u* - u), N m: the
+    estimated error of the interpolation there (zero at a learned point).
+
+    u* is the quadratic through the three nearest learned points along an axis of three or more (`_axis_weights`);
+    along a speed axis of fewer, each table seen through the ``response`` at the point's speed, G^(f_p) / G^(f) u_p,
+    weighted as the compensation weighs it (None: G^ = 1, and no error along such an axis).
+    """
+    h = np.arange(max_harmonic + 1)
+    tables = harmonic_amplitudes(tables_nm, max_harmonic, axis=-1)
+    at = np.ones(h.size) if response is None else response(h, point[1])
+    if response is None or speeds_hz.size >= 3:
+        seen = tables
+    else:
+        seen = tables * np.stack([response(h, float(speed)) / at for speed in speeds_hz])
+    ideal = np.einsum("i,j,ijh->h", _axis_weights(torques_nm, point[0]), _axis_weights(speeds_hz, point[1]), seen)
+    return at * (ideal - np.einsum("ij,ijh->h", interpolation_weights(torques_nm, speeds_hz, *point), tables))
 
 
 def _floor(final: TorqueSpectrum, mean_nm: float, learning: np.ndarray, offset_nm: np.ndarray | None) -> float:
@@ -266,12 +286,14 @@ def _floor(final: TorqueSpectrum, mean_nm: float, learning: np.ndarray, offset_n
 
 
 def point_floors(learned: dict[Point, list[PointSpectra]], validated: dict[Point, PointSpectra],
-                 torques_nm: np.ndarray, speeds_hz: np.ndarray, tables_nm: np.ndarray) -> list[PointFloor]:
+                 torques_nm: np.ndarray, speeds_hz: np.ndarray, tables_nm: np.ndarray, response: Response
+                 ) -> list[PointFloor]:
     """The floor of every learned point (``learned``: its compensation trial, its learning trials and its final
     one, in order) and every validation point (``validated``: its compensated trial), learned points first.
 
-    ``torques_nm`` x ``speeds_hz`` is the compensation's grid of learned points and ``tables_nm`` its feed-forward
-    tables there (`Compensation`).
+    ``torques_nm`` x ``speeds_hz`` is the compensation's grid of learned points, ``tables_nm`` its feed-forward
+    tables there (`Compensation`) and ``response`` the identified torque response they go through
+    (`interpolation_error`).
     """
     estimates = {point: RippleEstimate.of(trials[:-1]) for point, trials in learned.items() if len(trials) > 1}
     learning = learning_floors(estimates) if estimates else {}
@@ -288,7 +310,7 @@ def point_floors(learned: dict[Point, list[PointSpectra]], validated: dict[Point
             if w:
                 near = learning[(float(torques_nm[i]), float(speeds_hz[j]))]
                 part = part + w**2 * near.noise_nm2 + w * near.unresolved_nm2
-        error = interpolation_error(tables_nm, torques_nm, speeds_hz, point, part.size - 1)
+        error = interpolation_error(tables_nm, torques_nm, speeds_hz, point, part.size - 1, response)
         floors.append(_point(point, False, trial, part, error))
     return floors
 

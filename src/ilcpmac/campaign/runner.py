@@ -670,7 +670,8 @@ class CampaignRunner:
 
     def _floors(self) -> list[PointFloor]:
         """Every learned and validated point's noise floor (`point_floors`), from the spectra of its trials: kept
-        as they finished, or, for trials before a resume, analysed again from their files and saved states."""
+        as they finished, or, for trials before a resume, analysed again from their files and saved states; the
+        compensation's tables through the identified torque response at its calibration."""
         learned = {p: [r.index for r in records_at(self.records, p, ("compensate", "learn"))]
                    for p in self.plan.learned}
         validated = {p: done[-1].index for p in self.plan.validated
@@ -683,9 +684,12 @@ class CampaignRunner:
                                         self.config.campaign.ripple_harmonics, self.measurement)
             self._spectra[index] = self._point_spectra(ran, analysis)
         compensation = self._compensation()
+        assert self.identified is not None
+        setup = StageSetup(self.description, self.identified, self.config.campaign.ripple_harmonics)
         return point_floors({p: [self._spectra[i] for i in indices] for p, indices in learned.items() if indices},
                             {p: self._spectra[i] for p, i in validated.items()},
-                            compensation.torques_nm, compensation.speeds_hz, compensation.tables_nm)
+                            compensation.torques_nm, compensation.speeds_hz, compensation.tables_nm,
+                            lambda h, speed_hz: setup.torque_response(h, speed_hz, compensation.calibration))
 
     # ---------------------------------------------------------------- resume and summary
 
