@@ -111,7 +111,8 @@ def read_truth(bench_dir: Path):
 
 
 def estimates_table(result, truth=None) -> Table:
-    """Each estimate of each method with its standard error, "*" on the one the result took; with ``truth``
+    """Each estimate of each method with its standard error, "*" on the one the result took (a "result" column
+    where it took a value of no method's, as eps, beta and the cogging over another method's delta); with ``truth``
     (an `IdentificationResult` of the true values, `read_truth`), the result's error against it.
 
     One line per phase, so that the table fits 80 columns. The cogging line gives the RMS of the cogging
@@ -124,6 +125,10 @@ def estimates_table(result, truth=None) -> Table:
     import numpy as np
 
     columns = list(result.methods) or ["result"]
+    taken = [any(raw is not None and np.array_equal(raw, value) for _, _, raw in cells)
+             for _, value, _, cells in _rows(result, columns) if value is not None]
+    if not all(taken):  # a value of no method's (eps, beta, the cogging over the delta taken): its own column
+        columns.append("result")
     encoder = result.torque_source.reads_encoder
     caption = None
     if encoder:
@@ -143,9 +148,9 @@ def estimates_table(result, truth=None) -> Table:
         if encoder and value is None and (label in NEEDS_A_SENSOR or label.startswith("enc.")):
             table.add_row(label, *[NOT_IDENTIFIED] * len(cells), *([NOT_IDENTIFIED] if truth is not None else []))
             continue
-        row = [label] + [_cell(shown, std) + (" *" if len(columns) > 1 and raw is not None and value is not None
-                                              and np.array_equal(raw, value) else "")
-                         for shown, std, raw in cells]
+        row = [label] + [_cell(shown, std) + (" *" if len(columns) > 1 and name != "result" and raw is not None
+                                              and value is not None and np.array_equal(raw, value) else "")
+                         for name, (shown, std, raw) in zip(columns, cells)]
         if truth is not None:
             row.append(_error(value, truths.get(label), kind))
         table.add_row(*row)
