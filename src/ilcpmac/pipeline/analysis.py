@@ -37,6 +37,7 @@ from ilcpmac.signals.harmonics import (
     linear_trend,
     pooled_variance,
     revolution_table,
+    slow_trend,
     table_from_amplitudes,
     table_harmonics,
     whole_revolution_span,
@@ -75,18 +76,32 @@ class TorqueSpectrum:
 
     @classmethod
     def of(cls, count: np.ndarray, time_s: np.ndarray, torque_nm: np.ndarray, counts_per_rev: int,
-           max_harmonic: int) -> TorqueSpectrum:
-        """The spectrum of harmonics 0..``max_harmonic`` of ``torque_nm`` sampled at ``count``, ``time_s``."""
-        return cls.of_each(count, time_s, [torque_nm], counts_per_rev, max_harmonic)[0]
+           max_harmonic: int, trend_degree: int | None = None) -> TorqueSpectrum:
+        """The spectrum of harmonics 0..``max_harmonic`` of ``torque_nm`` sampled at ``count``, ``time_s``.
+
+        The trend taken out is the least-squares straight line against time through every sample; with
+        ``trend_degree`` d, Legendre polynomials of time up to degree d (at most the whole revolutions less one)
+        fitted to the samples' part that is not periodic in position (`slow_trend`, as the identification
+        reduces a trial: a sensor's drift and slower settling). The ripple biases the straight line's slope,
+        over R whole revolutions as 1 / R^2: a harmonic h_0 of 1 N m in sine phase puts 68 / h_0 mN m into
+        harmonic 1 over 3 revolutions (4.2 / h_0 over 12), 1 / h of it into harmonic h; ``trend_degree`` has no
+        such error.
+        """
+        return cls.of_each(count, time_s, [torque_nm], counts_per_rev, max_harmonic, trend_degree)[0]
 
     @classmethod
     def of_each(cls, count: np.ndarray, time_s: np.ndarray, torques_nm: list[np.ndarray], counts_per_rev: int,
-                max_harmonic: int) -> list[TorqueSpectrum]:
+                max_harmonic: int, trend_degree: int | None = None) -> list[TorqueSpectrum]:
         """`of` for several torques sampled at the same ``count`` and ``time_s``, in one pass."""
         span = whole_revolution_span(count, counts_per_rev)
         count, time_s = count[span], time_s[span]
         torque = np.stack([np.asarray(t, float)[span] for t in torques_nm])
-        detrended = torque - linear_trend(time_s, torque)
+        if trend_degree is None:
+            detrended = torque - linear_trend(time_s, torque)
+        else:
+            degree = min(trend_degree, int(count[-1] // counts_per_rev - count[0] // counts_per_rev))
+            detrended = torque - np.stack([slow_trend(count, time_s, t, counts_per_rev, degree)[0] for t in torque])
+            detrended -= detrended.mean(axis=-1, keepdims=True)
         table = revolution_table(count, detrended, counts_per_rev)
         harmonics, variance = table_harmonics(table, max_harmonic)
         variance = pooled_variance(variance, table.shape[-2])
@@ -137,6 +152,10 @@ class TorqueSpectrum:
         )
 
 
+#: |s_h|^2 / v_s,h beyond which a sensor harmonic is the column of the sensor gain's error in the graduation error's
+#: separation (`TorqueMeasurement.graduation_error`): the noise it carries, also in the difference it is fitted to,
+#: biases the gain by less than 1 / this
+SENSOR_GAIN_SNR = 100.0
 #: |e - s|^2 / (v_e + v_s) beyond which "both" takes the encoder's harmonic for biased (`fused`): e^-4 of
 #: harmonics pass it by noise alone (|e - s|^2 / (v_e + v_s) of an unbiased pair is exponential of mean 1)
 DISAGREEMENT = 4.0
@@ -270,23 +289,34 @@ class TorqueMeasurement:
         c_h + m_h,k e_h (eq. 4) plus the two noises, c_h what the two share at every speed (the identified
         sensor gain's error times a position-fixed ripple, cogging say). `separate_encoder_error` of these
         differences gives e_h with no model of the torque (the joint identification's separation must assume
-        one: there a torque ripple that changes with speed or load passes for encoder error).
+        one: there a torque ripple that changes with speed or load passes for encoder error). What else the
+        differences hold is fitted with the separation (docs/sensorless.md, "The graduation error, against the
+        sensor"): each trial's error of its brake's viscous b (omega_h times it), and the error of the sensor's
+        identified gain, common to all (the sensor's harmonics where they stand out of its noise by
+        `SENSOR_GAIN_SNR`, times it); the sensor's slow trend is fitted to what is not periodic in position, as the
+        identification reduces a trial, so that the few revolutions' ripple does not bias it (`TorqueSpectrum.of`).
         """
+        from ilcpmac.identify.reduction import TREND_DEGREE  # deferred: the identification's package is heavy
+
         if not self.source.fuses or self.line_errors_counts is not None:
             raise ValueError("the graduation error is measured against the sensor by a fusing measurement that "
                              "corrects none yet")
         h = np.arange(max_harmonic + 1)
-        differences = []
+        differences, brakes, gains = [], [], []
         for trial in trials:
             if trial.torque_nm is None:
                 raise ValueError(f"the trial at {trial.torque_setpoint_nm:g} N m has no torque sensor column")
             raw, encoder = self._encoder_spectra(trial, counts_per_rev, max_harmonic)
-            sensor = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic)
+            sensor = TorqueSpectrum.of(trial.count, trial.time_s, trial.torque_nm, counts_per_rev, max_harmonic,
+                                       TREND_DEGREE)
             sensor = sensor.divided_by(self.sensor_response(h, raw.mean_speed_hz, trial.requested().calibration))
             differences.append(replace(raw, harmonics_nm=encoder.harmonics_nm - sensor.harmonics_nm,
                                        variance_nm2=encoder.weight_variance_nm2 + sensor.variance_nm2,
                                        quantisation_variance_nm2=np.zeros(h.size)))
-        separation = separate_encoder_error(differences)
+            brakes.append(raw.speed_harmonics_rad_s[None, :])
+            resolved = np.abs(sensor.harmonics_nm) ** 2 > SENSOR_GAIN_SNR * sensor.variance_nm2
+            gains.append(np.where(resolved, sensor.harmonics_nm, 0.0)[None, :])
+        separation = separate_encoder_error(differences, brakes, gains)
         return separation.encoder_error_counts, separation.encoder_error_variance_counts2
 
     def in_true_units(self, spectrum: TorqueSpectrum, speed_hz: float, calibration: SensorCalibration

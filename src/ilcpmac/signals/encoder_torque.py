@@ -165,6 +165,29 @@ the minimum-mean-square-error weight of a white error of power rho_g v_h in
 noise v_h. A perfect encoder thus gets e = 0, and an error of 0.05 counts
 eccentricity and 0.01 counts per line (q_h 10-10^3) keeps all but a few %
 of it (`significant_encoder_error`).
+
+Against the torque sensor
+-------------------------
+Separated from the differences of the encoder's torque and the sensor's
+(`ilcpmac.pipeline.analysis.TorqueMeasurement.graduation_error`), tau_h is
+what the two share, and whatever else differs between them from trial to
+trial, in the direction of m_h,k, passes for e_h. The encoder's side holds
+(b_k - b^_k) omega_h,k: the brake's b^_k = (mean torque - C) / Omega takes the
+identification's mean torque and C = 0, where the trial's delivered mean
+torque is less (a drive's current loop losing torque to the back-EMF at
+speed: 1-22 % on the large servo of benchmarks/other_motors.py --issue-37,
+its 60 Hz loop at 0.5-1 Hz) and C is not 0 (0.5 N m there): b^ errs by up
+to 44 %. Over the harmonics where b dominates g_h, m_h,k e_h ~ h Delta b
+Omega e_h grows with the load as that error's share of the ripple falls
+with it: a perfect encoder got 1.07 counts at that servo's electrical 1x.
+The sensor's side holds its identified gain's error times a ripple that
+changes with the load (28 % on another motor: 0.22 counts there). So
+the separation takes columns besides (`separate_encoder_error`): each
+trial's own, omega_h,k with a real coefficient, and ones shared by the
+trials, the sensor's harmonics with one; they are fitted with (tau_h, e_h)
+over all the harmonics (a few unknowns against K (H + 1) data), by the
+per-harmonic unknowns' elimination, and their standard errors pass into
+those of e_h.
 """
 
 from __future__ import annotations
@@ -551,7 +574,9 @@ def encoder_error_blocks(size: int) -> list[np.ndarray]:
             if 2**k < size]
 
 
-def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum]) -> EncoderSeparation:
+def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum],
+                           trial_columns: Sequence[np.ndarray] | None = None,
+                           common_columns: Sequence[np.ndarray] | None = None) -> EncoderSeparation:
     """Separate the torque ripple from the encoder error over trials at two or more mean speeds.
 
     The caller's assumption: the trials share the torque ripple tau_h (position-fixed: cogging,
@@ -560,6 +585,11 @@ def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum]) -> EncoderS
     by each trial's `EncoderTorqueSpectrum.weight_variance_nm2`; harmonics up to the smallest H. The
     covariance is inflated by the residual's chi2 over the harmonic's octave (module notes).
     First order in e (the module's notes say how to refine it).
+
+    What else the trials may hold is fitted with them (module notes, "Against the torque sensor"), each given
+    as one array of shape (P, >= H + 1) per trial (None: none), a real coefficient per column fitted over all
+    the harmonics: ``trial_columns`` each trial's own coefficients, ``common_columns`` one coefficient shared by
+    every trial. Their uncertainty enters the covariance.
     """
     if len(spectra) < 2:
         raise ValueError(f"separating the encoder error needs trials at 2 or more speeds, got {len(spectra)}")
@@ -575,6 +605,10 @@ def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum]) -> EncoderS
                       axis=2)
     weighted = design.conj() * weight[..., None]
     covariance = np.linalg.inv(np.einsum("hki,hkj->hij", weighted, design))
+    own, common = (None if c is None else _columns(c, len(spectra), size) for c in (trial_columns, common_columns))
+    added = np.zeros_like(covariance)
+    if own is not None or common is not None:
+        y, added = _without_columns(y, weight, weighted, covariance, own, common)
     x = np.einsum("hij,hj->hi", covariance, np.einsum("hki,hk->hi", weighted, y))
     full_x = np.zeros((size, 2), complex)
     full_x[1:] = x
@@ -587,8 +621,58 @@ def separate_encoder_error(spectra: Sequence[EncoderTorqueSpectrum]) -> EncoderS
         pooled = chi2[np.concatenate(blocks[:2]) if i == 0 else block]
         inflation[block] = max(1.0, float(pooled.mean())) if np.all(np.isfinite(pooled)) else 1.0
     full_covariance = np.zeros((size, 2, 2), complex)
-    full_covariance[1:] = covariance * inflation[1:, None, None]
+    full_covariance[1:] = (covariance + added) * inflation[1:, None, None]
     return EncoderSeparation(full_x[:, 0], full_x[:, 1], full_covariance, chi2)
+
+
+def _columns(columns: Sequence[np.ndarray], trials: int, size: int) -> np.ndarray:
+    """Per-trial columns (`separate_encoder_error`) at harmonics 1..``size`` - 1, shape (H, K, P); `ValueError`
+    naming what is wrong."""
+    if len(columns) != trials or len({np.shape(c) for c in columns}) != 1 or np.ndim(columns[0]) != 2 \
+            or np.shape(columns[0])[1] < size:
+        raise ValueError(f"the columns fitted with the separation: one array (P, >= {size}) per trial, all of one "
+                         f"shape, for {trials} trials")
+    g = np.stack([np.asarray(c, complex)[:, 1:size].T for c in columns], axis=1)
+    if not np.all(np.isfinite(g)):
+        raise ValueError("the columns fitted with the separation hold a NaN or an infinity")
+    return g
+
+
+def _without_columns(y: np.ndarray, weight: np.ndarray, weighted: np.ndarray, covariance: np.ndarray,
+                     own: np.ndarray | None, common: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """``y`` (H, K) less the columns times their real coefficients, ``own`` (H, K, P) each trial's and ``common``
+    (H, K, S) shared by all, and what their uncertainty adds to the covariance (H, 2, 2) of (tau_h, e_h)
+    (`separate_encoder_error`).
+
+    With the per-harmonic unknowns eliminated (Q_h = W_h - W_h A_h C_h A_h^H W_h, C_h = ``covariance``, the
+    design A_h and weights W_h), the coefficients b solve Re(G^H Q G) b = Re(G^H Q y) summed over the harmonics,
+    G the columns of every coefficient (a trial's own column is 0 in the other trials); b's covariance is
+    (2 Re(G^H Q G))^-1 (a complex error of variance v has v / 2 in its real part), and (tau_h, e_h) moves by
+    C_h A_h^H W_h G_h db.
+    """
+    size, trials = y.shape
+    own = np.zeros((size, trials, 0), complex) if own is None else own
+    common = np.zeros((size, trials, 0), complex) if common is None else common
+    per = own.shape[2]
+    projected = np.concatenate([np.einsum("hki,hkp->hikp", weighted, own).reshape(size, 2, trials * per),
+                                np.einsum("hki,hkq->hiq", weighted, common)], axis=2)  # A^H W G, (H, 2, KP + Q)
+    normal = -np.real(np.einsum("hip,hij,hjq->pq", projected.conj(), covariance, projected, optimize=True))
+    cross = np.real(np.einsum("hk,hkp,hkq->kpq", weight, own.conj(), common)).reshape(trials * per, -1)
+    for k, block in enumerate(np.real(np.einsum("hk,hkp,hkq->kpq", weight, own.conj(), own))):
+        normal[k * per:(k + 1) * per, k * per:(k + 1) * per] += block
+    normal[:trials * per, trials * per:] += cross
+    normal[trials * per:, :trials * per] += cross.T
+    normal[trials * per:, trials * per:] += np.real(np.einsum("hk,hkp,hkq->pq", weight, common.conj(), common))
+    right = np.concatenate([np.real(np.einsum("hk,hkp,hk->kp", weight, own.conj(), y)).ravel(),
+                            np.real(np.einsum("hk,hkq,hk->q", weight, common.conj(), y))]) \
+        - np.real(np.einsum("hip,hij,hj->p", projected.conj(), covariance, np.einsum("hki,hk->hi", weighted, y),
+                            optimize=True))
+    inverse = np.linalg.pinv(normal)
+    coefficients = inverse @ right
+    shift = np.einsum("hij,hjp->hip", covariance, projected)
+    fitted = np.einsum("hkp,kp->hk", own, coefficients[:trials * per].reshape(trials, per)) \
+        + np.einsum("hkq,q->hk", common, coefficients[trials * per:])
+    return y - fitted, np.einsum("hip,pq,hjq->hij", shift, inverse / 2.0, shift.conj(), optimize=True)
 
 
 def significant_encoder_error(error_counts: np.ndarray, variance_counts2: np.ndarray,
