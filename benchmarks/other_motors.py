@@ -23,6 +23,7 @@ Usage: python benchmarks/other_motors.py [--out DIR] [--seeds N [N ...]] [--rand
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import subprocess
@@ -33,10 +34,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import motor_family  # noqa: E402
+from ilcpmac.core.errors import IlcpmacError
 
-from ilcpmac.core.errors import IlcpmacError  # noqa: E402
+
+def _sibling(name: str):
+    """benchmarks/NAME.py as a module, loaded by its path: never this folder on sys.path, where benchmarks/moteus.py
+    would hide mjbots' moteus library from every import after it (the test suite's)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parent / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = sys.modules[name] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+motor_family = sys.modules.get("motor_family") or _sibling("motor_family")
 
 if TYPE_CHECKING:
     from ilcpmac.backends.base import Backend

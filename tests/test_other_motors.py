@@ -101,3 +101,10 @@ def test_a_random_motor_ends_near_its_floors_within_its_stated_motor_time_and_si
     run = other_motors.FamilyRun.of(path, 1, stated_s, result.summary, result.path)
     assert len(run.learned) == 9 and len(run.validated) == 6
     assert run.offences() == []
+
+
+def test_loading_the_benchmark_leaves_sys_path_alone_so_the_moteus_library_stays_importable():
+    """benchmarks/other_motors.py once put its folder first on sys.path: every later `import moteus` (the moteus
+    backend's tests) found benchmarks/moteus.py instead of mjbots' library."""
+    benchmarks = str(Path(__file__).resolve().parents[1] / "benchmarks")
+    assert all(Path(p).resolve() != Path(benchmarks) for p in sys.path if p)
