@@ -43,14 +43,6 @@ about P over their number), itself shrunk by its uncertainty, and d^ - s^ shrunk
 point's ripple stands out of the shared part, the set point's own estimate is learned; where it does not, the
 shared estimate, with the information of every set point. ``pooling = "none"`` shrinks toward zero.
 
-The estimates follow the calibration. d^ is the ripple at the calibration its trials ran at, and a stage before
-this one (current-sensor) may move the calibration after learning from the same trial: the moved offsets and gains
-remove part of d, and a feed-forward learned before would cancel it a second time (on a motor of issue 37 the trial
-after the compensation trial kept its 1x electrical ripple, 143 against 124 mN m, the offsets corrected twice). So
-when the calibration moves, every set point's d^ moves by what the move changes in its ripple as the identification
-knows the sensors (`ilcpmac.stages.sensor.calibration_change_nm`, at the set point's torque and speed), t by minus
-that, and P by the square of ``model_uncertainty`` times it.
-
 Before learning, the monotonic-convergence condition |1 - L G| < 1 / |Q| is
 checked on the identified response within its uncertainty.
 """
@@ -60,11 +52,10 @@ from __future__ import annotations
 import numpy as np
 
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.records import TrialData, TrialRequest
 from ilcpmac.core.schema import in_range
 from ilcpmac.signals.harmonics import harmonic_amplitudes, table_from_amplitudes
 from ilcpmac.stages.base import Frame, StageSetup, check_options
-from ilcpmac.stages.sensor import calibration_change_nm
 
 DEFAULTS = {
     "learning_gain": 1.0,
@@ -165,29 +156,6 @@ class IterativeLearningControl:
             "t": np.zeros(n, complex), "u_applied": np.zeros(n, complex), "d": np.zeros(n, complex),
             "P": np.full(n, np.inf)})
 
-    def _calibration_change(self, m: dict[str, np.ndarray], calibration: SensorCalibration) -> np.ndarray | None:
-        """What moving the calibration from the one set point memory ``m`` is at to ``calibration`` changes in its
-        ripple, harmonics 1..H, N m (`calibration_change_nm`); None where it is there (or, restored from an earlier
-        release's state before it learns again, not known)."""
-        at = m.get("calibration")
-        if at is None or np.array_equal(at, _packed(calibration)):
-            return None
-        torque_nm, speed_hz = m["setpoint"]
-        before = SensorCalibration(at[:3], at[3:], calibration.torque_gain)
-        return self._harmonics(calibration_change_nm(self._setup.identified, self._setup.description.backemf_nm_per_a,
-                                                     before, calibration, torque_nm, speed_hz))
-
-    def _follow(self, m: dict[str, np.ndarray], calibration: SensorCalibration) -> None:
-        """Set point memory ``m`` moved to ``calibration``: d^ by what the move changes, t by minus that, P by the
-        model's uncertainty of it (module docstring)."""
-        change = self._calibration_change(m, calibration)
-        if change is None:
-            return
-        m["d"] = m["d"] + change
-        m["t"] = m["t"] - self._q * change
-        m["P"] = m["P"] + (self.options["model_uncertainty"] * np.abs(change)) ** 2
-        m["calibration"] = _packed(calibration)
-
     def _table(self, harmonics: np.ndarray) -> np.ndarray:
         """Per-count table of harmonics 1..H, N m."""
         return table_from_amplitudes(np.concatenate([[0.0], harmonics]), self._cpr)
@@ -209,11 +177,8 @@ class IterativeLearningControl:
         key = request.setpoint_key
         if np.any(request.excitation_nm) or key not in self._memory:
             return request
-        m = self._memory[key]
-        moved = self._calibration_change(m, request.calibration)
-        t = m["t"] if moved is None else m["t"] - self._q * moved
         upstream = self._harmonics(request.feedforward_nm)
-        u = t / self.plant(request, request.speed_setpoint_hz)
+        u = self._memory[key]["t"] / self.plant(request, request.speed_setpoint_hz)
         change = self._table(u - upstream)
         return request.with_changes(feedforward_nm=request.feedforward_nm + change)
 
@@ -224,8 +189,6 @@ class IterativeLearningControl:
         key = request.setpoint_key
         if not self._trials.get(key):
             self.check_convergence(request)
-        for entry in self._memory.values():
-            self._follow(entry, request.calibration)
         m = self._entry(key)
         G = self.plant(request, frame.speed_hz)
         u = self._harmonics(request.feedforward_nm)
@@ -250,8 +213,6 @@ class IterativeLearningControl:
             shared = _shrunk(*self._shared(), significance2) if self.options["pooling"] == "points" else 0.0
             ripple = shared + _shrunk(m["d"] - shared, m["P"], significance2) + G * u
         m["u_applied"] = u
-        m["setpoint"] = np.array([request.torque_setpoint_nm, request.speed_setpoint_hz])
-        m["calibration"] = _packed(request.calibration)
         # remembered as the torque it delivers at the set point's speed, as `shape` reads it back
         m["t"] = self.plant(request, request.speed_setpoint_hz) * self._q * (u - gamma * ripple / G)
         self._trials[key] = self._trials.get(key, 0) + 1
@@ -272,7 +233,6 @@ class IterativeLearningControl:
             out: dict[str, object] = {name: {"re": m[name].real.tolist(), "im": m[name].imag.tolist()}
                                       for name in ("t", "u_applied", "d")}
             out["P"] = [None if np.isinf(p) else p for p in m["P"]]  # JSON has no infinity
-            out.update({name: m[name].tolist() for name in ("setpoint", "calibration") if name in m})
             return out
 
         return {key: {**pack(m), "trials": self._trials.get(key, 0)} for key, m in self._memory.items()}
@@ -295,14 +255,7 @@ def _shrunk(d: np.ndarray, P: np.ndarray, significance2: float) -> np.ndarray:
     return np.maximum(0.0, 1.0 - significance2 * P / np.maximum(np.abs(d) ** 2, 1e-300)) * d
 
 
-def _packed(calibration: SensorCalibration) -> np.ndarray:
-    """A calibration's current scale and offset, (6,), as a set point's memory holds the one it is at."""
-    return np.concatenate([calibration.current_scale, calibration.current_offset])
-
-
 def _unpack(s: dict) -> dict[str, np.ndarray]:
-    """One set point's memory from its `IterativeLearningControl.state` (an earlier release's has no set point and
-    calibration: it follows none until it learns again)."""
+    """One set point's memory from its `IterativeLearningControl.state`."""
     return {**{name: np.array(s[name]["re"]) + 1j * np.array(s[name]["im"]) for name in ("t", "u_applied", "d")},
-            "P": np.array([np.inf if p is None else p for p in s["P"]], float),
-            **{name: np.array(s[name], float) for name in ("setpoint", "calibration") if name in s}}
+            "P": np.array([np.inf if p is None else p for p in s["P"]], float)}

@@ -31,11 +31,6 @@ truth (to -1.3 % and +0.6 % from the identification's -0.3 % and +0.1 %). So aft
 is held at mean_p(G_s,p / G_s,p before) = 1 (`KalmanEstimator.constrain`, the minimum-variance projection; to
 first order, the torque the calibration gives at a balanced set point).
 
-The identification's offsets are applied as far as its data support them (`offsets_applied`): each shrunk by its
-significance, beta max(0, 1 - std^2 / beta^2), so that one within its standard error of zero is not applied at all
-(on a motor of issue 37 beta came out at 2.5 times the truth, its standard error as large: applied as it was, the
-compensation trial had 1.6 times the offsets' uncorrected ripple, of the opposite sign). The weights are in the state.
-
 The stage learns from each set point's first ``trials_per_point`` trials after the identification (the
 compensation trial and the first learning trial by default), then holds the calibration, so the last learning
 trials and the compensation run at one calibration: every move of it changes the current, and the ilc stage's
@@ -53,7 +48,7 @@ from ilcpmac.core.schema import in_range
 from ilcpmac.estimators.kalman import KalmanEstimator
 from ilcpmac.model.tables import current_references
 from ilcpmac.signals.harmonics import filtered, synchronous_average
-from ilcpmac.stages.base import Frame, Identified, StageSetup, check_options
+from ilcpmac.stages.base import Frame, StageSetup, check_options
 
 DEFAULTS = {"process_noise_rel": 1e-6, "prior_std_rel": 0.02, "trials_per_point": 2}
 #: each option's range
@@ -74,38 +69,6 @@ def _through_loop(table: np.ndarray, speed_hz: float, loop: CurrentLoop) -> np.n
     """Per-count currents per phase, (counts_per_rev, 3), as the phases' current loops follow them."""
     cpr = table.shape[0]
     return filtered(table, loop.response(np.arange(cpr // 2 + 1), speed_hz, cpr))
-
-
-def offsets_applied(beta_a: np.ndarray, beta_std_a: np.ndarray) -> np.ndarray:
-    """The weight per phase the identified offsets are applied with: max(0, 1 - std^2 / beta^2).
-
-    The Wiener weight P / (P + std^2) of an estimate of noise std, the offset's power P estimated from the same
-    estimate, beta^2 - std^2 (at least 0): an offset z standard errors from 0 is applied by 1 - 1 / z^2, one within
-    a standard error not at all; with no standard error (a simulator's truth) whole.
-    """
-    beta, std = np.abs(np.asarray(beta_a, float)), np.asarray(beta_std_a, float)
-    stands_out = beta > std
-    return np.where(stands_out, 1.0 - (std / np.where(stands_out, beta, 1.0)) ** 2, np.where(std > 0, 0.0, 1.0))
-
-
-def calibration_change_nm(identified: Identified, backemf_nm_per_a: np.ndarray, before: SensorCalibration,
-                          after: SensorCalibration, torque_nm: float, speed_hz: float) -> np.ndarray:
-    """Per count, N m: how the currents' torque at a constant torque reference ``torque_nm`` and ``speed_hz``
-    changes when the controller's calibration moves from ``before`` to ``after``, as the identification knows the
-    sensors (eqs. 1.3-1.7).
-
-    sum_p K_p (d(eps alpha_p) I~*_p + d beta_p): d(eps alpha_p) = d(G*_s,p^-1) G_s,p, d beta_p = -d(o*_s,p) G_s,p
-    (an offset's current G_s,p (o_s,p - o*_s,p) moves by the offset's change alone, whatever the sensor's own), I~*
-    the references through the loop at ``after`` (`filtered_references`): this stage's columns without a
-    feed-forward, times the change of its coefficients.
-    """
-    cpr = backemf_nm_per_a.shape[0]
-    references = _through_loop(current_references(np.full(cpr, float(torque_nm)), backemf_nm_per_a), speed_hz,
-                               identified.loop_at(after))
-    gain = identified.sensor_gain
-    currents = (after.current_scale - before.current_scale) * gain * references \
-        - (after.current_offset - before.current_offset) * gain
-    return np.sum(backemf_nm_per_a * currents, axis=1)
 
 
 def _without_common_modes(information: np.ndarray) -> np.ndarray:
@@ -152,9 +115,7 @@ class CurrentSensorCorrection:
         self._torque_gain = ident.torque_gain_v_per_nm
         self._identified = ident
         gain = ident.sensor_gain  # G_s, A / count
-        #: the weight per phase of the identified offsets as first applied (`offsets_applied`)
-        self.offset_weights = offsets_applied(ident.beta_a, ident.beta_std_a)
-        x0 = np.concatenate([gain, gain * ident.calibration.current_offset + self.offset_weights * ident.beta_a])
+        x0 = np.concatenate([gain, gain * ident.calibration.current_offset + ident.beta_a])
         gain_std = np.maximum(gain * np.hypot(ident.alpha_std / ident.alpha, ident.epsilon_std / ident.epsilon),
                               opts["prior_std_rel"] * gain)
         offset_std = np.maximum(ident.beta_std_a, opts["prior_std_rel"] * np.abs(x0[3:]).max())
@@ -205,8 +166,7 @@ class CurrentSensorCorrection:
         self._kalman.constrain(np.concatenate([1.0 / (3.0 * gain), np.zeros(3)]), 1.0)
 
     def state(self) -> dict:
-        return {"kalman": self._kalman.state(), "learned": dict(self._learned),
-                "identified_offsets_weight": self.offset_weights.tolist(), **self.calibration().to_json()}
+        return {"kalman": self._kalman.state(), "learned": dict(self._learned), **self.calibration().to_json()}
 
     def restore(self, state: dict) -> None:
         self._kalman.restore(state["kalman"])
