@@ -5,7 +5,7 @@ bandwidth, sensor errors, noise, friction and encoder errors), seed 2009: the mo
 the first trial is the time the motor runs, and every point's final ripple is reported beside its floor. The
 target: learned points within 1.5x and validation points within 2x of their floors. Over four seeds it held at
 all 240 points of benchmarks/other_motors.py (docs/campaign.md, "The noise floor"); with this seed the closest are
-the third motor's, learned 1.48x and validation 1.74x.
+the third motor's, learned 1.48x and validation 1.83x.
 
 The random family of benchmarks/motor_family.py (issue 37): every draw is a config the campaign accepts with all
 but the motor derived and the simulator runs, and a few fast ones are held to the bounds of
