@@ -913,7 +913,8 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     structure = _gain_structure(problem, phi, saturation, rest, covariance)
     covariance = covariance.copy()
     covariance[:6, :6] += structure.covariance
-    std = dict(zip(names, np.sqrt(np.diag(covariance))))
+    # B I B with I >= 0, plus a structure >= 0: a negative diagonal is round-off about zero (-1.7e-15 against 886)
+    std = dict(zip(names, np.sqrt(np.maximum(np.diag(covariance), 0.0))))
     return JointEstimate(
         theta=x[:3], theta_std=np.array([std[f"theta_{p}"] for p in "abc"]),
         beta_star_a=x[3:6], beta_star_std=np.array([std[f"beta_star_{p}"] for p in "abc"]),
