@@ -57,9 +57,10 @@ class Quiet(NoEvents):
 
 
 def simulator_backend(cfg: CampaignConfig) -> SimulatorBackend:
-    """The simulator of ``cfg`` with its limits."""
-    return SimulatorBackend(cfg.model, BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm,
-                                                   cfg.limits.max_speed_hz), cfg.grid.warmup_revolutions)
+    """The simulator of ``cfg`` with its limits, recording as the config's backend does."""
+    return SimulatorBackend(cfg.sampled_model(), BenchLimits(cfg.limits.max_current_a, cfg.limits.max_torque_nm,
+                                                             cfg.limits.max_speed_hz), cfg.grid.warmup_revolutions,
+                            cfg.recorded_counts_per_rev())
 
 
 class Recording:

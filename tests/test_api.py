@@ -262,8 +262,8 @@ def test_export_of_an_identification_to_moteus_is_the_clis(work, tmp_path):
     result_json = tmp_path / "result.json"
     ilc.identify(work["simulated"].folder, output=result_json)
     k_q = ilc.torque_constant_nm_per_a(work["simulated"].folder)
-    assert k_q == pytest.approx(1.5 * np.abs(np.fft.rfft(work["simulated"].bench.backemf_nm_per_a, axis=0)[8]).mean()
-                                * 2 / 1024)
+    backemf = work["simulated"].bench.backemf_nm_per_a
+    assert k_q == pytest.approx(1.5 * np.abs(np.fft.rfft(backemf, axis=0)[8]).mean() * 2 / len(backemf))
     exported = ilc.export(result_json, "moteus", tmp_path / "api", torque_constant_nm_per_a=k_q)
     out = CliRunner().invoke(main, ["export", str(result_json), "--format", "moteus", "--out", str(tmp_path / "cli"),
                                     "--torque-constant", repr(k_q)])

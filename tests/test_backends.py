@@ -272,3 +272,27 @@ def test_a_fine_encoder_is_recorded_at_the_derived_resolution_and_a_bench_that_r
                                           r"record_counts_per_rev\) differs from the bench's 65536 \(it records "
                                           r"them: record_counts_per_rev = 65536\)"):
         CampaignPlan.build(cfg, native, 1)
+
+
+def test_a_record_of_fewer_counts_than_the_lines_sampled_holds_count_means_and_says_so(write_config):
+    """[bench] record_counts_per_rev 1024 of a 2^16-count encoder sampled at 4096 lines: the simulator records
+    each count as the mean over 4 lines and its description says so; a bench recording the counts' edges, or
+    means over other lines, is refused naming the key."""
+    from ilcpmac.backends.simulated import SimulatorBackend
+    from ilcpmac.campaign.grid import grid_requests
+
+    cfg = load_config(write_config({"bench": {"counts_per_rev": 2**16, "record_counts_per_rev": 1024},
+                                    "simulator.encoder": {"eccentricity_counts": 0.3}}))
+    backend = SimulatorBackend.from_setup(BackendSetup(cfg))
+    description = backend.describe()
+    assert (description.motor.counts_per_rev, description.motor.lines_per_count) == (1024, 4)
+    assert cfg.sampled_counts_per_rev() == 4096
+    plan = CampaignPlan.build(cfg, description, 1)
+    trial = backend.run_trial(dataclasses.replace(grid_requests(cfg, description.calibration, 1, 3)[0], seed=1))
+    assert plan.grid[0].excitation_nm.shape == (1024,) and trial.count.max() == 3 * 1024 - 1
+    for lines in (1, 2):
+        other = dataclasses.replace(description, motor=dataclasses.replace(description.motor, lines_per_count=lines))
+        with pytest.raises(ConfigError, match=rf"\[bench\] counts_per_rev 65536, recorded at 1024 counts as means "
+                                              rf"over 4 lines each, differs from the bench's 1024 counts as means over "
+                                              rf"{lines} lines each"):
+            CampaignPlan.build(cfg, other, 1)

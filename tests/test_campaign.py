@@ -186,19 +186,21 @@ def test_a_campaign_runs_through_an_installed_plugin_stage(write_config, tmp_pat
     run = tmp_path / "run"
     states = [json.loads(p.read_text()) for p in sorted((run / "states").glob("trial_*.json"))]
     assert set(states[-1]["pipeline"]) == {"current-sensor", "cogging", "harmonic-canceller"}
-    trials = read_bench(run).trials
+    bench = read_bench(run)
+    trials, counts = bench.trials, bench.motor.counts_per_rev
     roles = [r["role"] for r in summary["trials"]]
     before = trials[roles.index("compensate")]  # the canceller has learned nothing yet
     after = trials[len(roles) - 3]  # the last learning trial
     for order, amplitude in zip((20, 36, 100), (0.012, 0.01, 0.006)):
-        assert _true_amplitude(before, order) > 0.5 * amplitude
-        assert _true_amplitude(after, order) < 0.2 * _true_amplitude(before, order)
+        assert _true_amplitude(before, order, counts) > 0.5 * amplitude
+        assert _true_amplitude(after, order, counts) < 0.2 * _true_amplitude(before, order, counts)
 
 
-def _true_amplitude(trial: TrialData, order: int) -> float:
+def _true_amplitude(trial: TrialData, order: int, counts_per_rev: int) -> float:
     from ilcpmac.signals.harmonics import harmonic_amplitudes, synchronous_average
 
-    return float(abs(harmonic_amplitudes(synchronous_average(trial.count, trial.torque_true_nm, 1024))[order]))
+    return float(abs(harmonic_amplitudes(synchronous_average(trial.count, trial.torque_true_nm,
+                                                             counts_per_rev))[order]))
 
 
 def test_a_campaign_stops_with_a_clear_error_when_the_identification_lacks_an_estimate(campaign_config, tmp_path):

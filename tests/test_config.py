@@ -288,11 +288,20 @@ def test_the_recorded_counts_follow_the_encoder_the_speed_and_the_ripple_band(wr
             load_config(path)
         return
     cfg = load_config(path)
-    assert cfg.recorded_counts_per_rev() == recorded
-    encoder = cfg.recorded_model().encoder
+    assert cfg.recorded_counts_per_rev() == recorded == cfg.sampled_counts_per_rev()
+    encoder = cfg.sampled_model().encoder
     assert encoder.counts_per_rev == recorded
     b = counts // recorded
     assert encoder.eccentricity_counts == pytest.approx(0.2 / b) and encoder.line_std_counts == pytest.approx(0.05 / b)
+
+
+def test_a_recorded_resolution_below_the_lines_sampled_samples_a_multiple_of_it(write_config):
+    """[bench] record_counts_per_rev 1024 of the seed bench's 4096 lines: every line sampled, 4 per recorded count
+    (their means, docs/campaign.md); 3000 lines recorded at 600 counts, 3000 sampled (5 per count)."""
+    cfg = load_config(write_config({"bench": {"record_counts_per_rev": 1024}}))
+    assert (cfg.sampled_counts_per_rev(), cfg.recorded_counts_per_rev()) == (4096, 1024)
+    cfg = load_config(write_config({"bench": {"counts_per_rev": 3000, "record_counts_per_rev": 600}}))
+    assert (cfg.sampled_counts_per_rev(), cfg.recorded_counts_per_rev()) == (3000, 600)
 
 
 def test_the_ripple_band_left_out_holds_the_coggings_first_two_multiples(write_config):

@@ -59,7 +59,8 @@ def mirror_simulator(simulator: Simulator) -> Simulator:
     mirror = copy.copy(simulator)
     fine = mirrored_table(simulator.fine[:-1])
     mirror.fine = np.ascontiguousarray(np.vstack([fine, fine[:1]]))
-    mirror.backemf_counts = np.ascontiguousarray(mirrored_table(simulator.backemf_counts))
+    mirror.backemf_lines = np.ascontiguousarray(mirrored_table(simulator.backemf_lines))
+    mirror.backemf_counts = np.ascontiguousarray(mirror.backemf_lines[::simulator.lines_per_count])
     mirror.cogging_fine = mirrored_table(simulator.cogging_fine)
     mirror.torque_pos_fine = mirrored_table(simulator.torque_pos_fine)
     cpr = simulator.backemf_counts.shape[0]
@@ -80,8 +81,8 @@ def motors(tmp_path_factory) -> tuple[Simulator, Simulator, list]:
     data["trials"].update(torque_setpoints_nm=[2.0, 4.0], speed_setpoints_hz=[0.5, 1.0], revolutions=8)
     (folder / "campaign.toml").write_text(toml_text(data))
     config = load_config(folder / "campaign.toml")
-    simulator = Simulator(config.recorded_model(), config.grid.warmup_revolutions)
-    requests = grid_requests(config, config.recorded_model().controller.calibration(), 3, 8)
+    simulator = Simulator(config.sampled_model(), config.grid.warmup_revolutions, config.recorded_counts_per_rev())
+    requests = grid_requests(config, config.sampled_model().controller.calibration(), 3, 8)
     return simulator, mirror_simulator(simulator), requests
 
 
@@ -298,8 +299,8 @@ def test_a_mirrored_bench_without_torque_sensor_gives_the_motors_encoder_error(t
     data["simulator"]["cogging"]["phases_rad"] = [0.9, 0.7]
     (tmp_path / "campaign.toml").write_text(toml_text(data))
     config = load_config(tmp_path / "campaign.toml")
-    simulator = Simulator(config.recorded_model(), config.grid.warmup_revolutions)
-    requests = grid_requests(config, config.recorded_model().controller.calibration(), 1, 6)
+    simulator = Simulator(config.sampled_model(), config.grid.warmup_revolutions, config.recorded_counts_per_rev())
+    requests = grid_requests(config, config.sampled_model().controller.calibration(), 1, 6)
     mirror = mirror_simulator(simulator)
     trials = tuple(dataclasses.replace(t, torque_nm=None) for t in mirror.run_trials(requests))
     motor = MotorInfo(8, 48, COUNTS_PER_REV, 0.01056, torque_sensor=False, timer_resolution_s=1e-6, mirrored=True)

@@ -308,12 +308,13 @@ class SourceTruth(TruthIdentification):
     def __init__(self, backend) -> None:
         super().__init__(backend)
         self.asked: list[TorqueSource | None] = []
+        self.counts_per_rev = backend.describe().motor.counts_per_rev
 
     def __call__(self, bench, torque_source=None):
         self.asked.append(torque_source)
         if torque_source is TorqueSource.ENCODER:
             return dataclasses.replace(self.result, delta=None, delta_std=None, delta_epsilon=None,
-                                       delta_epsilon_std=None, encoder_error_counts=np.zeros(COUNTS_PER_REV))
+                                       delta_epsilon_std=None, encoder_error_counts=np.zeros(self.counts_per_rev))
         return self.result
 
 
@@ -369,6 +370,6 @@ def test_a_resumed_campaign_measures_as_it_did(tmp_path: Path, source, asked):
     assert resumed.run() == summary
     # the resumed run identifies the grid again, to check the saved identification against it
     assert identify.asked == asked * 2 and resumed.measurement.source is TorqueSource(source)
-    np.testing.assert_array_equal(resumed.measurement.line_errors_counts, np.zeros(COUNTS_PER_REV))
+    np.testing.assert_array_equal(resumed.measurement.line_errors_counts, np.zeros(cfg.recorded_counts_per_rev()))
     assert resumed.measurement.timer_resolution_s == runner.measurement.timer_resolution_s > 0
     assert resumed.pipeline.measurement is resumed.measurement

@@ -71,9 +71,9 @@ GRID_SPEED_SIXTHS = (2, 3, 4)
 LEARN_SECONDS = 80.0
 #: a validation trial's duration where [campaign] leaves its length out, s
 VALIDATE_SECONDS = 20.0
-#: where [bench] record_counts_per_rev is left out, the recorded counts per revolution stay within the most of
-#: RECORD_COUNTS and RECORD_ROWS_PER_S / [limits] max_speed_hz (the seed bench's 4096 at 1.5 Hz), and at least
-#: RECORD_PER_HARMONIC x [campaign] ripple_harmonics, the resolution the ripple band needs
+#: a trial samples at most the most of RECORD_COUNTS and RECORD_ROWS_PER_S / [limits] max_speed_hz lines per
+#: revolution (the seed bench's 4096 at 1.5 Hz), and at least RECORD_PER_HARMONIC x [campaign] ripple_harmonics,
+#: the resolution the ripple band needs
 RECORD_COUNTS = 4096
 RECORD_ROWS_PER_S = 6144.0
 RECORD_PER_HARMONIC = 4
@@ -244,10 +244,10 @@ class BenchSettings:
     counts_per_rev: int = field_like(Encoder, "counts_per_rev")
     record_counts_per_rev: int | None = setting(
         in_range(*MOTOR_RANGES["counts_per_rev"]), "counts per revolution the trials are recorded, stored and "
-        "analysed at: a divisor of counts_per_rev, each recorded count the edge of every (counts_per_rev / "
-        "record_counts_per_rev)-th line (docs/campaign.md, \"Recorded resolution\"); left out: the largest divisor "
-        f"within {RECORD_COUNTS} and {RECORD_ROWS_PER_S:g} / [limits] max_speed_hz (and half the simulated control "
-        f"rate over it), at least {RECORD_PER_HARMONIC} x [campaign] ripple_harmonics", None)
+        "analysed at: a divisor of counts_per_rev; on the simulator each recorded count the mean over the lines it "
+        "spans of those a trial samples (docs/campaign.md, \"Recorded resolution\"); left out: the lines sampled, "
+        f"the largest divisor within {RECORD_COUNTS} and {RECORD_ROWS_PER_S:g} / [limits] max_speed_hz (and half "
+        f"the simulated control rate over it), at least {RECORD_PER_HARMONIC} x [campaign] ripple_harmonics", None)
     inertia_kgm2: float | None = field_like(Mechanics, "inertia_kgm2", default=None)
     inertia_uncertainty: float | None = setting(
         in_range(0.0, 1.0), "relative standard uncertainty of the inertia, within [0, 1] (0.05: known to 5 %); "
@@ -399,20 +399,26 @@ class CampaignConfig:
             else {"validate_seconds": factor * (VALIDATE_SECONDS if c.validate_seconds is None else c.validate_seconds)}
         return dataclasses.replace(self, campaign=dataclasses.replace(c, **learn, **validate))
 
-    def recorded_counts_per_rev(self) -> int:
-        """The counts per revolution the trials are recorded at: [bench] record_counts_per_rev; left out, the
-        largest divisor of counts_per_rev within `RECORD_COUNTS` and `RECORD_ROWS_PER_S` / [limits] max_speed_hz,
-        or `RECORD_PER_HARMONIC` x [campaign] ripple_harmonics where that is more, and within half the simulated
-        control rate over max_speed_hz (a count needs two control periods)."""
+    def sampled_counts_per_rev(self) -> int:
+        """The lines per revolution a trial samples: the largest divisor of counts_per_rev within `RECORD_COUNTS`
+        and `RECORD_ROWS_PER_S` / [limits] max_speed_hz, or `RECORD_PER_HARMONIC` x [campaign] ripple_harmonics
+        where that is more, and within half the simulated control rate over max_speed_hz (a line needs two control
+        periods); a multiple of [bench] record_counts_per_rev where that is given (at least it)."""
         cpr, given = self.bench.counts_per_rev, self.bench.record_counts_per_rev
-        if given is not None:
-            return given
         fastest = self.limits.max_speed_hz
         most = max(min(RECORD_COUNTS, RECORD_ROWS_PER_S / fastest),
                    RECORD_PER_HARMONIC * self.campaign.ripple_harmonics)
         if self.model is not None:
             most = min(most, self.model.controller.control_rate_hz / (2.0 * fastest))
-        return next(n for n in range(min(cpr, int(most)), 0, -1) if cpr % n == 0)
+        step = 1 if given is None else given
+        return next((n for n in range(min(cpr, int(most)), 0, -1) if cpr % n == 0 and n % step == 0), step)
+
+    def recorded_counts_per_rev(self) -> int:
+        """The counts per revolution the trials are recorded, stored and analysed at: [bench] record_counts_per_rev,
+        on the simulator each the mean over the lines it spans of those a trial samples (`ilcpmac.core.binning`);
+        left out, the lines sampled (`sampled_counts_per_rev`)."""
+        given = self.bench.record_counts_per_rev
+        return self.sampled_counts_per_rev() if given is None else given
 
     def learned_points(self) -> list[tuple[float, float]]:
         """The operating points learned at, (torque N m, speed Hz), torque by torque."""
@@ -439,14 +445,14 @@ class CampaignConfig:
                               "need the simulated drive (see configs/seed-bench.toml)")
         return self.model
 
-    def recorded_model(self) -> MotorModel:
-        """The simulated drive as its trials record it, at `recorded_counts_per_rev` (`Encoder.recorded_at`): what
-        the simulator backend, ``ilcpmac emulate`` and ``ilcpmac simulate`` run; `ConfigError` without
-        [simulator]."""
-        model, recorded = self.simulated_model(), self.recorded_counts_per_rev()
-        if recorded == model.encoder.counts_per_rev:
+    def sampled_model(self) -> MotorModel:
+        """The simulated drive as its trials sample it, at `sampled_counts_per_rev` (`Encoder.recorded_at`): what
+        the simulator backend, ``ilcpmac emulate`` and ``ilcpmac simulate`` run, recording at
+        `recorded_counts_per_rev`; `ConfigError` without [simulator]."""
+        model, sampled = self.simulated_model(), self.sampled_counts_per_rev()
+        if sampled == model.encoder.counts_per_rev:
             return model
-        return dataclasses.replace(model, encoder=model.encoder.recorded_at(recorded))
+        return dataclasses.replace(model, encoder=model.encoder.recorded_at(sampled))
 
 
 def _one_per(values: tuple, torques: tuple[float, ...], torque: float):
@@ -729,7 +735,7 @@ def check_config(config: CampaignConfig) -> None:
         problem = problem or model_problem(config.model, model_key)
         if problem is None and config.bench.counts_per_rev % config.recorded_counts_per_rev() == 0:
             counts_key = _counts_key(config)
-            problem = model_problem(config.recorded_model(), lambda table, key: counts_key if (
+            problem = model_problem(config.sampled_model(), lambda table, key: counts_key if (
                 table, key) == ("encoder", "counts_per_rev") else model_key(table, key))
     elif bench.backemf is not None:
         problem = problem or backemf_problem(bench.backemf, bench.pole_pairs, bench.counts_per_rev, model_key)

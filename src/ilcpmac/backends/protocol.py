@@ -394,8 +394,12 @@ def _expect_size(payload: memoryview, size: int, what: str) -> None:
 
 
 def check_servable(description: BenchDescription) -> None:
-    """Raise `BackendError` if ``description``'s DESCRIBE would not fit in a frame (`MAX_COUNTS_PER_REV`)."""
+    """Raise `BackendError` if ``description``'s DESCRIBE would not fit in a frame (`MAX_COUNTS_PER_REV`), or not
+    tell what its counts are (DESCRIBE tells no count means, `MotorInfo.lines_per_count`)."""
     cpr = description.motor.counts_per_rev
+    if description.motor.lines_per_count != 1:
+        raise BackendError(f"a bench whose counts are means over {description.motor.lines_per_count} lines: DESCRIBE "
+                           "tells the edges of its counts only; serve the edge of every line it samples")
     if cpr > MAX_COUNTS_PER_REV:
         raise BackendError(f"counts_per_rev {cpr} is more than the protocol's {MAX_COUNTS_PER_REV}: DESCRIBE "
                            f"carries 24 bytes per count within {MAX_PAYLOAD} bytes; serve the encoder at a divided "

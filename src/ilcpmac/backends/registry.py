@@ -24,8 +24,8 @@ class BackendSetup:
 
     Attributes
     ----------
-    config : the campaign config (its [bench], [limits] and [trials]; `CampaignConfig.recorded_model` for a
-        simulator).
+    config : the campaign config (its [bench], [limits] and [trials]; `CampaignConfig.sampled_model` and
+        `CampaignConfig.recorded_counts_per_rev` for a simulator).
     address : where the bench is (``--address``), for backends that need one; None if not given.
     options : the backend's own ``[backends.NAME]`` table of the config, as read (the backend parses and checks
         it, with the schema kit, before any motion); empty if the config has none.

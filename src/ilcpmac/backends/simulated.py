@@ -27,10 +27,13 @@ class SimulatorBackend:
     model : MotorModel
     limits : BenchLimits
     warmup_revolutions : int
+    record_counts_per_rev : int or None
+        `Simulator`'s.
     """
 
-    def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1) -> None:
-        self.simulator = Simulator(model, warmup_revolutions)
+    def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1,
+                 record_counts_per_rev: int | None = None) -> None:
+        self.simulator = Simulator(model, warmup_revolutions, record_counts_per_rev)
         self.limits = limits
         self.max_parallel_trials = os.cpu_count() or 1
 
@@ -45,7 +48,8 @@ class SimulatorBackend:
                               "takes no address; for a bench at that address give --backend remote (or the "
                               "backend that drives it)")
         config = setup.config
-        return cls(config.recorded_model(), config.limits.bench_limits(), config.grid.warmup_revolutions)
+        return cls(config.sampled_model(), config.limits.bench_limits(), config.grid.warmup_revolutions,
+                   config.recorded_counts_per_rev())
 
     def describe(self) -> BenchDescription:
         return simulated_description(self.simulator, self.limits)

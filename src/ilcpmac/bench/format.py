@@ -128,19 +128,21 @@ class MotorTable:
     inertia_uncertainty: float | None = field_like(BenchSettings, "inertia_uncertainty", default=None)
     log_rate_hz: float | None = setting(in_range(0.0, 1e9, low_open=True), "row rate of the drive logs the trials "
                                         "were resampled from, Hz (written by ilcpmac import)", None, commented=True)
+    lines_per_count: int = setting(in_range(1, 2**20), "encoder lines each count is the mean over, centred on it "
+                                   "(1: each count the value at its edge)", 1, commented=True)
 
     @classmethod
     def of(cls, motor: MotorInfo, backemf_file: str) -> MotorTable:
         """The table of ``motor`` and its back-EMF table's file."""
         return cls(motor.pole_pairs, motor.slots, motor.counts_per_rev, motor.inertia_kgm2, backemf_file,
                    motor.torque_sensor, motor.timer_resolution_s, motor.mirrored, motor.currents,
-                   motor.inertia_uncertainty, motor.log_rate_hz)
+                   motor.inertia_uncertainty, motor.log_rate_hz, motor.lines_per_count)
 
     def info(self) -> MotorInfo:
         """The motor this table describes."""
         return MotorInfo(self.pole_pairs, self.slots, self.counts_per_rev, self.inertia, self.torque_sensor,
                          self.timer_resolution_s, self.mirrored, self.currents, self.inertia_uncertainty,
-                         self.log_rate_hz)
+                         self.log_rate_hz, self.lines_per_count)
 
 
 @dataclass(frozen=True)
@@ -808,6 +810,11 @@ def check_bench(config: CampaignConfig, description) -> None:
             if recorded != bench.counts_per_rev and bench.counts_per_rev % motor.counts_per_rev == 0 else ""
         raise ConfigError(f"{config.path}: [bench] counts_per_rev {bench.counts_per_rev}{how} differs from the "
                           f"bench's {motor.counts_per_rev}{hint}")
+    lines = config.sampled_counts_per_rev() // recorded if config.model is not None else 1
+    if motor.lines_per_count != lines:
+        raise ConfigError(f"{config.path}: [bench] counts_per_rev {bench.counts_per_rev}, recorded at {recorded} "
+                          f"counts as means over {lines} lines each, differs from the bench's {motor.counts_per_rev} "
+                          f"counts as means over {motor.lines_per_count} lines each")
     if bench.inertia_kgm2 is not None and not math.isclose(bench.inertia_kgm2, motor.inertia_kgm2, rel_tol=1e-9):
         raise ConfigError(f"{config.path}: [bench] inertia_kgm2 {bench.inertia_kgm2:g} differs from the bench's "
                           f"{motor.inertia_kgm2:g}")

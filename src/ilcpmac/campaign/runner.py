@@ -426,11 +426,16 @@ class CampaignRunner:
         (`TorqueMeasurement.graduation_error`: no model of the torque, which a grid of few speeds and
         revolutions does not pin down), only what stands out of its noise (`significant_encoder_error` at
         `AGAINST_SENSOR_FALSE_ALARM`); and the estimate's harmonics e_h, h = 0..N_c / 2 - 1, counts, their
-        variance and the part applied."""
+        variance and the part applied. A record of count means (`MotorInfo.lines_per_count` > 1) is measured
+        within the ripple band only: above it the torque and the stamps fold the lines' content back
+        differently (the mean over a count is no band limit), which the difference would take for encoder
+        error, and the lines' error is b times smaller there."""
         assert self.measurement is not None
-        cpr = self.description.motor.counts_per_rev
+        motor = self.description.motor
+        cpr = motor.counts_per_rev
+        top = cpr // 2 - 1 if motor.lines_per_count == 1 else min(cpr // 2 - 1, self.config.campaign.ripple_harmonics)
         trials = [replace(trial, request=request) for trial, request in zip(grid_trials, self.grid)]
-        estimate, variance = self.measurement.graduation_error(trials, cpr, cpr // 2 - 1)
+        estimate, variance = self.measurement.graduation_error(trials, cpr, top)
         applied = significant_encoder_error(estimate, variance, AGAINST_SENSOR_FALSE_ALARM)
         fields = encoder_error_fields(encoder_error_table(applied, cpr), applied, variance)
         return replace(result, **fields, messages=(*result.messages, (
@@ -572,9 +577,10 @@ class CampaignRunner:
         if not source.reads_encoder:
             self.measurement = TorqueMeasurement(self.identified)
             return
+        motor = self.description.motor
         self.measurement = TorqueMeasurement(
-            self.identified, source, self.description.motor.inertia_kgm2,
-            timer_resolution_s(self._grid_bench(self._grid_trials())), result.encoder_error_counts)
+            self.identified, source, motor.inertia_kgm2, timer_resolution_s(self._grid_bench(self._grid_trials())),
+            result.encoder_error_counts, lines_per_count=motor.lines_per_count)
 
     def _start_pipeline(self) -> None:
         """Build the stages from the identification (`built_stages`: a failing factory is a `StageError`); keep

@@ -84,7 +84,8 @@ def emulate(port: int, host: str, config: Path | None, max_current: float, max_t
            [("drop", drop), ("stall", stall), ("corrupt", corrupt), ("wrong_version", wrong_version),
             ("restart", restart)] if spec is not None},
         stall_s=stall_s)
-    backend = SimulatorBackend(cfg.recorded_model(), BenchLimits(max_current, max_torque, max_speed),
+    # DESCRIBE tells no count means (docs/protocol.md): the target records the edge of every line it samples
+    backend = SimulatorBackend(cfg.sampled_model(), BenchLimits(max_current, max_torque, max_speed),
                                cfg.grid.warmup_revolutions)
     logging.basicConfig(level=logging.INFO, format="%(message)s",
                         handlers=[RichHandler(console=console, show_path=False)])

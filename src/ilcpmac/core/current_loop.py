@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ilcpmac.core.binning import bin_response
+
 
 @dataclass(frozen=True)
 class CurrentLoop:
@@ -72,13 +74,28 @@ class CurrentLoop:
         """The loop with each phase's time constant times ``factor`` (the delay kept)."""
         return CurrentLoop(self.time_constant_s * factor, self.delay_s)
 
-    def response(self, harmonics: np.ndarray, speed_hz: float | np.ndarray, counts_per_rev: int) -> np.ndarray:
+    def response(self, harmonics: np.ndarray, speed_hz: float | np.ndarray, counts_per_rev: int,
+                 lines_per_count: int = 1) -> np.ndarray:
         """The loop's response per harmonic and phase at a constant speed, shape (len(harmonics), 3); for an
         array of speeds, one such block per speed, shape speed_hz.shape + (len(harmonics), 3).
 
         The z-transform of the count recursion (module docstring) with equal
-        count intervals 1 / (counts_per_rev speed_hz), at z = exp(j 2 pi h / counts_per_rev).
+        count intervals 1 / (counts_per_rev speed_hz), at z = exp(j 2 pi h / counts_per_rev). With b =
+        ``lines_per_count`` > 1 the currents are recorded as count means (`ilcpmac.core.binning`): the
+        staircase over N b lines has harmonic h at h + k N (k = 0 .. b - 1) with weights D_k = mean_j
+        exp(-j 2 pi (h + k N) j / (N b)), each through the loop sampled per line and the count mean
+        (`bin_response`), all folding back onto h.
         """
+        if lines_per_count > 1:
+            h = np.asarray(harmonics, float)
+            lines = lines_per_count * counts_per_rev
+            total = np.zeros(np.shape(speed_hz) + (h.size, 3), complex)
+            for k in range(lines_per_count):
+                image = h + k * counts_per_rev
+                weight = np.exp(-2j * np.pi * image[:, None] * np.arange(lines_per_count) / lines).mean(axis=1)
+                total = total + (weight * bin_response(image, lines, lines_per_count))[:, None] * self.response(
+                    image, speed_hz, lines)
+            return total
         z_inv = np.exp(-2j * np.pi * np.asarray(harmonics, float)[:, None] / counts_per_rev)
         dt = 1.0 / (counts_per_rev * np.asarray(speed_hz, float)[..., None, None])
         a, b = self.count_decays(dt)

@@ -78,6 +78,9 @@ class MotorInfo:
     log_rate_hz : float or None
         The row rate of the drive logs the trials were resampled from (the slowest), Hz; None: the trials were
         recorded per count.
+    lines_per_count : int
+        b: each count of the trials is the mean over the b encoder lines centred on it (`ilcpmac.core.binning`);
+        1: the value at the count's edge.
     """
 
     pole_pairs: int
@@ -90,6 +93,7 @@ class MotorInfo:
     currents: str = "phases"
     inertia_uncertainty: float | None = None
     log_rate_hz: float | None = None
+    lines_per_count: int = 1
 
     @property
     def cogging_order(self) -> int:

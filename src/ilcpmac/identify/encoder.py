@@ -49,6 +49,7 @@ model of such ripple (docs/identification.md).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
@@ -85,14 +86,19 @@ MIN_TIMER_RESOLUTION_S = 1e-7
 
 
 def timer_resolution_s(bench: Bench) -> float:
-    """bench.toml's [motor] timer_resolution_s, else the finest step of the stamps, s.
+    """bench.toml's [motor] timer_resolution_s, else the finest step of the stamps, s: the quantum q of eq. 3 of
+    `ilcpmac.signals.encoder_torque`.
 
     Stamps quantised to q make every count's duration, and every change of duration from one count to
     the next, a multiple of q; the smallest non-zero change over the trials is q (or a multiple, when
-    the speed never changes by less), and at least the trial files' 0.1 us.
+    the speed never changes by less), and at least the trial files' 0.1 us. A record of count means over b
+    lines (`MotorInfo.lines_per_count`) averages b stamps per count, whose steps tell nothing of q: it states
+    q, and eq. 3 takes q / sqrt(b), the quantum independent stamps at the counts would need for the noise of
+    every line's.
     """
-    if bench.motor.timer_resolution_s is not None:
-        return bench.motor.timer_resolution_s
+    motor = bench.motor
+    if motor.timer_resolution_s is not None:
+        return motor.timer_resolution_s / math.sqrt(motor.lines_per_count)
     steps = [np.abs(np.diff(np.diff(t.time_s))) for t in bench.trials if t.time_s.size > 2]
     changes = np.concatenate(steps) if steps else np.zeros(0)
     changes = changes[changes > 0.5 * MIN_TIMER_RESOLUTION_S]

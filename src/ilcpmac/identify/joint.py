@@ -68,11 +68,13 @@ import numpy as np
 from numba import njit
 
 from ilcpmac.core import torque_sensor
+from ilcpmac.core.binning import count_means, per_line
 from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.lag_kernel import _advance, warm_up_start
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
 from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
+from ilcpmac.model.tables import current_references
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
@@ -387,6 +389,11 @@ class _JointProblem:
         self.speeds = np.array([t.speed_hz for t in tables.trials])
         self.i_ref = np.stack([t.i_ref_table_a for t in tables.trials])
         self.count_period = np.ascontiguousarray(np.stack([t.count_period_s for t in tables.trials]))
+        #: b: each count the mean over b lines (`ilcpmac.core.binning`); the staircase then runs line by line, and
+        #: each phase's torque K_p i_p is formed at the lines (K_p there from its harmonics) before the count mean
+        b = self.lines_per_count = tables.motor.lines_per_count
+        self.line_period = np.ascontiguousarray(np.repeat(self.count_period / b, b, axis=1))
+        self.backemf_lines = self.backemf if b == 1 else per_line(self.backemf, b)
         self.instants = count_instants(self.count_period)
         self.torque = np.stack([t.torque_table_nm for t in tables.trials])
         self.max_harmonic = int(max(self.max_fit, sets.cogging.max(initial=0)))
@@ -408,7 +415,7 @@ class _JointProblem:
             mean = speed.mean(axis=1, keepdims=True)
             self.torque = self.torque - np.array([[viscous] for _, _, viscous in parts]) * (speed - mean)
             self.speed_ripple = trial_amplitudes(speed[:, :, None], self.max_fit)[:, sets.fit, 0] / mean
-        backemf_cols = trial_amplitudes(self.backemf[None], self.max_fit)[0][sets.fit]
+        backemf_cols = trial_amplitudes(self.counted(self.backemf_lines.T).T[None], self.max_fit)[0][sets.fit]
         self.backemf_design = np.broadcast_to(backemf_cols, (len(tables.trials),) + backemf_cols.shape)
         self.common_offset = bool(np.linalg.norm(backemf_cols.sum(axis=1))
                                   > SIGNIFICANT * np.linalg.norm(backemf_cols, axis=0).max())
@@ -418,6 +425,17 @@ class _JointProblem:
         # per phase, contiguous: the count recursion's input (`lagged_phase` copies any other)
         self.phase_i_ref, self.phase_emf = ([np.ascontiguousarray(a[:, :, p]) for p in range(3)]
                                             for a in (self.i_ref, self.emf))
+        if b > 1:
+            self.phase_i_ref = self._references_per_line()
+
+    def _references_per_line(self) -> list[np.ndarray]:
+        """I*_p at every line of a record of count means, per phase (n_trials, cpr b): the torque each count's
+        references ask for, sum_p K_p I*_p at its line, held over its b lines and commuted at each
+        (`current_references`, as the simulator's controller does)."""
+        b = self.lines_per_count
+        torque = np.repeat(np.einsum("tcp,cp->tc", self.i_ref, self.backemf), b, axis=1)
+        lines = np.stack([current_references(t, self.backemf_lines) for t in torque])
+        return [np.ascontiguousarray(lines[:, :, p]) for p in range(3)]
 
     @staticmethod
     def loop_of(phi: np.ndarray) -> CurrentLoop:
@@ -470,25 +488,44 @@ class _JointProblem:
             store[key] = compute()
         return store[key]
 
+    def _decays(self, tau: float, delay: float, continuous: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The periods a table runs through the loop at, and `count_decay` and `sample_decay` there (each computed
+        once per tau and delay): the references of a record of count means run line by line (b lines per count,
+        `_references_per_line`), anything else count by count."""
+        b = 1 if continuous else self.lines_per_count
+        period = self.count_period if b == 1 else self.line_period
+        decay = self._cached(f"decay{b}", (tau,), lambda: count_decay(period, tau))
+        sample = decay if continuous else self._cached(f"sample_decay{b}", (tau, delay), lambda: sample_decay(
+            period, tau, delay))
+        return period, decay, sample
+
     def lagged(self, x: np.ndarray, tau: float, delay: float, continuous: bool = False) -> np.ndarray:
-        """`lagged_phase` with the decays of each tau (and delay) computed once."""
-        decay = self._cached("decay", (tau,), lambda: count_decay(self.count_period, tau))
-        sample = decay if continuous else self._cached("sample_decay", (tau, delay), lambda: sample_decay(
-            self.count_period, tau, delay))
-        return lagged_phase(x, self.count_period, tau, delay, continuous, (decay, sample))
+        """`lagged_phase` with the decays of each tau (and delay) computed once: per count, or for the references
+        of a record of count means per line (`_decays`)."""
+        period, decay, sample = self._decays(tau, delay, continuous)
+        return lagged_phase(x, period, tau, delay, continuous, (decay, sample))
+
+    def counted(self, lines: np.ndarray) -> np.ndarray:
+        """Per-line tables (last axis) as the record holds them: their count means; per-count ones as they are."""
+        b = self.lines_per_count
+        return lines if b == 1 else count_means(lines, b)
 
     def phase_current(self, phi: np.ndarray, p: int) -> np.ndarray:
-        """G_p I*_p per count, shape (n_trials, cpr)."""
+        """G_p I*_p per count (per line for a record of count means), shape (n_trials, cpr b)."""
         return self._cached(f"current{p}", (phi[p], phi[3]), lambda: self.lagged(self.phase_i_ref[p], phi[p],
                                                                                  phi[3]))
+
+    def current_torque(self, phi: np.ndarray, p: int) -> np.ndarray:
+        """K_p G_p I*_p per count as the record holds it, shape (n_trials, cpr)."""
+        return self.counted(self.backemf_lines[:, p] * self.phase_current(phi, p))
 
     def cubic_torque(self, phi: np.ndarray, x: np.ndarray) -> np.ndarray:
         """sum_p K_p i_p^3 per count, i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, cpr)."""
         terms = []
         for p in range(3):
             current = x[p] * self.phase_current(phi, p) + x[3 + p]
-            terms.append(self.backemf[:, p] * (current * current * current))
-        return terms[0] + terms[1] + terms[2]
+            terms.append(self.backemf_lines[:, p] * (current * current * current))
+        return self.counted(terms[0] + terms[1] + terms[2])
 
     def amplitudes(self, tables: np.ndarray) -> np.ndarray:
         """Fit-harmonic amplitudes of per-count torque tables (n_trials, cpr, m) -> (n_trials, n_fit, m).
@@ -514,7 +551,7 @@ class _JointProblem:
         """Amplitudes of K_p G_p I*_p and of K_p W (1 - G_p) e_p, shape (n_trials, n_fit, 2)."""
         k = self.backemf[:, p]
         current = self._cached(f"current_amplitude{p}", (phi[p], phi[3]), lambda: self.amplitudes(
-            (k * self.phase_current(phi, p))[:, :, None]))
+            self.current_torque(phi, p)[:, :, None]))
         emf = self._cached(f"emf_amplitude{p}", (phi[p], phi[3], phi[5]), lambda: self.amplitudes(
             (k * self.lagged(self.rejected(phi, p), phi[5], 0.0, continuous=True))[:, :, None]))
         return np.concatenate([current, emf], axis=2)
@@ -522,12 +559,10 @@ class _JointProblem:
     def lag_derivatives(self, x: np.ndarray, tau: float, delay: float,
                         continuous: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The derivatives of `lagged`'s output with respect to tau and the delay (`_lag_derivatives`)."""
-        decay = self._cached("decay", (tau,), lambda: count_decay(self.count_period, tau))
-        sample = decay if continuous else self._cached("sample_decay", (tau, delay), lambda: sample_decay(
-            self.count_period, tau, delay))
+        period, decay, sample = self._decays(tau, delay, continuous)
+        x = np.ascontiguousarray(x, float)
         d_tau, d_delay = np.empty(x.shape), np.empty(x.shape)
-        _lag_derivatives(np.ascontiguousarray(x, float), self.count_period, float(tau), float(delay), decay, sample,
-                         continuous, d_tau, d_delay)
+        _lag_derivatives(x, period, float(tau), float(delay), decay, sample, continuous, d_tau, d_delay)
         return d_tau, d_delay
 
     def loop_derivatives(self, phi: np.ndarray) -> np.ndarray:
@@ -541,12 +576,13 @@ class _JointProblem:
             per_phase = []
             for p in range(3):
                 k = self.backemf[:, p]
-                current = self.lag_derivatives(self.phase_i_ref[p], phi[p], phi[3])
+                current = [self.counted(self.backemf_lines[:, p] * d)
+                           for d in self.lag_derivatives(self.phase_i_ref[p], phi[p], phi[3])]
                 emf = self.lag_derivatives(self.phase_emf[p], phi[p], phi[3], continuous=True)
                 winding, _ = self.lag_derivatives(self.rejected(phi, p), phi[5], 0.0, continuous=True)
-                tables = [*current, *(-self.lagged(d, phi[5], 0.0, continuous=True) for d in emf), winding]
+                tables = [*current, *(-k * self.lagged(d, phi[5], 0.0, continuous=True) for d in emf), k * winding]
                 # one transform per table: a stack of them transforms slower than its parts
-                per_phase.append([self.amplitudes((k * table)[:, :, None]) for table in tables])
+                per_phase.append([self.amplitudes(table[:, :, None]) for table in tables])
             a, b, c = per_phase
             self._loop_derivatives = (key, np.concatenate([a[0], b[0], c[0], a[1], b[1], c[1], a[2], b[2], c[2],
                                                            a[3] + b[3] + c[3], a[4] + b[4] + c[4]], axis=2))
@@ -572,8 +608,8 @@ class _JointProblem:
         torque = np.zeros(self.i_ref.shape[:2])
         for p in range(3):
             k = self.backemf[:, p]
-            torque += k * (x[p] * self.phase_current(phi, p) + x[3 + p] + x[6] * self.lagged(
-                self.rejected(phi, p), phi[5], 0.0, continuous=True))
+            torque += (x[p] * self.current_torque(phi, p) + x[3 + p] * self.counted(self.backemf_lines[:, p])
+                       + x[6] * k * self.lagged(self.rejected(phi, p), phi[5], 0.0, continuous=True))
         torque -= x[7] * self.cubic_torque(phi, x)
         amplitudes = np.zeros(self.cpr // 2 + 1, complex)
         for h, value in table.items():

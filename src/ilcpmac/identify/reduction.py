@@ -12,12 +12,14 @@ comes from the encoder's time stamps instead (`ilcpmac.identify.encoder`).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from ilcpmac.bench.format import Bench, check_backemf, check_trial
+from ilcpmac.core.binning import noise_gain
 from ilcpmac.core.errors import BenchFormatError, IdentificationError
 from ilcpmac.core.records import MotorInfo, TrialData
 from ilcpmac.core.torque_source import TorqueSource
@@ -140,8 +142,9 @@ class BenchTables:
     torque_source: TorqueSource = TorqueSource.SENSOR
 
 
-def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
-    """Reduce one trial: whole revolutions, slow trend removed, synchronous averages.
+def reduce_trial(trial: TrialData, counts_per_rev: int, lines_per_count: int = 1) -> TrialTables:
+    """Reduce one trial: whole revolutions, slow trend removed, synchronous averages; a harmonic's variance from the
+    rows' scatter, as a record of count means over ``lines_per_count`` lines holds it (`noise_gain`).
 
     Raises
     ------
@@ -176,7 +179,8 @@ def reduce_trial(trial: TrialData, counts_per_rev: int) -> TrialTables:
         i_ref_table_a=i_ref_table,
         count_period_s=count_period,
         noise_variance_nm2=noise_variance,
-        harmonic_variance_nm2=2.0 * noise_variance * mean_inverse_hits(count, counts_per_rev) / counts_per_rev,
+        harmonic_variance_nm2=2.0 * noise_variance * mean_inverse_hits(count, counts_per_rev) / counts_per_rev
+        * noise_gain(lines_per_count),
     )
 
 
@@ -218,9 +222,10 @@ def revolution_averages(count: np.ndarray, time_s: np.ndarray, i_ref_a: np.ndarr
     return 1.0 / (seconds_per_count * counts_per_rev), synchronous_table(count, i_ref_a, counts_per_rev), count_period_s
 
 
-def reduce_bench(bench: Bench, reduce: Callable[[TrialData, int], TrialTables] = reduce_trial,
+def reduce_bench(bench: Bench, reduce: Callable[[TrialData, int], TrialTables] | None = None,
                  torque_source: TorqueSource = TorqueSource.SENSOR) -> BenchTables:
-    """Reduce every trial of ``bench`` with ``reduce``; trials that cannot be reduced are left out with a message.
+    """Reduce every trial of ``bench`` with ``reduce`` (None: `reduce_trial` at the bench's lines per count); trials
+    that cannot be reduced are left out with a message.
 
     The data are checked first (`ilcpmac.bench.format.check_trial` and
     `check_backemf`), so that a bench built in memory gets the reader's messages.
@@ -232,6 +237,8 @@ def reduce_bench(bench: Bench, reduce: Callable[[TrialData, int], TrialTables] =
         When no trial can be reduced, or the back-EMF is zero or at odds with the pole pairs.
     """
     cpr = bench.motor.counts_per_rev
+    if reduce is None:
+        reduce = functools.partial(reduce_trial, lines_per_count=bench.motor.lines_per_count)
     try:
         check_backemf(bench.backemf_nm_per_a, bench.motor, "back-EMF")
     except BenchFormatError as e:

@@ -214,8 +214,9 @@ def estimate_system_gain(tables: BenchTables) -> SystemGainEstimate:
     variance = scatter / magnitude.size + over_harmonics + over_set_points
     speeds = np.array([t.speed_hz for t in tables.trials])
     weights = np.where(used, 1.0, 0.0)[None, :] * s_xx
-    loop_gain, loop = fit_loop_to_response(h, speeds, response_per_trial, weights, cpr)
-    misfit = _relative_misfit(response_per_trial, loop_gain * loop.response(h, speeds, cpr)[:, :, 0], weights,
+    lines = tables.motor.lines_per_count
+    loop_gain, loop = fit_loop_to_response(h, speeds, response_per_trial, weights, cpr, lines)
+    misfit = _relative_misfit(response_per_trial, loop_gain * loop.response(h, speeds, cpr, lines)[:, :, 0], weights,
                               np.where(used, 1.0, 0.0)[None, :] * y_scatter / np.maximum(r - 1.0, 1.0))
     if misfit > MAX_RELATIVE_MISFIT:
         raise TorqueNotFollowing(
@@ -249,7 +250,8 @@ def _blocks(residual: np.ndarray, size: int, scatter: float) -> tuple[np.ndarray
 
 
 def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses: np.ndarray,
-                         weights: np.ndarray, counts_per_rev: int) -> tuple[float, CurrentLoop]:
+                         weights: np.ndarray, counts_per_rev: int, lines_per_count: int = 1
+                         ) -> tuple[float, CurrentLoop]:
     """Fit H_k(h) = g G(h, f_k) to per-trial responses: a gain and one first-order loop with a delay.
 
     Parameters
@@ -259,7 +261,8 @@ def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses
     responses : ndarray, complex, shape (n_trials, H)
     weights : ndarray, shape (n_trials, H)
         Zero where a harmonic is not to be used.
-    counts_per_rev : int
+    counts_per_rev, lines_per_count : int
+        The record's counts per revolution, and the lines each is the mean over (`CurrentLoop.response`).
 
     Returns
     -------
@@ -276,7 +279,7 @@ def fit_loop_to_response(harmonics: np.ndarray, speeds_hz: np.ndarray, responses
     def residual(params: np.ndarray) -> np.ndarray:
         gain, tau, delay = params
         loop = CurrentLoop(np.full(3, tau), delay)
-        model = gain * loop.response(harmonics, speeds_hz, counts_per_rev)[:, :, 0]
+        model = gain * loop.response(harmonics, speeds_hz, counts_per_rev, lines_per_count)[:, :, 0]
         error = np.where(valid, root * (np.nan_to_num(responses) - model), 0.0).ravel()
         return np.concatenate([error.real, error.imag])
 

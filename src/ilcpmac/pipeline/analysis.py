@@ -207,6 +207,8 @@ class TorqueMeasurement:
         The identified encoder graduation error e_c, counts, taken out of every trial's stamps.
     friction_nm : float
         Coulomb friction the brake does not absorb, N m.
+    lines_per_count : int
+        The encoder lines each count of the trials is the mean over (`MotorInfo.lines_per_count`).
     """
 
     identified: Identified
@@ -215,6 +217,7 @@ class TorqueMeasurement:
     timer_resolution_s: float = 0.0
     line_errors_counts: np.ndarray | None = None
     friction_nm: float = 0.0
+    lines_per_count: int = 1
 
     def __post_init__(self) -> None:
         if self.source.reads_encoder and not (np.isfinite(self.inertia_kgm2) and self.inertia_kgm2 > 0):
@@ -277,7 +280,7 @@ class TorqueMeasurement:
                                                              spectrum.speed_harmonics_rad_s[0].real, self.friction_nm))
         return spectrum, without_staircase(spectrum, request.torque_reference_nm(),
                                            self.identified.epsilon_alpha_at(request.calibration),
-                                           self.identified.loop_at(request.calibration))
+                                           self.identified.loop_at(request.calibration), self.lines_per_count)
 
     def graduation_error(self, trials: list[TrialData], counts_per_rev: int, max_harmonic: int
                          ) -> tuple[np.ndarray, np.ndarray]:

@@ -197,6 +197,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ilcpmac.core.binning import bin_response
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.signals.harmonics import (
     filtered,
@@ -437,9 +438,14 @@ def with_viscous(spectrum: EncoderTorqueSpectrum, viscous_nm_s: float) -> Encode
                    viscous_nm_s=float(viscous_nm_s))
 
 
-def staircase_bias(harmonics: np.ndarray, counts_per_rev: int, speed_hz: float, loop: CurrentLoop) -> np.ndarray:
+def staircase_bias(harmonics: np.ndarray, counts_per_rev: int, speed_hz: float, loop: CurrentLoop,
+                   lines_per_count: int = 1) -> np.ndarray:
     """beta_h of eq. (5) per phase: what step 1 adds to the torque a phase's current makes, per unit of the
     harmonic of its per-count target, through ``loop`` at the constant speed ``speed_hz``.
+
+    A record of count means over b = ``lines_per_count`` lines (`ilcpmac.core.binning`) holds both the stamps
+    and the torque as such means: the stamps' mean scales what step 1 gives by `bin_response`, and the sensor's
+    S_h is the loop's response seen as count means.
 
     Shape (len(harmonics), 3), complex, as `CurrentLoop.response`; 0 at h = 0, and everywhere for an ideal loop.
     """
@@ -458,23 +464,24 @@ def staircase_bias(harmonics: np.ndarray, counts_per_rev: int, speed_hz: float, 
     else:
         mean = (dt + delay + (state - 1.0) * tau * (b - a) + z * (-delay + (state - 1.0) * tau * (1.0 - b))) / dt
     boxcar = (np.exp(0.5j * nu) * np.sinc(h / counts_per_rev))[:, None]
-    return mean / boxcar - loop.response(h, speed_hz, counts_per_rev)
+    stamps = bin_response(h, lines_per_count * counts_per_rev, lines_per_count)[:, None]
+    return mean * stamps / boxcar - loop.response(h, speed_hz, counts_per_rev, lines_per_count)
 
 
 def without_staircase(spectrum: EncoderTorqueSpectrum, reference_nm: np.ndarray, epsilon_alpha: np.ndarray,
-                      loop: CurrentLoop) -> EncoderTorqueSpectrum:
+                      loop: CurrentLoop, lines_per_count: int = 1) -> EncoderTorqueSpectrum:
     """``spectrum`` less eq. (5)'s beta_h x_h: the torque at the lines, as a torque sensor samples it.
 
     The currents' torque is the torque reference per count, ``reference_nm`` (shape (counts_per_rev,), N m),
     through each phase's current sensors and loop, x_h beta_h = mean_p(epsilon alpha_p beta_h,p) tau_ref,h (the
     model of `ilcpmac.stages.base.StageSetup.torque_response`); ``epsilon_alpha`` (3,) and ``loop`` at the
-    trial's calibration. The variances stay.
+    trial's calibration; ``lines_per_count`` the record's (`staircase_bias`). The variances stay.
     """
     x = np.asarray(reference_nm, float)
     if x.shape != (spectrum.counts_per_rev,) or not np.all(np.isfinite(x)):
         raise ValueError(f"reference_nm must hold {spectrum.counts_per_rev} finite values, got shape {x.shape}")
     bias = staircase_bias(np.arange(spectrum.max_harmonic + 1), spectrum.counts_per_rev, spectrum.mean_speed_hz,
-                          loop)
+                          loop, lines_per_count)
     return replace(spectrum, harmonics_nm=spectrum.harmonics_nm - np.mean(np.asarray(epsilon_alpha) * bias, axis=1)
                    * harmonic_amplitudes(x, spectrum.max_harmonic))
 

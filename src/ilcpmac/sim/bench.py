@@ -15,7 +15,7 @@ __all__ = ["encoder_error_json", "simulated_description", "true_result", "truth_
 def truth_dict(simulator: Simulator, calibration: SensorCalibration) -> dict:
     """truth.json: the true parameters under the result keys of docs/bench-format.md, at ``calibration``."""
     t = simulator.truth(calibration)
-    cpr = simulator.model.encoder.counts_per_rev
+    cpr = simulator.record_counts_per_rev
     return {
         # the true back-EMF over the controller's table scales the torque per reference ampere, as epsilon does
         "total_system_gain": t.delta * t.epsilon * simulator.model.winding.backemf_scale,
@@ -28,7 +28,7 @@ def truth_dict(simulator: Simulator, calibration: SensorCalibration) -> dict:
         "current_loop_bandwidth_per_phase_hz": t.loop_bandwidth_hz.tolist(),
         "calibration": SensorCalibration(simulator.scale_true, simulator.offset_true,
                                          simulator.torque_gain_true).to_json(),
-        "encoder_error": encoder_error_json(simulator.model.encoder.line_errors_counts()),
+        "encoder_error": encoder_error_json(simulator.line_errors_counts()),
     }
 
 
@@ -50,7 +50,7 @@ def simulated_description(simulator: Simulator, limits: BenchLimits) -> BenchDes
     """What the simulated bench tells before its first trial: what its controller knows, and ``limits``."""
     m = simulator.model
     return BenchDescription(
-        motor=m.motor_info(),
+        motor=simulator.motor_info(),
         backemf_nm_per_a=simulator.backemf_counts,
         calibration=m.controller.calibration(),
         limits=limits,

@@ -11,13 +11,14 @@ from __future__ import annotations
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
 import numpy as np
 
+from ilcpmac.core.binning import count_means, sample_means
 from ilcpmac.core.errors import SimulationError
-from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
 from ilcpmac.core.schema import finite_number, shown
 from ilcpmac.model.encoder import line_errors_problem
 from ilcpmac.model.motor import MotorModel, model_problem
@@ -60,15 +61,25 @@ class SensorTruth:
 class Simulator:
     """Simulates trials of one drive.
 
+    The kernel samples every line of the model's encoder; a trial records
+    ``record_counts_per_rev`` counts per revolution, each the centred mean
+    over its b = counts_per_rev / record_counts_per_rev lines
+    (`ilcpmac.core.binning`), and takes its feed-forward and excitation
+    tables at those counts: the controller holds a count's torque reference
+    over its b lines and commutes at every line.
+
     Parameters
     ----------
     model : MotorModel
         The drive.
     warmup_revolutions : int
         Revolutions simulated and dropped before recording starts.
+    record_counts_per_rev : int or None
+        A divisor of the encoder's counts per revolution (None: all of them).
     """
 
-    def __init__(self, model: MotorModel, warmup_revolutions: int = 1) -> None:
+    def __init__(self, model: MotorModel, warmup_revolutions: int = 1,
+                 record_counts_per_rev: int | None = None) -> None:
         problem = model_problem(model)
         if problem is not None:
             raise SimulationError(f"model {problem}")
@@ -78,17 +89,25 @@ class Simulator:
         if not (_integer(warmup_revolutions) and 0 <= warmup_revolutions <= MAX_WARMUP_REVOLUTIONS):
             raise SimulationError(f"warmup_revolutions must be an integer within 0..{MAX_WARMUP_REVOLUTIONS}, "
                                   f"got {shown(warmup_revolutions)}")
+        cpr = model.encoder.counts_per_rev
+        recorded = cpr if record_counts_per_rev is None else record_counts_per_rev
+        if not (_integer(recorded) and 1 <= recorded <= cpr and cpr % recorded == 0):
+            raise SimulationError(f"record_counts_per_rev {shown(recorded)} does not divide the encoder's {cpr} "
+                                  "counts per revolution")
         self.model = model
         self.warmup_revolutions = warmup_revolutions
-        cpr = model.encoder.counts_per_rev
+        self.record_counts_per_rev = recorded
+        #: lines of the encoder per recorded count
+        self.lines_per_count = cpr // recorded
         n_fine = cpr * OVERSAMPLE
         backemf = backemf_table(model.winding, model.backemf, n_fine)
         self.cogging_fine = cogging_table(model.winding, model.cogging, n_fine)
         self.torque_pos_fine = self.cogging_fine + disturbance_table(model.unexplained, n_fine)
         fine = np.column_stack([model.winding.backemf_scale * backemf, self.torque_pos_fine])
         self.fine = np.ascontiguousarray(np.vstack([fine, fine[:1]]))  # periodic: first row repeated
-        #: the back-EMF table per encoder count (backemf.csv, the controller's K*)
-        self.backemf_counts = np.ascontiguousarray(backemf[::OVERSAMPLE])
+        #: the back-EMF table per encoder line (the controller's K*), and at each recorded count (backemf.csv)
+        self.backemf_lines = np.ascontiguousarray(backemf[::OVERSAMPLE])
+        self.backemf_counts = np.ascontiguousarray(self.backemf_lines[::self.lines_per_count])
         errors = model.encoder.line_errors_counts()
         problem = line_errors_problem(errors, cpr)
         if problem is not None:
@@ -116,12 +135,26 @@ class Simulator:
         )
 
     def cogging_counts(self) -> np.ndarray:
-        """The true cogging torque per encoder count, N m."""
-        return self.cogging_fine[::OVERSAMPLE].copy()
+        """The true cogging torque per recorded count (its lines' mean, as a trial records it), N m."""
+        return count_means(self.cogging_fine[::OVERSAMPLE], self.lines_per_count)
+
+    def line_errors_counts(self) -> np.ndarray:
+        """The true error of each recorded count's position (its lines' mean), recorded counts."""
+        b = self.lines_per_count
+        return count_means(self.model.encoder.line_errors_counts(), b) / b
+
+    def motor_info(self) -> MotorInfo:
+        """The motor as the bench describes it: `MotorModel.motor_info` at the recorded counts, each the mean over
+        `lines_per_count` lines; such a record states its stamps' resolution (`timer_resolution_s` of
+        `ilcpmac.identify.encoder`)."""
+        if self.lines_per_count == 1:
+            return self.model.motor_info()
+        return replace(self.model.motor_info(), counts_per_rev=self.record_counts_per_rev,
+                       lines_per_count=self.lines_per_count, timer_resolution_s=self.model.encoder.timer_resolution_s)
 
     def _check(self, request: TrialRequest) -> int:
         """Refuse what the kernel cannot run; returns the trial's step budget."""
-        cpr = self.model.encoder.counts_per_rev
+        cpr, lines = self.record_counts_per_rev, self.model.encoder.counts_per_rev
         for name in ("feedforward_nm", "excitation_nm"):
             table = getattr(request, name)
             if not isinstance(table, np.ndarray) or table.dtype.kind not in "fiu":
@@ -134,8 +167,8 @@ class Simulator:
             raise SimulationError(f"request seed must be a 32-bit unsigned integer, got {shown(request.seed)}")
         if not (_integer(request.revolutions) and request.revolutions >= 1):
             raise SimulationError(f"revolutions must be at least 1, got {shown(request.revolutions)}")
-        if request.revolutions * cpr > MAX_SAMPLES:
-            raise SimulationError(f"{request.revolutions} revolutions x {cpr} counts are more samples than the "
+        if request.revolutions * lines > MAX_SAMPLES:
+            raise SimulationError(f"{request.revolutions} revolutions x {lines} counts are more samples than the "
                                   f"simulator's {MAX_SAMPLES} per trial")
         if not finite_number(request.torque_setpoint_nm):
             raise SimulationError(f"torque set point must be a finite number, got {shown(request.torque_setpoint_nm)}")
@@ -143,8 +176,8 @@ class Simulator:
         if not (finite_number(speed) and speed > 0):
             raise SimulationError(f"speed set point must be positive, got {shown(speed)}")
         rate = self.model.controller.control_rate_hz
-        if speed * cpr > rate / 2:
-            raise SimulationError(f"speed set point {speed:g} Hz x {cpr} counts per revolution is more than half "
+        if speed * lines > rate / 2:
+            raise SimulationError(f"speed set point {speed:g} Hz x {lines} counts per revolution is more than half "
                                   f"the control rate {rate:g} Hz (each count needs two control periods)")
         budget = 3.0 * (self.warmup_revolutions + request.revolutions) / speed * rate + 1000
         if not budget <= MAX_STEPS:
@@ -163,7 +196,7 @@ class Simulator:
         """Torque per count with ideal current tracking, N m (eq. 1.3 plus the unexplained terms)."""
         truth = self.truth(request.calibration)
         i_true = truth.epsilon * truth.alpha * i_ref + truth.beta_a
-        backemf = self.model.winding.backemf_scale * self.backemf_counts
+        backemf = self.model.winding.backemf_scale * self.backemf_lines
         tau = airgap_torque_nm(backemf, i_true, self.model.unexplained.saturation_per_a2)
         return tau + self.torque_pos_fine[::OVERSAMPLE]
 
@@ -171,9 +204,10 @@ class Simulator:
         """Simulate one trial; ``request.seed`` fixes every random draw."""
         max_steps = self._check(request)
         m = self.model
-        cpr = m.encoder.counts_per_rev
-        i_ref = np.ascontiguousarray(current_references(request.torque_reference_nm(), self.backemf_counts),
-                                     dtype=np.float64)
+        cpr, b = m.encoder.counts_per_rev, self.lines_per_count
+        # the controller holds each recorded count's torque reference over its b lines and commutes at every line
+        i_ref = np.ascontiguousarray(current_references(np.repeat(request.torque_reference_nm(), b),
+                                                        self.backemf_lines), dtype=np.float64)
         if not np.all(np.isfinite(i_ref)):
             raise SimulationError("the torque reference needs infinite currents where the back-EMF table vanishes")
         omega0 = 2.0 * np.pi * request.speed_setpoint_hz
@@ -196,8 +230,10 @@ class Simulator:
         r = np.full(3, m.winding.phase_resistance_ohm)
         ell = np.full(3, m.winding.phase_inductance_h)
         delta = self.torque_gain_true / request.calibration.torque_gain
-        warmup = self.warmup_revolutions * cpr
-        record = request.revolutions * cpr
+        # the lines from the first recorded count's mean to the last's: b // 2 either side of lines 0 .. (R - 1) b
+        warmup = max(self.warmup_revolutions * cpr - b // 2, 0)
+        before = self.warmup_revolutions * cpr - warmup
+        record = before + (request.revolutions * self.record_counts_per_rev - 1) * b + b // 2 + 1
         out = _allocate(record)
         n = simulate_trial(
             self.fine, i_ref, self.lines_counts, self.gauss_table,
@@ -216,6 +252,11 @@ class Simulator:
                 f"trial at {request.torque_setpoint_nm} N m, {request.speed_setpoint_hz} Hz stalled or diverged "
                 f"after {n} of {record} counts")
         count, time, i_ref_s, i_meas, torque, torque_true, i_true, speed = (a[:n] for a in out)
+        if b > 1:  # the measurements as count means; the references those at the count's line
+            count, (time, i_meas, torque, torque_true, i_true, speed) = sample_means(
+                count - before, [time, i_meas, torque, torque_true, i_true, speed], b,
+                request.revolutions * self.record_counts_per_rev)
+            i_ref_s = i_ref[count * b % cpr]
         return TrialData(
             torque_setpoint_nm=request.torque_setpoint_nm, speed_setpoint_hz=request.speed_setpoint_hz,
             count=count, time_s=time, i_ref_a=i_ref_s, torque_nm=torque, i_meas_a=i_meas,

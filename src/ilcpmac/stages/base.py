@@ -168,7 +168,8 @@ class StageSetup:
         (`CurrentLoop.response`, its time constants times ``loop_scale``)."""
         ident = self.identified
         loop = ident.loop_at(calibration).scaled(loop_scale)
-        response = loop.response(harmonics, speed_hz, self.description.motor.counts_per_rev)
+        motor = self.description.motor
+        response = loop.response(harmonics, speed_hz, motor.counts_per_rev, motor.lines_per_count)
         return np.mean(ident.epsilon_alpha_at(calibration) * response, axis=1)
 
 

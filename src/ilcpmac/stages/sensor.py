@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ilcpmac.core.binning import count_means, per_line
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.core.schema import in_range
@@ -58,17 +59,24 @@ RANGES = {"process_noise_rel": (in_range(0.0, 1.0), "relative, within [0, 1]"),
                                "identification, within [0, 2^31]; then the calibration holds")}
 
 
-def filtered_references(trial: TrialData, counts_per_rev: int, loop: CurrentLoop) -> np.ndarray:
-    """I*_p as the currents follow it, per count, (counts_per_rev, 3): each harmonic through the
-    phase's current loop (`CurrentLoop.response`)."""
-    table = synchronous_average(trial.count, trial.i_ref_a, counts_per_rev)
-    return _through_loop(table, trial.mean_speed_hz(counts_per_rev), loop)
-
-
-def _through_loop(table: np.ndarray, speed_hz: float, loop: CurrentLoop) -> np.ndarray:
-    """Per-count currents per phase, (counts_per_rev, 3), as the phases' current loops follow them."""
-    cpr = table.shape[0]
-    return filtered(table, loop.response(np.arange(cpr // 2 + 1), speed_hz, cpr))
+def phase_torques(references_a: np.ndarray, backemf_nm_per_a: np.ndarray, speed_hz: float, loop: CurrentLoop,
+                  lines_per_count: int = 1) -> np.ndarray:
+    """K_p I~*_p per count, (counts_per_rev, 3), N m / (true per reference ampere): the per-count references
+    ``references_a`` (counts_per_rev, 3) as each phase's current loop follows them (`CurrentLoop.response`),
+    times the back-EMF table. In a record of count means over b = ``lines_per_count`` lines the controller holds
+    each count's torque reference over its lines and commutes at each (`ilcpmac.sim.simulator`): the references
+    and their torque are formed at the lines (the back-EMF there from its harmonics, `per_line`), then the
+    count means taken."""
+    b = lines_per_count
+    if b == 1:
+        cpr = references_a.shape[0]
+        return backemf_nm_per_a * filtered(references_a, loop.response(np.arange(cpr // 2 + 1), speed_hz, cpr))
+    backemf = per_line(backemf_nm_per_a, b)
+    torque = np.repeat(np.sum(references_a * backemf_nm_per_a, axis=1), b)
+    lines = backemf.shape[0]
+    currents = filtered(current_references(torque, backemf), loop.response(np.arange(lines // 2 + 1), speed_hz,
+                                                                              lines))
+    return count_means((backemf * currents).T, b).T
 
 
 def _without_common_modes(information: np.ndarray) -> np.ndarray:
@@ -112,6 +120,7 @@ class CurrentSensorCorrection:
         ident = setup.identified
         self._backemf = setup.description.backemf_nm_per_a
         self._cpr = setup.description.motor.counts_per_rev
+        self._lines_per_count = setup.description.motor.lines_per_count
         self._torque_gain = ident.torque_gain_v_per_nm
         self._identified = ident
         gain = ident.sensor_gain  # G_s, A / count
@@ -137,9 +146,12 @@ class CurrentSensorCorrection:
         k = self._backemf
         request = trial.requested()
         loop = self._identified.loop_at(request.calibration)
-        feedforward = k * _through_loop(current_references(request.feedforward_nm, k),
-                                        trial.mean_speed_hz(self._cpr), loop)
-        currents = k * filtered_references(trial, self._cpr, loop) - feedforward.mean(axis=1, keepdims=True)
+        speed_hz = trial.mean_speed_hz(self._cpr)
+        feedforward = phase_torques(current_references(request.feedforward_nm, k), k, speed_hz, loop,
+                                    self._lines_per_count)
+        references = synchronous_average(trial.count, trial.i_ref_a, self._cpr)
+        currents = phase_torques(references, k, speed_hz, loop, self._lines_per_count) - feedforward.mean(
+            axis=1, keepdims=True)
         return np.hstack([currents, k])
 
     def shape(self, request: TrialRequest) -> TrialRequest:
