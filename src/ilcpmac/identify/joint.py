@@ -68,13 +68,13 @@ import numpy as np
 from numba import njit
 
 from ilcpmac.core import torque_sensor
-from ilcpmac.core.binning import count_means, per_line
+from ilcpmac.core.binning import count_means
 from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.lag_kernel import _advance, warm_up_start
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
 from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
-from ilcpmac.model.tables import current_references
+from ilcpmac.model.tables import references_per_line
 from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
@@ -392,8 +392,11 @@ class _JointProblem:
         #: b: each count the mean over b lines (`ilcpmac.core.binning`); the staircase then runs line by line, and
         #: each phase's torque K_p i_p is formed at the lines (K_p there from its harmonics) before the count mean
         b = self.lines_per_count = tables.motor.lines_per_count
-        self.line_period = np.ascontiguousarray(np.repeat(self.count_period / b, b, axis=1))
-        self.backemf_lines = self.backemf if b == 1 else per_line(self.backemf, b)
+        self.line_period = self.count_period if b == 1 else np.ascontiguousarray(
+            np.repeat(self.count_period / b, b, axis=1))
+        # I*_p at every line then (`references_per_line`)
+        self.backemf_lines, references = (self.backemf, self.i_ref) if b == 1 else references_per_line(
+            self.i_ref, self.backemf, b)
         self.instants = count_instants(self.count_period)
         self.torque = np.stack([t.torque_table_nm for t in tables.trials])
         self.max_harmonic = int(max(self.max_fit, sets.cogging.max(initial=0)))
@@ -424,18 +427,7 @@ class _JointProblem:
         self.emf = self.backemf * omega[:, :, None]
         # per phase, contiguous: the count recursion's input (`lagged_phase` copies any other)
         self.phase_i_ref, self.phase_emf = ([np.ascontiguousarray(a[:, :, p]) for p in range(3)]
-                                            for a in (self.i_ref, self.emf))
-        if b > 1:
-            self.phase_i_ref = self._references_per_line()
-
-    def _references_per_line(self) -> list[np.ndarray]:
-        """I*_p at every line of a record of count means, per phase (n_trials, cpr b): the torque each count's
-        references ask for, sum_p K_p I*_p at its line, held over its b lines and commuted at each
-        (`current_references`, as the simulator's controller does)."""
-        b = self.lines_per_count
-        torque = np.repeat(np.einsum("tcp,cp->tc", self.i_ref, self.backemf), b, axis=1)
-        lines = np.stack([current_references(t, self.backemf_lines) for t in torque])
-        return [np.ascontiguousarray(lines[:, :, p]) for p in range(3)]
+                                            for a in (references, self.emf))
 
     @staticmethod
     def loop_of(phi: np.ndarray) -> CurrentLoop:
@@ -491,7 +483,7 @@ class _JointProblem:
     def _decays(self, tau: float, delay: float, continuous: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The periods a table runs through the loop at, and `count_decay` and `sample_decay` there (each computed
         once per tau and delay): the references of a record of count means run line by line (b lines per count,
-        `_references_per_line`), anything else count by count."""
+        `references_per_line`), anything else count by count."""
         b = 1 if continuous else self.lines_per_count
         period = self.count_period if b == 1 else self.line_period
         decay = self._cached(f"decay{b}", (tau,), lambda: count_decay(period, tau))

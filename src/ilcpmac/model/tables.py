@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ilcpmac.core.binning import per_line
 from ilcpmac.core.records import MotorInfo
 from ilcpmac.model.motor import BackEmf, Cogging, Unexplained, Winding
 
@@ -75,3 +76,15 @@ def current_references(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.nda
     norm = np.sum(backemf_nm_per_a**2, axis=1)[:, None]
     return np.divide(torque_reference_nm[:, None] * backemf_nm_per_a, norm,
                      out=np.zeros(np.shape(backemf_nm_per_a)), where=norm != 0)
+
+
+def references_per_line(references_a: np.ndarray, backemf_nm_per_a: np.ndarray, b: int
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """The back-EMF table at the N b lines, shape (N b, 3), and the current references there, shape (..., N b, 3),
+    of per-count references ``references_a`` (..., N, 3) of a controller that holds each count's torque reference
+    sum_p K*_p I*_p over its b lines and commutes at every line (`current_references`; K* at the lines from its
+    harmonics, `per_line`): a record of count means (`ilcpmac.core.binning`) as the simulator makes it."""
+    backemf = per_line(backemf_nm_per_a, b)
+    torque = np.repeat(np.sum(references_a * backemf_nm_per_a, axis=-1), b, axis=-1)
+    lines = np.stack([current_references(t, backemf) for t in torque.reshape(-1, torque.shape[-1])])
+    return backemf, lines.reshape(torque.shape + (3,))

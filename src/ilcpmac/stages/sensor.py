@@ -42,12 +42,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ilcpmac.core.binning import count_means, per_line
+from ilcpmac.core.binning import count_means
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
 from ilcpmac.core.schema import in_range
 from ilcpmac.estimators.kalman import KalmanEstimator
-from ilcpmac.model.tables import current_references
+from ilcpmac.model.tables import current_references, references_per_line
 from ilcpmac.signals.harmonics import filtered, synchronous_average
 from ilcpmac.stages.base import Frame, StageSetup, check_options
 
@@ -64,18 +64,15 @@ def phase_torques(references_a: np.ndarray, backemf_nm_per_a: np.ndarray, speed_
     """K_p I~*_p per count, (counts_per_rev, 3), N m / (true per reference ampere): the per-count references
     ``references_a`` (counts_per_rev, 3) as each phase's current loop follows them (`CurrentLoop.response`),
     times the back-EMF table. In a record of count means over b = ``lines_per_count`` lines the controller holds
-    each count's torque reference over its lines and commutes at each (`ilcpmac.sim.simulator`): the references
-    and their torque are formed at the lines (the back-EMF there from its harmonics, `per_line`), then the
-    count means taken."""
+    each count's torque reference over its lines and commutes at each (`references_per_line`): the references
+    and their torque are formed at the lines, then the count means taken."""
     b = lines_per_count
     if b == 1:
         cpr = references_a.shape[0]
         return backemf_nm_per_a * filtered(references_a, loop.response(np.arange(cpr // 2 + 1), speed_hz, cpr))
-    backemf = per_line(backemf_nm_per_a, b)
-    torque = np.repeat(np.sum(references_a * backemf_nm_per_a, axis=1), b)
+    backemf, references = references_per_line(references_a, backemf_nm_per_a, b)
     lines = backemf.shape[0]
-    currents = filtered(current_references(torque, backemf), loop.response(np.arange(lines // 2 + 1), speed_hz,
-                                                                              lines))
+    currents = filtered(references, loop.response(np.arange(lines // 2 + 1), speed_hz, lines))
     return count_means((backemf * currents).T, b).T
 
 
