@@ -50,7 +50,8 @@ class OneHarmonicCanceller:
 
     def learn(self, trial, frame: Frame):
         request = trial.requested()  # the set point's correction is the one this trial ran with
-        g = self.setup.torque_response(np.array([self.order]), frame.speed_hz, request.calibration)[0]
+        g = self.setup.shaft_response(np.array([self.order]), frame.speed_hz, request.calibration,
+                                      request.torque_setpoint_nm)[0]
         step = self.gain * frame.learning_gain * frame.torque_harmonics_nm[self.order] / g
         self.c[request.setpoint_key] = self.c.get(request.setpoint_key, 0j) - step
 

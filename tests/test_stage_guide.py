@@ -57,13 +57,13 @@ def test_the_example_stage_takes_one_step_per_set_point_and_round(example):
     for n in range(1, 7):
         shaped = [stage.shape(r) for r in requests]  # the whole round from one state
         for point, request in zip(POINTS, shaped):
-            response = setup.torque_response(np.array([ORDER]), point[1], CAL)[0]
+            response = setup.shaft_response(np.array([ORDER]), point[1], CAL, point[0])[0]
             ripple_nm = np.zeros(H + 1, complex)
             ripple_nm[ORDER] = disturbance_nm[point] + response * harmonic_amplitudes(request.feedforward_nm)[ORDER]
             stage.learn(SimpleNamespace(requested=lambda request=request: request),
                         Frame({}, ripple_nm, np.full(H + 1, 1e-12), 1.0, point[1]))
         for point, request in zip(POINTS, requests):
-            response = setup.torque_response(np.array([ORDER]), point[1], CAL)[0]
+            response = setup.shaft_response(np.array([ORDER]), point[1], CAL, point[0])[0]
             left = disturbance_nm[point] + response * harmonic_amplitudes(stage.shape(request).feedforward_nm)[ORDER]
             assert abs(left) == pytest.approx(0.5**n * abs(disturbance_nm[point]), rel=1e-9), (n, point)
 

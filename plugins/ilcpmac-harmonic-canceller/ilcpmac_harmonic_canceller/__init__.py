@@ -3,7 +3,7 @@
 Per set point and chosen harmonic h, a Kalman filter (across trials)
 estimates the disturbance d_h from z_h = e_h - G(h) c_h, where e_h is the
 measured torque harmonic in true units, c_h the correction the trial carried
-and G the identified torque response (`StageSetup.torque_response`); the next
+and G the identified response at the shaft (`StageSetup.shaft_response`); the next
 correction moves to -d_h / G(h) by the pipeline's learning gain.
 Other harmonics are left alone.
 """
@@ -65,7 +65,7 @@ class HarmonicCanceller:
         if np.any(request.excitation_nm):
             return  # an identification trial: its ripple is mostly the excitation
         key = request.setpoint_key
-        g = self._setup.torque_response(self.orders, frame.speed_hz, request.calibration)
+        g = self._setup.shaft_response(self.orders, frame.speed_hz, request.calibration, request.torque_setpoint_nm)
         applied = self._correction.get(key, np.zeros(self.orders.size, complex))
         z = frame.torque_harmonics_nm[self.orders] - g * applied
         var = frame.torque_harmonics_var[self.orders] / 2.0  # per real component

@@ -28,6 +28,27 @@ steady state is found by running the recursion from late in the previous
 revolution, long enough for the start to be forgotten. The same loop leaves a
 tracking error to the back-EMF e_p = K_p omega, which its sensitivity
 1 - G_p lets through (`ilcpmac.identify.joint`).
+
+That error closes a second loop through the rotor. A torque ripple tau_h at
+angular frequency w ripples the speed by tau_h / Z(w), Z = j w J + b (the
+inertia and the brake), the back-EMF by K_p times that, and the currents by
+-Y_p(w) K_p times that, where
+
+    Y_p(w) = (1 / R) W(w) (1 - G_p(w)),   W = 1 / (1 + j w L/R),
+
+is the loop's admittance to a voltage disturbance (a PI loop cancelling the
+winding's pole: the joint fit's back-EMF column, c_e = -delta / R). Their
+torque opposes the ripple, so every torque ripple, the feed-forward's and
+the motor's own, reaches the shaft times
+
+    M(w) = 1 / (1 + sum_p kappa_p Y_p(w) / Z(w)),   kappa_p = mean over the revolution of K_p^2
+
+(`speed_feedback`, which evaluates Y_p at the frequencies the speed ripple
+makes of each back-EMF harmonic, through both its size and its timing). On a
+light rotor with a slow loop M is far from 1: 0.85 at 5 degrees on the
+cogging (h 12) of a 2-pole-pair actuator at 4.6 Hz (J 2.8e-4 kg m^2, 282 Hz
+loop), 0.65 at 19 degrees at the electrical frequency of a 40 N m servo at
+1 Hz (60 Hz loop, J 0.05 kg m^2); on the seed bench 0.99-1.
 """
 
 from __future__ import annotations
@@ -203,3 +224,41 @@ def periodic_lag(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: flo
     before = np.concatenate([np.zeros((x.shape[0], 1)), log_decay[:, :-1]], axis=1)
     return np.exp(before) * (start + np.concatenate([np.zeros((x.shape[0], 1)),
                                                      np.cumsum(u * np.exp(-log_decay), axis=1)[:, :-1]], axis=1))
+
+
+#: the back-EMF's harmonics below this fraction of its largest power are left out of `speed_feedback`
+BACKEMF_POWER_FLOOR = 1e-8
+
+
+def speed_feedback(harmonics: np.ndarray, speed_hz: float, loop: CurrentLoop, backemf_nm_per_a: np.ndarray,
+                   conductance_s: float, winding_time_constant_s: float, inertia_kgm2: float,
+                   brake_nms: float) -> np.ndarray:
+    """M(h) per mechanical harmonic h at a speed f (module docstring): the part of a torque ripple that reaches
+    the shaft when its speed ripple's back-EMF passes the current loop, complex, shape of ``harmonics``.
+
+    A speed ripple dw at h changes each back-EMF harmonic c_pn e^{j n theta} w in two ways the loop sees in
+    time: its size (c_pn dw at h + n) and its timing (the rotor reaches each angle early or late, a phase
+    modulation of the main back-EMF). Through Y_p and sampled at the angles again, both give at h + n
+    c_pn dw ((h + n) Y_p(h + n) - n Y_p(n)) / h, Y_p(k) at k f; K_p's harmonic -n turns that into torque
+    at h, so sum_p kappa_p Y_p = sum_p sum_n |c_pn|^2 ((h + n) Y_p(h + n) - n Y_p(n)) / h over the harmonics n
+    (of either sign) of the back-EMF table ``backemf_nm_per_a`` (shape (N, 3), N m / A). ``conductance_s`` is
+    1 / R (S), ``inertia_kgm2`` J and ``brake_nms`` b of Z = j w J + b. 1 where the loop is ideal, or with no
+    conductance.
+    """
+    h = np.asarray(harmonics, float)
+    if loop.is_ideal or not conductance_s > 0.0:
+        return np.ones(h.shape, complex)
+    table = np.asarray(backemf_nm_per_a, float)
+    power = np.abs(np.fft.fft(table, axis=0) / table.shape[0]) ** 2  # |c_pn|^2, n = 0, 1, .., -1
+    orders = np.fft.fftfreq(table.shape[0], 1.0 / table.shape[0])
+    keep = power.max(axis=1) > BACKEMF_POWER_FLOOR * power.max()
+    n, power = orders[keep], power[keep]
+
+    def weighted(k: np.ndarray) -> np.ndarray:
+        """k Y_p(k), shape k.shape + (3,)."""
+        w = 2.0 * np.pi * speed_hz * k[..., None]
+        g = np.exp(-1j * w * max(loop.delay_s, 0.0)) / (1.0 + 1j * w * loop.time_constant_s)
+        return k[..., None] * conductance_s / (1.0 + 1j * w * winding_time_constant_s) * (1.0 - g)
+
+    coupling = np.sum(power * (weighted(h[..., None] + n) - weighted(n)), axis=(-2, -1)) / h
+    return 1.0 / (1.0 + coupling / (2j * np.pi * speed_hz * h * inertia_kgm2 + brake_nms))

@@ -512,6 +512,12 @@ class IdentificationResult(MethodEstimates):
         The torque sensor's identified high-pass corner f_hp, Hz, and delay D, s (`ilcpmac.core.torque_sensor`,
         the joint fit); None where not identified (no joint fit, or no sensor read). In the JSON they stay in
         ``diagnostics["joint"]``.
+    winding_conductance_s, winding_time_constant_s : float or None
+        The winding's 1 / R, S, and L / R, s, from the joint fit's back-EMF column (c_e = -delta / R,
+        `ilcpmac.identify.joint`), which the speed's feedback through the current loop rests on
+        (`ilcpmac.core.current_loop.speed_feedback`); None without a joint fit, and the conductance None where
+        c_e is within `ilcpmac.identify.SIGNIFICANT_EMF` standard errors of 0. In the JSON they stay in
+        ``diagnostics["joint"]``.
     encoder_error_counts, encoder_error_std_counts : ndarray, shape (counts_per_rev,), or None
         The encoder's graduation error e_c per line (line c truly at (c + e_c) 2 pi / counts_per_rev,
         mean zero) and its standard error, counts; None when not identified (the reason in ``messages``).
@@ -535,6 +541,8 @@ class IdentificationResult(MethodEstimates):
     torque_source: TorqueSource = TorqueSource.SENSOR
     torque_sensor_highpass_hz: float | None = None
     torque_sensor_delay_s: float | None = None
+    winding_conductance_s: float | None = None
+    winding_time_constant_s: float | None = None
     encoder_error_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_error_std_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_eccentricity_counts: float | None = None
@@ -592,8 +600,8 @@ class IdentificationResult(MethodEstimates):
 
         The current loop is ``current_loop_time_constant_s``, else 1 / (2 pi corner) with the corner
         ``current_loop_bandwidth_per_phase_hz`` (or the mean ``current_loop_bandwidth_hz`` in every
-        phase), with ``current_loop_delay_s`` (0 when absent). The torque sensor's high-pass and delay are
-        ``diagnostics["joint"]``'s.
+        phase), with ``current_loop_delay_s`` (0 when absent). The torque sensor's high-pass and delay, and the
+        winding's conductance and time constant, are ``diagnostics["joint"]``'s.
         """
         tau = data.get("current_loop_time_constant_s")
         bandwidth = data.get("current_loop_bandwidth_per_phase_hz") or data.get("current_loop_bandwidth_hz")
@@ -621,6 +629,8 @@ class IdentificationResult(MethodEstimates):
                    torque_source=TorqueSource(data.get("torque_source") or TorqueSource.SENSOR.value),
                    torque_sensor_highpass_hz=joint.get("torque_sensor_highpass_hz"),
                    torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
+                   winding_conductance_s=joint.get("winding_conductance_s"),
+                   winding_time_constant_s=joint.get("winding_time_constant_s"),
                    **{name: encoder_vectors[key] if key in encoder_vectors else
                       _from_json_value(encoder.get(key), False, "encoder_error." + key)
                       for key, name in ENCODER_ERROR_KEYS},

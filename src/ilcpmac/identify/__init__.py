@@ -55,8 +55,8 @@ from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gai
 from ilcpmac.identify.system_gain import SystemGainEstimate, TorqueNotFollowing, estimate_system_gain
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
-__all__ = ["TOO_UNCERTAIN", "IdentificationDetails", "IdentificationResult", "Identifier", "MethodEstimates",
-           "corrected_calibration", "encoder_error_fields", "identify_bench"]
+__all__ = ["SIGNIFICANT_EMF", "TOO_UNCERTAIN", "IdentificationDetails", "IdentificationResult", "Identifier",
+           "MethodEstimates", "corrected_calibration", "encoder_error_fields", "identify_bench"]
 
 #: the steps reported to ``progress``
 STEPS = ("reducing trials", "total system gain (ch. 2)", "joint fit", "torque-sensor gain (ch. 3)",
@@ -72,6 +72,9 @@ NOT_IDENTIFIED_WITHOUT_SENSOR = (
     "Coulomb friction: not identified - the encoder sees b Omega + C only (the mean torque): taken as 0 in each "
     "trial's brake b = mean torque / Omega",
 )
+#: standard errors the joint fit's back-EMF coefficient c_e must stand from 0 for the winding's conductance 1 / R
+#: to be taken (the speed's feedback, `ilcpmac.core.current_loop.speed_feedback`, rests on it)
+SIGNIFICANT_EMF = 3.0
 #: the diagnostics' key of the one line naming the estimates too uncertain to take (`_certain`), when any is
 TOO_UNCERTAIN = "too_uncertain"
 #: the estimates judged by `MAX_RELATIVE_STD` (of a gain's value, of an offset's reference currents' RMS): every one
@@ -323,6 +326,9 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
     if fitted is not None and not fitted.loop.is_ideal and np.all(np.isfinite(fitted.loop.bandwidth_hz)):
         loop = fitted.loop
     diagnostics = _diagnostics(tables, system, joint, sensor)
+    conductance = None if fitted is None or delta is None else _winding_conductance(fitted, delta)
+    if joint is not None:
+        diagnostics["joint"]["winding_conductance_s"] = conductance
     if encoder is not None:
         diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
     if too_uncertain is not None:
@@ -332,8 +338,19 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
         messages=tuple(messages), diagnostics=diagnostics,
         details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
         torque_source=source, torque_sensor_highpass_hz=None if fitted is None else fitted.highpass_hz,
-        torque_sensor_delay_s=None if fitted is None else fitted.torque_delay_s, **_encoder_error_fields(encoder))
+        torque_sensor_delay_s=None if fitted is None else fitted.torque_delay_s,
+        winding_conductance_s=conductance,
+        winding_time_constant_s=None if fitted is None else fitted.winding_time_constant_s,
+        **_encoder_error_fields(encoder))
     return in_motor_coordinates(result) if bench.motor.mirrored else result
+
+
+def _winding_conductance(joint: JointEstimate, delta: float) -> float | None:
+    """1 / R = -c_e / delta from the joint fit's back-EMF coefficient, S; None unless c_e < 0 stands
+    `SIGNIFICANT_EMF` standard errors from 0."""
+    if joint.loop.is_ideal or not -joint.emf_gain > SIGNIFICANT_EMF * joint.emf_gain_std:
+        return None
+    return -joint.emf_gain / delta
 
 
 def _over_taken_delta(best: dict, beta_from: _Measured, cogging_from: _Measured) -> dict:
@@ -499,6 +516,7 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
             "current_loop_delay_s": joint.loop.delay_s,
             "torque_sensor_highpass_hz": joint.highpass_hz, "torque_sensor_highpass_std_hz": joint.highpass_std,
             "torque_sensor_delay_s": joint.torque_delay_s, "winding_time_constant_s": joint.winding_time_constant_s,
+            "emf_gain": joint.emf_gain, "emf_gain_std": joint.emf_gain_std,
             "saturation_per_a2_over_delta2": joint.saturation_per_a2,
             "misfit": [{"family": g.label, "harmonics": [int(g.harmonics.min()), int(g.harmonics.max())],
                         "chi2_reduced": g.chi2_reduced, "dof": g.dof, "std_inflation": g.inflation}

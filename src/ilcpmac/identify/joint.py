@@ -217,6 +217,8 @@ class JointEstimate:
         The torque sensor's high-pass corner; None on the encoder-derived torque (no sensor: not identified).
     winding_time_constant_s : float
         L / R of the winding filter of the back-EMF column.
+    emf_gain, emf_gain_std : float
+        c_e = -delta / R, the back-EMF column's coefficient, and its standard error, A/V.
     torque_delay_s : float or None
         Delay of the torque measurement (its filter and sampling), s; None on the encoder-derived torque.
     position_table : dict[int, complex]
@@ -257,6 +259,8 @@ class JointEstimate:
     highpass_std: float | None
     winding_time_constant_s: float
     torque_delay_s: float | None
+    emf_gain: float
+    emf_gain_std: float
     position_table: dict
     cogging_harmonics: np.ndarray
     covariance: np.ndarray
@@ -952,6 +956,7 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
         highpass_hz=float(phi[4]) if problem.sensor else None,
         highpass_std=float(std["highpass_hz"]) if problem.sensor else None, winding_time_constant_s=float(phi[5]),
         torque_delay_s=float(phi[6]) if problem.sensor else None,
+        emf_gain=float(x[LINEAR.index("emf")]), emf_gain_std=float(std["emf"]),
         position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
         covariance=covariance, bound_covariance=bound, parameter_names=names, chi2_reduced=chi2, misfit=misfit,
         gain_structure=structure, sets=sets, common_offset_identified=problem.common_offset)

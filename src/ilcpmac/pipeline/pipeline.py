@@ -1,12 +1,14 @@
 """Stages chained in the config's order; one joint fit per trial feeds them all.
 
 The fit (`Pipeline.frame`) explains the torque the plant adds to what the trial's feed-forward u asks
-for: the feed-forward's own torque is known through the identified response G^
-(`StageSetup.torque_response`) and subtracted from the measured harmonics first, y - delta G^ u (the
-joint fit's model, eq. 1.13, with the feed-forward moved to the known side), as the ILC stage estimates
-d = e - G^ u. A stage that feeds forward -c^ / G^ from its block's estimate c^ then iterates
-c^_{k+1} = c + (G / G^ - 1) G^ u_k, which converges to a delivered torque G u = -c while
-|1 - G / G^| < 1; were u's torque left in y, the stage would read its own feed-forward as the plant's.
+for: the feed-forward's own torque is known through the identified response at the shaft G^
+(`StageSetup.shaft_response`: the gain, the current loop and the speed's feedback at the set point) and
+subtracted from the measured harmonics first, y - delta G^ u (the joint fit's model, eq. 1.13, with the
+feed-forward moved to the known side), as the ILC stage estimates d = e - G^ u. A block's estimate c^ is
+then the torque the motor makes as the shaft carries it at that set point (its speed's feedback
+included), and a stage that feeds forward -c^ / G^ from it iterates c^_{k+1} = c + (G / G^ - 1) G^ u_k,
+which converges to a delivered torque G u = -c while |1 - G / G^| < 1; were u's torque left in y, the
+stage would read its own feed-forward as the plant's.
 
 The measured harmonics relate to the true torque through the measurement's response
 (`TorqueMeasurement.response`: the sensor's delta, high-pass and delay, or 1 for the encoder-derived
@@ -298,7 +300,7 @@ class Pipeline:
         self.max_harmonic = max_harmonic
         self.notify = notify
         self._truth = identified_truth(identified)
-        self._response = StageSetup(description, identified, max_harmonic).torque_response
+        self._setup = StageSetup(description, identified, max_harmonic)
 
     def shape(self, request: TrialRequest) -> TrialRequest:
         """Pass ``request`` through every stage, each output checked (`stage_by_stage`), then clip the
@@ -356,10 +358,12 @@ class Pipeline:
 
     def delivered_nm(self, request: TrialRequest, speed_hz: float) -> np.ndarray:
         """Harmonics 0..H of the true torque ``request``'s feed-forward delivers at ``speed_hz`` through the
-        identified response, G^ u (`StageSetup.torque_response`), N m; 0 at h = 0 (the mean is the set point's)."""
+        identified response at the shaft, M^ G^ u (`StageSetup.shaft_response`), N m; 0 at h = 0 (the mean is the
+        set point's)."""
         h = np.arange(1, self.max_harmonic + 1)
         u = harmonic_amplitudes(request.feedforward_nm, self.max_harmonic)[1:]
-        return np.concatenate([[0.0], self._response(h, speed_hz, request.calibration) * u])
+        response = self._setup.shaft_response(h, speed_hz, request.calibration, request.torque_setpoint_nm)
+        return np.concatenate([[0.0], response * u])
 
     def frame(self, trial: TrialData, learning_gain: float = 1.0, spectrum: TorqueSpectrum | None = None,
               shared: TrialData | None = None) -> Frame:

@@ -22,7 +22,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from ilcpmac.core.current_loop import CurrentLoop
+from ilcpmac.core.current_loop import CurrentLoop, speed_feedback
 from ilcpmac.core.errors import ConfigError, IdentificationError
 from ilcpmac.core.records import (
     BenchDescription,
@@ -50,7 +50,8 @@ class Identified:
     and ``current_loop`` the ideal loop where the identification gave none; ``delta`` is 1 where it had no
     torque sensor (the encoder-derived torque is true torque, and the torque gain stays the bench's).
     ``sensor_highpass_hz`` and ``sensor_delay_s`` are the torque sensor's high-pass corner (Hz) and delay (s)
-    the identification found (0: none identified).
+    the identification found (0: none identified); ``winding_conductance_s`` and ``winding_time_constant_s`` the
+    winding's 1 / R (S) and L / R (s), which the speed's feedback rests on (0: none identified, no feedback).
     """
 
     delta: float
@@ -66,6 +67,8 @@ class Identified:
     current_loop: CurrentLoop = field(default_factory=CurrentLoop)
     sensor_highpass_hz: float = 0.0
     sensor_delay_s: float = 0.0
+    winding_conductance_s: float = 0.0
+    winding_time_constant_s: float = 0.0
 
     def __post_init__(self) -> None:
         """Every array read-only (`frozen`): each stage shares them."""
@@ -102,7 +105,9 @@ class Identified:
             alpha_std=std(result.alpha_std, np.zeros(3)), beta_std_a=std(result.beta_std, np.zeros(3)),
             current_loop=result.current_loop or CurrentLoop(),
             sensor_highpass_hz=float(result.torque_sensor_highpass_hz or 0.0),
-            sensor_delay_s=float(result.torque_sensor_delay_s or 0.0))
+            sensor_delay_s=float(result.torque_sensor_delay_s or 0.0),
+            winding_conductance_s=float(result.winding_conductance_s or 0.0),
+            winding_time_constant_s=float(result.winding_time_constant_s or 0.0))
 
     def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
         """The current loop while the controller uses ``calibration``.
@@ -165,12 +170,34 @@ class StageSetup:
                         loop_scale: float = 1.0) -> np.ndarray:
         """Torque reference to true torque at mechanical harmonics h, while the controller uses
         ``calibration``: the phases' mean of epsilon alpha_p times the identified current loop
-        (`CurrentLoop.response`, its time constants times ``loop_scale``)."""
+        (`CurrentLoop.response`, its time constants times ``loop_scale``), before the speed's feedback
+        (`shaft_response`)."""
         ident = self.identified
         loop = ident.loop_at(calibration).scaled(loop_scale)
         motor = self.description.motor
         response = loop.response(harmonics, speed_hz, motor.counts_per_rev, motor.lines_per_count)
         return np.mean(ident.epsilon_alpha_at(calibration) * response, axis=1)
+
+    def shaft_response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration,
+                       torque_nm: float, loop_scale: float = 1.0) -> np.ndarray:
+        """`torque_response` times the speed's feedback at the set point (``torque_nm``, ``speed_hz``): the
+        torque reference to the torque the shaft carries and the trial measures, G^ = M G: what a stage
+        learning from the measured torque (or from its block of the pipeline's fit) divides by."""
+        loop = self.identified.loop_at(calibration).scaled(loop_scale)
+        return (self.torque_response(harmonics, speed_hz, calibration, loop_scale)
+                * self.speed_feedback(harmonics, speed_hz, torque_nm, loop))
+
+    def speed_feedback(self, harmonics: np.ndarray, speed_hz: float, torque_nm: float,
+                       loop: CurrentLoop) -> np.ndarray:
+        """M(h): the part of a torque ripple at mechanical harmonic h that reaches the shaft at a set point
+        (``torque_nm``, ``speed_hz``) once its speed ripple's back-EMF has passed the current ``loop``
+        (`ilcpmac.core.current_loop.speed_feedback`): the bench's inertia and back-EMF table, the identified
+        winding, and the brake set for the speed, b = |torque| / (2 pi |speed|) (infinite at standstill)."""
+        ident = self.identified
+        brake = abs(torque_nm) / (2.0 * np.pi * abs(speed_hz)) if speed_hz else np.inf
+        return speed_feedback(harmonics, abs(speed_hz), loop, self.description.backemf_nm_per_a,
+                              ident.winding_conductance_s, ident.winding_time_constant_s,
+                              self.description.motor.inertia_kgm2, brake)
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,8 @@ harmonics in true units:
 
 G^(h) = the phases' mean of epsilon alpha_p at the trial's calibration times
 the identified current loop's response to the per-count reference staircase
-(`StageSetup.torque_response`, `ilcpmac.core.current_loop`); Q is a zero-phase (real) low-pass over
+and the speed's feedback M(h) at the set point (`StageSetup.shaft_response`,
+`ilcpmac.core.current_loop`); Q is a zero-phase (real) low-pass over
 harmonics (1 up to the cut-off harmonic, 0 above). Harmonic 0 is
 never touched: the mean torque stays the set point's. Because u is the total
 feed-forward, the stage stays consistent when earlier stages change theirs.
@@ -124,8 +125,8 @@ class IterativeLearningControl:
     # -- the plant model and the convergence check
 
     def plant(self, request: TrialRequest, speed_hz: float) -> np.ndarray:
-        """G^(h): torque reference to true torque per harmonic at this calibration and speed."""
-        return self._setup.torque_response(self._h, speed_hz, request.calibration)
+        """G^(h): torque reference to true (shaft) torque per harmonic at this calibration, set point and speed."""
+        return self._setup.shaft_response(self._h, speed_hz, request.calibration, request.torque_setpoint_nm)
 
     def check_convergence(self, request: TrialRequest) -> None:
         """Raise `ConfigError` unless |1 - L G| < 1/|Q| for G within the model uncertainty."""
@@ -136,8 +137,8 @@ class IterativeLearningControl:
         worst = np.zeros(self._h.size)
         for g_scale in (1 - u, 1 + u):
             for bandwidth_scale in (1 - u, 1 + u):
-                true = g_scale * self._setup.torque_response(self._h, speed, request.calibration,
-                                                             1.0 / bandwidth_scale)
+                true = g_scale * self._setup.shaft_response(self._h, speed, request.calibration,
+                                                            request.torque_setpoint_nm, 1.0 / bandwidth_scale)
                 worst = np.maximum(worst, np.abs(1.0 - gamma * true / model))
         passband = self._q > 0
         bad = passband & (worst * self._q >= 1.0)

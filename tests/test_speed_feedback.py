@@ -1,0 +1,67 @@
+"""The speed's feedback through the current loop (`ilcpmac.core.current_loop.speed_feedback`) against the
+simulator's truth, and the identified winding it rests on."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from identify_helpers import identified
+
+from ilcpmac.core.current_loop import CurrentLoop, speed_feedback
+from ilcpmac.core.records import IdentificationResult
+from ilcpmac.signals.harmonics import harmonic_amplitudes
+from ilcpmac.sim.simulator import Simulator
+from ilcpmac.stages.base import Identified
+
+#: a light rotor on the ideal small seed bench, lightly braked: its feedback is far from 1 at low harmonics
+LIGHT_INERTIA_KGM2 = 1.1e-4
+TORQUE_NM, SPEED_HZ = 0.5, 2.0
+HARMONICS = (8, 24, 48)
+
+
+def test_a_light_rotor_delivers_what_the_feedback_says(ideal_model, make_request):
+    """The true torque a cosine feed-forward at h adds, over the loop's response G0 at the trial's speed, is M(h)
+    from the truth (R, L, loop, inertia, brake, back-EMF table); at the electrical frequency (h 8) the timing
+    term makes half of it."""
+    light = dataclasses.replace(ideal_model, mechanics=dataclasses.replace(
+        ideal_model.mechanics, inertia_scale=LIGHT_INERTIA_KGM2 / ideal_model.mechanics.inertia_kgm2))
+    cpr, w = light.encoder.counts_per_rev, light.winding
+    sim = Simulator(light)
+    loop = CurrentLoop(np.full(3, 1.0 / (2.0 * np.pi * light.controller.bandwidth_hz)),
+                       0.5 / light.controller.control_rate_hz)
+    for h in HARMONICS:
+        delivered = []
+        for table in (np.zeros(cpr), 0.02 * np.cos(2.0 * np.pi * h * np.arange(cpr) / cpr)):
+            trial = sim.run_trial(dataclasses.replace(
+                make_request(light, TORQUE_NM, SPEED_HZ, feedforward_nm=table), revolutions=4))
+            delivered.append(harmonic_amplitudes(trial.torque_true_nm[trial.count >= cpr].reshape(-1, cpr)
+                                                 .mean(axis=0), h)[h])
+        speed_hz = trial.mean_speed_hz(cpr)
+        measured = (delivered[1] - delivered[0]) / 0.02 / loop.response(np.array([h]), speed_hz, cpr)[0, 0]
+        expected = speed_feedback(np.array([h]), speed_hz, loop, sim.backemf_lines * w.backemf_scale,
+                                  1.0 / w.phase_resistance_ohm, w.phase_inductance_h / w.phase_resistance_ohm,
+                                  LIGHT_INERTIA_KGM2, TORQUE_NM / (2.0 * np.pi * SPEED_HZ))[0]
+        assert abs(expected - 1.0) > 0.2  # a case where the feedback matters
+        assert abs(measured / expected - 1.0) < 0.04, h
+
+
+def test_no_feedback_without_a_loop_or_a_winding():
+    h = np.array([1, 10])
+    backemf = np.column_stack([np.cos(2.0 * np.pi * (np.arange(64) / 64 - p / 3)) for p in range(3)])
+    assert np.all(speed_feedback(h, 1.0, CurrentLoop(), backemf, 2.0, 1e-3, 1e-4, 0.0) == 1.0)
+    lag = CurrentLoop(np.full(3, 1e-3), 0.0)
+    assert np.all(speed_feedback(h, 1.0, lag, backemf, 0.0, 1e-3, 1e-4, 0.0) == 1.0)
+    assert np.allclose(speed_feedback(h, 1.0, lag, backemf, 2.0, 1e-3, 1e3, 0.0), 1.0, atol=1e-4)
+
+
+def test_the_seed_bench_identifies_its_winding():
+    result, _ = identified("seed")
+    assert result.winding_conductance_s == pytest.approx(1.0 / 0.5, rel=0.05)
+    assert result.winding_time_constant_s == pytest.approx(0.002 / 0.5, rel=0.15)
+    again = IdentificationResult.from_json(result.to_json())
+    assert (again.winding_conductance_s, again.winding_time_constant_s) == (
+        result.winding_conductance_s, result.winding_time_constant_s)
+    stages = Identified.from_result(again, result.calibration)
+    assert stages.winding_conductance_s == result.winding_conductance_s
