@@ -83,12 +83,10 @@ class CoggingFeedForward:
         return harmonic_columns(self._theta, self.orders) @ self._kalman.x
 
     def feedforward_nm(self, request: TrialRequest) -> np.ndarray:
-        """Minus the cogging torque, through the inverse of the identified response at the shaft for ``request``
-        (`StageSetup.shaft_response`: the current loop and the speed's feedback)."""
+        """Minus the cogging torque, through the inverse of the identified current loop for ``request``."""
         n = len(self.orders)
         c = self._kalman.x[:n] - 1j * self._kalman.x[n:]  # complex amplitudes, tau = Re(c e^{j h theta})
-        c = c / self._setup.shaft_response(self.orders, request.speed_setpoint_hz, request.calibration,
-                                           request.torque_setpoint_nm)
+        c = c / self._setup.torque_response(self.orders, request.speed_setpoint_hz, request.calibration)
         return -(harmonic_columns(self._theta, self.orders) @ np.concatenate([c.real, -c.imag]))
 
     def columns(self, trial: TrialData) -> np.ndarray:
