@@ -20,7 +20,7 @@ import numpy as np
 
 from ilcpmac.campaign.service import simulated_bench
 from ilcpmac.config import load_config
-from ilcpmac.core.current_loop import CurrentLoop, speed_feedback
+from ilcpmac.core.current_loop import CurrentLoop, backemf_power, speed_feedback
 from ilcpmac.core.records import BenchDescription, TrialRequest
 from ilcpmac.identify import identify_bench
 from ilcpmac.signals.harmonics import harmonic_amplitudes
@@ -95,12 +95,13 @@ def main() -> None:
                     delivered, speed_hz = _delivered(sim, model, torque, speed, h)
                     g0 = np.mean(gain * loop.response(np.array([h]), speed_hz, model.encoder.counts_per_rev)[0])
                     measured = delivered / g0
-                    expected = speed_feedback(np.array([h]), speed_hz, loop, sim.backemf_lines * w.backemf_scale,
+                    expected = speed_feedback(np.array([h]), speed_hz, loop,
+                                              backemf_power(sim.backemf_lines * w.backemf_scale),
                                               1.0 / w.phase_resistance_ohm,
                                               w.phase_inductance_h / w.phase_resistance_ohm,
                                               model.mechanics.true_inertia_kgm2,
                                               torque / (2.0 * np.pi * speed))[0]
-                    identified = setup.speed_feedback(np.array([h]), speed, torque,
+                    identified = setup.speed_feedback(np.array([h]), speed_hz, torque,
                                                       setup.identified.loop_at(bench.sensors))[0]
                     print(f"{name:<15}{torque:>7.3g}{speed:>6.3g}{h:>5}{_shown(measured):>15}"
                           f"{_shown(expected):>15}{_shown(identified):>15}"

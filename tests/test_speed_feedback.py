@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from identify_helpers import identified
 
-from ilcpmac.core.current_loop import CurrentLoop, speed_feedback
+from ilcpmac.core.current_loop import CurrentLoop, backemf_power, speed_feedback
 from ilcpmac.core.records import IdentificationResult
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.simulator import Simulator
@@ -40,7 +40,7 @@ def test_a_light_rotor_delivers_what_the_feedback_says(ideal_model, make_request
                                                  .mean(axis=0), h)[h])
         speed_hz = trial.mean_speed_hz(cpr)
         measured = (delivered[1] - delivered[0]) / 0.02 / loop.response(np.array([h]), speed_hz, cpr)[0, 0]
-        expected = speed_feedback(np.array([h]), speed_hz, loop, sim.backemf_lines * w.backemf_scale,
+        expected = speed_feedback(np.array([h]), speed_hz, loop, backemf_power(sim.backemf_lines * w.backemf_scale),
                                   1.0 / w.phase_resistance_ohm, w.phase_inductance_h / w.phase_resistance_ohm,
                                   LIGHT_INERTIA_KGM2, TORQUE_NM / (2.0 * np.pi * SPEED_HZ))[0]
         assert abs(expected - 1.0) > 0.2  # a case where the feedback matters
@@ -50,10 +50,10 @@ def test_a_light_rotor_delivers_what_the_feedback_says(ideal_model, make_request
 def test_no_feedback_without_a_loop_or_a_winding():
     h = np.array([1, 10])
     backemf = np.column_stack([np.cos(2.0 * np.pi * (np.arange(64) / 64 - p / 3)) for p in range(3)])
-    assert np.all(speed_feedback(h, 1.0, CurrentLoop(), backemf, 2.0, 1e-3, 1e-4, 0.0) == 1.0)
+    assert np.all(speed_feedback(h, 1.0, CurrentLoop(), backemf_power(backemf), 2.0, 1e-3, 1e-4, 0.0) == 1.0)
     lag = CurrentLoop(np.full(3, 1e-3), 0.0)
-    assert np.all(speed_feedback(h, 1.0, lag, backemf, 0.0, 1e-3, 1e-4, 0.0) == 1.0)
-    assert np.allclose(speed_feedback(h, 1.0, lag, backemf, 2.0, 1e-3, 1e3, 0.0), 1.0, atol=1e-4)
+    assert np.all(speed_feedback(h, 1.0, lag, backemf_power(backemf), 0.0, 1e-3, 1e-4, 0.0) == 1.0)
+    assert np.allclose(speed_feedback(h, 1.0, lag, backemf_power(backemf), 2.0, 1e-3, 1e3, 0.0), 1.0, atol=1e-4)
 
 
 def test_the_seed_bench_identifies_its_winding():

@@ -230,7 +230,7 @@ def periodic_lag(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: flo
 BACKEMF_POWER_FLOOR = 1e-8
 
 
-def speed_feedback(harmonics: np.ndarray, speed_hz: float, loop: CurrentLoop, backemf_nm_per_a: np.ndarray,
+def speed_feedback(harmonics: np.ndarray, speed_hz: float, loop: CurrentLoop, backemf: tuple[np.ndarray, np.ndarray],
                    conductance_s: float, winding_time_constant_s: float, inertia_kgm2: float,
                    brake_nms: float) -> np.ndarray:
     """M(h) per mechanical harmonic h at a speed f (module docstring): the part of a torque ripple that reaches
@@ -241,18 +241,14 @@ def speed_feedback(harmonics: np.ndarray, speed_hz: float, loop: CurrentLoop, ba
     modulation of the main back-EMF). Through Y_p and sampled at the angles again, both give at h + n
     c_pn dw ((h + n) Y_p(h + n) - n Y_p(n)) / h, Y_p(k) at k f; K_p's harmonic -n turns that into torque
     at h, so sum_p kappa_p Y_p = sum_p sum_n |c_pn|^2 ((h + n) Y_p(h + n) - n Y_p(n)) / h over the harmonics n
-    (of either sign) of the back-EMF table ``backemf_nm_per_a`` (shape (N, 3), N m / A). ``conductance_s`` is
+    (of either sign) of the back-EMF table, ``backemf`` its `backemf_power`. ``conductance_s`` is
     1 / R (S), ``inertia_kgm2`` J and ``brake_nms`` b of Z = j w J + b. 1 where the loop is ideal, or with no
     conductance.
     """
     h = np.asarray(harmonics, float)
     if loop.is_ideal or not conductance_s > 0.0:
         return np.ones(h.shape, complex)
-    table = np.asarray(backemf_nm_per_a, float)
-    power = np.abs(np.fft.fft(table, axis=0) / table.shape[0]) ** 2  # |c_pn|^2, n = 0, 1, .., -1
-    orders = np.fft.fftfreq(table.shape[0], 1.0 / table.shape[0])
-    keep = power.max(axis=1) > BACKEMF_POWER_FLOOR * power.max()
-    n, power = orders[keep], power[keep]
+    n, power = backemf
 
     def weighted(k: np.ndarray) -> np.ndarray:
         """k Y_p(k), shape k.shape + (3,)."""
@@ -262,3 +258,13 @@ def speed_feedback(harmonics: np.ndarray, speed_hz: float, loop: CurrentLoop, ba
 
     coupling = np.sum(power * (weighted(h[..., None] + n) - weighted(n)), axis=(-2, -1)) / h
     return 1.0 / (1.0 + coupling / (2j * np.pi * speed_hz * h * inertia_kgm2 + brake_nms))
+
+
+def backemf_power(backemf_nm_per_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The harmonics n (of either sign) of a back-EMF table (shape (N, 3), N m / A) and their power |c_pn|^2 per
+    phase, shape (k, 3), those above `BACKEMF_POWER_FLOOR` of the largest: what `speed_feedback` sums over."""
+    table = np.asarray(backemf_nm_per_a, float)
+    power = np.abs(np.fft.fft(table, axis=0) / table.shape[0]) ** 2  # n = 0, 1, .., -1
+    orders = np.fft.fftfreq(table.shape[0], 1.0 / table.shape[0])
+    keep = power.max(axis=1) > BACKEMF_POWER_FLOOR * power.max()
+    return orders[keep], power[keep]

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from ilcpmac.core.current_loop import CurrentLoop, speed_feedback
+from ilcpmac.core.current_loop import CurrentLoop, backemf_power, speed_feedback
 from ilcpmac.core.errors import ConfigError, IdentificationError
 from ilcpmac.core.records import (
     BenchDescription,
@@ -166,6 +167,11 @@ class StageSetup:
         object.__setattr__(self, "description", replace(self.description,
                                                         calibration=self.description.calibration.read_only()))
 
+    @cached_property
+    def _backemf_power(self) -> tuple[np.ndarray, np.ndarray]:
+        """The bench's back-EMF harmonics and their power (`ilcpmac.core.current_loop.backemf_power`)."""
+        return backemf_power(self.description.backemf_nm_per_a)
+
     def torque_response(self, harmonics: np.ndarray, speed_hz: float, calibration: SensorCalibration,
                         loop_scale: float = 1.0) -> np.ndarray:
         """Torque reference to true torque at mechanical harmonics h, while the controller uses
@@ -195,7 +201,7 @@ class StageSetup:
         winding, and the brake set for the speed, b = |torque| / (2 pi |speed|) (infinite at standstill)."""
         ident = self.identified
         brake = abs(torque_nm) / (2.0 * np.pi * abs(speed_hz)) if speed_hz else np.inf
-        return speed_feedback(harmonics, abs(speed_hz), loop, self.description.backemf_nm_per_a,
+        return speed_feedback(harmonics, abs(speed_hz), loop, self._backemf_power,
                               ident.winding_conductance_s, ident.winding_time_constant_s,
                               self.description.motor.inertia_kgm2, brake)
 
