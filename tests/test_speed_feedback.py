@@ -10,7 +10,7 @@ import pytest
 from identify_helpers import identified
 
 from ilcpmac.core.current_loop import CurrentLoop, backemf_power, speed_feedback
-from ilcpmac.core.records import IdentificationResult
+from ilcpmac.core.records import IdentificationResult, ResultKeyError
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.simulator import Simulator
 from ilcpmac.stages.base import Identified
@@ -65,3 +65,23 @@ def test_the_seed_bench_identifies_its_winding():
         result.winding_conductance_s, result.winding_time_constant_s)
     stages = Identified.from_result(again, result.calibration)
     assert stages.winding_conductance_s == result.winding_conductance_s
+
+
+@pytest.mark.parametrize("value", ["2.0", -1.0, float("inf"), float("nan"), True, [2.0]])
+@pytest.mark.parametrize("name", ["winding_conductance_s", "winding_time_constant_s"])
+def test_a_hostile_winding_in_a_result_is_one_error_naming_its_key(name, value):
+    """The speed's feedback rests on these: a string, a negative or non-finite number, a boolean or a list is a
+    ResultKeyError naming diagnostics.joint's key, never a feedback of NaN or a TypeError."""
+    result, _ = identified("seed")
+    data = result.to_json()
+    data["diagnostics"]["joint"][name] = value
+    with pytest.raises(ResultKeyError, match=f"diagnostics.joint.{name}"):
+        IdentificationResult.from_json(data)
+
+
+@pytest.mark.parametrize("diagnostics", [["joint"], {"joint": [1.0]}, "x"])
+def test_diagnostics_that_are_not_objects_are_one_error(diagnostics):
+    data = identified("seed")[0].to_json()
+    data["diagnostics"] = diagnostics
+    with pytest.raises(ResultKeyError, match="diagnostics"):
+        IdentificationResult.from_json(data)

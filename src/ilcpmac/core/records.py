@@ -393,6 +393,16 @@ def _from_json_value(value, vector: bool, key: str, size: int | None = None):
     return a.astype(float)
 
 
+def _winding_value(joint: dict, name: str) -> float | None:
+    """``diagnostics.joint``'s ``name``, a finite number >= 0 or None: the speed's feedback rests on it
+    (`IdentificationResult.winding_conductance_s`); anything else raises `ResultKeyError` naming the key."""
+    key = f"diagnostics.joint.{name}"
+    value = _from_json_value(joint.get(name), False, key)
+    if value is not None and not (math.isfinite(value) and value >= 0.0):
+        raise ResultKeyError(f"key {key!r}: must be a finite number >= 0 or null, got {shown(value)}")
+    return value
+
+
 def _counted(table, key: str, vectors: tuple[str, ...]) -> dict:
     """The vectors ``vectors`` of the result JSON's object ``table`` under ``key`` (an absent one is None), one
     value per count: of one length n, and its "count" (when given) the counts 0 .. n - 1."""
@@ -611,7 +621,10 @@ class IdentificationResult(MethodEstimates):
         calibration = data.get("calibration")
         encoder = data.get("encoder_error") or {}
         diagnostics = data.get("diagnostics") or {}
-        joint = diagnostics.get("joint") or {}
+        joint = (diagnostics.get("joint") or {}) if isinstance(diagnostics, dict) else None
+        if not isinstance(joint, dict):
+            raise ResultKeyError(f"key 'diagnostics': must be an object holding an object 'joint' or null, got "
+                                 f"{shown(diagnostics)}")
         encoder_vectors = _counted(encoder, "encoder_error",
                                    tuple(key for key, _ in ENCODER_ERROR_KEYS if key.startswith("error")))
         position = _counted(data.get("position_torque") or {}, "position_torque", ("torque", "std"))
@@ -629,8 +642,8 @@ class IdentificationResult(MethodEstimates):
                    torque_source=TorqueSource(data.get("torque_source") or TorqueSource.SENSOR.value),
                    torque_sensor_highpass_hz=joint.get("torque_sensor_highpass_hz"),
                    torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
-                   winding_conductance_s=joint.get("winding_conductance_s"),
-                   winding_time_constant_s=joint.get("winding_time_constant_s"),
+                   winding_conductance_s=_winding_value(joint, "winding_conductance_s"),
+                   winding_time_constant_s=_winding_value(joint, "winding_time_constant_s"),
                    **{name: encoder_vectors[key] if key in encoder_vectors else
                       _from_json_value(encoder.get(key), False, "encoder_error." + key)
                       for key, name in ENCODER_ERROR_KEYS},
