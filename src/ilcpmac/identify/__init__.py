@@ -325,10 +325,8 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
     loop = None
     if fitted is not None and not fitted.loop.is_ideal and np.all(np.isfinite(fitted.loop.bandwidth_hz)):
         loop = fitted.loop
-    diagnostics = _diagnostics(tables, system, joint, sensor)
     conductance = None if fitted is None or delta is None else _winding_conductance(fitted, delta)
-    if joint is not None:
-        diagnostics["joint"]["winding_conductance_s"] = conductance
+    diagnostics = _diagnostics(tables, system, joint, sensor, conductance)
     if encoder is not None:
         diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
     if too_uncertain is not None:
@@ -497,8 +495,8 @@ def _certain(estimates: MethodEstimates, current_rms_a: float) -> tuple[MethodEs
 
 
 def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: JointEstimate | None,
-                 sensor: SensorGainEstimate | None) -> dict:
-    """JSON-able details of each step."""
+                 sensor: SensorGainEstimate | None, winding_conductance_s: float | None) -> dict:
+    """JSON-able details of each step (the winding's conductance the result takes, `_winding_conductance`)."""
     out: dict = {"trials_used": len(tables.trials)}
     if system is not None:
         out["system_gain"] = {
@@ -517,6 +515,7 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
             "torque_sensor_highpass_hz": joint.highpass_hz, "torque_sensor_highpass_std_hz": joint.highpass_std,
             "torque_sensor_delay_s": joint.torque_delay_s, "winding_time_constant_s": joint.winding_time_constant_s,
             "emf_gain": joint.emf_gain, "emf_gain_std": joint.emf_gain_std,
+            "winding_conductance_s": winding_conductance_s,
             "saturation_per_a2_over_delta2": joint.saturation_per_a2,
             "misfit": [{"family": g.label, "harmonics": [int(g.harmonics.min()), int(g.harmonics.max())],
                         "chi2_reduced": g.chi2_reduced, "dof": g.dof, "std_inflation": g.inflation}
