@@ -345,7 +345,7 @@ def test_the_exported_compensation_replayed_gives_the_campaigns_validation_figur
     validation points on the simulator: the same trials (the same seeds) and the same figures as the campaign's."""
     from click.testing import CliRunner
 
-    from ilcpmac.bench.format import as_written
+    from ilcpmac.bench.format import as_recorded
     from ilcpmac.campaign.plan import CampaignPlan
     from ilcpmac.cli import main
     from ilcpmac.core.seeds import trial_seed
@@ -369,7 +369,7 @@ def test_the_exported_compensation_replayed_gives_the_campaigns_validation_figur
         index = point["compensated_trial"]
         request = replay.shape(plan.base_request((point["torque_setpoint"], point["speed_setpoint"]),
                                                  trial_seed(7, index)))
-        trial = as_written(dataclasses.replace(sim.run_trial(request), request=request))
+        trial = as_recorded(dataclasses.replace(sim.run_trial(request), request=request), motor.counts_per_rev)
         np.testing.assert_array_equal(trial.torque_nm, read_bench(run).trials[index - 1].torque_nm)
         analysis = TrialAnalysis.of(trial, motor.counts_per_rev, campaign_config.campaign.ripple_harmonics)
         true = analysis.true.figures(analysis.true_mean_nm, motor.pole_pairs, motor.cogging_order)

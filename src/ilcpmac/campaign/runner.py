@@ -42,7 +42,7 @@ import numpy as np
 
 from ilcpmac.backends.base import Backend, report_progress_to
 from ilcpmac.backends.guard import LimitGuard
-from ilcpmac.bench.format import Bench, as_written
+from ilcpmac.bench.format import Bench, as_recorded
 from ilcpmac.campaign.events import (
     AlreadyComplete,
     CampaignEvents,
@@ -255,8 +255,9 @@ class CampaignRunner:
     def _run(self, request: TrialRequest, measurement: TorqueMeasurement | None) -> tuple[TrialData, TrialAnalysis]:
         """Run ``request`` and analyse its trial as written, measured by ``measurement`` (in a worker thread of
         `_run_at_once`: the analysis overlaps the other trials' kernels and the main thread's learning)."""
-        trial = as_written(replace(self.backend.run_trial(request), request=request))
-        return trial, TrialAnalysis.of(trial, self.description.motor.counts_per_rev,
+        counts_per_rev = self.description.motor.counts_per_rev
+        trial = as_recorded(replace(self.backend.run_trial(request), request=request), counts_per_rev)
+        return trial, TrialAnalysis.of(trial, counts_per_rev,
                                        self.config.campaign.ripple_harmonics, measurement)
 
     def _run_round(self, begun: int, steps: list[Step]) -> None:
