@@ -198,9 +198,15 @@ def test_keyboard_interrupt_inside_the_transport_stops_the_drive(config):
 
 
 def test_ctrl_c_cancels_the_trial_and_stops_the_drive(config):
+    """A real SIGINT, with Python's handler of a process started from a terminal: one started in the background
+    (``command &`` in a script, as CI may run the suite) inherits SIGINT ignored, and nothing would be raised."""
     b = _hooked(config, lambda: signal.raise_signal(signal.SIGINT))
-    with pytest.raises(KeyboardInterrupt):
-        b.run_drive_trial(_request())
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            b.run_drive_trial(_request())
+    finally:
+        signal.signal(signal.SIGINT, before)
     assert b.device.drive.status().mode == STOPPED
     b.close()
 
