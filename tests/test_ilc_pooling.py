@@ -24,16 +24,17 @@ CALIBRATION = SensorCalibration(np.full(3, 14.0), np.zeros(3), 0.9)
 VARIANCE_NM2 = 0.2e-3**2
 
 
-def stage(pooling: str) -> IterativeLearningControl:
+def stage(pooling: str, max_torque_nm: float = 8.0) -> IterativeLearningControl:
     description = BenchDescription(MotorInfo(8, 48, CPR, 0.01), np.ones((CPR, 3)), CALIBRATION,
-                                   BenchLimits(30.0, 8.0, 1.5))
+                                   BenchLimits(30.0, max_torque_nm, 1.5))
     identified = Identified(1.0, 1.0, np.ones(3), np.zeros(3), np.zeros(CPR), CALIBRATION)
     return IterativeLearningControl(StageSetup(description, identified, H, {"pooling": pooling}))
 
 
-def residuals(ilc: IterativeLearningControl, ripple_nm: dict, trials: int, seed: int) -> dict:
-    """``trials`` rounds of one trial at every set point of ``ripple_nm`` (harmonics 1..H of d, N m); the
-    residual d + G u per set point after the last."""
+def residuals(ilc: IterativeLearningControl, ripple_nm: dict, trials: int, seed: int,
+              variance_nm2: float = VARIANCE_NM2) -> dict:
+    """``trials`` rounds of one trial at every set point of ``ripple_nm`` (harmonics 1..H of d, N m), each harmonic
+    measured with noise of ``variance_nm2``; the residual d + G u per set point after the last."""
     rng = np.random.default_rng(seed)
 
     def request(point) -> TrialRequest:
@@ -48,10 +49,10 @@ def residuals(ilc: IterativeLearningControl, ripple_nm: dict, trials: int, seed:
     for _ in range(trials):
         for point in ripple_nm:
             noise = rng.normal(size=H) + 1j * rng.normal(size=H)
-            measured = np.concatenate([[0.0], left(point) + noise * np.sqrt(VARIANCE_NM2 / 2)])
+            measured = np.concatenate([[0.0], left(point) + noise * np.sqrt(variance_nm2 / 2)])
             trial = TrialData(*point, np.arange(CPR), np.zeros(CPR), np.zeros((CPR, 3)), np.zeros(CPR),
                               request=request(point))
-            ilc.learn(trial, Frame({}, measured, np.full(H + 1, VARIANCE_NM2), 1.0, point[1]))
+            ilc.learn(trial, Frame({}, measured, np.full(H + 1, variance_nm2), 1.0, point[1]))
     return {point: left(point) for point in ripple_nm}
 
 
@@ -74,6 +75,19 @@ def test_pooling_learns_a_ripple_the_set_points_share_below_each_ones_noise(seed
     assert left_alone > 0.6 * power  # alone, each set point leaves most of it (75 % measured)
     assert left_pooled < 0.25 * power  # pooled, 16 % measured
     assert left_pooled < 0.3 * left_alone
+
+
+def test_a_motor_24x_smaller_in_torque_and_noise_learns_the_same():
+    """The seed bench's torque limit, 8 N m, against a 0.336 N m motor's, its ripple and noise scaled alike: what
+    pooling leaves is scaled alike. With the process noise an absolute 1e-5 N m per trial (above the small motor's
+    8.4e-6 N m of noise per harmonic), the small motor left 41 % of the shared ripple against the large one's 16 %."""
+    scale = 0.336 / 8.0
+    d = shared_ripple(3)
+    large = residuals(stage("points"), {point: d for point in POINTS}, 4, 3)
+    small = residuals(stage("points", 8.0 * scale), {point: scale * d for point in POINTS}, 4, 3,
+                      scale**2 * VARIANCE_NM2)
+    for point in POINTS:
+        np.testing.assert_allclose(small[point], scale * large[point], rtol=1e-6, atol=1e-12 * scale)
 
 
 def test_a_ripple_of_one_set_point_stays_there():
