@@ -84,9 +84,9 @@ RANGES = {
 
 #: the default process noise, N m per trial: `PROCESS_NOISE_NM` on a bench whose torque limit ([limits]
 #: max_torque_nm) is `PROCESS_NOISE_FULL_NM` or more, in proportion below. As an absolute 1e-5 N m it was, on a
-#: 0.34 N m motor, three times a harmonic's noise variance per trial, and the estimate kept about the last trial's
-#: (docs/campaign.md, "Other motors: a random family"); raised in proportion above 8 N m, a 40 N m servo and a 65 N m
-#: motor ended worse (2.05 -> 2.30x, 1.49 -> 1.58x their floors at worst)
+#: 0.34 N m motor, its square three to six times a harmonic's noise variance per trial, and the estimate kept about
+#: the last trial's (docs/campaign.md, "Other motors: a random family"); raised in proportion above 8 N m, a 40 N m
+#: servo and a 65 N m motor ended worse (2.05 -> 2.30x, 1.49 -> 1.58x their floors at worst)
 PROCESS_NOISE_NM, PROCESS_NOISE_FULL_NM = 1e-5, 8.0
 
 #: set points learned before their estimates are pooled (`IterativeLearningControl._shared`)
