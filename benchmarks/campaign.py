@@ -51,19 +51,23 @@ def run_campaign(config: Path, out: Path, cache_dir: Path) -> tuple[float, dict]
 
 
 #: the [campaign] of issue 10's default run: one speed, no validation
-ONE_SPEED = {"learn_speeds_hz": "[0.75]", "learn_revolutions": "[64, 32, 32]", "patience": "4",
-             "validate_torques_nm": "[]", "validate_speeds_hz": "[]"}
+ONE_SPEED = ("campaign", {"learn_speeds_hz": "[0.75]", "learn_revolutions": "[64, 32, 32]", "patience": "4",
+                          "validate_torques_nm": "[]", "validate_speeds_hz": "[]"})
 #: classical fixed-gain ILC, gamma = 0.5
-FIXED_GAIN = {"learning_gain": "0.5", "estimation": '"fixed"'}
+FIXED_GAIN = ("stages.ilc", {"learning_gain": "0.5", "estimation": '"fixed"'})
 
 
-def variant(directory: Path, name: str, *changes: dict[str, str]) -> Path:
-    """The seed config with ``changes`` (key: TOML value) applied, written to ``directory/name``."""
+def variant(directory: Path, name: str, *changes: tuple[str, dict[str, str]]) -> Path:
+    """The seed config with ``changes`` (section, {key: TOML value}) applied, written to ``directory/name``: a key
+    the seed config sets is replaced, one it leaves out is added at the top of its section."""
     text = CONFIG.read_text()
-    for change in changes:
+    for section, change in changes:
         for key, value in change.items():
             text, n = re.subn(rf"(?m)^{key} = .*$", f"{key} = {value}", text)
-            assert n == 1, key
+            if n == 0:
+                text, n = re.subn(rf"(?m)^\[{re.escape(section)}\][^\n]*$", rf"\g<0>\n{key} = {value}", text)
+            if n != 1:
+                sys.exit(f"{CONFIG}: [{section}] {key} is set {n} times, or the section is missing")
     path = directory / name
     path.write_text(text)
     return path
