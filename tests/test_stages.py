@@ -478,8 +478,8 @@ def test_ilc_state_with_unestimated_harmonics_is_json():
     d = BenchDescription(MotorInfo(8, 48, cpr, 0.01), np.ones((cpr, 3)), cal, BenchLimits(30.0, 8.0, 1.5))
     ident = Identified(1.0, 1.0, np.ones(3), np.zeros(3), np.zeros(cpr), cal)
     ilc = IterativeLearningControl(StageSetup(d, ident, H))
-    ilc.restore({"1@1": {"t": {"re": [0.0] * H, "im": [0.0] * H}, "u_applied": {"re": [0.0] * H, "im": [0.0] * H},
-                         "d": {"re": [0.0] * H, "im": [0.0] * H}, "P": [None] * H, "trials": 0}})
+    zero = {"re": [0.0] * H, "im": [0.0] * H}
+    ilc.restore({"1@1": {"u_applied": zero, "d": zero, "held": zero, "rho": zero, "P": [None] * H, "trials": 0}})
     state = json_round_trip(ilc.state())
     assert state["1@1"]["P"] == [None] * H
 
