@@ -4,12 +4,15 @@ truth: a ripple the same at every speed, cancelled at each learned speed through
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from ilcpmac.campaign.floors import PointSpectra, interpolation_error, point_floors
 from ilcpmac.compensation import interpolation_weights
-from ilcpmac.pipeline.analysis import TorqueSpectrum
+from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
+from ilcpmac.pipeline.analysis import TorqueSpectrum, TrialAnalysis
 from ilcpmac.signals.harmonics import harmonic_amplitudes, table_from_amplitudes
 
 CPR, H = 256, 60
@@ -72,3 +75,30 @@ def test_a_validation_points_floor_is_the_expected_peak_to_peak_of_what_the_inte
     truth = np.ptp(table_from_amplitudes(draws, CPR), axis=0).mean() / 2.0
     assert not floor.learned
     assert floor.true_pp == floor.measured_pp == pytest.approx(truth, rel=0.03)
+
+
+def test_a_trials_spectra_are_taken_at_the_speed_it_ran_at_as_the_stages_take_them():
+    """A trial that ran 24 % below its set point's speed (a servo whose loop gives up torque to its back-EMF):
+    its measured harmonics are converted and its feed-forward's torque taken at the 0.76 Hz it ran at, as
+    `Pipeline.frame` does for the stages, not at the 1 Hz set; at the set speed the floor's estimate of its
+    ripple was off by the response's change over that speed (13 % at a 60 Hz loop's cogging order 72)."""
+    cpr, revolutions, ran_hz = 64, 4, 0.76
+    count = np.arange(revolutions * cpr)
+    trial = TrialData(8.0, 1.0, count, count / (cpr * ran_hz), np.zeros((count.size, 3)), np.zeros(count.size))
+    ran = TrialRequest(8.0, 1.0, revolutions, np.zeros(cpr), np.zeros(cpr),
+                       SensorCalibration(np.full(3, 14.0), np.zeros(3), 0.9))
+    spectrum = TorqueSpectrum(np.ones(H + 1, complex), np.full(H + 1, 1e-6), 0.0, cpr)
+    asked = []
+
+    def response(h, speed_hz):
+        asked.append(speed_hz)
+        return loop(h, speed_hz)
+
+    measurement = SimpleNamespace(in_true_units=lambda s, speed_hz, cal: s.divided_by(response(np.arange(H + 1),
+                                                                                               speed_hz)),
+                                  mean_torque_nm=lambda request: 7.0)
+    pipeline = SimpleNamespace(delivered_nm=lambda request, speed_hz: response(np.arange(H + 1), speed_hz))
+    got = PointSpectra.of(ran, trial, TrialAnalysis(spectrum), measurement, pipeline)
+    np.testing.assert_allclose(asked, [ran_hz, ran_hz], rtol=1e-12)
+    np.testing.assert_allclose(got.delivered_nm, loop(np.arange(H + 1), ran_hz))
+    np.testing.assert_allclose(got.measured.harmonics_nm, 1.0 / loop(np.arange(H + 1), ran_hz))

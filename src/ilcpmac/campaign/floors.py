@@ -10,7 +10,8 @@ Two noises, and what the trials cannot resolve, bound what a point ends at:
   sensor's or the encoder torque's noise;
 - the **learning** (what it can reach): the ripple with no feed-forward, d, is estimated from the trials
   learned from before the final one, each trial's measured harmonics less the torque its feed-forward delivered
-  through the identified response (`RippleEstimate`), no better than their inverse-variance mean, of variance
+  through the identified response, both at the speed it ran at (`PointSpectra.of`, `RippleEstimate`), no better
+  than their inverse-variance mean, of variance
   P_h = 1 / sum_k (1 / v_k,h). A learner learns a harmonic where the data show it (`stands_out`, `SIGNIFICANCE`
   standard deviations) and leaves the rest (`learning_floors`): where the learned points' mean stands out, what
   they share, at the pooled variance A_h (the ilc stage pools them); where a point's own ripple stands out of
@@ -36,15 +37,20 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ilcpmac.campaign.record import MAX_RIPPLE_FRACTION, Point, number_in
 from ilcpmac.compensation import interpolation_weights
-from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
+from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM, TrialData, TrialRequest
 from ilcpmac.core.schema import shown
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import expected_noise_pp, harmonic_amplitudes
+
+if TYPE_CHECKING:
+    from ilcpmac.pipeline.analysis import TorqueMeasurement, TrialAnalysis
+    from ilcpmac.pipeline.pipeline import Pipeline
 
 __all__ = ["SIGNIFICANCE", "LearningFloor", "PointFloor", "PointSpectra", "Response", "RippleEstimate", "floors_of",
            "interpolation_error", "learning_floors", "point_floors", "stands_out", "unresolved_power"]
@@ -68,6 +74,17 @@ class PointSpectra:
     true: TorqueSpectrum | None = None
     true_mean_nm: float | None = None
     delivered_nm: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, ran: TrialRequest, trial: TrialData, analysis: TrialAnalysis, measurement: TorqueMeasurement,
+           pipeline: Pipeline) -> PointSpectra:
+        """Of a ``trial`` that ran ``ran``, from its ``analysis``: converted and its feed-forward's torque taken at
+        the trial's mean speed, as the stages take them (`Pipeline.frame`), not at its set point's."""
+        assert analysis.measured is not None
+        speed_hz = trial.mean_speed_hz(analysis.measured.counts_per_rev)
+        measured = measurement.in_true_units(analysis.measured, speed_hz, ran.calibration)
+        return cls(measured, measurement.mean_torque_nm(ran), analysis.true, analysis.true_mean_nm,
+                   pipeline.delivered_nm(ran, speed_hz)[: measured.max_harmonic + 1])
 
 
 @dataclass(frozen=True)

@@ -312,8 +312,9 @@ class CampaignRunner:
                              request.speed_setpoint_hz, true=self._true_figures(analysis),
                              motor_time_s=self.plan.bench_seconds(ran))
         if self.identified is not None:
+            assert self.measurement is not None  # both set by the identification
             record = replace(record, measured=self._measured_figures(ran, analysis.measured))
-            self._spectra[record.index] = self._point_spectra(ran, analysis)
+            self._spectra[record.index] = PointSpectra.of(ran, trial, analysis, self.measurement, self.pipeline)
         if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)
@@ -535,13 +536,6 @@ class CampaignRunner:
                               f"{fresh.reason.name.lower()}); the run cannot go on from it")
         return choice
 
-    def _point_spectra(self, ran: TrialRequest, analysis: TrialAnalysis) -> PointSpectra:
-        """What the floors need of a trial that ran ``ran`` (`PointSpectra`), from its analysis."""
-        assert self.measurement is not None and analysis.measured is not None
-        measured = self.measurement.in_true_units(analysis.measured, ran.speed_setpoint_hz, ran.calibration)
-        return PointSpectra(measured, self.measurement.mean_torque_nm(ran), analysis.true, analysis.true_mean_nm,
-                            self.pipeline.delivered_nm(ran, ran.speed_setpoint_hz)[: measured.max_harmonic + 1])
-
     def _grid_bench(self, grid_trials: list[TrialData]) -> Bench:
         """The grid as a bench folder in memory."""
         return Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
@@ -685,11 +679,12 @@ class CampaignRunner:
                      if (done := records_at(self.records, p, ("validate",)))}
         needed = [i for indices in learned.values() for i in indices] + list(validated.values())
         missing = [i for i in needed if i not in self._spectra]
+        assert self.measurement is not None
         for index, trial in zip(missing, self.run_dir.read_trials(missing)):
             ran = self.run_dir.state(index).ran()
             analysis = TrialAnalysis.of(replace(trial, request=ran), self.description.motor.counts_per_rev,
                                         self.config.campaign.ripple_harmonics, self.measurement)
-            self._spectra[index] = self._point_spectra(ran, analysis)
+            self._spectra[index] = PointSpectra.of(ran, trial, analysis, self.measurement, self.pipeline)
         compensation = self._compensation()
         assert self.identified is not None
         setup = StageSetup(self.description, self.identified, self.config.campaign.ripple_harmonics)
