@@ -174,7 +174,7 @@ class IterativeLearningControl:
 
     def _entry(self, key: str) -> dict[str, np.ndarray]:
         n = self._h.size
-        return self._memory.setdefault(key, {"u_applied": np.zeros(n, complex), "d": np.zeros(n, complex),
+        return self._memory.setdefault(key, {**{name: np.zeros(n, complex) for name in _COMPLEX},
                                              "P": np.full(n, np.inf)})
 
     def _delivering(self, m: dict[str, np.ndarray]) -> np.ndarray:
