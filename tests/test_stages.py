@@ -739,3 +739,15 @@ def test_the_ilc_learns_the_campaigns_ripple_band_unless_its_cutoff_is_given(fas
     assert IterativeLearningControl(StageSetup(fast.describe(), identified(fast), 60))._max_harmonic == 60
     assert IterativeLearningControl(StageSetup(fast.describe(), identified(fast), 60,
                                                {"q_cutoff_harmonic": 40}))._max_harmonic == 40
+
+
+def test_ilc_state_of_an_earlier_release_is_refused_naming_what_it_lacks():
+    """A state written before the stage formed its feed-forward at each request held t, not held and rho."""
+    cpr = 1024
+    cal = SensorCalibration(np.full(3, 14.0), np.zeros(3), 0.9)
+    d = BenchDescription(MotorInfo(8, 48, cpr, 0.01), np.ones((cpr, 3)), cal, BenchLimits(30.0, 8.0, 1.5))
+    ident = Identified(1.0, 1.0, np.ones(3), np.zeros(3), np.zeros(cpr), cal)
+    ilc = IterativeLearningControl(StageSetup(d, ident, H))
+    zero = {"re": [0.0] * H, "im": [0.0] * H}
+    with pytest.raises(ValueError, match="without held, rho"):
+        ilc.restore({"1@1": {"t": zero, "u_applied": zero, "d": zero, "P": [None] * H, "trials": 1}})
