@@ -1188,3 +1188,30 @@ def fitted_columns_nm(tables: BenchTables, estimate: JointEstimate) -> np.ndarra
     saturation = problem.saturation_column(phi, np.concatenate([estimate.theta, estimate.beta_star_a]))
     x, _ = problem.solve(phi, saturation)
     return problem.highpass(phi, estimate.sets.fit) * (problem.design(phi, saturation) @ x)
+
+
+def modelled_mean_nm(tables: BenchTables, estimate: JointEstimate) -> tuple[np.ndarray, np.ndarray]:
+    """The mean torque of each trial of ``tables`` by the joint model before the sensor, N m (measured), and its
+    standard error from the covariance of the linear parameters, shape (n_trials,) each.
+
+    The model's torque per count (`_JointProblem.model_counts`, the position table left out: its mean is not
+    fitted) at h = 0, which the piezo does not see and the fit does not use: the currents through the loop times
+    theta, the offsets' beta*, the back-EMF's tracking error K_p W (1 - G_p) e_p (the mean torque the loop loses
+    with speed) and the saturation. Its derivative with respect to each linear parameter is taken by a step of
+    1e-6 of its size (the saturation's column depends on them); the nonlinear parameters' error is left out.
+    """
+    problem = _JointProblem(tables, estimate.sets)
+    phi = estimate.nonlinear
+    x = np.concatenate([estimate.theta, estimate.beta_star_a, [estimate.emf_gain, estimate.saturation_per_a2]])
+    mean = problem.model_counts(phi, x, {}).mean(axis=1)
+    names = [name for name in LINEAR if name in estimate.parameter_names]
+    slopes = np.empty((mean.size, len(names)))
+    for k, name in enumerate(names):
+        i = LINEAR.index(name)
+        step = 1e-6 * max(abs(float(x[i])), 1e-3)
+        moved = x.copy()
+        moved[i] += step
+        slopes[:, k] = (problem.model_counts(phi, moved, {}).mean(axis=1) - mean) / step
+    rows = [estimate.parameter_names.index(name) for name in names]
+    covariance = estimate.covariance[np.ix_(rows, rows)]
+    return mean, np.sqrt(np.maximum(np.einsum("ti,ij,tj->t", slopes, covariance, slopes), 0.0))

@@ -1,0 +1,115 @@
+"""The mean torque (issue 38): what the identification's joint model implies against the simulator's truth, and
+what a default campaign delivers at its points.
+
+    python benchmarks/mean_torque.py [--seed N] [--no-campaign]
+
+Per motor (the seed bench, and benchmarks/other_motors.py's three with the torque source left to its default):
+
+1. at every trial of the identification grid (at the bench's starting calibration), the true mean torque against
+   its set point beside the joint model's mean (`ilcpmac.identify.joint.modelled_mean_nm` over the identified
+   delta, the piezo seeing no mean) and its standard error (the model's linear parameters and delta's), and z,
+   their difference in standard errors;
+2. a default campaign's learned and validation points: the true mean torque of each point's final trial against
+   its set point. Nothing states or corrects it yet: the "before" of issue 38's table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ilcpmac.bench.format import read_trial
+from ilcpmac.campaign.service import simulated_bench
+from ilcpmac.config import load_config
+from ilcpmac.identify import identify_bench
+from ilcpmac.identify.joint import fit_joint, modelled_mean_nm
+from ilcpmac.identify.reduction import reduce_bench
+from ilcpmac.identify.system_gain import estimate_system_gain
+
+
+def _sibling(name: str):
+    """benchmarks/NAME.py as a module, loaded by its path (never this folder on sys.path: benchmarks/moteus.py
+    would hide mjbots' library)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parent / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = sys.modules[name] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+other_motors = sys.modules.get("other_motors") or _sibling("other_motors")
+
+
+def grid_rows(config_path: Path, seed: int) -> list[tuple[float, float, float, float, float]]:
+    """Per grid trial: torque and speed set points, true mean / set - 1, modelled mean / set - 1, its standard
+    error (relative)."""
+    bench, _ = simulated_bench(load_config(config_path), seed=seed)
+    tables = reduce_bench(bench)
+    joint = fit_joint(tables, estimate_system_gain(tables).loop)
+    result = identify_bench(bench)
+    assert result.delta is not None and result.delta_std is not None
+    mean_nm, std_nm = modelled_mean_nm(tables, joint)
+    relative_std = np.hypot(std_nm / mean_nm, result.delta_std / result.delta)
+    rows = []
+    for trial, modelled, std in zip(bench.trials, mean_nm / result.delta, relative_std):
+        set_nm = trial.torque_setpoint_nm
+        rows.append((set_nm, trial.speed_setpoint_hz, float(trial.torque_true_nm.mean()) / set_nm - 1.0,
+                     float(modelled) / set_nm - 1.0, float(std)))
+    return rows
+
+
+def campaign_rows(config_path: Path, seed: int, out: Path) -> list[tuple[float, float, bool, float]]:
+    """Per learned and validation point of a default campaign: set points, learned, true mean / set - 1 of its
+    final trial."""
+    import ilcpmac.campaign
+
+    result = ilcpmac.campaign.run(config_path, out=out, seed=seed)
+    rows = []
+    for p in result.summary["points"]:
+        trial = read_trial(result.path / f"trial_{p['compensated_trial']:03d}.parquet", p["torque_setpoint"],
+                           p["speed_setpoint"])
+        assert trial.torque_true_nm is not None
+        rows.append((p["torque_setpoint"], p["speed_setpoint"], p["learned"],
+                     float(trial.torque_true_nm.mean()) / p["torque_setpoint"] - 1.0))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seed", type=int, default=2009, help="the campaign's and the grid's seed (default 2009)")
+    parser.add_argument("--no-campaign", action="store_true", help="the grid's table only")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        motors = {"seed bench": other_motors.SEED}
+        for k, changes in enumerate(other_motors.MOTORS.values(), start=1):
+            motors[f"motor {k}"] = other_motors.config(changes, Path(tmp) / f"motor{k}.toml")
+        print("identification grid: mean torque / set point - 1, true and the joint model's (+- its standard "
+              "error), and z")
+        for name, path in motors.items():
+            rows = grid_rows(path, args.seed)
+            z = [(modelled - true) / std for _, _, true, modelled, std in rows]
+            print(f"{name}: |z| at most {max(map(abs, z)):.2f}, model - true {min(r[3] - r[2] for r in rows):+.4%} "
+                  f"to {max(r[3] - r[2] for r in rows):+.4%}")
+            for (torque, speed, true, modelled, std), zk in zip(rows, z):
+                print(f"  {torque:7.3g} N m {speed:5.3g} Hz  true {true:+.4%}  model {modelled:+.4%} +- {std:.4%}  "
+                      f"z {zk:+.2f}")
+        if args.no_campaign:
+            return
+        print("\ndefault campaign: true mean torque of each point's final trial / set point - 1 (nothing corrects "
+              "it yet)")
+        for k, (name, path) in enumerate(motors.items()):
+            rows = campaign_rows(path, args.seed, Path(tmp) / f"run{k}")
+            errors = [error for *_, error in rows]
+            print(f"{name}: {min(errors):+.2%} to {max(errors):+.2%}")
+            for torque, speed, learned, error in rows:
+                print(f"  {torque:7.3g} N m {speed:5.3g} Hz  {'learned' if learned else 'validation':10s} "
+                      f"{error:+.3%}")
+
+
+if __name__ == "__main__":
+    main()
