@@ -528,6 +528,10 @@ class IdentificationResult(MethodEstimates):
         (`ilcpmac.core.current_loop.speed_feedback`); None without a joint fit, and the conductance None where
         c_e is within `ilcpmac.identify.SIGNIFICANT_EMF` standard errors of 0. In the JSON they stay in
         ``diagnostics["joint"]``.
+    saturation_per_a2 : float or None
+        c of the torque constant's fall with current, K_p i_p (1 - c i_p^2), per A^2 (the joint fit's saturation
+        column times delta^2), which the mean torque rests on (`ilcpmac.pipeline.mean_torque`); None without a
+        joint fit whose gain was taken. In the JSON it stays in ``diagnostics["joint"]``.
     encoder_error_counts, encoder_error_std_counts : ndarray, shape (counts_per_rev,), or None
         The encoder's graduation error e_c per line (line c truly at (c + e_c) 2 pi / counts_per_rev,
         mean zero) and its standard error, counts; None when not identified (the reason in ``messages``).
@@ -553,6 +557,7 @@ class IdentificationResult(MethodEstimates):
     torque_sensor_delay_s: float | None = None
     winding_conductance_s: float | None = None
     winding_time_constant_s: float | None = None
+    saturation_per_a2: float | None = None
     encoder_error_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_error_std_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_eccentricity_counts: float | None = None
@@ -610,8 +615,8 @@ class IdentificationResult(MethodEstimates):
 
         The current loop is ``current_loop_time_constant_s``, else 1 / (2 pi corner) with the corner
         ``current_loop_bandwidth_per_phase_hz`` (or the mean ``current_loop_bandwidth_hz`` in every
-        phase), with ``current_loop_delay_s`` (0 when absent). The torque sensor's high-pass and delay, and the
-        winding's conductance and time constant, are ``diagnostics["joint"]``'s.
+        phase), with ``current_loop_delay_s`` (0 when absent). The torque sensor's high-pass and delay, the
+        winding's conductance and time constant and the saturation are ``diagnostics["joint"]``'s.
         """
         tau = data.get("current_loop_time_constant_s")
         bandwidth = data.get("current_loop_bandwidth_per_phase_hz") or data.get("current_loop_bandwidth_hz")
@@ -644,6 +649,8 @@ class IdentificationResult(MethodEstimates):
                    torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
                    winding_conductance_s=_winding_value(joint, "winding_conductance_s"),
                    winding_time_constant_s=_winding_value(joint, "winding_time_constant_s"),
+                   saturation_per_a2=_from_json_value(joint.get("saturation_per_a2"), False,
+                                                      "diagnostics.joint.saturation_per_a2"),
                    **{name: encoder_vectors[key] if key in encoder_vectors else
                       _from_json_value(encoder.get(key), False, "encoder_error." + key)
                       for key, name in ENCODER_ERROR_KEYS},

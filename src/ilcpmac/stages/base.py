@@ -52,7 +52,9 @@ class Identified:
     torque sensor (the encoder-derived torque is true torque, and the torque gain stays the bench's).
     ``sensor_highpass_hz`` and ``sensor_delay_s`` are the torque sensor's high-pass corner (Hz) and delay (s)
     the identification found (0: none identified); ``winding_conductance_s`` and ``winding_time_constant_s`` the
-    winding's 1 / R (S) and L / R (s), which the speed's feedback rests on (0: none identified, no feedback).
+    winding's 1 / R (S) and L / R (s), which the speed's feedback rests on (0: none identified, no feedback);
+    ``saturation_per_a2`` the torque constant's fall with current, c of K_p i_p (1 - c i_p^2), per A^2 (0: none
+    identified).
     """
 
     delta: float
@@ -70,6 +72,7 @@ class Identified:
     sensor_delay_s: float = 0.0
     winding_conductance_s: float = 0.0
     winding_time_constant_s: float = 0.0
+    saturation_per_a2: float = 0.0
 
     def __post_init__(self) -> None:
         """Every array read-only (`frozen`): each stage shares them."""
@@ -108,7 +111,8 @@ class Identified:
             sensor_highpass_hz=float(result.torque_sensor_highpass_hz or 0.0),
             sensor_delay_s=float(result.torque_sensor_delay_s or 0.0),
             winding_conductance_s=float(result.winding_conductance_s or 0.0),
-            winding_time_constant_s=float(result.winding_time_constant_s or 0.0))
+            winding_time_constant_s=float(result.winding_time_constant_s or 0.0),
+            saturation_per_a2=float(result.saturation_per_a2 or 0.0))
 
     def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
         """The current loop while the controller uses ``calibration``.
