@@ -9,40 +9,27 @@ Per motor (the seed bench, and benchmarks/other_motors.py's three with the torqu
    its set point beside the joint model's mean (`ilcpmac.identify.joint.modelled_mean_nm` over the identified
    delta, the piezo seeing no mean) and its standard error (the model's linear parameters and delta's), and z,
    their difference in standard errors;
-2. a default campaign's learned and validation points: the true mean torque of each point's final trial against
-   its set point. Nothing states or corrects it yet: the "before" of issue 38's table.
+2. a default campaign's learned and validation points: the mean torque of each point's final trial against its
+   set point, the model's as summary.json states it (`ilcpmac.campaign.mean_torque`) with its standard error,
+   and the truth's. Nothing corrects it yet: the "before" of issue 38's table.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+import other_motors  # this folder's, first on sys.path when run as a script
 
-from ilcpmac.bench.format import read_trial
+from ilcpmac.campaign.mean_torque import PointMeanTorque, mean_torques_of
 from ilcpmac.campaign.service import simulated_bench
 from ilcpmac.config import load_config
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.joint import fit_joint, modelled_mean_nm
 from ilcpmac.identify.reduction import reduce_bench
 from ilcpmac.identify.system_gain import estimate_system_gain
-
-
-def _sibling(name: str):
-    """benchmarks/NAME.py as a module, loaded by its path (never this folder on sys.path: benchmarks/moteus.py
-    would hide mjbots' library)."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parent / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = sys.modules[name] = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-other_motors = sys.modules.get("other_motors") or _sibling("other_motors")
 
 
 def grid_rows(config_path: Path, seed: int) -> list[tuple[float, float, float, float, float]]:
@@ -63,20 +50,11 @@ def grid_rows(config_path: Path, seed: int) -> list[tuple[float, float, float, f
     return rows
 
 
-def campaign_rows(config_path: Path, seed: int, out: Path) -> list[tuple[float, float, bool, float]]:
-    """Per learned and validation point of a default campaign: set points, learned, true mean / set - 1 of its
-    final trial."""
+def campaign_rows(config_path: Path, seed: int, out: Path) -> list[PointMeanTorque]:
+    """The mean torque of each learned and validation point of a default campaign (summary.json's)."""
     import ilcpmac.campaign
 
-    result = ilcpmac.campaign.run(config_path, out=out, seed=seed)
-    rows = []
-    for p in result.summary["points"]:
-        trial = read_trial(result.path / f"trial_{p['compensated_trial']:03d}.parquet", p["torque_setpoint"],
-                           p["speed_setpoint"])
-        assert trial.torque_true_nm is not None
-        rows.append((p["torque_setpoint"], p["speed_setpoint"], p["learned"],
-                     float(trial.torque_true_nm.mean()) / p["torque_setpoint"] - 1.0))
-    return rows
+    return list(mean_torques_of(ilcpmac.campaign.run(config_path, out=out, seed=seed).summary).values())
 
 
 def main() -> None:
@@ -100,16 +78,16 @@ def main() -> None:
                       f"z {zk:+.2f}")
         if args.no_campaign:
             return
-        print("\ndefault campaign: true mean torque of each point's final trial / set point - 1 (nothing corrects "
-              "it yet)")
+        print("\ndefault campaign: each point's final trial's mean torque / set point - 1, the model's (+- its "
+              "standard error) and the truth's, and z (nothing corrects it yet)")
         for k, (name, path) in enumerate(motors.items()):
-            rows = campaign_rows(path, args.seed, Path(tmp) / f"run{k}")
-            errors = [error for *_, error in rows]
-            print(f"{name}: {min(errors):+.2%} to {max(errors):+.2%}")
-            for torque, speed, learned, error in rows:
-                print(f"  {torque:7.3g} N m {speed:5.3g} Hz  {'learned' if learned else 'validation':10s} "
-                      f"{error:+.3%}")
-
+            means = campaign_rows(path, args.seed, Path(tmp) / f"run{k}")
+            z = [((m.true_error or 0.0) - m.error) / m.error_std for m in means]
+            print(f"{name}: true {min(m.true_error or 0.0 for m in means):+.2%} to "
+                  f"{max(m.true_error or 0.0 for m in means):+.2%}, |z| at most {max(map(abs, z)):.2f}")
+            for m, zk in zip(means, z):
+                print(f"  {m.point[0]:7.3g} N m {m.point[1]:5.3g} Hz  {'learned' if m.learned else 'validation':10s} "
+                      f"model {m.error:+.3%} +- {m.error_std:.3%}  true {m.true_error or 0.0:+.3%}  z {zk:+.2f}")
 
 if __name__ == "__main__":
     main()

@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rich.console import Console
 
+from ilcpmac.campaign.mean_torque import MEAN_TORQUE_UNITS
 from ilcpmac.campaign.record import TrialRecord
 from ilcpmac.campaign.runner import SUMMARY_UNITS
 from ilcpmac.campaign.validation import point_results
@@ -253,7 +254,7 @@ def test_summary_json_units_cover_every_number_of_a_trial_a_validation_point_and
     numbers = {k for k in records[-1].to_json() if k not in ("index", "phase", "role")}
     points = {k for k in validation_json(records)[0]
               if k not in ("learned", "uncompensated_trial", "compensated_trial", "worse_than_uncompensated")}
-    later = {"motor_time_s", "floor_pp_measured", "floor_pp_true"}
+    later = {"motor_time_s", "floor_pp_measured", "floor_pp_true", *MEAN_TORQUE_UNITS}
     assert set(SUMMARY_UNITS) == numbers | points | later | {"fade_full_hz", "fade_zero_hz"}
     assert SUMMARY_UNITS["ripple_pp_true"] == "fraction of mean torque"
     assert SUMMARY_UNITS["uncompensated_pp_measured"] == "fraction of mean torque"

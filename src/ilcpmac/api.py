@@ -51,6 +51,7 @@ from ilcpmac.bench.standstill import TRUTH_FILE, ScanData, ScanResult
 from ilcpmac.campaign import service
 from ilcpmac.campaign.events import CampaignMessage, CampaignStart, NoEvents
 from ilcpmac.campaign.floors import PointFloor
+from ilcpmac.campaign.mean_torque import PointMeanTorque
 from ilcpmac.campaign.plan import MAX_BUDGET_MIN
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles, campaign_grid
@@ -298,6 +299,11 @@ class PointSummary:
         Whether the compensation leaves at least as much measured ripple as none.
     uncompensated_trial, compensated_trial : int
         The trials compared (1-based, `RunResults.trial`).
+    mean_torque_error_percent, mean_torque_std_percent : float or None
+        The final trial's mean torque by the identified model over the set point, less 1, %, and its standard
+        error (docs/campaign.md, "The mean torque"); None in a run that saved none.
+    mean_torque_true_error_percent : float or None
+        The same of the simulator's true mean torque; None on a bench.
     """
 
     torque_setpoint_nm: float
@@ -314,6 +320,9 @@ class PointSummary:
     worse_than_uncompensated: bool
     uncompensated_trial: int
     compensated_trial: int
+    mean_torque_error_percent: float | None = None
+    mean_torque_std_percent: float | None = None
+    mean_torque_true_error_percent: float | None = None
 
     @classmethod
     def from_json(cls, data: dict) -> PointSummary:
@@ -324,13 +333,15 @@ class PointSummary:
         ripple, uncompensated = percent(data.get("ripple_pp_measured")), percent(data.get("uncompensated_pp_measured"))
         if ripple is None or uncompensated is None:
             raise KeyError("ripple_pp_measured" if ripple is None else "uncompensated_pp_measured")
-        floor = PointFloor.from_json(data)
+        floor, mean = PointFloor.from_json(data), PointMeanTorque.from_json(data)
         return cls(float(data["torque_setpoint"]), float(data["speed_setpoint"]), bool(data["learned"]), ripple,
                    uncompensated, None if floor is None else percent(floor.measured_pp),
                    percent(data.get("ripple_pp_true")), percent(data.get("uncompensated_pp_true")),
                    None if floor is None else percent(floor.true_pp), data.get("reduction_factor"),
                    data.get("reduction_factor_true"), bool(data["worse_than_uncompensated"]),
-                   int(data["uncompensated_trial"]), int(data["compensated_trial"]))
+                   int(data["uncompensated_trial"]), int(data["compensated_trial"]),
+                   None if mean is None else percent(mean.error), None if mean is None else percent(mean.error_std),
+                   None if mean is None else percent(mean.true_error))
 
 
 @dataclass(frozen=True)

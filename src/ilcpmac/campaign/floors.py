@@ -67,13 +67,14 @@ class PointSpectra:
     """What the floor of a point needs of one of its trials: its measured spectrum in true-torque units
     (`TorqueMeasurement.in_true_units`) and the measurement's mean torque, N m; its true spectrum and mean
     (simulator only); the harmonics 0..H of the torque its feed-forward delivered through the identified response,
-    G^ u, N m (`Pipeline.delivered_nm`; None: none)."""
+    G^ u, N m (`Pipeline.delivered_nm`; None: none); the speed it ran at, Hz (its mean over the trial)."""
 
     measured: TorqueSpectrum
     mean_nm: float
     true: TorqueSpectrum | None = None
     true_mean_nm: float | None = None
     delivered_nm: np.ndarray | None = None
+    speed_hz: float | None = None
 
     @classmethod
     def of(cls, ran: TrialRequest, trial: TrialData, analysis: TrialAnalysis, measurement: TorqueMeasurement,
@@ -84,7 +85,7 @@ class PointSpectra:
         speed_hz = trial.mean_speed_hz(analysis.measured.counts_per_rev)
         measured = measurement.in_true_units(analysis.measured, speed_hz, ran.calibration)
         return cls(measured, measurement.mean_torque_nm(ran), analysis.true, analysis.true_mean_nm,
-                   pipeline.delivered_nm(ran, speed_hz)[: measured.max_harmonic + 1])
+                   pipeline.delivered_nm(ran, speed_hz)[: measured.max_harmonic + 1], speed_hz)
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,7 @@ from ilcpmac.campaign.events import (
     TorqueSourceChosen,
 )
 from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
+from ilcpmac.campaign.mean_torque import MEAN_TORQUE_UNITS, PointMeanTorque
 from ilcpmac.campaign.plan import CampaignPlan, Step, preset_choice, records_at, torque_source
 from ilcpmac.campaign.record import FIGURE_KEYS, LEARN_PHASE, Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDir, RunDirError
@@ -72,6 +73,7 @@ from ilcpmac.core.torque_source import TorqueSource, TorqueSourceChoice, choose_
 from ilcpmac.identify import Identifier, encoder_error_fields
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
+from ilcpmac.pipeline.mean_torque import implied_mean_torque
 from ilcpmac.pipeline.pipeline import Pipeline, built_stages
 from ilcpmac.pipeline.safety import identified_truth, unconfirmed_scale_violation
 from ilcpmac.signals.encoder_torque import (
@@ -98,6 +100,7 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                     for kind in ("measured", "true")},
                  **{f"floor_pp_{kind}": "fraction of mean torque (the point's noise floor, docs/campaign.md)"
                     for kind in ("measured", "true")},
+                 **MEAN_TORQUE_UNITS,
                  "motor_time_s": "s (the motor's running time: warm-up and recorded revolutions; per phase, and all)",
                  "fade_full_hz": "Hz (the feed-forward applies fully up to this speed; null: always)",
                  "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
@@ -181,6 +184,8 @@ class CampaignRunner:
         self._spectra: dict[int, PointSpectra] = {}
         #: every point's noise floor, once the last trial is done
         self.floors: list[PointFloor] | None = None
+        #: every point's mean torque, once the last trial is done
+        self.mean_torques: list[PointMeanTorque] | None = None
 
     @property
     def grid(self) -> list[TrialRequest]:
@@ -663,6 +668,7 @@ class CampaignRunner:
             self.compensation = replace(compensation, fade=fade)
             self.run_dir.write_compensation(self.compensation.to_json())
         self.floors = self._floors()
+        self.mean_torques = self._mean_torques(results)
         worse = [r for r in results if r.worse]
         if worse:
             self.events.message(CompensationWorse(tuple(r.point for r in worse), fade))
@@ -692,6 +698,19 @@ class CampaignRunner:
                             {p: self._spectra[i] for p, i in validated.items()},
                             compensation.torques_nm, compensation.speeds_hz, compensation.tables_nm,
                             lambda h, speed_hz: setup.torque_response(h, speed_hz, compensation.calibration))
+
+    def _mean_torques(self, results: list[PointResult]) -> list[PointMeanTorque]:
+        """Each point's final trial's mean torque by the identified model at the speed it ran at
+        (`implied_mean_torque`, its spectra kept by `_floors`), and the truth's where the simulator gives it."""
+        assert self.identified is not None
+        out = []
+        for r in results:
+            spectra = self._spectra[r.after.index]
+            assert spectra.speed_hz is not None
+            implied = implied_mean_torque(self.description, self.identified, self.run_dir.state(r.after.index).ran(),
+                                          spectra.speed_hz)
+            out.append(PointMeanTorque(r.point, r.learned, implied, spectra.true_mean_nm))
+        return out
 
     # ---------------------------------------------------------------- resume and summary
 
@@ -751,6 +770,7 @@ class CampaignRunner:
                 if all(f is not None for f in factors):
                     final[key] = min(factors)
         floors = {f.point: f for f in self.floors or []}
+        means = {m.point: m for m in self.mean_torques or []}
         motor_time: dict[str, float] = {}
         for r in self.records:
             motor_time[r.phase] = motor_time.get(r.phase, 0.0) + (r.motor_time_s or 0.0)
@@ -758,8 +778,8 @@ class CampaignRunner:
                    "identification": self.identification_json,
                    "torque_source": None if self.choice is None else self.choice.to_json(), "final": final,
                    "validation": [r.to_json() for r in self._results() if not r.learned],
-                   "points": [{**r.to_json(), **(floors[r.point].to_json() if r.point in floors else {})}
-                              for r in self._results()],
+                   "points": [{**r.to_json(), **(floors[r.point].to_json() if r.point in floors else {}),
+                               **(means[r.point].to_json() if r.point in means else {})} for r in self._results()],
                    "motor_time_s": {**motor_time, "all": sum(motor_time.values())}, "complete": complete}
         if self.compensation is not None:
             fade = self.compensation.fade

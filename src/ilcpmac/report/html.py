@@ -30,6 +30,7 @@ from PIL import Image
 
 from ilcpmac import plotting
 from ilcpmac.campaign.floors import PointFloor, floors_of
+from ilcpmac.campaign.mean_torque import PointMeanTorque, mean_torques_of
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDirError
 from ilcpmac.campaign.validation import PointResult, point_results
@@ -271,6 +272,30 @@ def _points(results: list[PointResult], floors: Mapping[Point, PointFloor]) -> s
     return _table(head, rows) + note
 
 
+def _mean_torques(means: Mapping[Point, PointMeanTorque]) -> str:
+    """Per point its final trial's mean torque by the identified model, with its standard error, beside the
+    simulator's truth (``means``: by point, `mean_torques_of`)."""
+    if not means:
+        return '<p class="note">No mean torque: the run has not ended, or an earlier release wrote it.</p>'
+    rows = []
+    for point, m in means.items():
+        true = "" if m.true_nm is None else _number(m.true_nm)
+        rows.append(_cells(["learned" if m.learned else "validation", f"{point[0]:g}", f"{point[1]:g}",
+                            _number(m.implied.mean_nm), _number(m.implied.std_nm), _percent(m.error),
+                            _number(m.implied.backemf_loss_nm), true,
+                            "" if m.true_error is None else _percent(m.true_error)]))
+    head = (_spanned([("point", 1), ("torque", 1), ("speed", 1), ("model", 1), ("+-", 1), ("error", 1),
+                      ("back-EMF part", 1), ("true (simulator)", 1), ("true error", 1)])
+            + _spanned([("", 1), ("N m", 1), ("Hz", 1), ("N m", 1), ("N m", 1), ("%", 1), ("N m", 1), ("N m", 1),
+                        ("%", 1)]))
+    note = ('<p class="note">The mean torque of each point\'s final trial: no sensor measures it (a piezo sees no '
+            "mean), so the model's is the set point through the identified current sensors, loop and back-EMF "
+            "(docs/campaign.md, \"The mean torque\"); +-: its standard error, eps's; error: over the set point, "
+            "less 1; back-EMF part: what the loop's tracking error to the back-EMF takes. Nothing corrects it "
+            "yet.</p>")
+    return _table(head, rows) + note
+
+
 def _estimate_cells(estimates: MethodEstimates, name: str, component: int | None) -> tuple[str, str]:
     """The value and standard error of estimate ``name`` (a component of a vector one) of ``estimates``."""
     value, std = getattr(estimates, name), getattr(estimates, name + "_std")
@@ -372,7 +397,7 @@ def page(report: RunReport, images: Mapping[str, bytes], why: str | None = None)
     """
     summary = report.files.read_summary()
     try:
-        floors = floors_of(summary)
+        floors, means = floors_of(summary), mean_torques_of(summary)
         identification = summary.get("identification")
         result = None if identification is None else IdentificationResult.from_json(identification)
         in_words = _results(summary)
@@ -383,6 +408,7 @@ def page(report: RunReport, images: Mapping[str, bytes], why: str | None = None)
     sections = [("results", "Results", in_words),
                 ("plan", "Plan and motor time", _plan(report)),
                 ("points", "Ripple per operating point", _points(results, floors)),
+                ("mean-torque", "Mean torque per operating point", _mean_torques(means)),
                 ("identification", "Identification", _identification(result)),
                 ("figures", "Figures", _figures(images, why)),
                 ("export", "Export the compensation", _exports(report))]

@@ -15,11 +15,12 @@ from rich.console import JustifyMethod
 from rich.table import Table
 
 from ilcpmac.campaign.floors import PointFloor, floors_of
+from ilcpmac.campaign.mean_torque import PointMeanTorque, mean_torques_of
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.validation import PointResult, point_results, results_of
 
-__all__ = ["FINAL_TITLE", "SOURCE_CAPTIONS", "SUMMARY_TITLE", "final_lines", "significant", "summary_table",
-           "trials_table"]
+__all__ = ["FINAL_TITLE", "SOURCE_CAPTIONS", "SUMMARY_TITLE", "final_lines", "mean_torque_lines", "significant",
+           "summary_table", "trials_table"]
 
 #: width of a column's padding (one space each side) and its left border
 _COLUMN_FRAME = 3
@@ -216,13 +217,41 @@ def _ripple_lines(where: str, kind: str, results: list[PointResult], floors: dic
     return lines
 
 
+def mean_torque_lines(means: dict[Point, PointMeanTorque]) -> list[str]:
+    """The final lines of the points' mean torque (`mean_torques_of`): the model's largest error with its point and
+    standard error, and the range over the points; the truth's where the simulator gives it, with the largest
+    distance between the two in the model's standard errors."""
+    if not means:
+        return []
+    errors = {p: m.error for p, m in means.items()}
+    worst = max(errors, key=lambda p: abs(errors[p]))
+    lines = [f"mean torque (model): {significant(100 * abs(errors[worst]))} % {_side(errors[worst])} the set point "
+             f"at worst ({_at(worst)}), +- {significant(100 * means[worst].error_std)} %; each point "
+             f"{100 * min(errors.values()):+.2f} to {100 * max(errors.values()):+.2f} %"]
+    truths = {p: error for p, m in means.items() if (error := m.true_error) is not None}
+    if truths:
+        worst = max(truths, key=lambda p: abs(truths[p]))
+        apart = max(abs(truths[p] - errors[p]) / means[p].error_std if means[p].error_std > 0 else math.inf
+                    for p in truths)
+        lines.append(f"mean torque (true): {significant(100 * abs(truths[worst]))} % {_side(truths[worst])} the set "
+                     f"point at worst ({_at(worst)}); each point within {significant(apart)} standard errors of the "
+                     "model's")
+    return lines
+
+
+def _side(error: float) -> str:
+    return "below" if error < 0 else "above"
+
+
 def final_lines(summary: dict) -> list[str]:
-    """summary.json's points in words (`results_of`, `floors_of`): per set of points (learned, then validation)
-    and kind of peak-to-peak ripple (true, then measured) `_ripple_lines`, each figure beside the point it belongs
-    to; then the motor time per phase. `FINAL_TITLE` heads them."""
+    """summary.json's points in words (`results_of`, `floors_of`, `mean_torques_of`): per set of points (learned,
+    then validation) and kind of peak-to-peak ripple (true, then measured) `_ripple_lines`, each figure beside the
+    point it belongs to; the points' mean torque (`mean_torque_lines`); then the motor time per phase.
+    `FINAL_TITLE` heads them."""
     results, floors = results_of(summary), floors_of(summary)
     lines = [line for where, learned in (("learned", True), ("validation", False)) for kind in ("true", "measured")
              for line in _ripple_lines(where, kind, [r for r in results if r.learned == learned], floors)]
+    lines += mean_torque_lines(mean_torques_of(summary))
     motor = summary.get("motor_time_s")
     if motor:
         phases = ", ".join(f"{phase} {t / 60:.1f}" for phase, t in motor.items() if phase != "all")

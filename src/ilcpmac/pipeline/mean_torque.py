@@ -1,0 +1,81 @@
+"""The mean torque a request makes, as the identification models the drive (issue 38).
+
+The piezo sees no mean torque and the encoder only its viscous part, so the mean the shaft carries is what the
+identified model says of it: the joint fit's torque (`ilcpmac.identify.joint`, whose mean over a revolution
+`ilcpmac.identify.joint.modelled_mean_nm` is within 0.05 % of the truth on the seed bench's grid) at the
+request's set point, feed-forward, calibration and speed. Per phase p, with the currents' references
+I*_p = tau_ref K*_p / sum_q K*_q^2 per count (`ilcpmac.model.tables.current_references`), the bench's back-EMF
+table K_p and the rotor's speed omega,
+
+    tau_mean = mean over the revolution of sum_p K_p i_p (1 - c i_p^2),
+    i_p = eps alpha_p G_p I*_p - (1 / R) W (1 - G_p) K_p omega,
+
+eps alpha_p at the request's calibration and G_p the identified loop there (`Identified.loop_at`), applied to
+the per-count staircase; the second term is the loop's tracking error to its back-EMF e_p = K_p omega through
+the winding W = 1 / (1 + s L / R) (a smooth signal through the continuous loop), the mean torque the loop loses
+as the speed grows; c the identified saturation. The offsets' torque, beta_p mean(K_p), is zero for a back-EMF
+of zero mean and left out. The currents are taken per count, also on a record of count means (their lines'
+staircase moves the mean by a second-order amount).
+
+Its standard error is eps's (the split of delta eps rests on the sensor's gain: 0.1 % on the seed bench, 1-40 %
+on other motors), relative; the loop's and the winding's parameters' errors are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ilcpmac.core.current_loop import CurrentLoop, lagged
+from ilcpmac.core.records import BenchDescription, TrialRequest
+from ilcpmac.model.tables import current_references
+from ilcpmac.stages.base import Identified
+
+__all__ = ["MeanTorque", "implied_mean_torque"]
+
+
+@dataclass(frozen=True)
+class MeanTorque:
+    """The mean torque a request makes at a speed, N m (true), as the identification models it.
+
+    Attributes
+    ----------
+    mean_nm : the mean over a revolution.
+    std_nm : its standard error.
+    backemf_loss_nm : the part the loop's tracking error to the back-EMF takes (negative: lost).
+    saturation_loss_nm : the part the saturation takes.
+    """
+
+    mean_nm: float
+    std_nm: float
+    backemf_loss_nm: float
+    saturation_loss_nm: float
+
+    def error_of(self, setpoint_nm: float) -> float:
+        """The mean torque's error relative to ``setpoint_nm``: mean / set point - 1."""
+        return self.mean_nm / setpoint_nm - 1.0
+
+
+def implied_mean_torque(description: BenchDescription, identified: Identified, request: TrialRequest,
+                        speed_hz: float) -> MeanTorque:
+    """The mean torque ``request`` makes at ``speed_hz`` (the rotor's, Hz) on the bench ``description`` by the
+    identification ``identified`` (module docstring)."""
+    motor = description.motor
+    k = np.asarray(description.backemf_nm_per_a, float)
+    calibration = request.calibration
+    loop = identified.loop_at(calibration)
+    period = np.full((1, motor.counts_per_rev), 1.0 / (motor.counts_per_rev * abs(speed_hz)))
+    references = current_references(request.torque_reference_nm(), k)
+    currents = identified.epsilon_alpha_at(calibration) * lagged(references[None], period, loop)[0]
+    emf = k * (2.0 * np.pi * speed_hz)
+    rejected = emf - lagged(emf[None], period, loop, continuous=True)[0]
+    winding = CurrentLoop(np.full(3, identified.winding_time_constant_s), 0.0)
+    error_a = -identified.winding_conductance_s * lagged(rejected[None], period, winding, continuous=True)[0]
+    total_a = currents + error_a
+    current_nm = float(np.mean(np.sum(k * currents, axis=1)))
+    loss_nm = float(np.mean(np.sum(k * error_a, axis=1)))
+    saturation_nm = -identified.saturation_per_a2 * float(np.mean(np.sum(k * total_a**3, axis=1)))
+    mean_nm = current_nm + loss_nm + saturation_nm
+    std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
+    return MeanTorque(mean_nm, std, loss_nm, saturation_nm)
