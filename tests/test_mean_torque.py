@@ -107,8 +107,8 @@ def test_a_point_s_mean_torque_reads_back_as_summary_json_holds_it_and_states_it
     from ilcpmac.pipeline.mean_torque import MeanTorque
     from ilcpmac.report.table import mean_torque_lines
 
-    means = [PointMeanTorque((1.0, 1.5), True, MeanTorque(0.9588, 0.0011, -0.0312, -0.0003), 0.9595),
-             PointMeanTorque((5.0, 0.5), False, MeanTorque(4.9645, 0.0055, -0.0015, -0.028), None)]
+    means = [PointMeanTorque((1.0, 1.5), True, MeanTorque(0.9588, 0.0011, -0.0312, -0.0003, 0.0002), 0.9595),
+             PointMeanTorque((5.0, 0.5), False, MeanTorque(4.9645, 0.0055, -0.0015, -0.028, 0.001), None)]
     points = [{"torque_setpoint": m.point[0], "speed_setpoint": m.point[1], "learned": m.learned, **m.to_json()}
               for m in means]
     earlier = {"torque_setpoint": 3.0, "speed_setpoint": 1.0, "learned": True}
@@ -118,6 +118,8 @@ def test_a_point_s_mean_torque_reads_back_as_summary_json_holds_it_and_states_it
         "-0.71 %",
         "mean torque (true): 4.05 % below the set point at worst (1 N m, 1.5 Hz); each point within 0.636 standard "
         "errors of the model's"]
+    unstated = dataclasses.replace(means[0], implied=dataclasses.replace(means[0].implied, inertia_std_nm=None))
+    assert "the given inertia taken as exact" in mean_torque_lines({unstated.point: unstated})[0]
 
 
 @pytest.mark.parametrize("key, value", [("mean_torque_nm", "4"), ("mean_torque_std_nm", -0.1),
@@ -145,3 +147,36 @@ def test_the_api_gives_a_point_s_mean_torque_in_percent_and_none_for_a_run_that_
     assert point.mean_torque_error_percent == pytest.approx(-2.6)
     assert point.mean_torque_std_percent == pytest.approx(0.11)
     assert point.mean_torque_true_error_percent == pytest.approx(-2.5)
+
+
+@pytest.mark.slow
+def test_an_inertia_given_wrong_is_in_the_stated_uncertainty_only_where_the_bench_states_its_own(write_config):
+    """Truth first: the seed bench with its rotor 5 % heavier than [bench] inertia_kgm2 says. Delta comes from the
+    given inertia and eps from delta, so the identified eps is 5 % low and the corrected calibration drives the
+    mean torque 5 % above what the model says, which no trial shows: beyond 10 of eps's standard errors. With
+    [bench] inertia_uncertainty = 0.05 the standard error holds it (within 2)."""
+    from ilcpmac.campaign.service import built_backend, simulated_bench
+    from ilcpmac.config import load_config
+    from ilcpmac.core.records import TrialRequest
+    from ilcpmac.identify import identify_bench
+    from ilcpmac.pipeline.mean_torque import implied_mean_torque
+    from ilcpmac.stages.base import Identified
+
+    config = load_config(write_config({"simulator.mechanics": {"inertia_scale": 1.05},
+                                       "bench": {"inertia_uncertainty": 0.05}}))
+    bench, _ = simulated_bench(config)
+    result = identify_bench(bench)
+    assert result.calibration is not None
+    backend = built_backend(config, None, None)
+    stated = backend.describe()
+    unstated = dataclasses.replace(stated, motor=dataclasses.replace(stated.motor, inertia_uncertainty=None))
+    ident = Identified.from_result(result, stated.calibration)
+    cpr = stated.motor.counts_per_rev
+    for torque, speed in [(1.0, 0.5), (4.0, 1.0)]:
+        request = TrialRequest(torque, speed, 4, np.zeros(cpr), np.zeros(cpr), result.calibration, seed=3)
+        trial = backend.run_trial(request)
+        true = float(trial.torque_true_nm.mean())
+        with_j, without = (implied_mean_torque(d, ident, request, trial.mean_speed_hz(cpr)) for d in (stated, unstated))
+        assert true / with_j.mean_nm - 1 == pytest.approx(0.05, abs=0.01)
+        assert abs(true - without.mean_nm) > 10 * without.std_nm and without.inertia_std_nm is None
+        assert abs(true - with_j.mean_nm) < 2 * with_j.std_nm

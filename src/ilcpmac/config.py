@@ -251,7 +251,8 @@ class BenchSettings:
     inertia_kgm2: float | None = field_like(Mechanics, "inertia_kgm2", default=None)
     inertia_uncertainty: float | None = setting(
         in_range(0.0, 1.0), "relative standard uncertainty of the inertia, within [0, 1] (0.05: known to 5 %); "
-        "the acceleration method's standard errors include it (an import mapping's goes to bench.toml)", None,
+        "the acceleration method's standard errors and the mean torque a campaign states include it (an import "
+        "mapping's goes to bench.toml)", None,
         commented=True)
     backemf_file: str | None = setting(
         None, "the back-EMF table as a CSV (count,k_a,k_b,k_c per count, docs/bench-format.md), relative to the "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
@@ -29,12 +30,16 @@ class SimulatorBackend:
     warmup_revolutions : int
     record_counts_per_rev : int or None
         `Simulator`'s.
+    inertia_uncertainty : float or None
+        What the bench states of its inertia's relative uncertainty ([bench] inertia_uncertainty; None: nothing),
+        as its description tells it (`MotorInfo.inertia_uncertainty`).
     """
 
     def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1,
-                 record_counts_per_rev: int | None = None) -> None:
+                 record_counts_per_rev: int | None = None, inertia_uncertainty: float | None = None) -> None:
         self.simulator = Simulator(model, warmup_revolutions, record_counts_per_rev)
         self.limits = limits
+        self.inertia_uncertainty = inertia_uncertainty
         self.max_parallel_trials = os.cpu_count() or 1
 
     @classmethod
@@ -49,10 +54,13 @@ class SimulatorBackend:
                               "backend that drives it)")
         config = setup.config
         return cls(config.sampled_model(), config.limits.bench_limits(), config.grid.warmup_revolutions,
-                   config.recorded_counts_per_rev())
+                   config.recorded_counts_per_rev(), config.bench.inertia_uncertainty)
 
     def describe(self) -> BenchDescription:
-        return simulated_description(self.simulator, self.limits)
+        description = simulated_description(self.simulator, self.limits)
+        if self.inertia_uncertainty is None:
+            return description
+        return replace(description, motor=replace(description.motor, inertia_uncertainty=self.inertia_uncertainty))
 
     def run_trial(self, request: TrialRequest) -> TrialData:
         return self.simulator.run_trial(request)

@@ -22,9 +22,11 @@ __all__ = ["MEAN_TORQUE_UNITS", "PointMeanTorque", "mean_torques_of"]
 #: the keys of a point's entry in summary.json that `PointMeanTorque.to_json` writes, and their units
 MEAN_TORQUE_UNITS = {
     "mean_torque_nm": "N m (the mean torque of the point's final trial by the identified model)",
-    "mean_torque_std_nm": "N m (its standard error: eps's)",
+    "mean_torque_std_nm": "N m (its standard error: eps's and the given inertia's)",
     "mean_torque_backemf_nm": "N m (the part of it the current loop's tracking error to the back-EMF takes)",
     "mean_torque_saturation_nm": "N m (the part of it the saturation takes)",
+    "mean_torque_inertia_std_nm": "N m (the part of its standard error the given inertia's makes; null: the bench "
+                                  "states no [bench] inertia_uncertainty, left out)",
     "mean_torque_true_nm": "N m (the simulator's true mean torque of that trial; null on a bench)"}
 
 
@@ -64,7 +66,8 @@ class PointMeanTorque:
         """Its keys in summary.json's ``points`` entry of the point (`MEAN_TORQUE_UNITS`)."""
         return {"mean_torque_nm": self.implied.mean_nm, "mean_torque_std_nm": self.implied.std_nm,
                 "mean_torque_backemf_nm": self.implied.backemf_loss_nm,
-                "mean_torque_saturation_nm": self.implied.saturation_loss_nm, "mean_torque_true_nm": self.true_nm}
+                "mean_torque_saturation_nm": self.implied.saturation_loss_nm,
+                "mean_torque_inertia_std_nm": self.implied.inertia_std_nm, "mean_torque_true_nm": self.true_nm}
 
     @classmethod
     def from_json(cls, data: dict) -> PointMeanTorque | None:
@@ -76,8 +79,11 @@ class PointMeanTorque:
                  number_in(data, "speed_setpoint", -MAX_SPEED_HZ, MAX_SPEED_HZ))
         true = None if data.get("mean_torque_true_nm") is None else \
             number_in(data, "mean_torque_true_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM)
-        implied = MeanTorque(*(number_in(data, key, 0.0 if key == "mean_torque_std_nm" else -MAX_TORQUE_NM,
-                                         MAX_TORQUE_NM) for key in list(MEAN_TORQUE_UNITS)[:4]))
+        inertia = None if data.get("mean_torque_inertia_std_nm") is None else \
+            number_in(data, "mean_torque_inertia_std_nm", 0.0, MAX_TORQUE_NM)
+        mean, std, backemf, saturation = (number_in(data, key, 0.0 if key == "mean_torque_std_nm" else -MAX_TORQUE_NM,
+                                                    MAX_TORQUE_NM) for key in list(MEAN_TORQUE_UNITS)[:4])
+        implied = MeanTorque(mean, std, backemf, saturation, inertia)
         if not isinstance(data["learned"], bool):
             raise ValueError(f"learned is {shown(data['learned'])}, not true or false")
         return cls(point, data["learned"], implied, true)

@@ -18,7 +18,10 @@ of zero mean and left out. The currents are taken per count, also on a record of
 staircase moves the mean by a second-order amount).
 
 Its standard error is eps's (the split of delta eps rests on the sensor's gain: 0.1 % on the seed bench, 1-40 %
-on other motors), relative; the loop's and the winding's parameters' errors are left out.
+on other motors) and the given inertia's, in quadrature, relative: delta is found from the inertia the bench
+gives, eps from delta, so a relative error of ``[bench] inertia_kgm2`` is one of eps and of the mean torque, which
+no trial shows (`MotorInfo.inertia_uncertainty`; not stated: left out, and said so). The loop's and the winding's
+parameters' errors are left out.
 """
 
 from __future__ import annotations
@@ -45,12 +48,15 @@ class MeanTorque:
     std_nm : its standard error.
     backemf_loss_nm : the part the loop's tracking error to the back-EMF takes (negative: lost).
     saturation_loss_nm : the part the saturation takes.
+    inertia_std_nm : the part of ``std_nm`` the given inertia's uncertainty makes; None where the bench states none
+        (then ``std_nm`` is eps's alone).
     """
 
     mean_nm: float
     std_nm: float
     backemf_loss_nm: float
     saturation_loss_nm: float
+    inertia_std_nm: float | None = None
 
     def error_of(self, setpoint_nm: float) -> float:
         """The mean torque's error relative to ``setpoint_nm``: mean / set point - 1."""
@@ -77,5 +83,6 @@ def implied_mean_torque(description: BenchDescription, identified: Identified, r
     loss_nm = float(np.mean(np.sum(k * error_a, axis=1)))
     saturation_nm = -identified.saturation_per_a2 * float(np.mean(np.sum(k * total_a**3, axis=1)))
     mean_nm = current_nm + loss_nm + saturation_nm
-    std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
-    return MeanTorque(mean_nm, std, loss_nm, saturation_nm)
+    eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
+    inertia_std = None if motor.inertia_uncertainty is None else abs(mean_nm) * motor.inertia_uncertainty
+    return MeanTorque(mean_nm, float(np.hypot(eps_std, inertia_std or 0.0)), loss_nm, saturation_nm, inertia_std)
