@@ -11,7 +11,7 @@ Per motor (the seed bench, and benchmarks/other_motors.py's three with the torqu
    their difference in standard errors;
 2. a default campaign's learned and validation points: the mean torque of each point's final trial against its
    set point, the model's as summary.json states it (`ilcpmac.campaign.mean_torque`) with its standard error,
-   and the truth's. Nothing corrects it yet: the "before" of issue 38's table.
+   and the truth's, with the default stages (no mean-torque stage): the "before" of issue 38's table.
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def main() -> None:
         if args.no_campaign:
             return
         print("\ndefault campaign: each point's final trial's mean torque / set point - 1, the model's (+- its "
-              "standard error) and the truth's, and z (nothing corrects it yet)")
+              "standard error) and the truth's, and z (the default stages: no mean-torque stage)")
         for k, (name, path) in enumerate(motors.items()):
             means = campaign_rows(path, args.seed, Path(tmp) / f"run{k}")
             z = [((m.true_error or 0.0) - m.error) / m.error_std for m in means]

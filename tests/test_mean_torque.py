@@ -85,7 +85,7 @@ def test_the_mean_torque_a_request_makes_is_the_truth_within_eps_s_standard_erro
     standard errors of `implied_mean_torque` at the speed it ran at, its back-EMF and saturation parts included
     (without them it misses by up to 3.2 % of the set point at 1 N m, 1.5 Hz)."""
     from ilcpmac.core.records import TrialRequest
-    from ilcpmac.pipeline.mean_torque import implied_mean_torque
+    from ilcpmac.stages.mean_torque import implied_mean_torque
 
     description, simulator, ident, corrected = drive
     cpr = description.motor.counts_per_rev
@@ -104,8 +104,8 @@ def test_the_mean_torque_a_request_makes_is_the_truth_within_eps_s_standard_erro
 
 def test_a_point_s_mean_torque_reads_back_as_summary_json_holds_it_and_states_its_worst_in_words():
     from ilcpmac.campaign.mean_torque import PointMeanTorque, mean_torques_of
-    from ilcpmac.pipeline.mean_torque import MeanTorque
     from ilcpmac.report.table import mean_torque_lines
+    from ilcpmac.stages.mean_torque import MeanTorque
 
     means = [PointMeanTorque((1.0, 1.5), True, MeanTorque(0.9588, 0.0011, -0.0312, -0.0003, 0.0002), 0.9595),
              PointMeanTorque((5.0, 0.5), False, MeanTorque(4.9645, 0.0055, -0.0015, -0.028, 0.001), None)]
@@ -159,8 +159,8 @@ def test_an_inertia_given_wrong_is_in_the_stated_uncertainty_only_where_the_benc
     from ilcpmac.config import load_config
     from ilcpmac.core.records import TrialRequest
     from ilcpmac.identify import identify_bench
-    from ilcpmac.pipeline.mean_torque import implied_mean_torque
     from ilcpmac.stages.base import Identified
+    from ilcpmac.stages.mean_torque import implied_mean_torque
 
     config = load_config(write_config({"simulator.mechanics": {"inertia_scale": 1.05},
                                        "bench": {"inertia_uncertainty": 0.05}}))
@@ -180,3 +180,51 @@ def test_an_inertia_given_wrong_is_in_the_stated_uncertainty_only_where_the_benc
         assert true / with_j.mean_nm - 1 == pytest.approx(0.05, abs=0.01)
         assert abs(true - without.mean_nm) > 10 * without.std_nm and without.inertia_std_nm is None
         assert abs(true - with_j.mean_nm) < 2 * with_j.std_nm
+
+
+@pytest.mark.slow
+def test_the_mean_torque_stage_brings_the_true_mean_to_the_set_point_within_eps_s_standard_error(drive):
+    """Truth first: at the corrected calibration the seed bench's mean torque falls 0.2-4 % short of its set points
+    (most at 1 N m, 1.5 Hz: the back-EMF); the ``mean-torque`` stage's constant feed-forward brings it within 3 of
+    eps's standard errors (0.11 %) at every one, from the speed the set point's previous trial ran at, and within
+    0.3 % of the set point."""
+    from ilcpmac.core.records import TrialRequest
+    from ilcpmac.stages.base import Frame, StageSetup
+    from ilcpmac.stages.mean_torque import MeanTorqueCorrection, implied_mean_torque
+
+    description, simulator, ident, corrected = drive
+    stage = MeanTorqueCorrection(StageSetup(description, ident, 150))
+    cpr = description.motor.counts_per_rev
+    theta = 2 * np.pi * np.arange(cpr) / cpr
+    for torque, speed in [(1.0, 0.5), (1.0, 1.5), (3.0, 1.0), (5.0, 1.5)]:
+        feedforward = 0.1 * torque * np.cos(48 * theta)
+        request = TrialRequest(torque, speed, 4, feedforward, np.zeros(cpr), corrected, seed=8)
+        before = simulator.run_trial(request)
+        stage.learn(dataclasses.replace(before, request=request), Frame({}, np.zeros(2, complex), np.ones(2), 1.0,
+                                                                        before.mean_speed_hz(cpr)))
+        shaped = stage.shape(request)
+        offset = shaped.feedforward_nm - request.feedforward_nm
+        assert np.ptp(offset) < 1e-12 and offset[0] > 0  # a constant, adding what the loop loses
+        after = simulator.run_trial(shaped)
+        true = float(after.torque_true_nm.mean())
+        std = implied_mean_torque(description, ident, shaped, after.mean_speed_hz(cpr)).std_nm
+        assert abs(true - torque) < 3 * std and abs(true / torque - 1) < 3e-3, (torque, speed)
+        assert float(before.torque_true_nm.mean()) < torque - 2 * std  # it was short before
+
+
+@pytest.mark.slow
+def test_the_mean_torque_stage_keeps_each_set_point_s_speed_through_its_state_and_a_revert(drive):
+    from ilcpmac.stages.base import StageSetup
+    from ilcpmac.stages.mean_torque import MeanTorqueCorrection
+
+    description, _, ident, _ = drive
+    stage = MeanTorqueCorrection(StageSetup(description, ident, 150))
+    stage.restore({"speeds_hz": {"1@1": 0.97, "3@1": 0.99}})
+    saved = stage.state()
+    stage.restore({"speeds_hz": {"1@1": 0.5}})
+    stage.revert(saved, "3@1")
+    assert stage.state() == {"speeds_hz": {"1@1": 0.5, "3@1": 0.99}}
+    stage.revert({"speeds_hz": {}}, "1@1")
+    assert stage.state() == {"speeds_hz": {"3@1": 0.99}}
+    with pytest.raises(Exception, match="mean-torque"):
+        MeanTorqueCorrection(StageSetup(description, ident, 150, {"gain": 1.0}))

@@ -2,7 +2,7 @@
 shaft carried, with its standard error, and (on the simulator) the truth beside it (issue 38; docs/campaign.md,
 "The mean torque").
 
-The model's figure is `ilcpmac.pipeline.mean_torque.implied_mean_torque` of the trial's request at the speed it
+The model's figure is `ilcpmac.stages.mean_torque.implied_mean_torque` of the trial's request at the speed it
 ran at: no sensor of the bench measures the mean (the piezo sees none, the encoder only the viscous part), and the
 learning never touches harmonic 0, so the mean is the set point's through the current sensors, the loop and the
 back-EMF as identified.
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from ilcpmac.campaign.record import Point, number_in
 from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
 from ilcpmac.core.schema import shown
-from ilcpmac.pipeline.mean_torque import MeanTorque
+from ilcpmac.stages.mean_torque import MeanTorque
 
 __all__ = ["MEAN_TORQUE_UNITS", "PointMeanTorque", "mean_torques_of"]
 

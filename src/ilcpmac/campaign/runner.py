@@ -73,7 +73,6 @@ from ilcpmac.core.torque_source import TorqueSource, TorqueSourceChoice, choose_
 from ilcpmac.identify import Identifier, encoder_error_fields
 from ilcpmac.identify.encoder import timer_resolution_s
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
-from ilcpmac.pipeline.mean_torque import implied_mean_torque
 from ilcpmac.pipeline.pipeline import Pipeline, built_stages
 from ilcpmac.pipeline.safety import identified_truth, unconfirmed_scale_violation
 from ilcpmac.signals.encoder_torque import (
@@ -86,6 +85,7 @@ from ilcpmac.signals.encoder_torque import (
 )
 from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
+from ilcpmac.stages.mean_torque import implied_mean_torque
 from ilcpmac.stages.registry import stage_needs
 
 __all__ = ["SUMMARY_UNITS", "CampaignRunner", "torque_source"]

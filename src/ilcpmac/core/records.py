@@ -530,7 +530,7 @@ class IdentificationResult(MethodEstimates):
         ``diagnostics["joint"]``.
     saturation_per_a2 : float or None
         c of the torque constant's fall with current, K_p i_p (1 - c i_p^2), per A^2 (the joint fit's saturation
-        column times delta^2), which the mean torque rests on (`ilcpmac.pipeline.mean_torque`); None without a
+        column times delta^2), which the mean torque rests on (`ilcpmac.stages.mean_torque`); None without a
         joint fit whose gain was taken. In the JSON it stays in ``diagnostics["joint"]``.
     encoder_error_counts, encoder_error_std_counts : ndarray, shape (counts_per_rev,), or None
         The encoder's graduation error e_c per line (line c truly at (c + e_c) 2 pi / counts_per_rev,

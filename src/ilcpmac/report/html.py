@@ -290,9 +290,9 @@ def _mean_torques(means: Mapping[Point, PointMeanTorque]) -> str:
                         ("%", 1)]))
     note = ('<p class="note">The mean torque of each point\'s final trial: no sensor measures it (a piezo sees no '
             "mean), so the model's is the set point through the identified current sensors, loop and back-EMF "
-            "(docs/campaign.md, \"The mean torque\"); +-: its standard error, eps's; error: over the set point, "
-            "less 1; back-EMF part: what the loop's tracking error to the back-EMF takes. Nothing corrects it "
-            "yet.</p>")
+            "(docs/campaign.md, \"The mean torque\"); +-: its standard error, eps's and the given inertia's; "
+            "error: over the set point, less 1; back-EMF part: what the loop's tracking error to the back-EMF "
+            "takes. The mean-torque stage brings it to the set point where the pipeline has it.</p>")
     return _table(head, rows) + note
 
 

@@ -1,4 +1,5 @@
-"""The mean torque a request makes, as the identification models the drive (issue 38).
+"""The mean torque a request makes, as the identification models the drive, and the stage that corrects it
+(issue 38).
 
 The piezo sees no mean torque and the encoder only its viscous part, so the mean the shaft carries is what the
 identified model says of it: the joint fit's torque (`ilcpmac.identify.joint`, whose mean over a revolution
@@ -22,6 +23,12 @@ on other motors) and the given inertia's, in quadrature, relative: delta is foun
 gives, eps from delta, so a relative error of ``[bench] inertia_kgm2`` is one of eps and of the mean torque, which
 no trial shows (`MotorInfo.inertia_uncertainty`; not stated: left out, and said so). The loop's and the winding's
 parameters' errors are left out.
+
+The ``mean-torque`` stage (`MeanTorqueCorrection`) adds to each request the constant feed-forward c that brings
+the model's mean to the set point: with m(c) the model's mean of the request with c added,
+c_{k+1} = c_k + (T_set - m(c_k)) / m'(c_k) (Newton's step; m is linear in c but for the saturation), two steps
+from c_0 = 0, at the speed the set point's last trial ran at (its set speed before one has). It learns nothing
+from the torque: no sensor measures the mean.
 """
 
 from __future__ import annotations
@@ -31,11 +38,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcpmac.core.current_loop import CurrentLoop, lagged
-from ilcpmac.core.records import BenchDescription, TrialRequest
+from ilcpmac.core.records import BenchDescription, TrialData, TrialRequest
 from ilcpmac.model.tables import current_references
-from ilcpmac.stages.base import Identified
+from ilcpmac.stages.base import Frame, Identified, StageSetup, check_options
 
-__all__ = ["MeanTorque", "implied_mean_torque"]
+__all__ = ["MeanTorque", "MeanTorqueCorrection", "implied_mean_torque"]
+
+#: Newton steps of the correction (`MeanTorqueCorrection.shape`)
+NEWTON_STEPS = 2
+#: the step of c its slope m'(c) is taken over, N m per N m of set point
+SLOPE_STEP = 1e-3
 
 
 @dataclass(frozen=True)
@@ -86,3 +98,60 @@ def implied_mean_torque(description: BenchDescription, identified: Identified, r
     eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
     inertia_std = None if motor.inertia_uncertainty is None else abs(mean_nm) * motor.inertia_uncertainty
     return MeanTorque(mean_nm, float(np.hypot(eps_std, inertia_std or 0.0)), loss_nm, saturation_nm, inertia_std)
+
+
+class MeanTorqueCorrection:
+    """Bring each request's mean torque to its set point by the identified model: a constant feed-forward (module
+    docstring).
+
+    Built-in stage ``mean-torque``, no options. Put it last: it corrects the mean of the reference and the
+    calibration the stages before it set.
+    """
+
+    name = "mean-torque"
+    option_defaults: dict = {}
+    option_ranges: dict = {}
+    needs = ()
+
+    def __init__(self, setup: StageSetup) -> None:
+        check_options(setup.options, {}, {}, self.name)
+        self._description = setup.description
+        self._identified = setup.identified
+        #: the speed each set point's last trial ran at, Hz
+        self._speeds: dict[str, float] = {}
+
+    def columns(self, trial: TrialData) -> None:
+        return None
+
+    def shape(self, request: TrialRequest) -> TrialRequest:
+        speed_hz = self._speeds.get(request.setpoint_key, request.speed_setpoint_hz)
+        if speed_hz == 0.0:
+            return request
+        target, base = request.torque_setpoint_nm, request.feedforward_nm
+        step = SLOPE_STEP * max(abs(target), 1e-9)
+        c = 0.0
+        for _ in range(NEWTON_STEPS):
+            def mean(offset: float) -> float:
+                return implied_mean_torque(self._description, self._identified,
+                                           request.with_changes(feedforward_nm=base + offset), speed_hz).mean_nm
+
+            now = mean(c)
+            c += (target - now) * step / (mean(c + step) - now)
+        return request.with_changes(feedforward_nm=base + c)
+
+    def learn(self, trial: TrialData, frame: Frame) -> None:
+        self._speeds[trial.requested().setpoint_key] = frame.speed_hz
+
+    def state(self) -> dict:
+        return {"speeds_hz": dict(self._speeds)}
+
+    def restore(self, state: dict) -> None:
+        self._speeds = {str(k): float(v) for k, v in state.get("speeds_hz", {}).items()}
+
+    def revert(self, state: dict, key: str) -> None:
+        """Set point ``key``'s speed as in `state` (forgotten if it has none); other set points stay."""
+        saved = state.get("speeds_hz", {})
+        if key in saved:
+            self._speeds[key] = float(saved[key])
+        else:
+            self._speeds.pop(key, None)
