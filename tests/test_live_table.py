@@ -153,6 +153,20 @@ def test_the_summary_fits_with_its_title_on_a_line_of_its_own(width):
     assert rows[-1] == ["4", "1.5", "valid.", "0.0505", "0.0500", "299x", "1195x", "-"]
 
 
+def test_the_summary_gives_each_point_s_mean_torque_error_where_the_run_stated_one():
+    from ilcpmac.campaign.mean_torque import PointMeanTorque
+    from ilcpmac.stages.mean_torque import MeanTorque
+
+    means = {p: PointMeanTorque(p, True, MeanTorque(p[0] * (1 - 0.0412), 0.001, -0.03, 0.0)) for p in LEARNED}
+    table = summary_table(campaign_records(), LEARNED, VALIDATED, width=120, means=means)
+    text = render(SUMMARY_TITLE, table, width=120)
+    assert_nothing_cut(table, text, 120)
+    rows = body(text)
+    assert rows[0][-1] == "-4.12" and rows[-1][-1] == "-"  # a validation point without one
+    assert "err %" in text and "err %" not in render(SUMMARY_TITLE, summary_table(
+        campaign_records(), LEARNED, VALIDATED, width=120), width=120)
+
+
 #: set points as a config gives them, and the odd ones (shown to 4 significant digits: at most 6 characters)
 setpoint = st.sampled_from([0.05, 0.75, 12.5, 125.0, 0.0625, 1 / 3, 2 / 3, 1234.5678])
 

@@ -278,6 +278,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str | None, add
     # imported when the command runs (ilcpmac.cli's docstring says why)
     import ilcpmac.campaign
     from ilcpmac.campaign.floors import floors_of
+    from ilcpmac.campaign.mean_torque import mean_torques_of
     from ilcpmac.campaign.service import DEFAULT_CONFIG
     from ilcpmac.config import load_config, packaged_config
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
@@ -310,7 +311,7 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str | None, add
         sys.exit(130)
     console.print(Text(SUMMARY_TITLE))
     console.print(summary_table(result.records, result.plan.learned, result.plan.validated,
-                                floors_of(result.summary), console.width))
+                                floors_of(result.summary), console.width, mean_torques_of(result.summary)))
     lines = final_lines(result.summary)
     if lines:
         console.print(Text("\n  ".join([FINAL_TITLE, *lines])))

@@ -154,11 +154,13 @@ SUMMARY_TITLE = "summary per operating point (ripple peak-to-peak after, % of me
 
 
 def summary_table(records: list[TrialRecord], learned: list[Point], validated: list[Point],
-                  floors: dict[Point, PointFloor] | None = None, width: int = 80) -> Table:
+                  floors: dict[Point, PointFloor] | None = None, width: int = 80,
+                  means: dict[Point, PointMeanTorque] | None = None) -> Table:
     """Per learned, then validation point: the final ripple beside its floor (``floors``: by point, when known,
-    `floors_of`), the reduction factors against the uncompensated trial there, and
-    the learning trials used (`SUMMARY_TITLE`); the columns that fit ``width``, as the live table's."""
-    floors = floors or {}
+    `floors_of`), the reduction factors against the uncompensated trial there, the learning trials used and the
+    final trial's mean torque over the set point, less 1, by the model (``means``, `mean_torques_of`)
+    (`SUMMARY_TITLE`); the columns that fit ``width``, as the live table's."""
+    floors, means = floors or {}, means or {}
     results = point_results(records, learned, validated)
     rows = [(result, floors.get(result.point),
              sum(r.role == "learn" and r.point == result.point for r in records)) for result in results]
@@ -173,9 +175,13 @@ def summary_table(records: list[TrialRecord], learned: list[Point], validated: l
         (_Column("reduction\nmeas", 0, str), [_factor([r.after], "reduction_factor") for r, _, _ in rows]),
         (_Column("reduction\ntrue", 1, str), [_factor([r.after], "reduction_factor_true") for r, _, _ in rows]),
         (_Column("learn\ntrials", 0, str), [str(n) if r.learned else "-" for r, _, n in rows]),
+        (_Column("mean\nerr %", 2, str), [f"{100 * m.error:+.2f}" if (m := means.get(r.point)) else "-"
+                                      for r, _, _ in rows]),
     ]
     if not floors:
         columns = [c for c in columns if not c[0].header.startswith("floor")]
+    if not means:
+        columns = [c for c in columns if not c[0].header.startswith("mean")]
     return _table([(c.header, c.justify, cells) for c, cells in _fit(columns, width)])
 
 
