@@ -118,6 +118,8 @@ def test_a_point_s_mean_torque_reads_back_as_summary_json_holds_it_and_states_it
         "-0.71 %",
         "mean torque (true): 4.05 % below the set point at worst (1 N m, 1.5 Hz); each point within 0.636 standard "
         "errors of the model's"]
+    exact = {(1.0, 1.0): PointMeanTorque((1.0, 1.0), True, MeanTorque(0.99, 0.0, -0.01, 0.0, 0.0), 0.99)}
+    assert mean_torque_lines(exact)[1].endswith("within 0 standard errors of the model's")  # a truth given as such
     unstated = dataclasses.replace(means[0], implied=dataclasses.replace(means[0].implied, inertia_std_nm=None))
     assert "the given inertia taken as exact" in mean_torque_lines({unstated.point: unstated})[0]
 

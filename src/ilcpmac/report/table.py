@@ -239,12 +239,18 @@ def mean_torque_lines(means: dict[Point, PointMeanTorque]) -> list[str]:
     truths = {p: error for p, m in means.items() if (error := m.true_error) is not None}
     if truths:
         worst = max(truths, key=lambda p: abs(truths[p]))
-        apart = max(abs(truths[p] - errors[p]) / means[p].error_std if means[p].error_std > 0 else math.inf
-                    for p in truths)
+        apart = max(_in_std(truths[p] - errors[p], means[p].error_std) for p in truths)
         lines.append(f"mean torque (true): {significant(100 * abs(truths[worst]))} % {_side(truths[worst])} the set "
                      f"point at worst ({_at(worst)}); each point within {significant(apart)} standard errors of the "
                      "model's")
     return lines
+
+
+def _in_std(difference: float, std: float) -> float:
+    """|``difference``| in standard errors ``std``: 0 for none, infinite for some over a zero standard error."""
+    if difference == 0.0:
+        return 0.0
+    return abs(difference) / std if std > 0 else math.inf
 
 
 def _side(error: float) -> str:
