@@ -11,13 +11,15 @@ Per motor (the seed bench, and benchmarks/other_motors.py's three with the torqu
    their difference in standard errors;
 2. a default campaign's learned and validation points: the mean torque of each point's final trial against its
    set point, the model's as summary.json states it (`ilcpmac.campaign.mean_torque`) with its standard error,
-   and the truth's, with the default stages (no mean-torque stage): the "before" of issue 38's table.
+   and the truth's, with the default stages (before) and with the ``mean-torque`` stage added last (after): issue
+   38's before/after table.
 """
 
 from __future__ import annotations
 
 import argparse
 import tempfile
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,7 @@ import other_motors  # this folder's, first on sys.path when run as a script
 from ilcpmac.campaign.mean_torque import PointMeanTorque, mean_torques_of
 from ilcpmac.campaign.service import simulated_bench
 from ilcpmac.config import load_config
+from ilcpmac.core.schema import toml_text
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.joint import fit_joint, modelled_mean_nm
 from ilcpmac.identify.reduction import reduce_bench
@@ -57,6 +60,14 @@ def campaign_rows(config_path: Path, seed: int, out: Path) -> list[PointMeanTorq
     return list(mean_torques_of(ilcpmac.campaign.run(config_path, out=out, seed=seed).summary).values())
 
 
+def with_stage(config_path: Path, out: Path) -> Path:
+    """The config at ``config_path`` with the ``mean-torque`` stage last in [pipeline] stages, written to ``out``."""
+    data = tomllib.loads(config_path.read_text())
+    data["pipeline"]["stages"] = [*data["pipeline"]["stages"], "mean-torque"]
+    out.write_text(toml_text(data))
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=2009, help="the campaign's and the grid's seed (default 2009)")
@@ -78,16 +89,20 @@ def main() -> None:
                       f"z {zk:+.2f}")
         if args.no_campaign:
             return
-        print("\ndefault campaign: each point's final trial's mean torque / set point - 1, the model's (+- its "
-              "standard error) and the truth's, and z (the default stages: no mean-torque stage)")
+        print("\ndefault campaign: each point's final trial's mean torque / set point - 1, true before (the default "
+              "stages) and after (the mean-torque stage added), the model's after (+- its standard error), and z")
         for k, (name, path) in enumerate(motors.items()):
-            means = campaign_rows(path, args.seed, Path(tmp) / f"run{k}")
-            z = [((m.true_error or 0.0) - m.error) / m.error_std for m in means]
-            print(f"{name}: true {min(m.true_error or 0.0 for m in means):+.2%} to "
-                  f"{max(m.true_error or 0.0 for m in means):+.2%}, |z| at most {max(map(abs, z)):.2f}")
-            for m, zk in zip(means, z):
+            before = campaign_rows(path, args.seed, Path(tmp) / f"run{k}")
+            after = campaign_rows(with_stage(path, Path(tmp) / f"stage{k}.toml"), args.seed, Path(tmp) / f"after{k}")
+            z = [((m.true_error or 0.0) - m.error) / m.error_std for m in after]
+            was, now = ([m.true_error or 0.0 for m in means] for means in (before, after))
+            print(f"{name}: true before {min(was):+.2%} to {max(was):+.2%}, after {min(now):+.2%} to "
+                  f"{max(now):+.2%}, |z| after at most {max(map(abs, z)):.2f}")
+            for b, m, zk in zip(before, after, z):
                 print(f"  {m.point[0]:7.3g} N m {m.point[1]:5.3g} Hz  {'learned' if m.learned else 'validation':10s} "
-                      f"model {m.error:+.3%} +- {m.error_std:.3%}  true {m.true_error or 0.0:+.3%}  z {zk:+.2f}")
+                      f"true {b.true_error or 0.0:+.3%} -> {m.true_error or 0.0:+.3%}  model {m.error:+.3%} "
+                      f"+- {m.error_std:.3%}  z {zk:+.2f}")
+
 
 if __name__ == "__main__":
     main()
