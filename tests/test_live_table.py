@@ -30,7 +30,7 @@ VALIDATED = [(t, s) for t in (2.0, 4.0) for s in (0.5, 1.0, 1.5)]
 #: SMALL_CAMPAIGN's one learned speed
 SMALL_SPEED_HZ = SMALL_CAMPAIGN["campaign"]["learn_speeds_hz"][0]
 #: every column of the live table, as ``trials_table`` lays it out on a wide console
-ALL_COLUMNS = 15
+ALL_COLUMNS = 16
 
 
 def ripple(pp: float, amp_nm: float) -> RippleFigures:
@@ -268,7 +268,7 @@ def test_summary_json_units_cover_every_number_of_a_trial_a_validation_point_and
     numbers = {k for k in records[-1].to_json() if k not in ("index", "phase", "role")}
     points = {k for k in validation_json(records)[0]
               if k not in ("learned", "uncompensated_trial", "compensated_trial", "worse_than_uncompensated")}
-    later = {"motor_time_s", "floor_pp_measured", "floor_pp_true", *MEAN_TORQUE_UNITS}
+    later = {"motor_time_s", "floor_pp_measured", "floor_pp_true", "mean_torque_error", *MEAN_TORQUE_UNITS}
     assert set(SUMMARY_UNITS) == numbers | points | later | {"fade_full_hz", "fade_zero_hz"}
     assert SUMMARY_UNITS["ripple_pp_true"] == "fraction of mean torque"
     assert SUMMARY_UNITS["uncompensated_pp_measured"] == "fraction of mean torque"

@@ -29,6 +29,8 @@ FIGURE_KEYS = (("pp", "ripple_pp_{}"), ("rms", "ripple_rms_{}"), ("rest_rms", "r
 MAX_RIPPLE_FRACTION = 1e6
 MAX_REDUCTION_FACTOR = 1e15
 MAX_MOTOR_TIME_S = 1e9
+#: the largest mean torque error a record holds, relative (a summary with more was not written by a run)
+MAX_MEAN_TORQUE_ERROR = 1e6
 
 
 def number_in(data: dict, key: str, low: float, high: float) -> float:
@@ -80,6 +82,9 @@ class TrialRecord:
     motor_time_s : float or None
         How long the motor ran for it: warm-up and recorded revolutions at its speed set point, s
         (`CampaignPlan.bench_seconds`); None in records of earlier releases.
+    mean_torque_error : float or None
+        Its mean torque by the identified model over its torque set point, less 1 (`ilcpmac.stages.mean_torque`;
+        docs/campaign.md, "The mean torque"); None before the identification and in records of earlier releases.
     """
 
     index: int
@@ -92,6 +97,7 @@ class TrialRecord:
     reduction_factor: float | None = None
     reduction_factor_true: float | None = None
     motor_time_s: float | None = None
+    mean_torque_error: float | None = None
 
     @property
     def learns(self) -> bool:
@@ -119,7 +125,7 @@ class TrialRecord:
         out = {"index": self.index, "phase": self.phase, "role": self.role, "torque_setpoint": self.torque_setpoint_nm,
                "speed_setpoint": self.speed_setpoint_hz, **_figures_json("true", self.true),
                **_figures_json("measured", self.measured)}
-        for f in ("reduction_factor", "reduction_factor_true", "motor_time_s"):
+        for f in ("reduction_factor", "reduction_factor_true", "motor_time_s", "mean_torque_error"):
             if getattr(self, f) is not None:
                 out[f] = getattr(self, f)
         return out
@@ -139,7 +145,8 @@ class TrialRecord:
                    _figures_from_json("measured", data), _figures_from_json("true", data),
                    _optional(data, "reduction_factor", 0.0, MAX_REDUCTION_FACTOR),
                    _optional(data, "reduction_factor_true", 0.0, MAX_REDUCTION_FACTOR),
-                   _optional(data, "motor_time_s", 0.0, MAX_MOTOR_TIME_S))
+                   _optional(data, "motor_time_s", 0.0, MAX_MOTOR_TIME_S),
+                   _optional(data, "mean_torque_error", -MAX_MEAN_TORQUE_ERROR, MAX_MEAN_TORQUE_ERROR))
 
 
 def records_of(summary: dict) -> list[TrialRecord]:

@@ -101,6 +101,8 @@ SUMMARY_UNITS = {"torque_setpoint": "N m", "speed_setpoint": "Hz",
                  **{f"floor_pp_{kind}": "fraction of mean torque (the point's noise floor, docs/campaign.md)"
                     for kind in ("measured", "true")},
                  **MEAN_TORQUE_UNITS,
+                 "mean_torque_error": "fraction of the torque set point (a trial's mean torque by the identified "
+                                      "model over it, less 1)",
                  "motor_time_s": "s (the motor's running time: warm-up and recorded revolutions; per phase, and all)",
                  "fade_full_hz": "Hz (the feed-forward applies fully up to this speed; null: always)",
                  "fade_zero_hz": "Hz (and fades linearly to zero at this one; null: never)"}
@@ -318,8 +320,12 @@ class CampaignRunner:
                              motor_time_s=self.plan.bench_seconds(ran))
         if self.identified is not None:
             assert self.measurement is not None  # both set by the identification
-            record = replace(record, measured=self._measured_figures(ran, analysis.measured))
-            self._spectra[record.index] = PointSpectra.of(ran, trial, analysis, self.measurement, self.pipeline)
+            spectra = self._spectra[record.index] = PointSpectra.of(ran, trial, analysis, self.measurement,
+                                                                     self.pipeline)
+            assert spectra.speed_hz is not None
+            mean = implied_mean_torque(self.description, self.identified, ran, spectra.speed_hz)
+            record = replace(record, measured=self._measured_figures(ran, analysis.measured),
+                             mean_torque_error=mean.error_of(request.torque_setpoint_nm))
         if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)

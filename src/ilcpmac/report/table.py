@@ -87,7 +87,15 @@ _COLUMNS = (
     _figure("noise\n%", 2, "measured", "rest_rms", 100),
     _Column("reduction\nmeas", 0, lambda rows: _factor(rows, "reduction_factor")),
     _Column("reduction\ntrue", 2, lambda rows: _factor(rows, "reduction_factor_true")),
+    _Column("mean\nerr %", 3, lambda rows: _mean_error(rows)),
 )
+
+
+def _mean_error(rows: list[TrialRecord]) -> str:
+    """The trials' mean torque error by the model, %: the largest in size over a row of several; "-" where none
+    has one (before the identification)."""
+    errors = [r.mean_torque_error for r in rows if r.mean_torque_error is not None]
+    return f"{100 * max(errors, key=abs):+.2f}" if errors else "-"
 
 
 def _rows(records: list[TrialRecord]) -> list[list[TrialRecord]]:
@@ -131,11 +139,11 @@ SOURCE_CAPTIONS = {"encoder": "meas: estimated from the encoder's time stamps",
 def trials_table(records: list[TrialRecord], width: int, title: str | None = None, source: str = "sensor",
                  hidden: int = 0) -> Table:
     """The live table, for a console ``width`` characters wide: per trial its phase, set point, measured and true
-    ripple, harmonic amplitudes and reduction factors, as many columns as fit. The identification grid is one row
-    (its trials' range, set points and largest figures), then a row per trial but the first ``hidden`` after the
-    grid (left out to fit a terminal's height; the caption says so). The measured figures are estimated from
-    ``source`` ([campaign] torque_source; the caption names it unless it is the torque sensor); the true ones are
-    the simulator's."""
+    ripple, harmonic amplitudes, reduction factors and mean torque error by the model, as many columns as fit. The
+    identification grid is one row (its trials' range, set points and largest figures), then a row per trial but
+    the first ``hidden`` after the grid (left out to fit a terminal's height; the caption says so). The measured
+    figures are estimated from ``source`` ([campaign] torque_source; the caption names it unless it is the torque
+    sensor); the true ones are the simulator's."""
     rows = _rows(records)
     grid = int(bool(rows) and rows[0][0].role == "grid")
     rows = rows[:grid] + rows[grid + hidden:]
