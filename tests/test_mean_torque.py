@@ -230,3 +230,14 @@ def test_the_mean_torque_stage_keeps_each_set_point_s_speed_through_its_state_an
     assert stage.state() == {"speeds_hz": {"3@1": 0.99}}
     with pytest.raises(Exception, match="mean-torque"):
         MeanTorqueCorrection(StageSetup(description, ident, 150, {"gain": 1.0}))
+
+
+@pytest.mark.parametrize("value", ["-0.01", 1e7, float("inf"), True])
+def test_a_trial_s_mean_torque_error_out_of_range_is_refused_naming_its_key(value):
+    from ilcpmac.campaign.record import TrialRecord
+
+    record = {"index": 1, "phase": "learn", "role": "learn", "torque_setpoint": 1.0, "speed_setpoint": 1.0}
+    assert TrialRecord.from_json({**record, "mean_torque_error": -0.0412}).mean_torque_error == -0.0412
+    assert TrialRecord.from_json(record).mean_torque_error is None  # a record of an earlier release
+    with pytest.raises(ValueError, match="mean_torque_error"):
+        TrialRecord.from_json({**record, "mean_torque_error": value})
