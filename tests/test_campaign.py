@@ -110,6 +110,24 @@ def test_resume_after_a_crash_ends_as_an_uninterruptedrun_campaign(campaign_conf
     assert_same_learning(crashed, tmp_path / "reference")
 
 
+def test_a_campaign_with_the_mean_torque_stage_resumes_exactly(write_config, tmp_path):
+    """The mean-torque stage's state (each set point's last speed) is saved with every trial: a crash within a
+    learning round and a resume end as the uninterrupted run, the stage's constant feed-forward in the
+    compensation's tables (their mean), and every point's stated mean torque its set point's."""
+    config = load_config(write_config({**SMALL_CAMPAIGN, "pipeline": {
+        "stages": ["current-sensor", "cogging", "ilc", "mean-torque"]}}))
+    reference = run_campaign(config, tmp_path / "reference")
+    crashed = tmp_path / "crashed"
+    with pytest.raises(Crash):
+        run_campaign(config, crashed, CrashingBackend(simulator_backend(config), 9))
+    assert run_campaign(config, crashed, resume=True) == reference
+    assert_same_learning(crashed, tmp_path / "reference")
+    tables = np.array(json.loads((tmp_path / "reference" / "compensation.json").read_text())["tables_nm"])
+    assert np.all(tables.mean(axis=-1) > 0)  # what the loop and the sensors lose of the mean, put back
+    for p in reference["points"]:
+        assert p["mean_torque_nm"] == pytest.approx(p["torque_setpoint"], rel=1e-6)
+
+
 def assert_same_learning(run: Path, reference: Path) -> None:
     """What ``run`` learned, and what the report draws of it, is byte for byte ``reference``'s."""
     for name in ("compensation.json", "states/learned.json"):
