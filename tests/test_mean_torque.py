@@ -122,6 +122,10 @@ def test_a_point_s_mean_torque_reads_back_as_summary_json_holds_it_and_states_it
     assert mean_torque_lines(exact)[1].endswith("within 0 standard errors of the model's")  # a truth given as such
     unstated = dataclasses.replace(means[0], implied=dataclasses.replace(means[0].implied, inertia_std_nm=None))
     assert "the given inertia taken as exact" in mean_torque_lines({unstated.point: unstated})[0]
+    unmodelled = dataclasses.replace(means[0], implied=dataclasses.replace(means[0].implied, backemf_loss_nm=None))
+    entry = {"torque_setpoint": 1.0, "speed_setpoint": 1.5, "learned": True, **unmodelled.to_json()}
+    assert mean_torques_of({"points": [entry]}) == {unmodelled.point: unmodelled}  # null read back as None
+    assert "no winding identified" in mean_torque_lines({unmodelled.point: unmodelled})[0]
 
 
 @pytest.mark.parametrize("key, value", [("mean_torque_nm", "4"), ("mean_torque_std_nm", -0.1),

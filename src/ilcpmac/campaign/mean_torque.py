@@ -23,7 +23,8 @@ __all__ = ["MEAN_TORQUE_UNITS", "PointMeanTorque", "mean_torques_of"]
 MEAN_TORQUE_UNITS = {
     "mean_torque_nm": "N m (the mean torque of the point's final trial by the identified model)",
     "mean_torque_std_nm": "N m (its standard error: eps's and the given inertia's)",
-    "mean_torque_backemf_nm": "N m (the part of it the current loop's tracking error to the back-EMF takes)",
+    "mean_torque_backemf_nm": "N m (the part of it the current loop's tracking error to the back-EMF takes; null: "
+                              "no winding identified, left out)",
     "mean_torque_saturation_nm": "N m (the part of it the saturation takes)",
     "mean_torque_inertia_std_nm": "N m (the part of its standard error the given inertia's makes; null: the bench "
                                   "states no [bench] inertia_uncertainty, left out)",
@@ -81,8 +82,11 @@ class PointMeanTorque:
             number_in(data, "mean_torque_true_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM)
         inertia = None if data.get("mean_torque_inertia_std_nm") is None else \
             number_in(data, "mean_torque_inertia_std_nm", 0.0, MAX_TORQUE_NM)
-        mean, std, backemf, saturation = (number_in(data, key, 0.0 if key == "mean_torque_std_nm" else -MAX_TORQUE_NM,
-                                                    MAX_TORQUE_NM) for key in list(MEAN_TORQUE_UNITS)[:4])
+        mean, std, saturation = (number_in(data, key, 0.0 if key == "mean_torque_std_nm" else -MAX_TORQUE_NM,
+                                           MAX_TORQUE_NM)
+                                 for key in ("mean_torque_nm", "mean_torque_std_nm", "mean_torque_saturation_nm"))
+        backemf = None if data.get("mean_torque_backemf_nm") is None else \
+            number_in(data, "mean_torque_backemf_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM)
         implied = MeanTorque(mean, std, backemf, saturation, inertia)
         if not isinstance(data["learned"], bool):
             raise ValueError(f"learned is {shown(data['learned'])}, not true or false")

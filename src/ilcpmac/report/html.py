@@ -282,7 +282,7 @@ def _mean_torques(means: Mapping[Point, PointMeanTorque]) -> str:
         true = "" if m.true_nm is None else _number(m.true_nm)
         rows.append(_cells(["learned" if m.learned else "validation", f"{point[0]:g}", f"{point[1]:g}",
                             _number(m.implied.mean_nm), _number(m.implied.std_nm), _percent(m.error),
-                            _number(m.implied.backemf_loss_nm), true,
+                            "" if m.implied.backemf_loss_nm is None else _number(m.implied.backemf_loss_nm), true,
                             "" if m.true_error is None else _percent(m.true_error)]))
     head = (_spanned([("point", 1), ("torque", 1), ("speed", 1), ("model", 1), ("+-", 1), ("error", 1),
                       ("back-EMF part", 1), ("true (simulator)", 1), ("true error", 1)])

@@ -241,6 +241,8 @@ def mean_torque_lines(means: dict[Point, PointMeanTorque]) -> list[str]:
     worst = max(errors, key=lambda p: abs(errors[p]))
     inertia = "" if all(m.implied.inertia_std_nm is not None for m in means.values()) else \
         " (the given inertia taken as exact, its uncertainty not stated in [bench]: eps and the mean move with it)"
+    if any(m.implied.backemf_loss_nm is None for m in means.values()):
+        inertia += " (no winding identified: what the loop loses to the back-EMF is not in it)"
     lines = [f"mean torque (model): {significant(100 * abs(errors[worst]))} % {_side(errors[worst])} the set point "
              f"at worst ({_at(worst)}), +- {significant(100 * means[worst].error_std)} %{inertia}; each point "
              f"{100 * min(errors.values()):+.2f} to {100 * max(errors.values()):+.2f} %"]

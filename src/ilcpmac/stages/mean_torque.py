@@ -58,7 +58,9 @@ class MeanTorque:
     ----------
     mean_nm : the mean over a revolution.
     std_nm : its standard error.
-    backemf_loss_nm : the part the loop's tracking error to the back-EMF takes (negative: lost).
+    backemf_loss_nm : the part the loop's tracking error to the back-EMF takes (negative: lost); None where the
+        identification gave no winding (`Identified.winding_conductance_s` 0: the report's method alone, say), and
+        then the mean leaves it out, and its standard error too.
     saturation_loss_nm : the part the saturation takes.
     inertia_std_nm : the part of ``std_nm`` the given inertia's uncertainty makes; None where the bench states none
         (then ``std_nm`` is eps's alone).
@@ -66,7 +68,7 @@ class MeanTorque:
 
     mean_nm: float
     std_nm: float
-    backemf_loss_nm: float
+    backemf_loss_nm: float | None
     saturation_loss_nm: float
     inertia_std_nm: float | None = None
 
@@ -86,15 +88,17 @@ def implied_mean_torque(description: BenchDescription, identified: Identified, r
     period = np.full((1, motor.counts_per_rev), 1.0 / (motor.counts_per_rev * abs(speed_hz)))
     references = current_references(request.torque_reference_nm(), k)
     currents = identified.epsilon_alpha_at(calibration) * lagged(references[None], period, loop)[0]
-    emf = k * (2.0 * np.pi * speed_hz)
-    rejected = emf - lagged(emf[None], period, loop, continuous=True)[0]
-    winding = CurrentLoop(np.full(3, identified.winding_time_constant_s), 0.0)
-    error_a = -identified.winding_conductance_s * lagged(rejected[None], period, winding, continuous=True)[0]
+    error_a = np.zeros_like(currents)
+    if identified.winding_conductance_s > 0.0:
+        emf = k * (2.0 * np.pi * speed_hz)
+        rejected = emf - lagged(emf[None], period, loop, continuous=True)[0]
+        winding = CurrentLoop(np.full(3, identified.winding_time_constant_s), 0.0)
+        error_a = -identified.winding_conductance_s * lagged(rejected[None], period, winding, continuous=True)[0]
     total_a = currents + error_a
     current_nm = float(np.mean(np.sum(k * currents, axis=1)))
-    loss_nm = float(np.mean(np.sum(k * error_a, axis=1)))
+    loss_nm = float(np.mean(np.sum(k * error_a, axis=1))) if identified.winding_conductance_s > 0.0 else None
     saturation_nm = -identified.saturation_per_a2 * float(np.mean(np.sum(k * total_a**3, axis=1)))
-    mean_nm = current_nm + loss_nm + saturation_nm
+    mean_nm = current_nm + (loss_nm or 0.0) + saturation_nm
     eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
     inertia_std = None if motor.inertia_uncertainty is None else abs(mean_nm) * motor.inertia_uncertainty
     return MeanTorque(mean_nm, float(np.hypot(eps_std, inertia_std or 0.0)), loss_nm, saturation_nm, inertia_std)
