@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ilcpmac.campaign.record import MAX_RIPPLE_FRACTION, Point, number_in
+from ilcpmac.campaign.record import MAX_RIPPLE_FRACTION, Point, number_in, optional_in
 from ilcpmac.compensation import interpolation_weights
 from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM, TrialData, TrialRequest
 from ilcpmac.core.schema import shown
@@ -122,7 +122,7 @@ class PointFloor:
                  number_in(data, "speed_setpoint", -MAX_SPEED_HZ, MAX_SPEED_HZ))
         if not isinstance(data["learned"], bool):
             raise ValueError(f"learned is {shown(data['learned'])}, not true or false")
-        true = None if data.get("floor_pp_true") is None else number_in(data, "floor_pp_true", 0.0, MAX_RIPPLE_FRACTION)
+        true = optional_in(data, "floor_pp_true", 0.0, MAX_RIPPLE_FRACTION)
         return cls(point, data["learned"], number_in(data, "floor_pp_measured", 0.0, MAX_RIPPLE_FRACTION), true)
 
     def pp(self, kind: str) -> float | None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ilcpmac.campaign.record import Point, number_in
+from ilcpmac.campaign.record import Point, number_in, optional_in
 from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
 from ilcpmac.core.schema import shown
 from ilcpmac.stages.mean_torque import MeanTorque
@@ -78,15 +78,12 @@ class PointMeanTorque:
             return None
         point = (number_in(data, "torque_setpoint", -MAX_TORQUE_NM, MAX_TORQUE_NM),
                  number_in(data, "speed_setpoint", -MAX_SPEED_HZ, MAX_SPEED_HZ))
-        true = None if data.get("mean_torque_true_nm") is None else \
-            number_in(data, "mean_torque_true_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM)
-        inertia = None if data.get("mean_torque_inertia_std_nm") is None else \
-            number_in(data, "mean_torque_inertia_std_nm", 0.0, MAX_TORQUE_NM)
-        mean, std, saturation = (number_in(data, key, 0.0 if key == "mean_torque_std_nm" else -MAX_TORQUE_NM,
-                                           MAX_TORQUE_NM)
-                                 for key in ("mean_torque_nm", "mean_torque_std_nm", "mean_torque_saturation_nm"))
-        backemf = None if data.get("mean_torque_backemf_nm") is None else \
-            number_in(data, "mean_torque_backemf_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM)
+        mean, saturation, std = (number_in(data, key, low, MAX_TORQUE_NM) for key, low in (
+            ("mean_torque_nm", -MAX_TORQUE_NM), ("mean_torque_saturation_nm", -MAX_TORQUE_NM),
+            ("mean_torque_std_nm", 0.0)))
+        backemf, true = (optional_in(data, key, -MAX_TORQUE_NM, MAX_TORQUE_NM)
+                         for key in ("mean_torque_backemf_nm", "mean_torque_true_nm"))
+        inertia = optional_in(data, "mean_torque_inertia_std_nm", 0.0, MAX_TORQUE_NM)
         implied = MeanTorque(mean, std, backemf, saturation, inertia)
         if not isinstance(data["learned"], bool):
             raise ValueError(f"learned is {shown(data['learned'])}, not true or false")

@@ -42,7 +42,8 @@ def number_in(data: dict, key: str, low: float, high: float) -> float:
     return float(value)
 
 
-def _optional(data: dict, key: str, low: float, high: float) -> float | None:
+def optional_in(data: dict, key: str, low: float, high: float) -> float | None:
+    """`number_in`, or None where ``data`` has no ``key`` or holds null there."""
     return None if data.get(key) is None else number_in(data, key, low, high)
 
 
@@ -143,10 +144,10 @@ class TrialRecord:
                    number_in(data, "torque_setpoint", -MAX_TORQUE_NM, MAX_TORQUE_NM),
                    number_in(data, "speed_setpoint", -MAX_SPEED_HZ, MAX_SPEED_HZ),
                    _figures_from_json("measured", data), _figures_from_json("true", data),
-                   _optional(data, "reduction_factor", 0.0, MAX_REDUCTION_FACTOR),
-                   _optional(data, "reduction_factor_true", 0.0, MAX_REDUCTION_FACTOR),
-                   _optional(data, "motor_time_s", 0.0, MAX_MOTOR_TIME_S),
-                   _optional(data, "mean_torque_error", -MAX_MEAN_TORQUE_ERROR, MAX_MEAN_TORQUE_ERROR))
+                   optional_in(data, "reduction_factor", 0.0, MAX_REDUCTION_FACTOR),
+                   optional_in(data, "reduction_factor_true", 0.0, MAX_REDUCTION_FACTOR),
+                   optional_in(data, "motor_time_s", 0.0, MAX_MOTOR_TIME_S),
+                   optional_in(data, "mean_torque_error", -MAX_MEAN_TORQUE_ERROR, MAX_MEAN_TORQUE_ERROR))
 
 
 def records_of(summary: dict) -> list[TrialRecord]:

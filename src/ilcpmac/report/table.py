@@ -239,12 +239,12 @@ def mean_torque_lines(means: dict[Point, PointMeanTorque]) -> list[str]:
         return []
     errors = {p: m.error for p, m in means.items()}
     worst = max(errors, key=lambda p: abs(errors[p]))
-    inertia = "" if all(m.implied.inertia_std_nm is not None for m in means.values()) else \
+    caveats = "" if all(m.implied.inertia_std_nm is not None for m in means.values()) else \
         " (the given inertia taken as exact, its uncertainty not stated in [bench]: eps and the mean move with it)"
     if any(m.implied.backemf_loss_nm is None for m in means.values()):
-        inertia += " (no winding identified: what the loop loses to the back-EMF is not in it)"
+        caveats += " (no winding identified: what the loop loses to the back-EMF is not in it)"
     lines = [f"mean torque (model): {significant(100 * abs(errors[worst]))} % {_side(errors[worst])} the set point "
-             f"at worst ({_at(worst)}), +- {significant(100 * means[worst].error_std)} %{inertia}; each point "
+             f"at worst ({_at(worst)}), +- {significant(100 * means[worst].error_std)} %{caveats}; each point "
              f"{100 * min(errors.values()):+.2f} to {100 * max(errors.values()):+.2f} %"]
     truths = {p: error for p, m in means.items() if (error := m.true_error) is not None}
     if truths:

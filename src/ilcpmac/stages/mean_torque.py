@@ -88,15 +88,15 @@ def implied_mean_torque(description: BenchDescription, identified: Identified, r
     period = np.full((1, motor.counts_per_rev), 1.0 / (motor.counts_per_rev * abs(speed_hz)))
     references = current_references(request.torque_reference_nm(), k)
     currents = identified.epsilon_alpha_at(calibration) * lagged(references[None], period, loop)[0]
-    error_a = np.zeros_like(currents)
+    error_a, loss_nm = np.zeros_like(currents), None
     if identified.winding_conductance_s > 0.0:
         emf = k * (2.0 * np.pi * speed_hz)
         rejected = emf - lagged(emf[None], period, loop, continuous=True)[0]
         winding = CurrentLoop(np.full(3, identified.winding_time_constant_s), 0.0)
         error_a = -identified.winding_conductance_s * lagged(rejected[None], period, winding, continuous=True)[0]
+        loss_nm = float(np.mean(np.sum(k * error_a, axis=1)))
     total_a = currents + error_a
     current_nm = float(np.mean(np.sum(k * currents, axis=1)))
-    loss_nm = float(np.mean(np.sum(k * error_a, axis=1))) if identified.winding_conductance_s > 0.0 else None
     saturation_nm = -identified.saturation_per_a2 * float(np.mean(np.sum(k * total_a**3, axis=1)))
     mean_nm = current_nm + (loss_nm or 0.0) + saturation_nm
     eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
@@ -133,12 +133,12 @@ class MeanTorqueCorrection:
             return request
         target, base = request.torque_setpoint_nm, request.feedforward_nm
         step = SLOPE_STEP * max(abs(target), 1e-9)
+        def mean(offset: float) -> float:
+            return implied_mean_torque(self._description, self._identified,
+                                       request.with_changes(feedforward_nm=base + offset), speed_hz).mean_nm
+
         c = 0.0
         for _ in range(NEWTON_STEPS):
-            def mean(offset: float) -> float:
-                return implied_mean_torque(self._description, self._identified,
-                                           request.with_changes(feedforward_nm=base + offset), speed_hz).mean_nm
-
             now = mean(c)
             c += (target - now) * step / (mean(c + step) - now)
         return request.with_changes(feedforward_nm=base + c)
