@@ -4,13 +4,20 @@ simulator's truth, and the identified winding it rests on."""
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 
 import numpy as np
 import pytest
+from conftest import SEED_CONFIG
 from identify_helpers import identified
 
+from ilcpmac.campaign.service import simulated_bench
+from ilcpmac.config import load_config
 from ilcpmac.core.current_loop import CurrentLoop, backemf_power, speed_feedback
 from ilcpmac.core.records import IdentificationResult, ResultKeyError
+from ilcpmac.core.schema import toml_text
+from ilcpmac.identify import identify_bench
+from ilcpmac.identify.joint import harmonic_sets
 from ilcpmac.signals.harmonics import harmonic_amplitudes
 from ilcpmac.sim.simulator import Simulator
 from ilcpmac.stages.base import Identified
@@ -85,3 +92,44 @@ def test_diagnostics_that_are_not_objects_are_one_error(diagnostics):
     data["diagnostics"] = diagnostics
     with pytest.raises(ResultKeyError, match="diagnostics"):
         IdentificationResult.from_json(data)
+
+
+#: a large servo (4 pole pairs, L / R 25 ms, a 60 Hz loop) with a position-locked disturbance at order 20, its
+#: back-EMF's 5x electrical: T(20) is not free by the back-EMF's content, and without the shared-residual test
+#: the winding's L / R came out 11-14 % long and eps 1.4-3.9 % off
+SERVO = {"bench": {"pole_pairs": 4, "slots": 36, "inertia_kgm2": 0.05},
+         "bench.backemf": {"amplitudes_nm_per_a": [1.5, 0.09, 0.045, 0.02]},
+         "simulator.winding": {"phase_resistance_ohm": 0.2, "phase_inductance_h": 0.005},
+         "simulator.controller": {"bandwidth_hz": 60.0, "voltage_limit_v": 300.0},
+         "simulator.unexplained": {"orders": [20], "amplitudes_nm": [0.1], "phases_rad": [1.1]},
+         "simulator.torque_sensor": {"noise_nm": 0.2, "dc_level_nm": 2.0, "drift_nm_per_s": 0.02},
+         "limits": {"max_current_a": 40.0, "max_torque_nm": 64.0, "max_speed_hz": 1.0},
+         "trials": {"torque_setpoints_nm": [8.0, 24.0, 40.0], "speed_setpoints_hz": [0.5, 1.0]}}
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_disturbance_at_an_electrical_order_is_the_tables_not_the_windings(seed, tmp_path):
+    data = tomllib.loads(SEED_CONFIG.read_text())
+    data.pop("campaign")
+    for dotted, values in SERVO.items():
+        table = data
+        for part in dotted.split("."):
+            table = table[part]
+        table.update(values)
+    path = tmp_path / "servo.toml"
+    path.write_text(toml_text(data))
+    bench, truth = simulated_bench(load_config(path), seed=seed)
+    result = identify_bench(bench)
+    joint = result.details.joint
+    freed = joint.sets.fit[joint.sets.table_free & ~harmonic_sets(result.details.tables).table_free]
+    assert freed.tolist() == [20]
+    assert result.winding_time_constant_s == pytest.approx(0.005 / 0.2, rel=0.05)
+    assert result.winding_conductance_s == pytest.approx(1.0 / 0.2, rel=0.05)
+    assert result.epsilon == pytest.approx(truth["epsilon"], rel=0.02)
+
+
+def test_the_seed_bench_frees_no_back_emf_harmonic():
+    """Its unexplained orders (20, 36, 100) are none of its back-EMF's (8, 24, 40, 56): nothing shared to free."""
+    result, _ = identified("seed")
+    joint = result.details.joint
+    assert np.array_equal(joint.sets.table_free, harmonic_sets(result.details.tables).table_free)

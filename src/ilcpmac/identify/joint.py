@@ -34,7 +34,10 @@ for harmonic h of trial k at mean speed f_k, where
   harmonics (multiples of lcm(slots, 2 pole_pairs)) and on the harmonics where
   K has no content: the cogging torque delta tau_c and the unexplained
   position-locked rest. Each trial has its own multisine phases, so the
-  current columns vary from trial to trial and T cannot absorb them;
+  current columns vary from trial to trial and T cannot absorb them; freed
+  too at a back-EMF harmonic where the trials share a residual the columns
+  leave (`_shared_rest`: a disturbance at an electrical order, which would
+  bend the winding's parameters), the fit then run again from its minimum;
 - H_s: the torque sensor, a first-order high-pass (the piezo cannot measure
   the mean, sec. 1.1) with corner f_hp, and a delay D of the measurement,
   removed by advancing the data in time. H_s(h f_k) is the high-pass at a
@@ -62,7 +65,7 @@ the gains and offsets over blocks of harmonics and over set points
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
@@ -79,6 +82,8 @@ from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
 SIGNIFICANT = 1e-3
+#: the probability, over the harmonics tested, that `_shared_rest` frees T(h) where the trials share no residual
+SHARED_FALSE_ALARM = 1e-3
 #: reduced chi-square of a harmonic family above which (and above its 99.9 % noise quantile) the fit is called off
 MISFIT_CHI2 = 1.5
 #: names of the nonlinear parameters, in order, and their typical sizes
@@ -110,7 +115,8 @@ class HarmonicSets:
     fit : ndarray of int
         Harmonics 1..max where the per-phase torque columns carry information.
     table_free : ndarray of bool, shape fit.shape
-        Whether T(h) is free there (cogging harmonics and harmonics without back-EMF content).
+        Whether T(h) is free there (cogging harmonics, harmonics without back-EMF content, and those where the
+        trials share a residual, `_shared_rest`).
     cogging : ndarray of int
         Multiples of the cogging order below the Nyquist harmonic.
     """
@@ -424,8 +430,10 @@ class _JointProblem:
             self.speed_ripple = trial_amplitudes(speed[:, :, None], self.max_fit)[:, sets.fit, 0] / mean
         backemf_cols = trial_amplitudes(self.counted(self.backemf_lines.T).T[None], self.max_fit)[0][sets.fit]
         self.backemf_design = np.broadcast_to(backemf_cols, (len(tables.trials),) + backemf_cols.shape)
-        self.common_offset = bool(np.linalg.norm(backemf_cols.sum(axis=1))
-                                  > SIGNIFICANT * np.linalg.norm(backemf_cols, axis=0).max())
+        # where T(h) is free it takes the offsets' torque, the same in every trial: only the other harmonics tell
+        held = backemf_cols[~sets.table_free]
+        self.common_offset = bool(held.size and np.linalg.norm(held.sum(axis=1))
+                                  > SIGNIFICANT * np.linalg.norm(held, axis=0).max())
         # back-EMF per count, e_p = K_p omega (omega over the intervals either side of the count)
         omega = 4.0 * np.pi / (self.cpr * (self.count_period + np.roll(self.count_period, 1, axis=1)))
         self.emf = self.backemf * omega[:, :, None]
@@ -935,6 +943,11 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     ideal = _fit_nonlinear(problem, CurrentLoop(), SENSOR_PARAMETERS & problem.identifiable)
     # the lag must pay for its five more parameters (Akaike)
     _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
+    shared = _shared_rest(problem, phi, saturation, x)
+    if shared.any():
+        sets = replace(sets, table_free=sets.table_free | shared)
+        problem = _JointProblem(tables, sets)
+        _, phi, active, saturation, x, rest = _fit_nonlinear(problem, problem.loop_of(phi), active, phi)
     if problem.sensor:
         problem.ripple_highpass = _ripple_highpass(problem, phi, x, problem.position_table(
             phi, problem.design(phi, saturation), x))
@@ -962,8 +975,10 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
         gain_structure=structure, sets=sets, common_offset_identified=problem.common_offset)
 
 
-def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray) -> tuple:
-    """Variable projection over the ``active`` nonlinear parameters, started from ``loop``.
+def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray,
+                   start: np.ndarray | None = None) -> tuple:
+    """Variable projection over the ``active`` nonlinear parameters, started from ``loop``, or from ``start`` (all
+    of phi, a fit's) when given.
 
     The saturation column is built from the currents of the starting point,
     and rebuilt once from the fitted ones. The Jacobian is analytic
@@ -974,8 +989,9 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     """
     from scipy.optimize import least_squares  # 0.35 s to import: only when fitting
 
-    phi = np.array([*loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s,
-                    0.01 if active[4] else 0.0, 1e-3, 0.0])
+    phi = start.copy() if start is not None else np.array([
+        *loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s, 0.01 if active[4] else 0.0,
+        1e-3, 0.0])
     lower = NONLINEAR_LOWER[active]
     saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])
 
@@ -1000,6 +1016,35 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     saturation = problem.saturation_column(phi, problem.solve(phi, saturation)[0])
     x, rest = problem.solve(phi, saturation)
     return float(rest @ rest), phi, active, saturation, x, rest
+
+
+def _shared_rest(problem: _JointProblem, phi: np.ndarray, saturation: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Where the trials share a residual at a harmonic with back-EMF content, T(h) not free there: a
+    position-locked torque at an electrical order that no column holds (an unexplained disturbance), which the
+    fit would otherwise put into the back-EMF's and the winding's parameters; mask over ``problem.sets.fit``.
+
+    Per such harmonic but 1x electrical (where beta is read: a disturbance there is beta's, and not separable),
+    with r_k trial k's residual, w_k its weight and m their weighted mean,
+
+        F = (|m|^2 sum_k w_k / 2) / (sum_k w_k |r_k - m|^2 / (2 (n - 1))),
+
+    the shared part over the trials' own scatter, is tested against the F(2, 2 (n - 1)) quantile at
+    1 - SHARED_FALSE_ALARM / (the harmonics tested).
+    """
+    from scipy.special import fdtri  # deferred with scipy.optimize: only when fitting
+
+    sets = problem.sets
+    tested = ~sets.table_free & (sets.fit != problem.pole_pairs)
+    n_trials = problem.speeds.size
+    if not tested.any() or n_trials < 3:
+        return np.zeros(sets.fit.shape, bool)
+    hp, weights = problem.weights(phi)
+    residual = problem.data(phi)[:, sets.fit] / hp - problem.design(phi, saturation) @ x
+    mean = _weighted_mean(residual, weights)
+    shared = np.abs(mean[0]) ** 2 * weights.sum(axis=0) / 2.0
+    scatter = np.sum(weights * np.abs(residual - mean) ** 2, axis=0) / (2.0 * (n_trials - 1))
+    quantile = fdtri(2.0, 2.0 * (n_trials - 1), 1.0 - SHARED_FALSE_ALARM / tested.sum())
+    return tested & (shared > quantile * scatter)
 
 
 def _ripple_highpass(problem: _JointProblem, phi: np.ndarray, x: np.ndarray, table: dict) -> np.ndarray:
