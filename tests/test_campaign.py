@@ -76,7 +76,7 @@ def test_campaign_phases_ripple_falls_and_run_dir_is_a_bench_folder(campaign_con
     states = sorted((tmp_path / "run" / "states").glob("trial_*.json"))
     assert len(states) == len(records)
     last = json.loads(states[-1].read_text())
-    assert set(last["pipeline"]) == {"current-sensor", "cogging", "ilc"}
+    assert set(last["pipeline"]) == {"current-sensor", "cogging", "ilc", "mean-torque"}
     assert json.loads((tmp_path / "run" / "summary.json").read_text()) == summary
     (validated,) = summary["validation"]
     assert (validated["torque_setpoint"], validated["speed_setpoint"]) == (3.0, 0.9)

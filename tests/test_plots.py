@@ -416,7 +416,7 @@ def test_each_stage_learned_part_adds_up_to_the_next_requests_feedforward(run_re
         (9, "learn", "learn", (2.0, 0.9)), (10, "learn", "learn", (4.0, 0.9)),
         (11, "learn", "learn", (2.0, 0.9)), (12, "learn", "learn", (4.0, 0.9))]
     tables = _rebuilt(run_report, 10)
-    assert list(tables) == ["current-sensor", "cogging", "ilc"] and not tables["current-sensor"].any()
+    assert list(tables) == ["current-sensor", "cogging", "ilc", "mean-torque"] and not tables["current-sensor"].any()
     applied = run_report.files.read_state(12).feedforward_nm
     np.testing.assert_allclose(sum(tables.values()), applied, atol=1e-12)
 
@@ -433,7 +433,13 @@ def test_the_report_draws_what_the_run_saved_each_stage_learned(run_report):
         rebuilt = _rebuilt(run_report, item.record.index)
         assert list(item.tables_nm) == list(rebuilt)
         for name, table in rebuilt.items():
-            np.testing.assert_array_equal(item.tables_nm[name].view(np.int64), table.view(np.int64))
+            if name == "mean-torque":
+                # its model reads the back-EMF table, which backemf.csv holds to 12 decimals: rebuilt from the
+                # file, its constant moves by about 1e-12 of itself
+                np.testing.assert_allclose(item.tables_nm[name], table, rtol=1e-11, atol=0.0)
+                assert np.all(table > 0.0)
+            else:
+                np.testing.assert_array_equal(item.tables_nm[name].view(np.int64), table.view(np.int64))
     # the last trial of the campaign's learning left the stages as the compensation has them
     compensation = Compensation.read(run_report.files.compensation)
     np.testing.assert_allclose(sum(learned[1].tables_nm.values()), compensation.feedforward_nm(4.0, 0.9),

@@ -208,7 +208,7 @@ class PipelineSettings:
     """[pipeline]: the stages, in order (optional; defaults shown). Options go in [stages.NAME]."""
 
     stages: tuple[str, ...] = setting(lambda x: len(set(x)) == len(x), "stage names, built-in or plugins, each once",
-                                     ("current-sensor", "cogging", "ilc"))
+                                     ("current-sensor", "cogging", "ilc", "mean-torque"))
 
 
 @dataclass(frozen=True)

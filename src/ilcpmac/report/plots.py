@@ -208,6 +208,10 @@ def before_after(report: RunReport) -> dict[str, Figure]:
     return figures
 
 
+#: a stage's feed-forward whose spread over the revolution is below this of its largest value is a constant
+CONSTANT_PART = 1e-9
+
+
 @dataclass(frozen=True)
 class LearnedFeedForward:
     """What each stage feeds forward at one learned point after its last trial.
@@ -243,11 +247,17 @@ def learned_feedforward(report: RunReport) -> list[LearnedFeedForward] | None:
 def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
     """What each stage learned at one learned point: the spectrum of each stage's feed-forward over every
     harmonic of the campaign's band as stems, its largest harmonics (`NAMED_HARMONICS`) named by their order,
-    and each stage's feed-forward over a whole revolution, one panel per stage on its own scale."""
+    and each stage's feed-forward over a whole revolution, one panel per stage on its own scale; a stage that feeds
+    forward a constant (``mean-torque``) in the title with its value, one that feeds nothing forward named there
+    as none."""
     motor, H = report.description.motor, report.max_harmonic
     record = learned.record
-    feeding = {name: table for name, table in learned.tables_nm.items() if np.any(table)}
-    silent = [name for name in learned.tables_nm if name not in feeding]
+    # a stage's part is the difference of two feed-forwards: a constant one differs from count to count by round-off
+    feeding = {name: table for name, table in learned.tables_nm.items()
+               if np.ptp(table) > CONSTANT_PART * np.max(np.abs(table))}
+    constant = {name: float(np.mean(table)) for name, table in learned.tables_nm.items()
+                if name not in feeding and np.any(table)}
+    silent = [name for name in learned.tables_nm if name not in feeding and name not in constant]
     fig, axes = plotting.figure(1 + len(feeding), 2.6, sharex=False)
     top = axes[0]
     harmonics = np.arange(1, H + 1)
@@ -261,7 +271,9 @@ def learned_figure(learned: LearnedFeedForward, report: RunReport) -> Figure:
     top.set_xlim(0, H + 1)
     top.set_xlabel(plotting.HARMONIC_LABEL)
     top.set_ylabel(AMPLITUDE_LABEL)
-    note = f" ({', '.join(silent)}: none)" if silent else ""
+    notes = [f"{name}: a constant {1000 * value:+.3g} mN m" for name, value in constant.items()]
+    notes += [f"{', '.join(silent)}: none"] if silent else []
+    note = f" ({'; '.join(notes)})" if notes else ""
     fig.suptitle(f"{record.torque_setpoint_nm:g} N m at {record.speed_setpoint_hz:g} Hz: the feed-forward each stage "
                  f"learned by trial {record.index}{note}", fontsize=10)
     top.set_title(f"spectrum, harmonics 1..{H} (numbers: each stage's {NAMED_HARMONICS} largest)", fontsize=9)
