@@ -37,7 +37,8 @@ def rendered(table) -> list[str]:
 def body(lines: list[str]) -> list[list[str]]:
     """The cells of each line between the header rule and the bottom rule."""
     start = next(i for i, line in enumerate(lines) if line.startswith("┡"))
-    return [[cell.strip() for cell in line.strip("│").split("│")] for line in lines[start + 1:-1]]
+    end = next(i for i, line in enumerate(lines) if line.startswith("└"))  # a caption may follow
+    return [[cell.strip() for cell in line.strip("│").split("│")] for line in lines[start + 1:end]]
 
 
 @pytest.fixture(scope="module")

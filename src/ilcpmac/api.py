@@ -219,7 +219,7 @@ _ARGUMENTS: dict[str, _Kind] = {
                         lambda value: finite_number(value) and 0 < value <= MAX_BUDGET_MIN, float),
     **dict.fromkeys(("torque_constant_nm_per_a", "rated_torque_nm"),
                     _kind("a finite number > 0", lambda value: finite_number(value) and value > 0, float)),
-    **dict.fromkeys(("torque_sensor", "write_config"), _BOOL),
+    **dict.fromkeys(("torque_sensor", "static_trial", "write_config"), _BOOL),
     "torque_source": _kind("'sensor', 'encoder' or a TorqueSource",
                            lambda value: isinstance(value, TorqueSource) or (isinstance(value, str)
                                                                              and value in ("sensor", "encoder")),
@@ -825,7 +825,7 @@ def torque_constant_nm_per_a(bench_dir: str | Path) -> float:
 
 @_checked
 def simulate_bench(config: str | Path | CampaignConfig, out: str | Path, *, seed: int | None = None,
-                   revolutions: int | None = None, torque_sensor: bool = True,
+                   revolutions: int | None = None, torque_sensor: bool = True, static_trial: bool = False,
                    on_trial: Callable[[int, TrialData], None] | None = None) -> SimulatedBench:
     """Simulate the config's multisine set-point grid (``ilcpmac simulate CONFIG --out OUT``) into a bench folder
     with truth.json: the drive model of docs/simulator.md (the report's eq. 1.1-1.4: currents through imbalanced
@@ -843,6 +843,8 @@ def simulate_bench(config: str | Path | CampaignConfig, out: str | Path, *, seed
         Overrides ``[trials] revolutions``, recorded after the warm-up.
     torque_sensor : bool
         False: a bench without a torque sensor (no torque column, ``[motor] torque_sensor = false``).
+    static_trial : bool
+        True: with a static trial (static.csv, ``[static]``; `ilcpmac.sim.static_trial`), which pins eps.
     on_trial : callable or None
         Called with (index, trial) as each trial finishes.
 
@@ -858,7 +860,8 @@ def simulate_bench(config: str | Path | CampaignConfig, out: str | Path, *, seed
     cfg = _config(config).with_grid(seed, revolutions)
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)  # a folder that cannot be made fails before the trials run
-    bench = service.simulate_bench(cfg, folder, on_done=on_trial, torque_sensor=torque_sensor)
+    bench = service.simulate_bench(cfg, folder, on_done=on_trial, torque_sensor=torque_sensor,
+                                   static_trial=static_trial)
     return SimulatedBench(folder, bench, IdentificationResult.from_json(json.loads((folder / TRUTH_FILE).read_text())))
 
 

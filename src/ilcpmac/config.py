@@ -257,6 +257,10 @@ class BenchSettings:
     backemf_file: str | None = setting(
         None, "the back-EMF table as a CSV (count,k_a,k_b,k_c per count, docs/bench-format.md), relative to the "
         "config's folder; instead of [bench.backemf]", None)
+    static_trial_file: str | None = setting(
+        None, "a static trial (count,i_ref_a,i_ref_b,i_ref_c,torque per row, docs/bench-format.md, \"Static trial\"), "
+        "relative to the config's folder: the identification takes eps from it instead of from the inertia "
+        "(docs/real-bench.md, 2.6)", None, commented=True)
     backemf: BackEmf | None = _table(BackEmf)
     calibration: BenchCalibration | None = _table(BenchCalibration)
 

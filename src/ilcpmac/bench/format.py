@@ -98,7 +98,10 @@ SETPOINT_TOLERANCE = 2.0
 #: largest timer resolution of the time stamps, s
 MAX_TIMER_RESOLUTION_S = 1e-3
 #: the tables of bench.toml
-_TABLES = ("motor", "sensors", "trials")
+_TABLES = ("motor", "sensors", "static", "trials")
+#: the columns of a static trial's file (`read_static_csv`), and its most rows
+STATIC_COLUMNS = ["count", "i_ref_a", "i_ref_b", "i_ref_c", "torque"]
+MAX_STATIC_ROWS = 10_000
 
 
 def _inside_folder(name: str) -> bool:
@@ -162,6 +165,33 @@ class SensorTable:
 
 
 @dataclass(frozen=True)
+class StaticTable:
+    """bench.toml's optional [static] table: the static trial's file (docs/bench-format.md, "Static trial")."""
+
+    file: str = _file("the static trial's file (static.csv)")
+
+
+@dataclass(frozen=True)
+class StaticTrial:
+    """A static trial: the rotor held at rest, the drive commanding currents, a DC-capable reference (a lever on a
+    scale, a reaction torque sensor) measuring the torque it makes (`ilcpmac.identify.static`).
+
+    Attributes
+    ----------
+    count : ndarray of int, shape (n,)
+        The encoder count the rotor is held at, 0 .. counts_per_rev - 1.
+    i_ref_a : ndarray, shape (n, 3)
+        The phase current references, A, at the bench's calibration ([sensors]).
+    torque_nm : ndarray, shape (n,)
+        The torque the reference measured, N m, positive in the direction of increasing counts.
+    """
+
+    count: np.ndarray
+    i_ref_a: np.ndarray
+    torque_nm: np.ndarray
+
+
+@dataclass(frozen=True)
 class TrialEntry:
     """One [[trials]] entry of bench.toml."""
 
@@ -186,6 +216,10 @@ class Bench:
     trials : tuple of TrialData
     trial_files : tuple of str
         File name of each trial, relative to the folder.
+    static : StaticTrial or None
+        The static trial ([static] of bench.toml), which pins eps (`ilcpmac.identify.static`); None: none.
+    static_file : str
+        Its file, relative to the folder.
     """
 
     motor: MotorInfo
@@ -193,6 +227,8 @@ class Bench:
     sensors: SensorCalibration | None
     trials: tuple[TrialData, ...]
     trial_files: tuple[str, ...]
+    static: StaticTrial | None = None
+    static_file: str = "static.csv"
 
 
 # ---------------------------------------------------------------- reading
@@ -343,6 +379,32 @@ def read_backemf_csv(path: Path, motor: MotorInfo) -> np.ndarray:
     backemf = np.ascontiguousarray(data[:, 1:])
     check_backemf(backemf, motor, str(path))
     return backemf
+
+
+def read_static_csv(path: Path, motor: MotorInfo) -> StaticTrial:
+    """A static trial's file (`STATIC_COLUMNS`, at most `MAX_STATIC_ROWS` rows): each count a whole count of the
+    revolution, each current and the torque finite and within `MAX_CURRENT_A` and `MAX_TORQUE_NM`; a
+    `BenchFormatError` naming the file and the line otherwise."""
+    _, data = _read_csv(path, MAX_STATIC_ROWS, STATIC_COLUMNS)
+    if data.shape[0] == 0:
+        raise BenchFormatError(f"{path}: no rows")
+    count = data[:, 0]
+    bad = np.flatnonzero((count != np.round(count)) | (count < 0) | (count >= motor.counts_per_rev))
+    if bad.size:
+        raise BenchFormatError(f"{path}: line {bad[0] + 2}: count must be a whole count within 0 .. "
+                               f"{motor.counts_per_rev - 1} (counts_per_rev {motor.counts_per_rev}), got "
+                               f"{count[bad[0]]:g}")
+    for columns, bound in ((slice(1, 4), MAX_CURRENT_A), (slice(4, 5), MAX_TORQUE_NM)):
+        row, col = np.unravel_index(np.argmax(np.abs(data[:, columns])), data[:, columns].shape)
+        if abs(data[row, columns][col]) > bound:
+            raise BenchFormatError(f"{path}: line {row + 2}: |{STATIC_COLUMNS[columns.start + col]}| must be at "
+                                   f"most {bound:g}, got {data[row, columns][col]:g}")
+    return StaticTrial(count.astype(np.int64), np.ascontiguousarray(data[:, 1:4]), np.ascontiguousarray(data[:, 4]))
+
+
+def write_static_csv(path: Path, trial: StaticTrial) -> None:
+    """Write a static trial's file: count,i_ref_a,i_ref_b,i_ref_c,torque, one row per sample."""
+    _write_csv(path, STATIC_COLUMNS, [trial.count, trial.i_ref_a, trial.torque_nm], [0, 9, 9, 9, 9])
 
 
 def check_backemf(backemf_nm_per_a: np.ndarray, motor: MotorInfo, where: str) -> None:
@@ -588,13 +650,13 @@ class BenchHead:
 
 def read_bench_head(folder: str | Path) -> BenchHead:
     """bench.toml and backemf.csv of ``folder``, with every check `read_bench` makes of them."""
-    motor, backemf_path, sensors, entries = _bench_toml(folder)
+    motor, backemf_path, sensors, entries, _ = _bench_toml(folder)
     return BenchHead(motor, read_backemf_csv(backemf_path, motor), sensors, entries)
 
 
-def _bench_toml(folder: str | Path) -> tuple[MotorInfo, Path, SensorCalibration | None, object]:
-    """`read_bench_head`'s motor, back-EMF file, sensors and [[trials]] entries (not yet checked), from
-    bench.toml alone."""
+def _bench_toml(folder: str | Path) -> tuple[MotorInfo, Path, SensorCalibration | None, object, str | None]:
+    """`read_bench_head`'s motor, back-EMF file, sensors and [[trials]] entries (not yet checked), and the static
+    trial's file ([static]; None: none), from bench.toml alone."""
     folder = Path(folder)
     if not folder.is_dir():
         raise BenchFormatError(f"{folder}: not a folder")
@@ -614,7 +676,12 @@ def _bench_toml(folder: str | Path) -> tuple[MotorInfo, Path, SensorCalibration 
     _inside(backemf_path, root)
     sensors = parse_section(data["sensors"], SensorTable, str(toml_path), "sensors",
                             error=BenchFormatError).calibration() if "sensors" in data else None
-    return motor, backemf_path, sensors, data.get("trials")
+    static = None
+    if "static" in data:
+        static = str(PurePosixPath(parse_section(data["static"], StaticTable, str(toml_path), "static",
+                                                 error=BenchFormatError).file))
+        _inside(folder / static, root)
+    return motor, backemf_path, sensors, data.get("trials"), static
 
 
 def read_bench(folder: str | Path, extras: bool = True) -> Bench:
@@ -632,7 +699,7 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
     Parquet bench reads in about half the time.
     """
     folder = Path(folder)
-    motor, backemf_path, sensors, entries = _bench_toml(folder)
+    motor, backemf_path, sensors, entries, static_file = _bench_toml(folder)
     root = folder.resolve()
     toml_path = folder / BENCH_FILE
     jobs: list[tuple[Path, float, float]] = []
@@ -677,18 +744,25 @@ def read_bench(folder: str | Path, extras: bool = True) -> Bench:
         pool.shutdown(cancel_futures=True)
     if refusal is not None:
         raise refusal
-    return Bench(motor, backemf, sensors, tuple(trials), tuple(files))
+    if static_file is None:
+        return Bench(motor, backemf, sensors, tuple(trials), tuple(files))
+    static = read_static_csv(folder / static_file, motor)
+    return Bench(motor, backemf, sensors, tuple(trials), tuple(files), static, static_file)
 
 
 # ---------------------------------------------------------------- writing
 
 
 def bench_toml_text(motor: MotorInfo, sensors: SensorCalibration | None,
-                    trials: list[tuple[str, float, float]], backemf_file: str = "backemf.csv") -> str:
-    """bench.toml text; ``trials`` lists (file, torque set point N m, speed set point Hz)."""
+                    trials: list[tuple[str, float, float]], backemf_file: str = "backemf.csv",
+                    static_file: str | None = None) -> str:
+    """bench.toml text; ``trials`` lists (file, torque set point N m, speed set point Hz); ``static_file``: the
+    static trial's ([static]; None: none)."""
     tables: list[tuple[str, object]] = [("[motor]", MotorTable.of(motor, backemf_file))]
     if sensors is not None:
         tables.append(("[sensors]", SensorTable(**sensors.to_json())))
+    if static_file is not None:
+        tables.append(("[static]", StaticTable(static_file)))
     tables += [("[[trials]]", TrialEntry(*trial)) for trial in trials]
     return "\n".join(f"{header}\n{section_toml(table)}" for header, table in tables)
 
@@ -809,15 +883,18 @@ def write_backemf_csv(path: Path, backemf_nm_per_a: np.ndarray) -> None:
 def write_bench_toml(folder: Path, bench: Bench) -> None:
     """(Re)write bench.toml atomically: the trials listed are exactly ``bench.trials``."""
     entries = [(name, t.torque_setpoint_nm, t.speed_setpoint_hz) for name, t in zip(bench.trial_files, bench.trials)]
-    atomic_write(folder / BENCH_FILE, bench_toml_text(bench.motor, bench.sensors, entries))
+    atomic_write(folder / BENCH_FILE, bench_toml_text(bench.motor, bench.sensors, entries,
+                                                      static_file=None if bench.static is None else bench.static_file))
 
 
 def write_bench(folder: str | Path, bench: Bench) -> None:
-    """Write a whole bench folder: backemf.csv, every trial (`write_trial`: its name sets its format), then
-    bench.toml last."""
+    """Write a whole bench folder: backemf.csv, the static trial where it has one, every trial (`write_trial`: its
+    name sets its format), then bench.toml last."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     write_backemf_csv(folder / "backemf.csv", bench.backemf_nm_per_a)
+    if bench.static is not None:
+        write_static_csv(folder / bench.static_file, bench.static)
     for name, trial in zip(bench.trial_files, bench.trials):
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
         write_trial(folder / name, trial)
@@ -836,6 +913,19 @@ def convert_bench(folder: str | Path, out: str | Path, suffix: str = ".csv") -> 
     bench = replace(bench, trial_files=names)
     write_bench(out, bench)
     return bench
+
+
+def config_static_trial(config: CampaignConfig, motor: MotorInfo) -> StaticTrial | None:
+    """The static trial [bench] static_trial_file names (relative to the config's folder), read and checked
+    (`read_static_csv`) against ``motor``; None where it names none. `ConfigError` naming the key for a file that
+    cannot be read or fails a check."""
+    name = config.bench.static_trial_file
+    if name is None:
+        return None
+    try:
+        return read_static_csv(config.path.parent / name, motor)
+    except BenchFormatError as e:
+        raise ConfigError(f"{config.path}: [bench] static_trial_file: {e}") from None
 
 
 def check_bench(config: CampaignConfig, description) -> None:

@@ -27,7 +27,8 @@ MEAN_TORQUE_UNITS = {
                               "no winding identified, left out)",
     "mean_torque_saturation_nm": "N m (the part of it the saturation takes)",
     "mean_torque_inertia_std_nm": "N m (the part of its standard error the given inertia's makes; null: the bench "
-                                  "states no [bench] inertia_uncertainty, left out)",
+                                  "states no [bench] inertia_uncertainty, left out, or a static trial pinned eps)",
+    "mean_torque_epsilon_pinned": "true or false (whether a static trial pinned eps, [bench] static_trial_file)",
     "mean_torque_true_nm": "N m (the simulator's true mean torque of that trial; null on a bench)"}
 
 
@@ -68,7 +69,8 @@ class PointMeanTorque:
         return {"mean_torque_nm": self.implied.mean_nm, "mean_torque_std_nm": self.implied.std_nm,
                 "mean_torque_backemf_nm": self.implied.backemf_loss_nm,
                 "mean_torque_saturation_nm": self.implied.saturation_loss_nm,
-                "mean_torque_inertia_std_nm": self.implied.inertia_std_nm, "mean_torque_true_nm": self.true_nm}
+                "mean_torque_inertia_std_nm": self.implied.inertia_std_nm, "mean_torque_true_nm": self.true_nm,
+                "mean_torque_epsilon_pinned": self.implied.epsilon_pinned}
 
     @classmethod
     def from_json(cls, data: dict) -> PointMeanTorque | None:
@@ -84,9 +86,11 @@ class PointMeanTorque:
         backemf, true = (optional_in(data, key, -MAX_TORQUE_NM, MAX_TORQUE_NM)
                          for key in ("mean_torque_backemf_nm", "mean_torque_true_nm"))
         inertia = optional_in(data, "mean_torque_inertia_std_nm", 0.0, MAX_TORQUE_NM)
-        implied = MeanTorque(mean, std, backemf, saturation, inertia)
-        if not isinstance(data["learned"], bool):
-            raise ValueError(f"learned is {shown(data['learned'])}, not true or false")
+        pinned = data.get("mean_torque_epsilon_pinned", False)  # absent in a run before static trials
+        for key, value in (("learned", data["learned"]), ("mean_torque_epsilon_pinned", pinned)):
+            if not isinstance(value, bool):
+                raise ValueError(f"{key} is {shown(value)}, not true or false")
+        implied = MeanTorque(mean, std, backemf, saturation, inertia, pinned)
         return cls(point, data["learned"], implied, true)
 
 

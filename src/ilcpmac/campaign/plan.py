@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ilcpmac.bench.format import check_bench
+from ilcpmac.bench.format import StaticTrial, check_bench, config_static_trial
 from ilcpmac.campaign.grid import grid_plan, grid_requests
 from ilcpmac.campaign.record import LEARN_PHASE, Point, TrialRecord
 from ilcpmac.config import MIN_REVOLUTIONS, CampaignConfig
@@ -98,6 +98,7 @@ class CampaignPlan:
     grid : the identification grid's requests.
     learned : the operating points learned at, (torque N m, speed Hz) (`CampaignConfig.learned_points`).
     validated : the operating points validated at (`CampaignConfig.validation_points`).
+    static : the static trial of [bench] static_trial_file, which the identification takes eps from; None: none.
     """
 
     config: CampaignConfig
@@ -109,6 +110,7 @@ class CampaignPlan:
     validated: list[Point]
     budget_s: float | None = None
     scale: float = 1.0
+    static: StaticTrial | None = None
 
     @classmethod
     def build(cls, config: CampaignConfig, description: BenchDescription, seed: int) -> CampaignPlan:
@@ -120,7 +122,8 @@ class CampaignPlan:
         limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
         grid = [replace(r, seed=trial_seed(seed, i + 1))
                 for i, r in enumerate(grid_requests(config, description.calibration, seed, config.grid.revolutions))]
-        plan = cls(config, description, seed, limits, grid, config.learned_points(), config.validation_points())
+        plan = cls(config, description, seed, limits, grid, config.learned_points(), config.validation_points(),
+                   static=config_static_trial(config, description.motor))
         points = [(f"{config.path}: [campaign] {kind}_torques_nm {t:g} N m at {kind}_speeds_hz {s:g} Hz, "
                    f"{kind}_revolutions {config.trial_revolutions(point)}", plan.base_request(point, 0))
                   for kind, chosen in (("learn", plan.learned), ("validate", plan.validated))

@@ -4,8 +4,10 @@ Layout::
 
     RUN_DIR/
       campaign.toml        the config the run started with (used by --resume)
-      bench.toml           [motor], [sensors] and the complete trials so far
+      bench.toml           [motor], [sensors], [static] where the campaign has a static trial, and the
+                           complete trials so far
       backemf.csv
+      static.csv           the campaign's static trial ([bench] static_trial_file), where it has one
       trial_001.parquet ... one Parquet file per trial (docs/bench-format.md; a run
                            begun before Parquet has trial_001.csv ..., and resumes)
       states/run.json      the run's settings (seed, trials, config)
@@ -21,7 +23,7 @@ Layout::
       summary.json
       .lock, .lock.holder  the run's lock, and which process holds it
 
-Creation writes states/run.json, backemf.csv and bench.toml first and
+Creation writes states/run.json, backemf.csv, static.csv and bench.toml first and
 campaign.toml last: a directory is a run (resumable) exactly when it holds
 campaign.toml. One that holds only what an interrupted creation writes is
 *debris*, which a new run may reuse.
@@ -71,7 +73,16 @@ from pathlib import Path
 import numpy as np
 from filelock import FileLock, Timeout
 
-from ilcpmac.bench.format import BENCH_FILE, Bench, bench_toml_text, read_trial, write_backemf_csv, write_trial
+from ilcpmac.bench.format import (
+    BENCH_FILE,
+    Bench,
+    StaticTrial,
+    bench_toml_text,
+    read_trial,
+    write_backemf_csv,
+    write_static_csv,
+    write_trial,
+)
 from ilcpmac.campaign.record import records_of
 from ilcpmac.campaign.state import LearnedPoint, TrialState, learned_from_json, learned_json
 from ilcpmac.compensation import COMPENSATION_FILE
@@ -85,6 +96,8 @@ CONFIG_FILE = RUN_CONFIG  # export finds a run's limits by it
 STATES = "states"
 RUN_FILE = "run.json"
 BACKEMF_FILE = "backemf.csv"
+#: the static trial's copy, where the campaign has one ([bench] static_trial_file)
+STATIC_FILE = "static.csv"
 SUMMARY_FILE = "summary.json"
 IDENTIFICATION_FILE = "identification.json"
 LEARNED_FILE = "learned.json"
@@ -92,7 +105,7 @@ PLOTS = "plots"
 LOCK_FILE = ".lock"
 HOLDER_FILE = ".lock.holder"
 #: what creation writes before campaign.toml, at the top and in states/ (each also as NAME.tmp)
-_CREATION_FILES = {LOCK_FILE, HOLDER_FILE, BACKEMF_FILE, BENCH_FILE, CONFIG_FILE}
+_CREATION_FILES = {LOCK_FILE, HOLDER_FILE, BACKEMF_FILE, STATIC_FILE, BENCH_FILE, CONFIG_FILE}
 _CREATION_STATES = {RUN_FILE}
 #: a state file stores a flat list of at least this many floats as its bytes ...
 PACKED_MIN_LENGTH = 32
@@ -163,6 +176,7 @@ class RunFiles:
         self.config = self.path / CONFIG_FILE
         self.bench = self.path / BENCH_FILE
         self.backemf = self.path / BACKEMF_FILE
+        self.static = self.path / STATIC_FILE
         self.summary = self.path / SUMMARY_FILE
         self.states = self.path / STATES
         self.settings = self.states / RUN_FILE
@@ -533,6 +547,8 @@ class RunDir:
         #: when summary.json was last written (time.monotonic, s), and the summary a commit held back since
         self._summary_written_s = -math.inf
         self._held_summary: dict | None = None
+        #: whether bench.toml lists the static trial's copy ([static])
+        self.has_static = False
         self._lock = lock
         self._resumable = f"the run stays resumable: make room or allow writing, then ilcpmac run --resume {path}"
         #: the run's seal: made by `create`, checked by `resume`
@@ -558,12 +574,13 @@ class RunDir:
 
     @classmethod
     def create(cls, path: str | Path, description: BenchDescription, config_text: str, settings: dict | None = None,
-               lock: RunLock | None = None) -> "RunDir":
+               lock: RunLock | None = None, static: StaticTrial | None = None) -> "RunDir":
         """Start a new run in ``path``, which must hold nothing or the debris of an interrupted creation.
 
         ``settings`` (states/run.json) are what ``ilcpmac run --resume`` needs besides the config;
         ``lock`` is `lock` (path, new=True) when the caller took it, else the run takes and keeps it
-        until `close`.
+        until `close`; ``static``: the campaign's static trial, copied as static.csv and listed in bench.toml
+        ([static]), so that the run directory identifies as the campaign did.
         """
         path = Path(path)
         run = cls(path, description, [], None if lock else cls.lock(path, new=True))
@@ -587,6 +604,10 @@ class RunDir:
                                                    CONFIG_DIGEST_KEY: run.seal.config_sha256}, target))
             with _writing(files.backemf, then):
                 write_backemf_csv(files.backemf, description.backemf_nm_per_a)
+            if static is not None:
+                with _writing(files.static, then):
+                    write_static_csv(files.static, static)
+                run.has_static = True
             with _writing(files.bench, then):
                 run._write_bench_toml()
             with _writing(files.config, then):
@@ -607,6 +628,7 @@ class RunDir:
         try:
             run.seal = run.files.resumable_seal()
             data = read_toml(run.files.bench, RunDirError)
+            run.has_static = "static" in data
             run._entries = [(t["file"], float(t["torque_setpoint"]), float(t["speed_setpoint"]))
                             for t in data.get("trials", [])]
             for i, (name, _, _) in enumerate(run._entries, start=1):
@@ -654,7 +676,8 @@ class RunDir:
 
     def _write_bench_toml(self, entries: list[tuple[str, float, float]] | None = None) -> None:
         atomic_write(self.files.bench, bench_toml_text(self.description.motor, self.description.calibration,
-                                                             self._entries if entries is None else entries))
+                                                       self._entries if entries is None else entries,
+                                                       static_file=STATIC_FILE if self.has_static else None))
 
     @property
     def completed(self) -> int:

@@ -62,7 +62,7 @@ from ilcpmac.campaign.floors import PointFloor, PointSpectra, point_floors
 from ilcpmac.campaign.mean_torque import MEAN_TORQUE_UNITS, PointMeanTorque
 from ilcpmac.campaign.plan import CampaignPlan, Step, preset_choice, records_at, torque_source
 from ilcpmac.campaign.record import FIGURE_KEYS, LEARN_PHASE, Point, TrialRecord
-from ilcpmac.campaign.rundir import RunDir, RunDirError
+from ilcpmac.campaign.rundir import STATIC_FILE, RunDir, RunDirError
 from ilcpmac.campaign.state import LearnedPoint, TrialState
 from ilcpmac.campaign.validation import PointResult, fade_out, point_results
 from ilcpmac.compensation import Compensation
@@ -548,9 +548,9 @@ class CampaignRunner:
         return choice
 
     def _grid_bench(self, grid_trials: list[TrialData]) -> Bench:
-        """The grid as a bench folder in memory."""
+        """The grid as a bench folder in memory, with the campaign's static trial where it has one."""
         return Bench(self.description.motor, self.description.backemf_nm_per_a, self.description.calibration,
-                     tuple(grid_trials), self.run_dir.trial_names(len(grid_trials)))
+                     tuple(grid_trials), self.run_dir.trial_names(len(grid_trials)), self.plan.static, STATIC_FILE)
 
     def _set_identified(self, result: IdentificationResult, source: TorqueSource | None = None) -> None:
         """Take the identification: the stages start from it, the limits bound the flowing current with it, the

@@ -43,6 +43,8 @@ __all__ = ["DEFAULT_CONFIG", "CampaignResult", "built_backend", "check_campaign_
 
 #: the packaged config `run` runs with no config
 DEFAULT_CONFIG = "seed-bench.toml"
+#: a simulated static trial's reference scatter, of the largest torque it holds (a load cell's 0.1 % of full scale)
+STATIC_SCATTER = 1e-3
 
 
 @dataclass(frozen=True)
@@ -168,7 +170,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
             else:
                 run_dir = RunDir.create(path, description, config_text(cfg),
                                         {"seed": seed, "trials": trials, "budget_min": budget_min,
-                                         "config": str(cfg.path)}, lock)
+                                         "config": str(cfg.path)}, lock, plan.static)
             cfg = plan.config
             summary = _run(cfg, bench, description, run_dir, plan, seed, resume_dir is not None, events, identify,
                            extra_stages)
@@ -242,7 +244,8 @@ def _run(cfg: CampaignConfig, backend: Backend, description: BenchDescription, r
 
 def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions: int | None = None,
                     on_done: Callable[[int, TrialData], None] | None = None,
-                    torque_sensor: bool = True, workers: int | None = None) -> tuple[Bench, dict]:
+                    torque_sensor: bool = True, workers: int | None = None,
+                    static_trial: bool = False) -> tuple[Bench, dict]:
     """Run the set-point grid on the simulator, in memory: the bench folder's contents and its truth
     (`ilcpmac.sim.bench.truth_dict`).
 
@@ -254,6 +257,8 @@ def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions
     torque_sensor : False: a bench without a torque sensor (no torque column, [motor] torque_sensor =
         false, with the encoder's timer_resolution_s); the simulator's torque sensor still runs, unrecorded.
     workers : trials simulated at once in threads (default one per core).
+    static_trial : True: with a static trial (`ilcpmac.sim.static_trial`, the grid's largest torque set point, the
+        reference's scatter `STATIC_SCATTER` of it), which pins eps.
 
     Raises `ConfigError` before any trial runs when a grid request breaks the config's [limits].
     """
@@ -281,15 +286,22 @@ def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions
         trials=tuple(trials),
         trial_files=tuple(f"trial_{i + 1:02d}.csv" for i in range(len(trials))),
     )
+    if static_trial:
+        from ilcpmac.sim.static_trial import simulated_static_trial
+
+        top = max(config.grid.torque_setpoints_nm)
+        bench = replace(bench, static=simulated_static_trial(simulator, requests[0].calibration, top,
+                                                             STATIC_SCATTER * top, seed))
     return bench, truth_dict(simulator, requests[0].calibration)
 
 
 def simulate_bench(config: CampaignConfig, out_dir: str | Path, seed: int | None = None,
                    revolutions: int | None = None,
-                   on_done: Callable[[int, TrialData], None] | None = None, torque_sensor: bool = True) -> Bench:
+                   on_done: Callable[[int, TrialData], None] | None = None, torque_sensor: bool = True,
+                   static_trial: bool = False) -> Bench:
     """`simulated_bench`, written as a bench folder plus ``truth.json`` in ``out_dir`` (created if needed):
     ``ilcpmac simulate``."""
-    bench, truth = simulated_bench(config, seed, revolutions, on_done, torque_sensor)
+    bench, truth = simulated_bench(config, seed, revolutions, on_done, torque_sensor, static_trial=static_trial)
     out_dir = Path(out_dir)
     write_bench(out_dir, bench)
     atomic_write(out_dir / "truth.json", json.dumps(truth, indent=1))

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
+from rich.markup import escape
 from rich.table import Table
 
 from ilcpmac.cli import FIGURE_FORMATS, console, main, progress_bar
@@ -25,6 +26,9 @@ CELL_CHARACTERS = 16
 NOT_IDENTIFIED = "not identified"
 #: the lines a result on the encoder-derived torque cannot fill, and why
 NEEDS_A_SENSOR = ("delta*eps", "delta", "J* (kg m²)")
+#: what eps rests on without a static trial
+INERTIA_NOTE = ("a relative error of the inertia is one of eps and of the mean torque; a static trial pins eps "
+                "(docs/real-bench.md, \"Pinning eps\")")
 #: the encoder error's lines: label, `IdentificationResult` field (with a ``_std`` one or None), comparison
 ENCODER_LINES = (("enc. 1x (cnt)", "encoder_eccentricity_counts", "encoder_eccentricity_std_counts", "rel"),
                  ("enc. 1x (rad)", "encoder_eccentricity_phase_rad", None, "abs"),
@@ -136,8 +140,11 @@ def estimates_table(result, truth=None) -> Table:
                    f"{', '.join(NEEDS_A_SENSOR)} (no torque sensor)")
         if result.encoder_error_counts is None:
             caption += ", the encoder error (see the warnings)"
+    elif "static" not in result.methods and result.epsilon is not None:
+        caption = f"eps = delta*eps / delta, delta from [motor] inertia: {INERTIA_NOTE}"
     table = Table(title="identification (value ± standard error; * the result's)", title_justify="left",
-                  header_style="bold", padding=(0, 1), caption=caption, caption_justify="left")
+                  header_style="bold", padding=(0, 1), caption=None if caption is None else escape(caption),
+                  caption_justify="left")
     table.add_column("estimate")
     for name in columns:
         table.add_column(name if name == "result" else f"{name} method")
@@ -199,7 +206,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
                                f"({bench_dir / kind.marker}): its torque is what the folder holds, it has no figures")
         result, lines = kind.identify(bench_dir, output)
         for message in result.messages:
-            console.print(f"[yellow]warning:[/yellow] {message}")
+            console.print(f"[yellow]warning:[/yellow] {escape(message)}")
         for line in lines:
             console.print(line)
         too_uncertain = getattr(result, "too_uncertain", None)
@@ -221,7 +228,7 @@ def identify(bench_dir: Path, output: Path, plots_dir: Path | None, plot_format:
     if grid is not None:
         console.print(grid)
     for message in result.messages:
-        console.print(f"[yellow]warning:[/yellow] {message}")
+        console.print(f"[yellow]warning:[/yellow] {escape(message)}")
     click.echo()
     from rich.console import Console
 

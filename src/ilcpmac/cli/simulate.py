@@ -12,7 +12,7 @@ from ilcpmac.cli import console, main, progress_bar
 from ilcpmac.core.errors import IlcpmacError, OptionError
 
 #: the options of one kind only, by kind (--seed serves every kind)
-_KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revolutions", "rate_hz"),
+_KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor", "static_trial"), "scan": ("revolutions", "rate_hz"),
                  "log": ("rate_hz", "speed_hz", "duration_s", "loop", "current_column", "jitter_s", "latency_s",
                          "stamp_s", "position_unit", "position_wrap", "load_nm", "speed_bandwidth_hz", "encoder_bits",
                          "encoder_eccentricity_counts", "encoder_eccentricity_phase_rad", "encoder_harmonics",
@@ -32,6 +32,10 @@ _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revoluti
                    "way (default 1).")
 @click.option("--no-torque-sensor", "no_torque_sensor", is_flag=True,
               help="grid: a bench without a torque sensor: no torque column, [motor] torque_sensor = false.")
+@click.option("--static-trial", "static_trial", is_flag=True,
+              help="grid: with a static trial (static.csv, [static] in bench.toml), the rotor held at 8 counts "
+                   "under 4 torques up to the grid's largest, measured by a DC reference: it pins eps "
+                   "(docs/real-bench.md, \"Pinning eps\").")
 @click.option("--rate-hz", type=float, default=None, help="scan, log: rows per second (default 1000).")
 @click.option("--speed-hz", type=float, default=None, help="log: mechanical speed reference, Hz (default 0.5).")
 @click.option("--duration-s", type=float, default=None, help="log: duration, s (default 10).")
@@ -74,7 +78,7 @@ _KIND_OPTIONS = {"grid": ("revolutions", "no_torque_sensor"), "scan": ("revoluti
 @click.option("--encoder-seed", type=click.IntRange(min=0), default=None,
               help="log: seed of the lines' errors: the same encoder in every log of that seed (default 0).")
 def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutions: int | None,
-             no_torque_sensor: bool, position_wrap: bool, **log_options) -> None:
+             no_torque_sensor: bool, static_trial: bool, position_wrap: bool, **log_options) -> None:
     """Simulate CONFIG's grid, scan or drive log into a folder.
 
     grid: a bench folder of the multisine set-point grid, and truth.json: the simulator's true values under the
@@ -88,7 +92,7 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
     from ilcpmac.sim.log_folders import DRIVE_LOG, MAPPING, SCAN_LOG
 
     given = {"revolutions": revolutions, "no_torque_sensor": no_torque_sensor or None,
-             "position_wrap": position_wrap or None, **log_options}
+             "static_trial": static_trial or None, "position_wrap": position_wrap or None, **log_options}
     for name, value in given.items():
         if value is not None and name not in _KIND_OPTIONS[kind]:
             raise IlcpmacError(f"--{name.replace('_', '-')}: not for --kind {kind}")
@@ -99,10 +103,11 @@ def simulate(config: Path, out_dir: Path, kind: str, seed: int | None, revolutio
         n = len(cfg.grid.torque_setpoints_nm) * len(cfg.grid.speed_setpoints_hz)
         with progress_bar() as progress:
             task = progress.add_task("simulating trials", total=n)
-            bench = api.simulate_bench(cfg, out_dir, torque_sensor=not no_torque_sensor,
+            bench = api.simulate_bench(cfg, out_dir, torque_sensor=not no_torque_sensor, static_trial=static_trial,
                                        on_trial=lambda i, trial: progress.advance(task)).bench
         samples = sum(t.n_samples for t in bench.trials)
-        console.print(f"wrote {len(bench.trials)} trials ({samples} samples) and truth.json to {out_dir}")
+        static = "" if bench.static is None else f", a static trial ({bench.static.count.size} samples)"
+        console.print(f"wrote {len(bench.trials)} trials ({samples} samples){static} and truth.json to {out_dir}")
         return
     chosen: dict[str, Any] = {name: value for name, value in given.items() if value is not None}
     try:

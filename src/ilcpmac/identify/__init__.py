@@ -39,7 +39,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from ilcpmac.bench.format import Bench
+from ilcpmac.bench.format import Bench, StaticTrial
 from ilcpmac.bench.standstill import MAX_RELATIVE_STD, unresolved_cogging
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.errors import IdentificationError
@@ -52,6 +52,7 @@ from ilcpmac.identify.joint import JointEstimate, fit_joint
 from ilcpmac.identify.mirror import in_motor_coordinates
 from ilcpmac.identify.reduction import NUMERICAL_FAILURES, BenchTables, degenerate, reduce_bench
 from ilcpmac.identify.sensor_gain import SensorGainEstimate, estimate_sensor_gain
+from ilcpmac.identify.static import static_epsilon
 from ilcpmac.identify.system_gain import SystemGainEstimate, TorqueNotFollowing, estimate_system_gain
 from ilcpmac.signals.encoder_torque import encoder_error_summary
 
@@ -300,9 +301,18 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
                                   "identified from this torque")
     best = {name: getattr(joint_taken, name) if getattr(joint_taken, name) is not None
             else getattr(report_taken, name) for name in MethodEstimates.__dataclass_fields__}
+    methods = {"report": report, "joint": joint_estimates}
+    pinned = None
+    if bench.static is not None:
+        pinned = _pinned_by_static(bench, bench.static, best, encoder is not None, fitted)
+        best |= {key: value for key, value in vars(pinned).items() if value is not None}
+        methods["static"] = pinned
     if encoder is None:
         best |= _over_taken_delta(best, *(measured["joint" if getattr(joint_taken, name) is not None else "report"]
                                           for name in ("beta", "cogging_nm")))
+    if pinned is not None:
+        best |= {"epsilon": pinned.epsilon, "epsilon_std": pinned.epsilon_std}
+        messages.append(_static_message(bench, pinned, best["inertia_estimate"]))
     untaken = [f"{method} method's {text}" for method, left in (("joint", joint_left), ("report", report_left))
                for name, text in left if best[name] is None]
     too_uncertain = None
@@ -333,7 +343,7 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
     if too_uncertain is not None:
         diagnostics[TOO_UNCERTAIN] = too_uncertain
     result = IdentificationResult(
-        **best, current_loop=loop, methods={"report": report, "joint": joint_estimates}, calibration=calibration,
+        **best, current_loop=loop, methods=methods, calibration=calibration,
         messages=tuple(messages), diagnostics=diagnostics,
         details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
         torque_source=source, torque_sensor_highpass_hz=None if fitted is None else fitted.highpass_hz,
@@ -350,6 +360,47 @@ def _winding_conductance(joint: JointEstimate, delta: float) -> float | None:
     if joint.loop.is_ideal or not -joint.emf_gain > SIGNIFICANT_EMF * joint.emf_gain_std:
         return None
     return -joint.emf_gain / delta
+
+
+def _pinned_by_static(bench: Bench, static: StaticTrial, best: dict, on_encoder: bool,
+                      fitted: JointEstimate | None) -> MethodEstimates:
+    """The static trial's estimates (`ilcpmac.identify.static`): eps, and delta = delta eps / eps where the bench
+    has a torque sensor; `IdentificationError` where there is no alpha to read it with, or on the encoder-derived
+    torque (whose every torque, the cogging's and the offsets', the given inertia scales: not pinned yet)."""
+    if on_encoder:
+        raise IdentificationError(f"{bench.static_file}: a static trial pins eps on the torque sensor's data; on the "
+                                  "encoder-derived torque the given inertia scales every torque, which it does not "
+                                  "rescale yet: identify with the sensor, or without [static]")
+    if best["alpha"] is None:
+        raise IdentificationError(f"{bench.static_file}: the static trial needs alpha, which the identification "
+                                  "could not estimate")
+    # the saturation's c, true units, and its standard error: at the largest currents of a static trial it takes
+    # about 1 % of the torque, and its error is one of eps there (0.04 % on the seed bench, noiseless)
+    saturation = saturation_std = 0.0
+    if fitted is not None and best["delta"] is not None:
+        saturation, saturation_std = (value * best["delta"] ** 2
+                                      for value in (fitted.saturation_per_a2, fitted.saturation_std))
+    beta = np.zeros(3) if best["beta"] is None else np.asarray(best["beta"])
+    alpha = np.asarray(best["alpha"])
+    pinned = static_epsilon(static, bench.backemf_nm_per_a, alpha, beta, saturation)
+    moved = static_epsilon(static, bench.backemf_nm_per_a, alpha, beta, saturation + saturation_std).epsilon
+    epsilon_std = float(np.hypot(pinned.epsilon_std, moved - pinned.epsilon))
+    if best["delta_epsilon"] is None:
+        return MethodEstimates(epsilon=pinned.epsilon, epsilon_std=epsilon_std)
+    delta = best["delta_epsilon"] / pinned.epsilon
+    relative = np.hypot(best["delta_epsilon_std"] / best["delta_epsilon"], epsilon_std / pinned.epsilon)
+    return MethodEstimates(epsilon=pinned.epsilon, epsilon_std=epsilon_std, delta=delta,
+                           delta_std=float(abs(delta) * relative))
+
+
+def _static_message(bench: Bench, pinned: MethodEstimates, inertia_estimate: float | None) -> str:
+    """What the static trial gave: eps, and delta with the inertia the torque sensor's J* = delta J then implies."""
+    eps = f"eps {pinned.epsilon:.5g} +- {pinned.epsilon_std:.2g} from the static trial ({bench.static_file})"
+    if pinned.delta is None or inertia_estimate is None:
+        return eps
+    implied, given = inertia_estimate / pinned.delta, bench.motor.inertia_kgm2
+    return (f"{eps}, delta {pinned.delta:.5g} from it: the torque sensor saw an inertia of {implied:.4g} kg m^2, "
+            f"{implied / given - 1:+.1%} from [motor] inertia {given:g}, which eps rests on without the static trial")
 
 
 def _over_taken_delta(best: dict, beta_from: _Measured, cogging_from: _Measured) -> dict:

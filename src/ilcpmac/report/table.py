@@ -239,8 +239,10 @@ def mean_torque_lines(means: dict[Point, PointMeanTorque]) -> list[str]:
         return []
     errors = {p: m.error for p, m in means.items()}
     worst = max(errors, key=lambda p: abs(errors[p]))
-    caveats = "" if all(m.implied.inertia_std_nm is not None for m in means.values()) else \
-        " (the given inertia taken as exact, its uncertainty not stated in [bench]: eps and the mean move with it)"
+    caveats = "" if all(m.implied.inertia_std_nm is not None or m.implied.epsilon_pinned for m in means.values()) \
+        else " (the given inertia taken as exact, its uncertainty not stated in [bench]: eps and the mean move with it)"
+    if all(m.implied.epsilon_pinned for m in means.values()):
+        caveats = " (eps from the static trial)"
     if any(m.implied.backemf_loss_nm is None for m in means.values()):
         caveats += " (no winding identified: what the loop loses to the back-EMF is not in it)"
     lines = [f"mean torque (model): {significant(100 * abs(errors[worst]))} % {_side(errors[worst])} the set point "

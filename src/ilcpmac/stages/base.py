@@ -54,7 +54,8 @@ class Identified:
     the identification found (0: none identified); ``winding_conductance_s`` and ``winding_time_constant_s`` the
     winding's 1 / R (S) and L / R (s), which the speed's feedback rests on (0: none identified, no feedback);
     ``saturation_per_a2`` the torque constant's fall with current, c of K_p i_p (1 - c i_p^2), per A^2 (0: none
-    identified).
+    identified); ``epsilon_pinned`` whether eps came from a static trial (`ilcpmac.identify.static`), not from the
+    inertia the bench gives.
     """
 
     delta: float
@@ -73,6 +74,7 @@ class Identified:
     winding_conductance_s: float = 0.0
     winding_time_constant_s: float = 0.0
     saturation_per_a2: float = 0.0
+    epsilon_pinned: bool = False
 
     def __post_init__(self) -> None:
         """Every array read-only (`frozen`): each stage shares them."""
@@ -112,7 +114,7 @@ class Identified:
             sensor_delay_s=float(result.torque_sensor_delay_s or 0.0),
             winding_conductance_s=float(result.winding_conductance_s or 0.0),
             winding_time_constant_s=float(result.winding_time_constant_s or 0.0),
-            saturation_per_a2=float(result.saturation_per_a2 or 0.0))
+            saturation_per_a2=float(result.saturation_per_a2 or 0.0), epsilon_pinned="static" in result.methods)
 
     def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
         """The current loop while the controller uses ``calibration``.

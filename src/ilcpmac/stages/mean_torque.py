@@ -21,8 +21,9 @@ staircase moves the mean by a second-order amount).
 Its standard error is eps's (the split of delta eps rests on the sensor's gain: 0.1 % on the seed bench, 1-40 %
 on other motors) and the given inertia's, in quadrature, relative: delta is found from the inertia the bench
 gives, eps from delta, so a relative error of ``[bench] inertia_kgm2`` is one of eps and of the mean torque, which
-no trial shows (`MotorInfo.inertia_uncertainty`; not stated: left out, and said so). The loop's and the winding's
-parameters' errors are left out.
+no trial shows (`MotorInfo.inertia_uncertainty`; not stated: left out, and said so), unless a static trial pinned
+eps (`Identified.epsilon_pinned`: then eps's standard error is the static trial's, and the inertia has no part).
+The loop's and the winding's parameters' errors are left out.
 
 The ``mean-torque`` stage (`MeanTorqueCorrection`) adds to each request the constant feed-forward c that brings
 the model's mean to the set point: with m(c) the model's mean of the request with c added,
@@ -63,7 +64,8 @@ class MeanTorque:
         then the mean leaves it out, and its standard error too.
     saturation_loss_nm : the part the saturation takes.
     inertia_std_nm : the part of ``std_nm`` the given inertia's uncertainty makes; None where the bench states none
-        (then ``std_nm`` is eps's alone).
+        or a static trial pinned eps (then ``std_nm`` is eps's alone).
+    epsilon_pinned : whether a static trial pinned eps (the inertia has no part in it).
     """
 
     mean_nm: float
@@ -71,6 +73,7 @@ class MeanTorque:
     backemf_loss_nm: float | None
     saturation_loss_nm: float
     inertia_std_nm: float | None = None
+    epsilon_pinned: bool = False
 
     def error_of(self, setpoint_nm: float) -> float:
         """The mean torque's error relative to ``setpoint_nm``: mean / set point - 1."""
@@ -100,8 +103,10 @@ def implied_mean_torque(description: BenchDescription, identified: Identified, r
     saturation_nm = -identified.saturation_per_a2 * float(np.mean(np.sum(k * total_a**3, axis=1)))
     mean_nm = current_nm + (loss_nm or 0.0) + saturation_nm
     eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
-    inertia_std = None if motor.inertia_uncertainty is None else abs(mean_nm) * motor.inertia_uncertainty
-    return MeanTorque(mean_nm, float(np.hypot(eps_std, inertia_std or 0.0)), loss_nm, saturation_nm, inertia_std)
+    inertia_std = None if motor.inertia_uncertainty is None or identified.epsilon_pinned \
+        else abs(mean_nm) * motor.inertia_uncertainty
+    return MeanTorque(mean_nm, float(np.hypot(eps_std, inertia_std or 0.0)), loss_nm, saturation_nm, inertia_std,
+                      identified.epsilon_pinned)
 
 
 class MeanTorqueCorrection:
