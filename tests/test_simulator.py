@@ -66,6 +66,26 @@ def test_ideal_drive_constant_setpoint_gives_flat_torque(ideal_model, make_reque
     assert np.ptp(trial.torque_nm - true) < 1e-9
 
 
+def test_a_load_machine_drives_the_rotor_while_the_motor_holds_it_back(ideal_model, make_request):
+    """Generating (issue 38): the ideal drive at -2 N m, 0.5 Hz against a load machine ([simulator.mechanics]
+    load = "machine", omega_load twice the set speed) holds the set speed and delivers the torque asked for as at
+    +2 N m, its mean within 0.5 %, and its torque balance is eq. 3.1 with the machine's b (omega - 2 omega_set);
+    an eddy-current brake refuses it in one line."""
+    machine = dataclasses.replace(ideal_model, mechanics=dataclasses.replace(ideal_model.mechanics, load="machine"))
+    generating = Simulator(machine).run_trial(make_request(machine, -2.0))
+    motoring = Simulator(machine).run_trial(make_request(machine, 2.0))
+    assert generating.torque_true_nm.mean() == pytest.approx(-2.0, rel=0.005)
+    assert generating.torque_true_nm.mean() == pytest.approx(-motoring.torque_true_nm.mean(), rel=0.002)
+    omega_set = 2 * np.pi * 0.5
+    assert generating.speed_true_rad_s.mean() == pytest.approx(omega_set, rel=0.01)
+    b = np.dot(generating.speed_true_rad_s - 2 * omega_set, generating.torque_true_nm) / np.sum(
+        (generating.speed_true_rad_s - 2 * omega_set) ** 2)
+    assert b == pytest.approx(2.0 / omega_set, rel=0.01)
+    with pytest.raises(SimulationError, match=r'a brake cannot drive it \(generating needs \[simulator.mechanics\] '
+                                              r'load = "machine"\)'):
+        Simulator(ideal_model).run_trial(make_request(ideal_model, -2.0))
+
+
 def test_ideal_drive_follows_slow_feedforward(ideal_model, make_request):
     theta = 2 * np.pi * np.arange(COUNTS_PER_REV) / COUNTS_PER_REV
     feedforward = 0.3 * np.sin(theta) + 0.2 * np.cos(3 * theta + 0.4)
@@ -278,7 +298,8 @@ def constant_speed_trial(n: int, steps: int, line_steps: float, record: int, **c
         lag_loop=True, lag_decay=np.exp(-2 * np.pi * 140.0 * dt),
         scale_true=1000.0 * ones, offset_true=0.0 * ones, scale_cal=1000.0 * ones, offset_cal=0.0 * ones,
         current_noise_counts=0.0, saturation_per_a2=0.0,
-        inertia_kgm2=1.0, brake_nms=0.0, coulomb_nm=0.0, omega0_rad_s=2 * np.pi / (n * steps * dt),
+        inertia_kgm2=1.0, brake_nms=0.0, load_speed_rad_s=0.0, coulomb_nm=0.0,
+        omega0_rad_s=2 * np.pi / (n * steps * dt),
         delta=1.0, highpass_coef=1.0, torque_dc_nm=0.0, torque_drift_nm_per_s=0.0, torque_noise_nm=0.0,
         warmup_counts=4 * n, record_counts=record, timer_resolution_s=1e-12, max_steps=10 * steps * (5 * n + record),
         seed=1)

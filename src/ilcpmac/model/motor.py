@@ -105,17 +105,26 @@ class Unexplained:
     phases_rad: tuple[float, ...] = _phases()
 
 
+#: [simulator.mechanics] load: what holds the rotor's speed
+LOADS = ("brake", "machine")
+
+
 @dataclass(frozen=True)
 class Mechanics:
-    """J d(omega)/dt = torque - b omega - coulomb sign(omega) (eq. 3.1).
+    """J d(omega)/dt = torque - b (omega - omega_load) - coulomb sign(omega) (eq. 3.1).
 
-    ``inertia_kgm2`` is what the controller knows; the rotor's J is ``true_inertia_kgm2``.
+    ``inertia_kgm2`` is what the controller knows; the rotor's J is ``true_inertia_kgm2``. ``load`` "brake": an
+    eddy-current brake (omega_load 0), which only takes power: the motor must turn the rotor (motoring); "machine":
+    a load machine holding the set speed, which also drives the rotor while the motor holds it back (generating,
+    omega_load twice the set speed, `ilcpmac.sim.simulator.Simulator`).
     """
 
     inertia_kgm2: float = param(in_range(*MOTOR_RANGES["inertia"]), "J, kg m^2, within [1e-8, 1e4]")
     coulomb_friction_nm: float = param(in_range(0.0, 1e4), "Coulomb friction, N m, within [0, 1e4]")
     inertia_scale: float = param(in_range(0.01, 100.0), "true inertia over [bench] inertia_kgm2, the "
                                   "controller's, within [0.01, 100]", default=1.0)
+    load: str = param(lambda x: x in LOADS, '"brake" (an eddy-current brake: motoring only) or "machine" (a load '
+                      "machine holding the speed: motoring and generating)", default="brake")
 
     @property
     def true_inertia_kgm2(self) -> float:

@@ -5,7 +5,8 @@ scale, offset and noise, a discrete PI current loop reading it and the winding
 L di/dt = v - R i - K_p(theta) omega (exact zero-order-hold step), or instead
 of both a first-order lag of the current on its reference; the torque
 sum_p K_p i_p (1 - c i_p^2) + tau_pos(theta), mechanics J domega/dt = tau -
-b omega - coulomb (semi-implicit Euler), a piezo torque sensor, and
+b (omega - omega_load) - coulomb (semi-implicit Euler: an eddy-current brake
+at omega_load 0, a load machine driving at omega_load beyond), a piezo torque sensor, and
 position-triggered sampling once per encoder line crossed, each line where
 it truly sits, every signal at the instant the line is crossed within the
 step. Inputs are validated by ``ilcpmac.sim.simulator``; whatever it is
@@ -123,7 +124,7 @@ def simulate_trial(
     fine, i_ref_table, lines_counts, gauss_table,
     resistance_ohm, inductance_h, kp_v_per_a, ki_v_per_as, voltage_limit_v, dt_s, lag_loop, lag_decay,
     scale_true, offset_true, scale_cal, offset_cal, current_noise_counts, saturation_per_a2,
-    inertia_kgm2, brake_nms, coulomb_nm, omega0_rad_s,
+    inertia_kgm2, brake_nms, load_speed_rad_s, coulomb_nm, omega0_rad_s,
     delta, highpass_coef, torque_dc_nm, torque_drift_nm_per_s, torque_noise_nm,
     warmup_counts, record_counts, timer_resolution_s, max_steps, seed,
     out_count, out_time, out_i_ref, out_i_meas, out_torque, out_torque_true, out_i_true, out_speed,
@@ -180,7 +181,7 @@ def simulate_trial(
     xc = resistance_ohm[2] * ic + fine[0, 2] * omega
     tau, ka, kb, kc = _torque(fine, 0.0, ia, ib, ic, c_sat)
     # the piezo starts settled: its output is the ripple about the steady mean torque b omega + friction
-    hp_out = delta * (tau - brake_nms * omega0_rad_s - coulomb_nm)
+    hp_out = delta * (tau - brake_nms * (omega0_rad_s - load_speed_rad_s) - coulomb_nm)
 
     theta_rev = 0.0  # angle within the revolution, rad
     revs = 0
@@ -220,7 +221,7 @@ def simulate_trial(
         # mechanics (eq. 3.1), semi-implicit Euler: independent of this step's current update
         friction = coulomb_nm if omega > 0.0 else (-coulomb_nm if omega < 0.0 else 0.0)
         theta_old = theta_rev
-        omega += dt_over_j * (tau - brake_nms * omega - friction)
+        omega += dt_over_j * (tau - brake_nms * (omega - load_speed_rad_s) - friction)
         theta_rev += omega * dt_s
         t += dt_s
         if theta_rev >= TWO_PI:

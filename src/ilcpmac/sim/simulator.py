@@ -200,6 +200,25 @@ class Simulator:
         tau = airgap_torque_nm(backemf, i_true, self.model.unexplained.saturation_per_a2)
         return tau + self.torque_pos_fine[::OVERSAMPLE]
 
+    def _load(self, request: TrialRequest, mean_torque_nm: float, omega0_rad_s: float) -> tuple[float, float]:
+        """The load that holds the set speed against the mean torque: b (omega - omega_load), N m s and rad/s.
+
+        Where the motor turns the rotor against the friction (motoring), the brake or the load machine, omega_load
+        0, b what balances the rest at the set speed; where it holds the rotor back (generating: less torque than
+        the friction takes, or negative), only a load machine (``[simulator.mechanics] load = "machine"``) driving
+        it, omega_load 2 omega, b of the same size: the rotor equally stiff either way.
+        """
+        rest = mean_torque_nm - self.model.mechanics.coulomb_friction_nm
+        if rest > 0.0:
+            return rest / omega0_rad_s, 0.0
+        if self.model.mechanics.load == "brake" or rest == 0.0:
+            raise SimulationError(
+                f"set point {request.torque_setpoint_nm} N m gives {mean_torque_nm:.3g} N m mean torque: "
+                "not enough to turn the rotor against friction, and " + (
+                    "a brake cannot drive it (generating needs [simulator.mechanics] load = \"machine\")"
+                    if rest < 0.0 else "no load holds the speed at the friction's torque exactly"))
+        return -rest / omega0_rad_s, 2.0 * omega0_rad_s
+
     def run_trial(self, request: TrialRequest) -> TrialData:
         """Simulate one trial; ``request.seed`` fixes every random draw."""
         max_steps = self._check(request)
@@ -211,12 +230,7 @@ class Simulator:
         if not np.all(np.isfinite(i_ref)):
             raise SimulationError("the torque reference needs infinite currents where the back-EMF table vanishes")
         omega0 = 2.0 * np.pi * request.speed_setpoint_hz
-        mean_torque = float(self._steady_state(request, i_ref).mean())
-        if not mean_torque > m.mechanics.coulomb_friction_nm:
-            raise SimulationError(
-                f"set point {request.torque_setpoint_nm} N m gives {mean_torque:.3g} N m mean torque: "
-                "not enough to turn the rotor against friction")
-        brake = (mean_torque - m.mechanics.coulomb_friction_nm) / omega0
+        brake, load_speed = self._load(request, float(self._steady_state(request, i_ref).mean()), omega0)
         dt = 1.0 / m.controller.control_rate_hz
         if not brake * dt / m.mechanics.true_inertia_kgm2 < 1.0:
             raise SimulationError(
@@ -242,7 +256,7 @@ class Simulator:
             self.scale_true, self.offset_true, np.array(request.calibration.current_scale, np.float64),
             np.array(request.calibration.current_offset, np.float64), m.current_sensors.noise_counts,
             m.unexplained.saturation_per_a2,
-            m.mechanics.true_inertia_kgm2, brake, m.mechanics.coulomb_friction_nm, omega0,
+            m.mechanics.true_inertia_kgm2, brake, load_speed, m.mechanics.coulomb_friction_nm, omega0,
             delta, 1.0 / (1.0 + 2.0 * np.pi * m.torque_sensor.highpass_hz * dt), dc, drift,
             m.torque_sensor.noise_nm,
             warmup, record, m.encoder.timer_resolution_s, max_steps, request.seed, *out,
