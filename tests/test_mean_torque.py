@@ -83,7 +83,8 @@ def test_the_mean_torque_a_request_makes_is_the_truth_within_eps_s_standard_erro
     at 2x electrical, up to 1.5 Hz), at the bench's starting calibration (31 % below their set points) and at the
     one the identification corrects it to (0.2-4 % below): the mean torque of each trial within 3 of eps's
     standard errors of `implied_mean_torque` at the speed it ran at, its back-EMF and saturation parts included
-    (without them it misses by up to 3.2 % of the set point at 1 N m, 1.5 Hz)."""
+    (without them it misses by up to 3.2 % of the set point at 1 N m, 1.5 Hz); the loop's and winding's part of
+    the standard error below 0.3 % of it (0.25-0.29 % at 1 N m, 1.5 Hz, the back-EMF's loss 3 %)."""
     from ilcpmac.core.records import TrialRequest
     from ilcpmac.stages.mean_torque import implied_mean_torque
 
@@ -97,8 +98,9 @@ def test_the_mean_torque_a_request_makes_is_the_truth_within_eps_s_standard_erro
         trial = simulator.run_trial(request)
         implied = implied_mean_torque(description, ident, request, trial.mean_speed_hz(cpr))
         true = float(trial.torque_true_nm.mean())
-        assert abs(implied.mean_nm - true) < 3 * implied.std_nm, (torque, speed)
-        assert implied.std_nm < 2e-3 * abs(true)
+        eps_part = np.sqrt(implied.std_nm**2 - implied.model_std_nm**2)
+        assert abs(implied.mean_nm - true) < 3 * eps_part, (torque, speed)
+        assert eps_part < 2e-3 * abs(true) and implied.model_std_nm < 3e-3 * abs(true)
         assert -0.04 < implied.backemf_loss_nm / torque < 0 and implied.saturation_loss_nm < 0
 
 

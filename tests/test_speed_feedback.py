@@ -14,7 +14,7 @@ from identify_helpers import identified
 from ilcpmac.campaign.service import simulated_bench
 from ilcpmac.config import load_config
 from ilcpmac.core.current_loop import CurrentLoop, backemf_power, speed_feedback
-from ilcpmac.core.records import IdentificationResult, ResultKeyError
+from ilcpmac.core.records import LOOP_WINDING, IdentificationResult, ResultKeyError
 from ilcpmac.core.schema import toml_text
 from ilcpmac.identify import identify_bench
 from ilcpmac.identify.joint import harmonic_sets
@@ -133,3 +133,25 @@ def test_the_seed_bench_frees_no_back_emf_harmonic():
     result, _ = identified("seed")
     joint = result.details.joint
     assert np.array_equal(joint.sets.table_free, harmonic_sets(result.details.tables).table_free)
+
+
+def test_the_loop_and_winding_covariance_reads_back_and_refuses_what_is_no_covariance():
+    """The mean torque's standard error rests on it (`ilcpmac.stages.mean_torque`): it survives the result JSON,
+    its diagonal the joint fit's variances; anything but a symmetric 6 x 6 of finite numbers with a diagonal >= 0
+    (or null) is one error naming diagnostics.joint's key."""
+    result, _ = identified("seed")
+    covariance = result.loop_winding_covariance
+    assert covariance is not None and covariance.shape == (6, 6) and np.all(np.diag(covariance) > 0)
+    joint = result.details.joint
+    mine, fitted = LOOP_WINDING.index("winding_tau_s"), list(joint.parameter_names).index("winding_tau_s")
+    assert covariance[mine, mine] == pytest.approx(joint.covariance[fitted, fitted])
+    np.testing.assert_array_equal(IdentificationResult.from_json(result.to_json()).loop_winding_covariance, covariance)
+    asymmetric = covariance.copy()
+    asymmetric[0, 1] *= 2.0
+    negative = covariance.copy()
+    negative[2, 2] = -1.0
+    for value in ([[1.0]], "x", np.full((6, 6), np.nan).tolist(), asymmetric.tolist(), negative.tolist()):
+        data = result.to_json()
+        data["diagnostics"]["joint"]["loop_winding_covariance"] = value
+        with pytest.raises(ResultKeyError, match="diagnostics.joint.loop_winding_covariance"):
+            IdentificationResult.from_json(data)

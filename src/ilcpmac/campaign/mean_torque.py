@@ -22,13 +22,15 @@ __all__ = ["MEAN_TORQUE_UNITS", "PointMeanTorque", "mean_torques_of"]
 #: the keys of a point's entry in summary.json that `PointMeanTorque.to_json` writes, and their units
 MEAN_TORQUE_UNITS = {
     "mean_torque_nm": "N m (the mean torque of the point's final trial by the identified model)",
-    "mean_torque_std_nm": "N m (its standard error: eps's and the given inertia's)",
+    "mean_torque_std_nm": "N m (its standard error: eps's, the given inertia's and the loop's and winding's)",
     "mean_torque_backemf_nm": "N m (the part of it the current loop's tracking error to the back-EMF takes; null: "
                               "no winding identified, left out)",
     "mean_torque_saturation_nm": "N m (the part of it the saturation takes)",
     "mean_torque_inertia_std_nm": "N m (the part of its standard error the given inertia's makes; null: the bench "
                                   "states no [bench] inertia_uncertainty, left out, or a static trial pinned eps)",
     "mean_torque_epsilon_pinned": "true or false (whether a static trial pinned eps, [bench] static_trial_file)",
+    "mean_torque_model_std_nm": "N m (the part of its standard error the identified loop's and winding's "
+                                "parameters make; absent in a run before it was stated)",
     "mean_torque_true_nm": "N m (the simulator's true mean torque of that trial; null on a bench)"}
 
 
@@ -70,7 +72,8 @@ class PointMeanTorque:
                 "mean_torque_backemf_nm": self.implied.backemf_loss_nm,
                 "mean_torque_saturation_nm": self.implied.saturation_loss_nm,
                 "mean_torque_inertia_std_nm": self.implied.inertia_std_nm, "mean_torque_true_nm": self.true_nm,
-                "mean_torque_epsilon_pinned": self.implied.epsilon_pinned}
+                "mean_torque_epsilon_pinned": self.implied.epsilon_pinned,
+                "mean_torque_model_std_nm": self.implied.model_std_nm}
 
     @classmethod
     def from_json(cls, data: dict) -> PointMeanTorque | None:
@@ -85,12 +88,13 @@ class PointMeanTorque:
             ("mean_torque_std_nm", 0.0)))
         backemf, true = (optional_in(data, key, -MAX_TORQUE_NM, MAX_TORQUE_NM)
                          for key in ("mean_torque_backemf_nm", "mean_torque_true_nm"))
-        inertia = optional_in(data, "mean_torque_inertia_std_nm", 0.0, MAX_TORQUE_NM)
+        inertia, model = (optional_in(data, key, 0.0, MAX_TORQUE_NM)
+                          for key in ("mean_torque_inertia_std_nm", "mean_torque_model_std_nm"))
         pinned = data.get("mean_torque_epsilon_pinned", False)  # absent in a run before static trials
         for key, value in (("learned", data["learned"]), ("mean_torque_epsilon_pinned", pinned)):
             if not isinstance(value, bool):
                 raise ValueError(f"{key} is {shown(value)}, not true or false")
-        implied = MeanTorque(mean, std, backemf, saturation, inertia, pinned)
+        implied = MeanTorque(mean, std, backemf, saturation, inertia, pinned, model)
         return cls(point, data["learned"], implied, true)
 
 

@@ -85,7 +85,7 @@ from ilcpmac.signals.encoder_torque import (
 )
 from ilcpmac.signals.harmonics import RippleFigures, expected_noise_pp
 from ilcpmac.stages.base import PIPELINE_NEEDS, SENSORLESS_PIPELINE_NEEDS, Identified, Stage, StageSetup
-from ilcpmac.stages.mean_torque import implied_mean_torque
+from ilcpmac.stages.mean_torque import implied_mean_nm, implied_mean_torque
 from ilcpmac.stages.registry import stage_needs
 
 __all__ = ["SUMMARY_UNITS", "CampaignRunner", "torque_source"]
@@ -323,9 +323,9 @@ class CampaignRunner:
             spectra = self._spectra[record.index] = PointSpectra.of(ran, trial, analysis, self.measurement,
                                                                      self.pipeline)
             assert spectra.speed_hz is not None
-            mean = implied_mean_torque(self.description, self.identified, ran, spectra.speed_hz)
+            mean_nm = implied_mean_nm(self.description, self.identified, ran, spectra.speed_hz)
             record = replace(record, measured=self._measured_figures(ran, analysis.measured),
-                             mean_torque_error=mean.error_of(request.torque_setpoint_nm))
+                             mean_torque_error=mean_nm / request.torque_setpoint_nm - 1.0)
         if step.role in ("compensate", "learn", "validate"):
             record = self._with_reductions(record)
         self.records.append(record)

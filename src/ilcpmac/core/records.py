@@ -30,6 +30,9 @@ MOTOR_RANGES = {"pole_pairs": (1, 256), "slots": (3, 2048), "counts_per_rev": (4
 MAX_GRID_SETPOINTS = 100
 #: largest magnitudes of a bench's quantities, beyond any motor a bench drives: phase current, A;
 #: torque, N m; mechanical speed, Hz; and of a calibration's numbers (counts per ampere, counts, V / N m)
+#: the parameters of `IdentificationResult.loop_winding_covariance`, in its order: the loop's time constant per
+#: phase and its delay, the winding's L / R (s) and its conductance 1 / R (S)
+LOOP_WINDING = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "winding_tau_s", "winding_conductance_s")
 MAX_CURRENT_A = 1e4
 MAX_TORQUE_NM = 1e5
 MAX_SPEED_HZ = 1e3
@@ -393,6 +396,24 @@ def _from_json_value(value, vector: bool, key: str, size: int | None = None):
     return a.astype(float)
 
 
+def _loop_winding_covariance(joint: dict) -> np.ndarray | None:
+    """``diagnostics.joint``'s ``loop_winding_covariance``: None, or 6 x 6 finite numbers, symmetric, with a
+    diagonal >= 0; `ResultKeyError` naming the key otherwise."""
+    key = "diagnostics.joint.loop_winding_covariance"
+    value = joint.get("loop_winding_covariance")
+    if value is None:
+        return None
+    try:
+        matrix = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ResultKeyError(f"key {key!r}: must be 6 x 6 numbers or null, got {shown(value)}") from None
+    if matrix.shape != (len(LOOP_WINDING),) * 2 or not np.all(np.isfinite(matrix)) or np.any(np.diag(matrix) < 0.0) \
+            or not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0):
+        raise ResultKeyError(f"key {key!r}: must be a symmetric 6 x 6 covariance of finite numbers, its diagonal "
+                             f">= 0, or null, got {shown(value)}")
+    return matrix
+
+
 def _winding_value(joint: dict, name: str) -> float | None:
     """``diagnostics.joint``'s ``name``, a finite number >= 0 or None: the speed's feedback rests on it
     (`IdentificationResult.winding_conductance_s`); anything else raises `ResultKeyError` naming the key."""
@@ -528,6 +549,10 @@ class IdentificationResult(MethodEstimates):
         (`ilcpmac.core.current_loop.speed_feedback`); None without a joint fit, and the conductance None where
         c_e is within `ilcpmac.identify.SIGNIFICANT_EMF` standard errors of 0. In the JSON they stay in
         ``diagnostics["joint"]``.
+    loop_winding_covariance : ndarray, shape (6, 6), or None
+        The covariance of the loop's three time constants and delay (s), the winding's L / R (s) and its
+        conductance (S), in that order (`ilcpmac.identify.joint.LOOP_WINDING`), which the mean torque's standard
+        error rests on; None where the winding is not identified. In the JSON it stays in ``diagnostics["joint"]``.
     saturation_per_a2 : float or None
         c of the torque constant's fall with current, K_p i_p (1 - c i_p^2), per A^2 (the joint fit's saturation
         column times delta^2), which the mean torque rests on (`ilcpmac.stages.mean_torque`); None without a
@@ -557,6 +582,7 @@ class IdentificationResult(MethodEstimates):
     torque_sensor_delay_s: float | None = None
     winding_conductance_s: float | None = None
     winding_time_constant_s: float | None = None
+    loop_winding_covariance: np.ndarray | None = field(default=None, repr=False, compare=False)
     saturation_per_a2: float | None = None
     encoder_error_counts: np.ndarray | None = field(default=None, repr=False)
     encoder_error_std_counts: np.ndarray | None = field(default=None, repr=False)
@@ -649,6 +675,7 @@ class IdentificationResult(MethodEstimates):
                    torque_sensor_delay_s=joint.get("torque_sensor_delay_s"),
                    winding_conductance_s=_winding_value(joint, "winding_conductance_s"),
                    winding_time_constant_s=_winding_value(joint, "winding_time_constant_s"),
+                   loop_winding_covariance=_loop_winding_covariance(joint),
                    saturation_per_a2=_from_json_value(joint.get("saturation_per_a2"), False,
                                                       "diagnostics.joint.saturation_per_a2"),
                    **{name: encoder_vectors[key] if key in encoder_vectors else

@@ -336,8 +336,10 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
     if fitted is not None and not fitted.loop.is_ideal and np.all(np.isfinite(fitted.loop.bandwidth_hz)):
         loop = fitted.loop
     conductance = None if fitted is None or delta is None else _winding_conductance(fitted, delta)
+    covariance = None if fitted is None or delta is None or conductance is None else \
+        fitted.loop_winding_covariance(delta, best["delta_std"] or 0.0)
     saturation = None if fitted is None or delta is None else fitted.saturation_per_a2 * delta**2
-    diagnostics = _diagnostics(tables, system, joint, sensor, conductance, saturation)
+    diagnostics = _diagnostics(tables, system, joint, sensor, conductance, saturation, covariance)
     if encoder is not None:
         diagnostics = _encoder_diagnostics(diagnostics, bench, encoder)
     if too_uncertain is not None:
@@ -348,7 +350,7 @@ def _identify(bench: Bench, source: TorqueSource, step: Callable[[int], None]) -
         details=IdentificationDetails(tables, system, joint, sensor, decoupling, encoder),
         torque_source=source, torque_sensor_highpass_hz=None if fitted is None else fitted.highpass_hz,
         torque_sensor_delay_s=None if fitted is None else fitted.torque_delay_s,
-        winding_conductance_s=conductance,
+        winding_conductance_s=conductance, loop_winding_covariance=covariance,
         winding_time_constant_s=None if fitted is None else fitted.winding_time_constant_s,
         saturation_per_a2=saturation, **_encoder_error_fields(encoder))
     return in_motor_coordinates(result) if bench.motor.mirrored else result
@@ -548,9 +550,10 @@ def _certain(estimates: MethodEstimates, current_rms_a: float) -> tuple[MethodEs
 
 def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: JointEstimate | None,
                  sensor: SensorGainEstimate | None, winding_conductance_s: float | None,
-                 saturation_per_a2: float | None) -> dict:
-    """JSON-able details of each step (the winding's conductance the result takes, `_winding_conductance`, and
-    its saturation in true units)."""
+                 saturation_per_a2: float | None, loop_winding_covariance: np.ndarray | None = None) -> dict:
+    """JSON-able details of each step (the winding's conductance the result takes, `_winding_conductance`, the
+    covariance of the loop and the winding with it, `JointEstimate.loop_winding_covariance`, and its saturation in
+    true units)."""
     out: dict = {"trials_used": len(tables.trials)}
     if system is not None:
         out["system_gain"] = {
@@ -570,6 +573,7 @@ def _diagnostics(tables: BenchTables, system: SystemGainEstimate | None, joint: 
             "torque_sensor_delay_s": joint.torque_delay_s, "winding_time_constant_s": joint.winding_time_constant_s,
             "emf_gain": joint.emf_gain, "emf_gain_std": joint.emf_gain_std,
             "winding_conductance_s": winding_conductance_s,
+            "loop_winding_covariance": None if loop_winding_covariance is None else loop_winding_covariance.tolist(),
             "saturation_per_a2_over_delta2": joint.saturation_per_a2, "saturation_per_a2": saturation_per_a2,
             "misfit": [{"family": g.label, "harmonics": [int(g.harmonics.min()), int(g.harmonics.max())],
                         "chi2_reduced": g.chi2_reduced, "dof": g.dof, "std_inflation": g.inflation}

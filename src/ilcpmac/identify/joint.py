@@ -75,6 +75,7 @@ from ilcpmac.core.binning import count_means
 from ilcpmac.core.current_loop import CurrentLoop, count_decay, lagged_phase, periodic_lag, sample_decay
 from ilcpmac.core.errors import IdentificationError
 from ilcpmac.core.lag_kernel import _advance, warm_up_start
+from ilcpmac.core.records import LOOP_WINDING
 from ilcpmac.identify.reduction import BenchTables, trial_amplitudes
 from ilcpmac.identify.system_gain import chi2_quantile, structure_variance
 from ilcpmac.model.tables import references_per_line
@@ -82,6 +83,8 @@ from ilcpmac.signals.harmonics import table_from_amplitudes
 
 #: relative amplitude (of the largest harmonic) below which a column carries no information
 SIGNIFICANT = 1e-3
+#: the joint fit's names of `LOOP_WINDING` (the back-EMF column's coefficient c_e for the conductance -c_e / delta)
+LOOP_WINDING_FITTED = dict(zip(LOOP_WINDING, ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "winding_tau_s", "emf")))
 #: the probability, over the harmonics tested, that `_shared_rest` frees T(h) where the trials share no residual
 SHARED_FALSE_ALARM = 1e-3
 #: reduced chi-square of a harmonic family above which (and above its 99.9 % noise quantile) the fit is called off
@@ -299,6 +302,23 @@ class JointEstimate:
         """Standard error of a linear combination of named parameters (``covariance`` defaults to the fit's)."""
         g = np.array([weights_by_name.get(name, 0.0) for name in self.parameter_names])
         return float(np.sqrt(g @ (self.covariance if covariance is None else covariance) @ g))
+
+    def loop_winding_covariance(self, delta: float, delta_std: float) -> np.ndarray:
+        """The covariance of `LOOP_WINDING` (the loop's three time constants and delay, the winding's L / R, s, and
+        its conductance 1 / R = -c_e / ``delta``, S), with ``delta``'s own relative error ``delta_std`` / ``delta``
+        in the conductance; zero rows for what was not fitted (the ideal loop's)."""
+        fitted = [LOOP_WINDING_FITTED[name] for name in LOOP_WINDING]
+        index = np.array([self.parameter_names.index(n) if n in self.parameter_names else -1 for n in fitted])
+        known = index >= 0
+        covariance = np.zeros((len(fitted), len(fitted)))
+        covariance[np.ix_(known, known)] = self.covariance[np.ix_(index[known], index[known])]
+        # the conductance -c_e / delta: d conductance = -d c_e / delta, and delta's variance on its own
+        conductance = LOOP_WINDING.index("winding_conductance_s")
+        scale = np.ones(len(fitted))
+        scale[conductance] = -1.0 / delta
+        covariance = scale[:, None] * covariance * scale[None, :]
+        covariance[conductance, conductance] += (self.emf_gain / delta * delta_std / delta) ** 2
+        return covariance
 
     @property
     def delta_epsilon_std(self) -> float:

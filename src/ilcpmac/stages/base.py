@@ -55,7 +55,8 @@ class Identified:
     winding's 1 / R (S) and L / R (s), which the speed's feedback rests on (0: none identified, no feedback);
     ``saturation_per_a2`` the torque constant's fall with current, c of K_p i_p (1 - c i_p^2), per A^2 (0: none
     identified); ``epsilon_pinned`` whether eps came from a static trial (`ilcpmac.identify.static`), not from the
-    inertia the bench gives.
+    inertia the bench gives; ``loop_winding_covariance`` that of the loop's time constants and delay and the
+    winding's L / R and conductance (`IdentificationResult.loop_winding_covariance`; zeros: not known).
     """
 
     delta: float
@@ -75,10 +76,11 @@ class Identified:
     winding_time_constant_s: float = 0.0
     saturation_per_a2: float = 0.0
     epsilon_pinned: bool = False
+    loop_winding_covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
 
     def __post_init__(self) -> None:
         """Every array read-only (`frozen`): each stage shares them."""
-        for name in ("alpha", "beta_a", "cogging_nm", "alpha_std", "beta_std_a"):
+        for name in ("alpha", "beta_a", "cogging_nm", "alpha_std", "beta_std_a", "loop_winding_covariance"):
             if getattr(self, name) is not None:
                 object.__setattr__(self, name, frozen(getattr(self, name)))
         object.__setattr__(self, "current_loop", CurrentLoop(frozen(self.current_loop.time_constant_s),
@@ -114,7 +116,8 @@ class Identified:
             sensor_delay_s=float(result.torque_sensor_delay_s or 0.0),
             winding_conductance_s=float(result.winding_conductance_s or 0.0),
             winding_time_constant_s=float(result.winding_time_constant_s or 0.0),
-            saturation_per_a2=float(result.saturation_per_a2 or 0.0), epsilon_pinned="static" in result.methods)
+            saturation_per_a2=float(result.saturation_per_a2 or 0.0), epsilon_pinned="static" in result.methods,
+            loop_winding_covariance=std(result.loop_winding_covariance, np.zeros((6, 6))))
 
     def loop_at(self, calibration: SensorCalibration) -> CurrentLoop:
         """The current loop while the controller uses ``calibration``.

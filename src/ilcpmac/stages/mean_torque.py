@@ -22,8 +22,10 @@ Its standard error is eps's (the split of delta eps rests on the sensor's gain: 
 on other motors) and the given inertia's, in quadrature, relative: delta is found from the inertia the bench
 gives, eps from delta, so a relative error of ``[bench] inertia_kgm2`` is one of eps and of the mean torque, which
 no trial shows (`MotorInfo.inertia_uncertainty`; not stated: left out, and said so), unless a static trial pinned
-eps (`Identified.epsilon_pinned`: then eps's standard error is the static trial's, and the inertia has no part).
-The loop's and the winding's parameters' errors are left out.
+eps (`Identified.epsilon_pinned`: then eps's standard error is the static trial's, and the inertia has no part);
+and the loop's and the winding's: g C g^T with g the mean's slope in the loop's time constants and delay and the
+winding's L / R and conductance, C their covariance from the joint fit (`Identified.loop_winding_covariance`;
+the conductance's with delta's error).
 
 The ``mean-torque`` stage (`MeanTorqueCorrection`) adds to each request the constant feed-forward c that brings
 the model's mean to the set point: with m(c) the model's mean of the request with c added,
@@ -34,16 +36,16 @@ from the torque: no sensor measures the mean.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ilcpmac.core.current_loop import CurrentLoop, lagged
-from ilcpmac.core.records import BenchDescription, TrialData, TrialRequest
+from ilcpmac.core.records import LOOP_WINDING, BenchDescription, TrialData, TrialRequest
 from ilcpmac.model.tables import current_references
 from ilcpmac.stages.base import Frame, Identified, StageSetup, check_options
 
-__all__ = ["MeanTorque", "MeanTorqueCorrection", "implied_mean_torque"]
+__all__ = ["MeanTorque", "MeanTorqueCorrection", "implied_mean_nm", "implied_mean_torque"]
 
 #: Newton steps of the correction (`MeanTorqueCorrection.shape`)
 NEWTON_STEPS = 2
@@ -64,8 +66,10 @@ class MeanTorque:
         then the mean leaves it out, and its standard error too.
     saturation_loss_nm : the part the saturation takes.
     inertia_std_nm : the part of ``std_nm`` the given inertia's uncertainty makes; None where the bench states none
-        or a static trial pinned eps (then ``std_nm`` is eps's alone).
+        or a static trial pinned eps.
     epsilon_pinned : whether a static trial pinned eps (the inertia has no part in it).
+    model_std_nm : the part of ``std_nm`` the loop's and the winding's parameters make; None in a run's summary from
+        before it was stated.
     """
 
     mean_nm: float
@@ -74,6 +78,7 @@ class MeanTorque:
     saturation_loss_nm: float
     inertia_std_nm: float | None = None
     epsilon_pinned: bool = False
+    model_std_nm: float | None = None
 
     def error_of(self, setpoint_nm: float) -> float:
         """The mean torque's error relative to ``setpoint_nm``: mean / set point - 1."""
@@ -83,7 +88,25 @@ class MeanTorque:
 def implied_mean_torque(description: BenchDescription, identified: Identified, request: TrialRequest,
                         speed_hz: float) -> MeanTorque:
     """The mean torque ``request`` makes at ``speed_hz`` (the rotor's, Hz) on the bench ``description`` by the
-    identification ``identified`` (module docstring)."""
+    identification ``identified``, with its standard error (module docstring)."""
+    mean_nm, loss_nm, saturation_nm = _mean_parts(description, identified, request, speed_hz)
+    eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
+    uncertainty = description.motor.inertia_uncertainty
+    inertia_std = None if uncertainty is None or identified.epsilon_pinned else abs(mean_nm) * uncertainty
+    model_std = _model_std(description, identified, request, speed_hz, mean_nm)
+    return MeanTorque(mean_nm, float(np.sqrt(eps_std**2 + (inertia_std or 0.0) ** 2 + model_std**2)), loss_nm,
+                      saturation_nm, inertia_std, identified.epsilon_pinned, model_std)
+
+
+def implied_mean_nm(description: BenchDescription, identified: Identified, request: TrialRequest,
+                    speed_hz: float) -> float:
+    """`implied_mean_torque`'s mean alone, N m: what the stage's Newton steps ask for."""
+    return _mean_parts(description, identified, request, speed_hz)[0]
+
+
+def _mean_parts(description: BenchDescription, identified: Identified, request: TrialRequest,
+                speed_hz: float) -> tuple[float, float | None, float]:
+    """The model's mean, the back-EMF's part of it (None: no winding identified) and the saturation's, N m."""
     motor = description.motor
     k = np.asarray(description.backemf_nm_per_a, float)
     calibration = request.calibration
@@ -101,12 +124,35 @@ def implied_mean_torque(description: BenchDescription, identified: Identified, r
     total_a = currents + error_a
     current_nm = float(np.mean(np.sum(k * currents, axis=1)))
     saturation_nm = -identified.saturation_per_a2 * float(np.mean(np.sum(k * total_a**3, axis=1)))
-    mean_nm = current_nm + (loss_nm or 0.0) + saturation_nm
-    eps_std = abs(mean_nm) * identified.epsilon_std / identified.epsilon if identified.epsilon else float("inf")
-    inertia_std = None if motor.inertia_uncertainty is None or identified.epsilon_pinned \
-        else abs(mean_nm) * motor.inertia_uncertainty
-    return MeanTorque(mean_nm, float(np.hypot(eps_std, inertia_std or 0.0)), loss_nm, saturation_nm, inertia_std,
-                      identified.epsilon_pinned)
+    return current_nm + (loss_nm or 0.0) + saturation_nm, loss_nm, saturation_nm
+
+
+def _model_std(description: BenchDescription, identified: Identified, request: TrialRequest, speed_hz: float,
+               mean_nm: float) -> float:
+    """sqrt(g C g^T), N m: g the mean's slope in the loop's and winding's parameters (`LOOP_WINDING`, each moved by
+    a tenth of its standard error), C their covariance (`Identified.loop_winding_covariance`)."""
+    covariance = identified.loop_winding_covariance
+    steps = 0.1 * np.sqrt(np.diag(covariance))
+    slope = np.zeros(len(LOOP_WINDING))
+    for i, (name, step) in enumerate(zip(LOOP_WINDING, steps)):
+        if step > 0.0:
+            moved = _moved(identified, name, step)
+            slope[i] = (_mean_parts(description, moved, request, speed_hz)[0] - mean_nm) / step
+    return float(np.sqrt(max(slope @ covariance @ slope, 0.0)))
+
+
+def _moved(identified: Identified, name: str, step: float) -> Identified:
+    """``identified`` with the parameter ``name`` of `LOOP_WINDING` moved by ``step``."""
+    loop = identified.current_loop
+    if name == "delay_s":
+        return replace(identified, current_loop=CurrentLoop(loop.time_constant_s, loop.delay_s + step))
+    if name == "winding_tau_s":
+        return replace(identified, winding_time_constant_s=identified.winding_time_constant_s + step)
+    if name == "winding_conductance_s":
+        return replace(identified, winding_conductance_s=identified.winding_conductance_s + step)
+    phase = ("tau_a_s", "tau_b_s", "tau_c_s").index(name)
+    return replace(identified, current_loop=CurrentLoop(
+        loop.time_constant_s + step * (np.arange(3) == phase), loop.delay_s))
 
 
 class MeanTorqueCorrection:
@@ -139,8 +185,8 @@ class MeanTorqueCorrection:
         target, base = request.torque_setpoint_nm, request.feedforward_nm
         step = SLOPE_STEP * max(abs(target), 1e-9)
         def mean(offset: float) -> float:
-            return implied_mean_torque(self._description, self._identified,
-                                       request.with_changes(feedforward_nm=base + offset), speed_hz).mean_nm
+            return implied_mean_nm(self._description, self._identified,
+                                   request.with_changes(feedforward_nm=base + offset), speed_hz)
 
         c = 0.0
         for _ in range(NEWTON_STEPS):
