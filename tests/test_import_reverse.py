@@ -9,7 +9,6 @@ torque -tau'), import and identify it, and compare with M's truth.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import re
@@ -52,23 +51,6 @@ RATE_HZ = 2_000.0
 BOUNDS = {"delta_epsilon": 0.01, "delta": 0.015, "epsilon": 0.02, "alpha": 0.003, "beta": 0.02, "cogging": 0.03}
 
 
-def mirror_simulator(simulator: Simulator) -> Simulator:
-    """The simulator of the mirror image M' of ``simulator``'s motor M: its back-EMF (the controller's table
-    and the true one), position torque (cogging and disturbance) and encoder lines mirrored; sensors, current
-    loop, brake and mechanics as they are."""
-    mirror = copy.copy(simulator)
-    fine = mirrored_table(simulator.fine[:-1])
-    mirror.fine = np.ascontiguousarray(np.vstack([fine, fine[:1]]))
-    mirror.backemf_lines = np.ascontiguousarray(mirrored_table(simulator.backemf_lines))
-    mirror.backemf_counts = np.ascontiguousarray(mirror.backemf_lines[::simulator.lines_per_count])
-    mirror.cogging_fine = mirrored_table(simulator.cogging_fine)
-    mirror.torque_pos_fine = mirrored_table(simulator.torque_pos_fine)
-    cpr = simulator.backemf_counts.shape[0]
-    errors = mirrored_table(simulator.lines_counts[1:-2] - np.arange(cpr))
-    mirror.lines_counts = np.arange(-1, cpr + 2) + np.concatenate([errors[-1:], errors, errors[:2]])
-    return mirror
-
-
 @pytest.fixture(scope="module")
 def motors(tmp_path_factory) -> tuple[Simulator, Simulator, list]:
     """M (the small seed bench: 1024 counts, every error present; its cogging's phases 0.9 and 0.7 rad, so that
@@ -83,7 +65,7 @@ def motors(tmp_path_factory) -> tuple[Simulator, Simulator, list]:
     config = load_config(folder / "campaign.toml")
     simulator = Simulator(config.sampled_model(), config.grid.warmup_revolutions, config.recorded_counts_per_rev())
     requests = grid_requests(config, config.sampled_model().controller.calibration(), 3, 8)
-    return simulator, mirror_simulator(simulator), requests
+    return simulator, simulator.mirrored(), requests
 
 
 def log_rows(trial: TrialData, reverse: bool, shift_counts: int = 0) -> np.ndarray:
@@ -301,7 +283,7 @@ def test_a_mirrored_bench_without_torque_sensor_gives_the_motors_encoder_error(t
     config = load_config(tmp_path / "campaign.toml")
     simulator = Simulator(config.sampled_model(), config.grid.warmup_revolutions, config.recorded_counts_per_rev())
     requests = grid_requests(config, config.sampled_model().controller.calibration(), 1, 6)
-    mirror = mirror_simulator(simulator)
+    mirror = simulator.mirrored()
     trials = tuple(dataclasses.replace(t, torque_nm=None) for t in mirror.run_trials(requests))
     motor = MotorInfo(8, 48, COUNTS_PER_REV, 0.01056, torque_sensor=False, timer_resolution_s=1e-6, mirrored=True)
     result = identify_bench(Bench(motor, mirror.backemf_counts, requests[0].calibration, trials,

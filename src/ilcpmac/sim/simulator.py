@@ -8,6 +8,7 @@ dtypes, the encoder's line errors, and the trial's size against
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -18,7 +19,7 @@ import numpy as np
 
 from ilcpmac.core.binning import count_means, sample_means
 from ilcpmac.core.errors import SimulationError
-from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest
+from ilcpmac.core.records import MotorInfo, SensorCalibration, TrialData, TrialRequest, mirrored_table
 from ilcpmac.core.schema import finite_number, shown
 from ilcpmac.model.encoder import line_errors_problem
 from ilcpmac.model.motor import MotorModel, model_problem
@@ -119,6 +120,23 @@ class Simulator:
         self.scale_true = model.current_sensors.true_scale_counts_per_a(start)
         self.offset_true = model.current_sensors.true_offset_counts(start)
         self.torque_gain_true = model.torque_sensor.true_gain_v_per_nm(start)
+
+    def mirrored(self) -> Simulator:
+        """The simulator of the mirror image M' of this motor M, whose forward laps are M's reverse laps
+        (docs/bench-format.md, "Reverse laps"): its back-EMF (the controller's table and the true one), position
+        torque (cogging and disturbance) and encoder lines mirrored; sensors, current loop, load and mechanics as
+        they are."""
+        mirror = copy.copy(self)
+        fine = mirrored_table(self.fine[:-1])
+        mirror.fine = np.ascontiguousarray(np.vstack([fine, fine[:1]]))
+        mirror.backemf_lines = np.ascontiguousarray(mirrored_table(self.backemf_lines))
+        mirror.backemf_counts = np.ascontiguousarray(mirror.backemf_lines[::self.lines_per_count])
+        mirror.cogging_fine = mirrored_table(self.cogging_fine)
+        mirror.torque_pos_fine = mirrored_table(self.torque_pos_fine)
+        cpr = self.backemf_lines.shape[0]
+        errors = mirrored_table(self.lines_counts[1:-2] - np.arange(cpr))
+        mirror.lines_counts = np.arange(-1, cpr + 2) + np.concatenate([errors[-1:], errors, errors[:2]])
+        return mirror
 
     def truth(self, calibration: SensorCalibration) -> SensorTruth:
         """delta, epsilon, alpha, beta and the current loop's corners that hold while the controller uses
