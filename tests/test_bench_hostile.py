@@ -405,8 +405,11 @@ def test_symlinks_inside_the_folder_are_followed_and_count_once(bench_dir):
     ("pole_pairs = 8", "pole_pairs = 4",
      r"backemf\.csv: the back-EMF repeats 8 times per revolution of 1024 counts, but \[motor\] pole_pairs = 4"),
     ("torque_setpoint = 2.0", "torque_setpoint = 0.0",
-     r"\[\[trials\]\] #1 torque_setpoint: invalid value 0\.0 \(the torque set point, N m, within \(0, 100000\]\)$"),
-    ("torque_setpoint = 2.0", "torque_setpoint = -2.0", r"\[\[trials\]\] #1 torque_setpoint: invalid value -2\.0 "),
+     r"\[\[trials\]\] #1 torque_setpoint: invalid value 0\.0 \(the torque set point, N m, within \[-100000, 100000\], "
+     r"not 0 \(negative: generating, at a positive speed\)\)$"),
+    # a generating set point is one, but not where the current references ask for the opposite torque
+    ("torque_setpoint = 2.0", "torque_setpoint = -2.0",
+     r"\[\[trials\]\] #1 torque_setpoint: -2 N m, but the current references of .* ask for 2(\.\d+)? N m on average"),
     ("torque_setpoint = 2.0", "torque_setpoint = 1e300", r"\[\[trials\]\] #1 torque_setpoint: invalid value 1e\+300 "),
     ("torque_gain = 0.908", "torque_gain = 1e300",
      r"\[sensors\] torque_gain: invalid value 1e\+300 \(g\*_t, V / N m, within \(0, 1e\+09\]\)$"),

@@ -78,7 +78,7 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"trials": {"torque_setpoints_nm": [-1.0]}}, r"\[trials\] torque_setpoints_nm: invalid value"),
     ({"trials": {"speed_setpoints_hz": [0.0]}}, r"\[trials\] speed_setpoints_hz: invalid value"),
     ({"trials": {"speed_setpoints_hz": [-0.5]}}, r"\[trials\] speed_setpoints_hz: invalid value"),
-    ({"campaign": {"learn_torques_nm": [1.0, -3.0, 5.0]}}, r"\[campaign\] learn_torques_nm"),
+    ({"campaign": {"learn_torques_nm": [1.0, -3e4, 5.0]}}, r"\[campaign\] learn_torques_nm"),
     ({"campaign": {"learn_torques_nm": [1.0, 1.0, 5.0]}}, r"\[campaign\] learn_torques_nm: .*distinct"),
     ({"campaign": {"learn_speeds_hz": [0.0]}}, r"\[campaign\] learn_speeds_hz"),
     ({"campaign": {"validate_speeds_hz": [math.nan]}}, r"\[campaign\] validate_speeds_hz"),

@@ -87,6 +87,10 @@ def _distinct(x: tuple) -> bool:
     return len(set(x)) == len(x)
 
 
+def _nonzero(x: tuple) -> bool:
+    return all(v != 0 for v in x)
+
+
 @dataclass(frozen=True)
 class CampaignSettings:
     """[campaign]: the learning and validation phases of ``ilcpmac run`` (optional; defaults shown).
@@ -103,8 +107,9 @@ class CampaignSettings:
         "ilc_revolutions": "learn_revolutions", "ilc_trials": "learn_trials"}
 
     learn_torques_nm: tuple[float, ...] | None = setting(
-        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
-        f"torques learned at, N m: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(-1e4, 1e4), _nonzero, _distinct),
+        f"torques learned at, N m: 1 to {MAX_OPERATING_POINTS} distinct values, none zero (negative: generating at "
+        "a positive speed, on a bench whose load drives the rotor); left out: the grid's "
         "smallest, middle and largest torque set point", None)
     learn_speeds_hz: tuple[float, ...] | None = setting(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
@@ -138,8 +143,8 @@ class CampaignSettings:
                                    "recorded counts_per_rev / 2; left out: 150, or twice the cogging order "
                                    "lcm(slots, 2 pole_pairs) where that is more", 150)
     validate_torques_nm: tuple[float, ...] | None = setting(
-        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e4, low_open=True), _distinct),
-        "torques validated at, N m: distinct positive values; left out: midway between the learned torques; "
+        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(-1e4, 1e4), _nonzero, _distinct),
+        "torques validated at, N m: distinct values, none zero; left out: midway between the learned torques; "
         "empty: no validation", None)
     validate_speeds_hz: tuple[float, ...] | None = setting(
         all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
@@ -379,13 +384,13 @@ class CampaignConfig:
     def trial_seconds(self, point: tuple[float, float]) -> float:
         """The recorded duration of the last trial at ``point`` where its length is in seconds, s: [campaign]
         learn_seconds at a learned torque, else validate_seconds; left out, `LEARN_SECONDS` at the least learned
-        torque and T_least / T of it at torque T, `VALIDATE_SECONDS` at a validation point."""
+        torque and |T_least / T| of it at torque T (least in size), `VALIDATE_SECONDS` at a validation point."""
         c = self.campaign
         torques = self.learned_torques_nm()
         if point[0] not in torques:
             return VALIDATE_SECONDS if c.validate_seconds is None else c.validate_seconds
         if c.learn_seconds is None:
-            return LEARN_SECONDS * torques[0] / point[0]
+            return LEARN_SECONDS * min(map(abs, torques)) / abs(point[0])
         return _one_per(c.learn_seconds, torques, point[0])
 
     def with_trial_lengths(self, factor: float) -> CampaignConfig:
@@ -432,12 +437,12 @@ class CampaignConfig:
     def validation_points(self) -> list[tuple[float, float]]:
         """The operating points validated at, (torque N m, speed Hz): [campaign] validate_torques_nm x
         validate_speeds_hz; a list left out is midway between learned torques, and the slowest, middle and
-        fastest learned speed; an empty one means no validation."""
+        fastest learned speed (midway torques but zero); an empty one means no validation."""
         c = self.campaign
         torques, speeds = self.learned_torques_nm(), self.learned_speeds_hz()
         validated_t = c.validate_torques_nm
-        if validated_t is None:
-            validated_t = tuple((a + b) / 2 for a, b in zip(torques, torques[1:]))
+        if validated_t is None:  # none at zero torque, between a generating and a motoring one
+            validated_t = tuple(m for a, b in zip(torques, torques[1:]) if (m := (a + b) / 2) != 0.0)
         validated_s = c.validate_speeds_hz
         if validated_s is None:
             validated_s = tuple(sorted({speeds[0], (speeds[0] + speeds[-1]) / 2, speeds[-1]}))

@@ -196,8 +196,9 @@ class TrialEntry:
     """One [[trials]] entry of bench.toml."""
 
     file: str = _file("the trial's file")
-    torque_setpoint: float = param(in_range(0.0, MAX_TORQUE_NM, low_open=True),
-                                   f"the torque set point, N m, within (0, {MAX_TORQUE_NM:g}]")
+    torque_setpoint: float = param(lambda x: in_range(-MAX_TORQUE_NM, MAX_TORQUE_NM)(x) and x != 0,
+                                   f"the torque set point, N m, within [-{MAX_TORQUE_NM:g}, {MAX_TORQUE_NM:g}], not 0 "
+                                   "(negative: generating, at a positive speed)")
     speed_setpoint: float = param(in_range(0.0, MAX_SPEED_HZ, low_open=True),
                                   f"the speed set point, Hz, within (0, {MAX_SPEED_HZ:g}]")
 

@@ -127,7 +127,9 @@ class TorqueSpectrum:
         return _ripple_table(self.harmonics_nm, self.counts_per_rev)
 
     def figures(self, mean_torque_nm: float, pole_pairs: int, cogging_order: int) -> RippleFigures:
-        """The ripple figures of docs/campaign.md, fractions of ``mean_torque_nm``."""
+        """The ripple figures of docs/campaign.md, fractions of ``mean_torque_nm``'s size (a generating point's is
+        negative)."""
+        mean_torque_nm = abs(mean_torque_nm)
         H = self.max_harmonic
         ripple = self.ripple_table()
         c = np.abs(self.harmonics_nm)

@@ -411,14 +411,16 @@ class EncoderTorqueSpectrum:
 
 
 def brake_viscous_nm_s(mean_torque_nm: float, mean_speed_rad_s: float, friction_nm: float = 0.0) -> float:
-    """b of a brake that absorbs the mean torque: (tau_0 - C) / omega_0, N m s/rad.
+    """b of a brake that absorbs the mean torque, |tau_0 - C| / omega_0, N m s/rad: or of a load machine that
+    drives the rotor against it (tau_0 - C < 0: generating; `ilcpmac.sim.simulator.Simulator`), b (omega - omega_L)
+    with omega_L beyond omega_0.
 
     The mean of eq. 3.1 over a revolution in the position domain, mean(tau - b omega - C) =
     J mean(omega domega/dtheta) = 0, with tau_0 and omega_0 the means over the angle (the speed's:
     ``speed_harmonics_rad_s[0]``; its mean over time differs at second order in the speed ripple). On the
     seed bench b is of the order of h J Omega at the cogging order, so it is never left out.
     """
-    return (mean_torque_nm - friction_nm) / mean_speed_rad_s
+    return abs(mean_torque_nm - friction_nm) / mean_speed_rad_s
 
 
 def with_viscous(spectrum: EncoderTorqueSpectrum, viscous_nm_s: float) -> EncoderTorqueSpectrum:
