@@ -212,3 +212,13 @@ def test_a_static_trial_file_that_fails_its_checks_stops_the_campaign_before_any
     with pytest.raises(ConfigError, match=r"\[bench\] static_trial_file: .*static.csv: line 2: count must be"):
         ilcpmac.campaign.run(path, out=tmp_path / "run")
     assert not (tmp_path / "run").exists()
+
+
+def test_a_static_trial_in_a_subfolder_is_written_and_read_back(tmp_path):
+    _, pinned, _ = _benches(str(SEED_CONFIG), service.STATIC_SCATTER)
+    nested = dataclasses.replace(pinned, trials=pinned.trials[:1], trial_files=pinned.trial_files[:1],
+                                 static_file="held/static.csv")
+    write_bench(tmp_path / "bench", nested)
+    again = read_bench(tmp_path / "bench")
+    assert again.static_file == "held/static.csv"
+    np.testing.assert_array_equal(again.static.count, pinned.static.count)

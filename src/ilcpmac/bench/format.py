@@ -895,6 +895,7 @@ def write_bench(folder: str | Path, bench: Bench) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     write_backemf_csv(folder / "backemf.csv", bench.backemf_nm_per_a)
     if bench.static is not None:
+        (folder / bench.static_file).parent.mkdir(parents=True, exist_ok=True)
         write_static_csv(folder / bench.static_file, bench.static)
     for name, trial in zip(bench.trial_files, bench.trials):
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
