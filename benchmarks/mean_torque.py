@@ -9,7 +9,8 @@ configured value, which its config states as known to 5 %):
 
 1. at every trial of the identification grid (at the bench's starting calibration), the true mean torque against
    its set point beside the joint model's mean (`ilcpmac.identify.joint.modelled_mean_nm` over the identified
-   delta, the piezo seeing no mean) and its standard error (the model's linear parameters and delta's), and z,
+   delta, the piezo seeing no mean) and its standard error (the model's linear parameters, delta's and the
+   inertia's the bench states), and z,
    their difference in standard errors;
 2. a default campaign's learned and validation points: the mean torque of each point's final trial against its
    set point, the model's as summary.json states it (`ilcpmac.campaign.mean_torque`) with its standard error,
@@ -45,13 +46,16 @@ TARGET = 0.003
 def grid_rows(config_path: Path, seed: int) -> list[tuple[float, float, float, float, float]]:
     """Per grid trial: torque and speed set points, true mean / set - 1, modelled mean / set - 1, its standard
     error (relative)."""
-    bench, _ = simulated_bench(load_config(config_path), seed=seed)
+    config = load_config(config_path)
+    bench, _ = simulated_bench(config, seed=seed)
     tables = reduce_bench(bench)
     joint = fit_joint(tables, estimate_system_gain(tables).loop)
     result = identify_bench(bench)
     assert result.delta is not None and result.delta_std is not None
     mean_nm, std_nm = modelled_mean_nm(tables, joint)
-    relative_std = np.hypot(std_nm / mean_nm, result.delta_std / result.delta)
+    # delta rests on the given inertia: the uncertainty a bench states of it is delta's too
+    inertia = config.bench.inertia_uncertainty or 0.0
+    relative_std = np.sqrt((std_nm / mean_nm) ** 2 + (result.delta_std / result.delta) ** 2 + inertia**2)
     rows = []
     for trial, modelled, std in zip(bench.trials, mean_nm / result.delta, relative_std):
         set_nm = trial.torque_setpoint_nm
