@@ -429,6 +429,20 @@ def key(table: str, name: str, value: str | None) -> Callable:
     return lambda d, rng: bench_toml(d, table, name, value)
 
 
+STATIC_HEADER = "count,i_ref_a,i_ref_b,i_ref_c,torque"
+
+
+def static_trial(rows: list[str] | None, file: str = "static.csv", table: str | None = None) -> Callable:
+    """A mutation giving the bench a static trial: bench.toml's [static] (``table``: its text instead) naming
+    ``file``, written with ``rows`` under the static trial's header (None: not written)."""
+    def mutate(d: Path, rng) -> None:
+        edit(d / "bench.toml", lambda t: t.replace("[[trials]]", (table or f'[static]\nfile = "{file}"\n') +
+                                                   "\n[[trials]]", 1))
+        if rows is not None:
+            (d / file).write_text("\n".join([STATIC_HEADER, *rows]) + "\n")
+    return mutate
+
+
 def _secret(d: Path) -> Path:
     """A file outside the bench folder whose contents must never be read out."""
     path = d.parent / "secret.csv"
@@ -648,6 +662,20 @@ BENCH_MUTATIONS: list[tuple[str, bool, Callable]] = [
     ("torque_gain 1e300", True, key("sensors", "torque_gain", "1e300")),
     ("[sensors] removed", False, lambda d, rng: edit(d / "bench.toml", lambda t: re.sub(
         r"\[sensors\][^\[]*", "", t))),
+    # a static trial ([static], static.csv)
+    ("static.csv outside the folder", True, lambda d, rng: static_trial(None, file=f"../{_secret(d).name}")(d, rng)),
+    ("static.csv missing", True, static_trial(None)),
+    ("[static] without file", True, static_trial(None, table="[static]\n")),
+    ("[static] with an unknown key", True, static_trial(["10,1,0,-1,0.2", "10,2,0,-2,0.4"],
+                                                        table='[static]\nfile = "static.csv"\ngain = 2\n')),
+    ("static.csv count beyond the revolution", True, static_trial(["5000,1,0,-1,0.2", "5000,2,0,-2,0.4"])),
+    ("static.csv count not whole", True, static_trial(["10.5,1,0,-1,0.2", "10,2,0,-2,0.4"])),
+    ("static.csv torque nan", True, static_trial(["10,1,0,-1,nan", "10,2,0,-2,0.4"])),
+    ("static.csv current 1e300", True, static_trial(["10,1e300,0,-1,0.2", "10,2,0,-2,0.4"])),
+    ("static.csv header only", True, static_trial([])),
+    ("static.csv one current per count", True, static_trial(["10,1,0,-1,0.2", "20,1,0,-1,0.2", "30,1,0,-1,0.2"])),
+    ("static.csv binary garbage", True, lambda d, rng: (static_trial([])(d, rng), (d / "static.csv").write_bytes(
+        bytes(np.random.default_rng(38).integers(0, 256, 4096, dtype=np.uint8))))),
     # [[trials]] set points
     ("torque_setpoint 0", True, key("trials.0", "torque_setpoint", "0.0")),
     ("torque_setpoint -1", True, key("trials.0", "torque_setpoint", "-1.0")),

@@ -147,7 +147,7 @@ def test_a_static_trial_of_one_current_per_count_fails_identify_in_one_line(tmp_
                                                         np.full(8, 0.2)))
     out = CliRunner().invoke(main, ["identify", str(folder), "--output", str(tmp_path / "result.json")])
     assert out.exit_code != 0 and "Traceback" not in out.output
-    assert "static trial" in out.output and "degree of freedom" in out.output
+    assert "static.csv: static trial" in " ".join(out.output.split()) and "degree of freedom" in out.output
 
 
 def test_simulate_takes_a_static_trial_for_the_grid_only(tmp_path):

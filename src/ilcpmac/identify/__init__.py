@@ -384,7 +384,10 @@ def _pinned_by_static(bench: Bench, static: StaticTrial, best: dict, on_encoder:
                                       for value in (fitted.saturation_per_a2, fitted.saturation_std))
     beta = np.zeros(3) if best["beta"] is None else np.asarray(best["beta"])
     alpha = np.asarray(best["alpha"])
-    pinned = static_epsilon(static, bench.backemf_nm_per_a, alpha, beta, saturation)
+    try:
+        pinned = static_epsilon(static, bench.backemf_nm_per_a, alpha, beta, saturation)
+    except IdentificationError as e:
+        raise IdentificationError(f"{bench.static_file}: {e}") from None
     moved = static_epsilon(static, bench.backemf_nm_per_a, alpha, beta, saturation + saturation_std).epsilon
     epsilon_std = float(np.hypot(pinned.epsilon_std, moved - pinned.epsilon))
     if best["delta_epsilon"] is None:
