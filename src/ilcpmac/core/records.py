@@ -30,12 +30,12 @@ MOTOR_RANGES = {"pole_pairs": (1, 256), "slots": (3, 2048), "counts_per_rev": (4
 MAX_GRID_SETPOINTS = 100
 #: largest magnitudes of a bench's quantities, beyond any motor a bench drives: phase current, A;
 #: torque, N m; mechanical speed, Hz; and of a calibration's numbers (counts per ampere, counts, V / N m)
-#: the parameters of `IdentificationResult.loop_winding_covariance`, in its order: the loop's time constant per
-#: phase and its delay, the winding's L / R (s) and its conductance 1 / R (S)
-LOOP_WINDING = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "winding_tau_s", "winding_conductance_s")
 MAX_CURRENT_A = 1e4
 MAX_TORQUE_NM = 1e5
 MAX_SPEED_HZ = 1e3
+#: the parameters of `IdentificationResult.loop_winding_covariance`, in its order: the loop's time constant per
+#: phase and its delay, the winding's L / R (s) and its conductance 1 / R (S)
+LOOP_WINDING = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "winding_tau_s", "winding_conductance_s")
 #: where a bench's phase currents come from ([motor] currents): logged per phase, or made from i_q
 CURRENTS_FROM_PHASES, CURRENTS_FROM_I_Q = "phases", "from_i_q"
 MAX_CALIBRATION = 1e9
@@ -551,7 +551,7 @@ class IdentificationResult(MethodEstimates):
         ``diagnostics["joint"]``.
     loop_winding_covariance : ndarray, shape (6, 6), or None
         The covariance of the loop's three time constants and delay (s), the winding's L / R (s) and its
-        conductance (S), in that order (`ilcpmac.identify.joint.LOOP_WINDING`), which the mean torque's standard
+        conductance (S), in that order (`LOOP_WINDING`), which the mean torque's standard
         error rests on; None where the winding is not identified. In the JSON it stays in ``diagnostics["joint"]``.
     saturation_per_a2 : float or None
         c of the torque constant's fall with current, K_p i_p (1 - c i_p^2), per A^2 (the joint fit's saturation

@@ -45,16 +45,10 @@ class StaticEpsilon:
     Attributes
     ----------
     epsilon, epsilon_std : the slope and its standard error.
-    samples : the trial's rows.
-    counts : the distinct counts the rotor was held at.
-    residual_nm : the residual's RMS, N m: the reference's scatter.
     """
 
     epsilon: float
     epsilon_std: float
-    samples: int
-    counts: int
-    residual_nm: float
 
 
 def static_epsilon(trial: StaticTrial, backemf_nm_per_a: np.ndarray, alpha: np.ndarray, beta_a: np.ndarray,
@@ -82,7 +76,7 @@ def static_epsilon(trial: StaticTrial, backemf_nm_per_a: np.ndarray, alpha: np.n
 
     scaled, c = alpha * trial.i_ref_a, saturation_per_a2
     torque = within(trial.torque_nm)
-    epsilon, slope, residual = 1.0, np.zeros(0), torque
+    epsilon, slope = 1.0, np.zeros(0)
     for _ in range(STEPS):
         current = epsilon * scaled + beta_a
         g = within(np.sum(k * (epsilon * scaled - c * (current**3 - beta_a**3)), axis=1))
@@ -91,10 +85,7 @@ def static_epsilon(trial: StaticTrial, backemf_nm_per_a: np.ndarray, alpha: np.n
         if not spread > 0.0:
             raise IdentificationError("static trial: no count holds two distinct currents: eps is the torque's slope "
                                       "in the current at a count held")
-        residual = torque - g
-        epsilon += float(slope @ residual) / spread
+        epsilon += float(slope @ (torque - g)) / spread
     current = epsilon * scaled + beta_a
     residual = torque - within(np.sum(k * (epsilon * scaled - c * (current**3 - beta_a**3)), axis=1))
-    scatter = float(np.sqrt(residual @ residual / dof))
-    return StaticEpsilon(epsilon, scatter / np.sqrt(float(slope @ slope)), int(trial.count.size), int(held.size),
-                         float(np.sqrt(np.mean(residual**2))))
+    return StaticEpsilon(epsilon, float(np.sqrt(residual @ residual / dof)) / np.sqrt(float(slope @ slope)))
