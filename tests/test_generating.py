@@ -60,3 +60,12 @@ def test_no_validation_point_is_derived_at_zero_torque(write_config):
     assert load_config(write_config(changes, drop=drop)).validation_points() == []
     changes["campaign"]["learn_torques_nm"] = [-3.0, 1.0, 3.0]
     assert {t for t, _ in load_config(write_config(changes, drop=drop)).validation_points()} == {-1.0, 2.0}
+
+
+@pytest.mark.parametrize("key", ["learn_torques_nm", "validate_torques_nm"])
+def test_a_generating_torque_beyond_the_limit_is_refused_naming_its_key(write_config, key):
+    """|torque| bounds a generating point as a motoring one: -9 N m beyond [limits] max_torque_nm 8 (once let
+    through by the config, whose check took the largest value, not the largest size)."""
+    changes = {**GENERATING, "campaign": {**GENERATING["campaign"], key: [-9.0, 3.0]}}
+    with pytest.raises(ConfigError, match=rf"\[campaign\] {key}: -9 is beyond \[limits\] max_torque_nm 8"):
+        load_config(write_config(changes))

@@ -786,8 +786,9 @@ def _run_problem(config: CampaignConfig) -> str | None:
             ("[campaign] learn_speeds_hz", speeds, "max_speed_hz", limits.max_speed_hz),
             ("[campaign] validate_torques_nm", [t for t, _ in validated], "max_torque_nm", limits.max_torque_nm),
             ("[campaign] validate_speeds_hz", [s for _, s in validated], "max_speed_hz", limits.max_speed_hz)):
-        if values and max(values) > limit:
-            return f"{key}: {max(values):g} is beyond [limits] {limit_key} {limit:g}"
+        largest = max(values, key=abs, default=None)  # a generating torque is negative: its size is bounded
+        if largest is not None and abs(largest) > limit:
+            return f"{key}: {largest:g} is beyond [limits] {limit_key} {limit:g}"
     learned = set(config.learned_points())
     for t, s in validated:
         if (t, s) in learned:
