@@ -103,6 +103,22 @@ def test_the_fade_out_takes_the_unclamped_speed():
     assert not np.any(c.feedforward_nm(3.0, 5.0))
 
 
+def test_a_record_of_both_directions_interpolates_through_zero_speed_and_fades_by_its_size():
+    """Tables cogging + S lag per count at -2, -0.5, 0.5 and 2 Hz (the loop's inverse is linear in the signed
+    speed): the record gives that function at every speed between -2 and 2 Hz, the cogging alone at 0 Hz, and fades
+    alike at -4.5 and 4.5 Hz."""
+    rng = np.random.default_rng(5)
+    cogging, lag = rng.normal(0.0, 0.01, (2, CPR))
+    speeds = np.array([-2.0, -0.5, 0.5, 2.0])
+    tables = np.stack([cogging + s * lag for s in speeds])[None]
+    c = Compensation(CPR, CALIBRATION, np.array([2.0]), speeds, tables, FadeOut(3.0, 5.0))
+    for s in (-1.7, -0.5, -0.1, 0.0, 0.3, 1.2):
+        np.testing.assert_allclose(c.feedforward_nm(2.0, s), cogging + s * lag, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(c.feedforward_nm(2.0, -4.5), 0.25 * tables[0, 0], rtol=1e-15)
+    np.testing.assert_allclose(c.feedforward_nm(2.0, 4.5), 0.25 * tables[0, -1], rtol=1e-15)
+    assert not np.any(c.feedforward_nm(2.0, -5.0)) and not np.any(c.feedforward_nm(2.0, 5.0))
+
+
 def test_apply_sets_the_calibration_and_adds_the_feedforward():
     c = make(FadeOut(3.0, 5.0))
     before = np.random.default_rng(3).normal(0.0, 0.01, CPR)
@@ -194,7 +210,8 @@ HOSTILE = [
     (changed("torques_nm", [1.0, 3.0, 2e5]), "key 'torques_nm'"),
     (changed("torques_nm", 3.0), "key 'torques_nm'"),
     (changed("torques_nm", [[1.0, 3.0, 5.0]]), "key 'torques_nm'"),
-    (changed("speeds_hz", [0.0, 2.0]), "key 'speeds_hz'"),
+    (changed("speeds_hz", [0.0, 2.0]), "key 'speeds_hz': a table is learned turning, never at 0 Hz"),
+    (changed("speeds_hz", [-2e3, 2.0]), "key 'speeds_hz': value 0 must lie in"),
     (changed("speeds_hz", [2.0, 0.5]), "key 'speeds_hz': must be strictly ascending"),
     (changed("speeds_hz", list(np.linspace(0.1, 10.0, 101))), "key 'speeds_hz': needs 1 to 100 values"),
     (changed("tables_nm", [[[0.0] * CPR] * 2] * 2), "key 'tables_nm': shape (2, 2, 64), expected (3, 2, 64)"),

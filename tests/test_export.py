@@ -7,6 +7,7 @@ import csv
 import math
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -182,6 +183,26 @@ def test_the_c_lookup_agrees_with_the_record(tmp_path, c_type, shape, fade):
     assert got.shape == want.shape and np.abs(got - want).max() <= tolerance
     faded = speeds >= fade.zero_hz
     assert np.all(got[faded] == 0) and np.any(got[~faded] != 0)
+
+
+@pytest.mark.parametrize("c_type", ["int16", "float"])
+def test_the_c_lookup_of_both_directions_agrees_and_fades_by_speed_size(tmp_path, c_type):
+    """A four-quadrant record (speeds -2..2 Hz): the C lookup interpolates through 0 Hz as the record does and
+    fades beyond 5 Hz either way (it compared the signed speed: no reverse speed ever faded)."""
+    base = compensation(2, 4, FADE)
+    c = replace(base, speeds_hz=np.array([-2.0, -0.5, 0.5, 2.0]))
+    rng = np.random.default_rng(11)
+    counts = rng.integers(0, 2**32, 120, dtype=np.uint64)
+    torques = rng.uniform(0.0, 4.0, 120).astype(np.float32)
+    speeds = np.concatenate([[-9.0, -4.0, -0.5, 0.0, 0.5, 4.0, 9.0], rng.uniform(-7.0, 7.0, 113)]).astype(np.float32)
+    got, error_nm = run_c(c, tmp_path, c_type, (counts, torques, speeds))
+    want = np.array([c.feedforward_nm(float(t), float(s))[int(n) % c.counts_per_rev]
+                     for n, t, s in zip(counts, torques, speeds)])
+    tolerance = (error_nm or 0.0) + 1e-5 * np.abs(c.tables_nm).max()
+    assert np.abs(got - want).max() <= tolerance
+    faded = np.abs(speeds) >= FADE.zero_hz
+    assert np.all(got[faded] == 0) and np.any(got[faded & (speeds < 0)] == 0) and np.all(want[faded] == 0)
+    assert np.any(got[~faded] != 0)
 
 
 def test_the_c_files_need_only_stdint(tmp_path):

@@ -159,10 +159,10 @@ def test_a_compensation_within_its_runs_limits_says_which(tmp_path):
     assert result.output.splitlines()[3:6] == [
         f"bound: |feed-forward| at most 0.06 N m, within 0.1 N m ([limits] max_correction_nm of {config})",
         f"bound: |torque set point| at most 3 N m, within 4 N m ([limits] max_torque_nm of {config})",
-        f"bound: speed set point at most 0.8333 Hz, within 1.5 Hz ([limits] max_speed_hz of {config})"]
+        f"bound: |speed set point| at most 0.8333 Hz, within 1.5 Hz ([limits] max_speed_hz of {config})"]
     _refused(run_directory(tmp_path / "slow", compensation(), limits="max_speed_hz = 0.5\n"), tmp_path / "no", "json",
-             f"{tmp_path / 'slow' / 'compensation.json'}: key 'speeds_hz': speed set point 0.8333 Hz is beyond 0.5 Hz "
-             f"([limits] max_speed_hz of {tmp_path / 'slow' / RUN_CONFIG})")
+             f"{tmp_path / 'slow' / 'compensation.json'}: key 'speeds_hz': |speed set point| 0.8333 Hz is beyond "
+             f"0.5 Hz ([limits] max_speed_hz of {tmp_path / 'slow' / RUN_CONFIG})")
 
 
 def test_a_result_in_a_run_directory_is_bounded_by_its_limits(tmp_path):

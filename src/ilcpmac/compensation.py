@@ -9,19 +9,22 @@ pipeline (docs/export.md).
 The feed-forward at a torque set point T and a speed set point S is
 
 1. T clamped into [torques_nm[0], torques_nm[-1]] and S into
-   [speeds_hz[0], speeds_hz[-1]];
+   [speeds_hz[0], speeds_hz[-1]] (S signed: negative turns in reverse);
 2. the bilinear interpolation, per count, between the four tables learned at
    the grid points around the clamped (T, S): with T_i <= T <= T_{i+1},
    S_k <= S <= S_{k+1}, u = (T - T_i) / (T_{i+1} - T_i) and
    v = (S - S_k) / (S_{k+1} - S_k),
    (1 - u) ((1 - v) t[i, k] + v t[i, k+1]) + u ((1 - v) t[i+1, k] + v t[i+1, k+1]);
    along an axis with one point the tables are constant along it;
-3. times the fade-out factor `FadeOut.factor` at the unclamped S.
+3. times the fade-out factor `FadeOut.factor` at the unclamped |S|.
 
 Linear in speed is physical: the current loop is about first order, so the
 inverse 1 + j f / f_bw of its response, which the feed-forward carries
 (`ilcpmac.stages.base.StageSetup.torque_response`), is linear in the
-harmonic's frequency f = h S.
+harmonic's frequency f = h S. It holds through zero speed too: a record
+learned in both directions (docs/campaign.md, "Four quadrants") interpolates
+between its slowest reverse and slowest forward tables, whose speed-linear
+parts cancel at S = 0, leaving their position torque.
 """
 
 from __future__ import annotations
@@ -41,6 +44,7 @@ from ilcpmac.core.records import (
     MAX_GRID_SETPOINTS,
     MAX_SPEED_HZ,
     MAX_TORQUE_NM,
+    MIRROR_COORDINATES,
     MOTOR_RANGES,
     IdentificationResult,
     ResultKeyError,
@@ -107,7 +111,8 @@ class FadeOut:
                              f"(null: never fades), got full_hz = {full!r}, zero_hz = {zero!r}")
 
     def factor(self, speed_hz: float) -> float:
-        """The factor at ``speed_hz`` (Hz)."""
+        """The factor at ``speed_hz`` (Hz, signed: it fades alike in either direction)."""
+        speed_hz = abs(speed_hz)
         if speed_hz <= self.full_hz:
             return 1.0
         if speed_hz >= self.zero_hz:
@@ -191,7 +196,8 @@ class Compensation:
     torques_nm : ndarray, shape (n_T,)
         Torque set points learned at, N m: strictly ascending, finite.
     speeds_hz : ndarray, shape (n_S,)
-        Speed set points learned at, Hz: strictly ascending, finite, > 0.
+        Speed set points learned at, Hz: strictly ascending, finite, none zero, within +-`MAX_SPEED_HZ`
+        (negative: reverse).
     tables_nm : ndarray, shape (n_T, n_S, counts_per_rev)
         The torque feed-forward per count learned at each (torque, speed) point, N m, added to the torque
         reference; finite.
@@ -215,7 +221,10 @@ class Compensation:
         if not isinstance(self.fade, FadeOut):
             raise ValueError(f"key 'fade': must be a FadeOut, got {type(self.fade).__name__}")
         torques = _grid(self.torques_nm, "torques_nm", -MAX_TORQUE_NM, MAX_TORQUE_NM, low_open=False)
-        speeds = _grid(self.speeds_hz, "speeds_hz", 0.0, MAX_SPEED_HZ, low_open=True)
+        speeds = _grid(self.speeds_hz, "speeds_hz", -MAX_SPEED_HZ, MAX_SPEED_HZ, low_open=False)
+        if np.any(speeds == 0):
+            raise ValueError("key 'speeds_hz': a table is learned turning, never at 0 Hz, got "
+                             f"{_shown(speeds.tolist())}")
         shape = (torques.size, speeds.size, int(cpr))
         if math.prod(shape) > MAX_TABLE_VALUES:
             raise ValueError(f"key 'tables_nm': {shape[0]} x {shape[1]} x {shape[2]} values, more than "
@@ -400,6 +409,9 @@ def read_position_table(path: Path, content: str = "cogging") -> PositionTable:
             std = None if found is None else found.get("std")
         else:
             result = IdentificationResult.from_json(data)
+            if MIRROR_COORDINATES in result.messages:
+                raise BenchFormatError(f"{path}: {MIRROR_COORDINATES}: export the forward direction's identification "
+                                       "or the run's compensation.json")
             table = result.cogging_nm if content == "cogging" else result.position_torque_nm
             std = None if content == "cogging" else result.position_torque_std_nm
             order, calibration, listed = None, result.calibration, None

@@ -59,6 +59,10 @@ MAX_OPERATING_POINTS = 32
 #: the fewest revolutions a campaign trial records: the revolution scatter and the encoder torque need two
 #: whole ones, and a trial need not begin at a revolution's start
 MIN_REVOLUTIONS = 3
+#: the directions a campaign learns in: forward at positive speeds, reverse at negative ones (as the motor's
+#: mirror image turning forward: `CampaignConfig.in_direction`)
+FORWARD, REVERSE = "forward", "reverse"
+DIRECTIONS = (FORWARD, REVERSE)
 #: Largest difference between [bench.backemf] and the bench's back-EMF table, relative to its peak.
 BACKEMF_TOLERANCE = 1e-6
 #: a grid [trials] leaves out: its torques as eighths of [limits] max_torque_nm and its speeds as sixths of
@@ -112,8 +116,9 @@ class CampaignSettings:
         "a positive speed, on a bench whose load drives the rotor); left out: the grid's "
         "smallest, middle and largest torque set point", None)
     learn_speeds_hz: tuple[float, ...] | None = setting(
-        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
-        f"speeds learned at, Hz: 1 to {MAX_OPERATING_POINTS} distinct positive values; left out: the grid's "
+        all_of(length_in(1, MAX_OPERATING_POINTS), in_range(-1e3, 1e3), _nonzero, _distinct),
+        f"speeds learned at, Hz: 1 to {MAX_OPERATING_POINTS} distinct values, none zero (negative: in reverse, all "
+        "four quadrants with negative torques; docs/campaign.md, \"Four quadrants\"); left out: the grid's "
         "slowest speed, [limits] max_speed_hz and midway", None)
     learn_revolutions: tuple[int, ...] | None = setting(
         all_of(length_in(1, MAX_OPERATING_POINTS), in_range(MIN_REVOLUTIONS, 2**24)),
@@ -147,9 +152,9 @@ class CampaignSettings:
         "torques validated at, N m: distinct values, none zero; left out: midway between the learned torques; "
         "empty: no validation", None)
     validate_speeds_hz: tuple[float, ...] | None = setting(
-        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(0.0, 1e3, low_open=True), _distinct),
-        "speeds validated at, Hz: distinct positive values; left out: the slowest, middle and fastest learned "
-        "speed; empty: no validation", None)
+        all_of(length_in(0, MAX_OPERATING_POINTS), in_range(-1e3, 1e3), _nonzero, _distinct),
+        "speeds validated at, Hz: distinct values, none zero, negative only where some learned speed is; left out: "
+        "the slowest, middle and fastest learned speed of each direction; empty: no validation", None)
     validate_revolutions: int | None = setting(
         in_range(MIN_REVOLUTIONS, 2**24), "recorded revolutions per validation trial at the slowest learned speed "
         f"(more at a faster speed), at least {MIN_REVOLUTIONS}; or validate_seconds", None)
@@ -345,6 +350,43 @@ class CampaignConfig:
         low, high = min(self.grid.speed_setpoints_hz), self.limits.max_speed_hz
         return tuple(sorted({low, (low + high) / 2, high}))
 
+    def directions(self) -> tuple[str, ...]:
+        """The directions learned in (`DIRECTIONS`): forward where [campaign] learn_speeds_hz holds a positive speed
+        or is left out, reverse where it holds a negative one."""
+        given = self.campaign.learn_speeds_hz or (1.0,)
+        return tuple(d for d, sign in zip(DIRECTIONS, (1, -1)) if any(sign * s > 0 for s in given))
+
+    def in_direction(self, direction: str) -> CampaignConfig:
+        """The campaign of one direction, all at positive speeds (what a plan and a runner take).
+
+        ``FORWARD``: the points of positive speed. ``REVERSE``: the campaign of the motor's mirror image, whose
+        forward laps are the motor's reverse laps (docs/bench-format.md, "Reverse laps"): each point (T, S) of
+        negative speed becomes (-T, -S), the per-torque lengths follow their torques, the grid runs as [trials]
+        gives it (the mirror's forward grid, the motor's reverse one) on a mirrored description
+        (`ilcpmac.campaign.quadrants`), and [bench] leaves its static trial to the forward campaign. A given
+        validate_speeds_hz keeps the speeds of the direction (none: no validation in it).
+        """
+        c = self.campaign
+        if direction == FORWARD and self.directions() == (FORWARD,):
+            return self
+        sign = 1.0 if direction == FORWARD else -1.0
+
+        def speeds(given: tuple[float, ...] | None) -> tuple[float, ...] | None:
+            return None if given is None else tuple(sign * v for v in given if sign * v > 0)
+
+        changes: dict[str, typing.Any] = {"learn_speeds_hz": speeds(c.learn_speeds_hz),
+                                          "validate_speeds_hz": speeds(c.validate_speeds_hz)}
+        if direction == FORWARD:
+            return dataclasses.replace(self, campaign=dataclasses.replace(c, **changes))
+        changes["learn_torques_nm"] = tuple(-t for t in reversed(self.learned_torques_nm()))
+        changes["validate_torques_nm"] = None if c.validate_torques_nm is None else \
+            tuple(-t for t in c.validate_torques_nm)
+        for key in ("learn_revolutions", "learn_seconds"):  # one per learned torque, ascending: negated, reversed
+            given = getattr(c, key)
+            changes[key] = None if given is None else tuple(reversed(given))
+        bench = dataclasses.replace(self.bench, static_trial_file=None)
+        return dataclasses.replace(self, bench=bench, campaign=dataclasses.replace(c, **changes))
+
     def trial_revolutions(self, point: tuple[float, float], learned: int | None = None) -> int:
         """The recorded revolutions of a trial at ``point`` (torque N m, speed Hz) after the grid.
 
@@ -437,7 +479,11 @@ class CampaignConfig:
     def validation_points(self) -> list[tuple[float, float]]:
         """The operating points validated at, (torque N m, speed Hz): [campaign] validate_torques_nm x
         validate_speeds_hz; a list left out is midway between learned torques, and the slowest, middle and
-        fastest learned speed (midway torques but zero); an empty one means no validation."""
+        fastest learned speed (midway torques but zero); an empty one means no validation. In both directions,
+        each direction's (`in_direction`), in the motor's own signs."""
+        if self.directions() != (FORWARD,):
+            return sorted((t, s) if d == FORWARD else (-t, -s) for d in self.directions()
+                          for t, s in self.in_direction(d).validation_points())
         c = self.campaign
         torques, speeds = self.learned_torques_nm(), self.learned_speeds_hz()
         validated_t = c.validate_torques_nm
@@ -755,7 +801,35 @@ def check_config(config: CampaignConfig) -> None:
 
 
 def _run_problem(config: CampaignConfig) -> str | None:
-    """The first problem of the grid, the campaign and the limits together, or None."""
+    """The first problem of the grid, the campaign and the limits together, or None; a campaign in both
+    directions (`CampaignConfig.in_direction`) has each direction's."""
+    directions, campaign, limits = config.directions(), config.campaign, config.limits
+    unlearned = [s for s in campaign.validate_speeds_hz or () if (DIRECTIONS[s < 0]) not in directions]
+    if unlearned:
+        return (f"[campaign] validate_speeds_hz: {unlearned[0]:g} Hz validates a direction [campaign] "
+                f"learn_speeds_hz learns nothing in (give it a speed of that sign)")
+    if directions == (FORWARD,):
+        return _direction_problem(config)
+    for key, values, limit_key, limit in (("learn_speeds_hz", campaign.learn_speeds_hz, "max_speed_hz",
+                                           limits.max_speed_hz),
+                                          ("validate_speeds_hz", campaign.validate_speeds_hz, "max_speed_hz",
+                                           limits.max_speed_hz)):
+        largest = max(values or (), key=abs, default=None)
+        if largest is not None and abs(largest) > limit:
+            return f"[campaign] {key}: {largest:g} is beyond [limits] {limit_key} {limit:g}"
+    if FORWARD not in directions and config.bench.static_trial_file is not None:
+        return ("[bench] static_trial_file: a campaign in reverse alone cannot use it (the static trial pins the "
+                "forward identification the reverse learns with): learn a forward speed too")
+    for direction in directions:
+        problem = _direction_problem(config.in_direction(direction))
+        if problem is not None:
+            return problem if direction == FORWARD else \
+                f"{problem} (in reverse, as the motor's mirror image turning forward: torques and speeds negated)"
+    return None
+
+
+def _direction_problem(config: CampaignConfig) -> str | None:
+    """`_run_problem` of a campaign in one direction."""
     grid, campaign, limits = config.grid, config.campaign, config.limits
     given = config.bench.record_counts_per_rev
     if given is not None and config.bench.counts_per_rev % given:

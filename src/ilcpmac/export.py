@@ -39,7 +39,7 @@ import numpy as np
 
 from ilcpmac.bench.format import BENCH_FILE, read_bench_head
 from ilcpmac.compensation import COMPENSATION_FILE, Compensation, PositionTable, read_position_table
-from ilcpmac.config import LimitSettings
+from ilcpmac.config import DIRECTIONS, LimitSettings
 from ilcpmac.core.errors import BenchFormatError, IlcpmacError
 from ilcpmac.core.files import atomic_write, check_writable
 from ilcpmac.core.records import MAX_CURRENT_A, MAX_TORQUE_NM, SensorCalibration
@@ -193,7 +193,10 @@ class RunLimits:
         if not config.exists():
             return None
         limits = parse_section(read_toml(config).get("limits", {}), LimitSettings, str(config), "limits")
-        return cls(limits, read_bench_head(source.parent).motor.counts_per_rev, config)
+        # a campaign in both directions keeps its bench in each direction's run directory
+        bench = next((folder for folder in (source.parent, *(source.parent / d for d in DIRECTIONS))
+                      if (folder / BENCH_FILE).exists()), source.parent)
+        return cls(limits, read_bench_head(bench).motor.counts_per_rev, config)
 
     def bound(self, quantity: str, peak: float, key: str, unit: str) -> Bound:
         """The `Bound` of ``quantity`` at [limits] ``key``."""
@@ -392,6 +395,13 @@ def _c_list(values: Iterable[float], indent: str = "", literal: Callable[[float]
     return ",\n".join(indent + ", ".join(items[i:i + _C_PER_LINE]) for i in range(0, len(items), _C_PER_LINE))
 
 
+#: what the C header says of the directions its record holds, by whether it holds a negative speed
+_DIRECTION_DOC = {
+    False: " * Learned turning forward (positive S): a negative S is clamped to the slowest speed, its tables\n"
+           " * applied turning the other way, where their lag's correction has the wrong sign.",
+    True: " * Learned in both directions: a negative S turns in reverse (n and T as turning forward); between\n"
+          " * the slowest reverse and forward speeds the tables are interpolated through 0 Hz."}
+
 _HEADER = Template("""\
 /* $header: the torque-ripple compensation of $source, written by ilcpmac export.
  *
@@ -400,7 +410,8 @@ $calibration_doc
  * Torque reference at encoder count n, torque set point T (N m), mechanical speed S (Hz):
  *     tau_ref = T + ilcpmac_feedforward_nm(n, T, S)
  * the tables learned at the grid's (T, S) points, bilinear between them, T and S clamped into the
- * grid (NaN: its lowest point), times the fade-out at the unclamped S (NaN: 0).
+ * grid (NaN: its lowest point), times the fade-out at the unclamped |S| (NaN: 0).
+$direction_doc
 $table_doc
 $fade_doc
  */
@@ -486,6 +497,9 @@ float ilcpmac_feedforward_nm(uint32_t count, float torque_nm, float speed_hz)
 """)
 
 _FADE_BODY = """\
+    if (speed_hz < 0.0f) {
+        speed_hz = -speed_hz;
+    }
     if (speed_hz <= ILCPMAC_FADE_FULL_HZ) {
         return 1.0f;
     }
@@ -636,7 +650,7 @@ def write_c(record: Record, out_dir: Path, c_type: str = "int16", source: str = 
     speeds = _c_grid(c.speeds_hz, f"{where}: key 'speeds_hz'")
     header = _HEADER.substitute(
         header=C_HEADER, source=_comment(source or "a campaign"), table_doc=form.doc,
-        calibration_doc=_CALIBRATION_DOC,
+        calibration_doc=_CALIBRATION_DOC, direction_doc=_DIRECTION_DOC[bool(c.speeds_hz[0] < 0)],
         fade_doc=f" * Fade-out: 1 up to {fade.full_hz:g} Hz, linear down to 0 at {fade.zero_hz:g} Hz, 0 beyond."
         if fades else " * Fade-out: none (the feed-forward never fades).",
         counts_per_rev=c.counts_per_rev, n_torques=c.torques_nm.size, n_speeds=c.speeds_hz.size,
@@ -778,7 +792,7 @@ def _record_bounds(record: Record, where: str, run: RunLimits | None) -> tuple[B
     if isinstance(record, Compensation):
         bounds += [run.bound("|torque set point|", float(np.abs(record.torques_nm).max()), "max_torque_nm",
                              "N m").checked(f"{where}: key 'torques_nm'"),
-                   run.bound("speed set point", float(record.speeds_hz[-1]), "max_speed_hz",
+                   run.bound("|speed set point|", float(np.abs(record.speeds_hz).max()), "max_speed_hz",
                              "Hz").checked(f"{where}: key 'speeds_hz'")]
     return tuple(bounds)
 

@@ -9,7 +9,7 @@ from ilcpmac.core.records import BenchDescription, BenchLimits, TrialData, Trial
 
 #: `BenchDescription` and `BenchLimits` live in `ilcpmac.core.records`; plugins may import them from here
 __all__ = ["Backend", "BenchDescription", "BenchLimits", "ProgressCallback", "ProgressThrottle",
-           "report_progress_to"]
+           "report_progress_to", "runs_reverse"]
 
 #: ``callback(fraction)``: the running trial is ``fraction`` (0..1) done
 ProgressCallback = Callable[[float], None]
@@ -18,6 +18,12 @@ ProgressCallback = Callable[[float], None]
 @runtime_checkable
 class Backend(Protocol):
     """Runs trials on a motor, simulated or real: everything a campaign uses of a backend.
+
+    A backend may also run the motor in reverse (optional, not part of this protocol): with a class attribute
+    ``reverses = True``, a `run_trial` of a negative speed set point turns the motor backwards and returns the
+    reverse lap as its mirror image's forward lap, as a bench folder stores one (docs/bench-format.md, "Reverse
+    laps"; `ilcpmac.core.records.mirrored_request` gives the mirror's request); `runs_reverse` asks. Without it a
+    campaign learns forward only.
 
     A backend may also report how far its running trial is (optional, not part of this protocol):
     ``set_progress(callback: ProgressCallback | None) -> None`` keeps ``callback`` (None: report nothing
@@ -44,6 +50,11 @@ class Backend(Protocol):
     def close(self) -> None:
         """Release the bench (connections, devices); called once the campaign ends or fails."""
         ...
+
+
+def runs_reverse(backend: Backend) -> bool:
+    """Whether ``backend`` runs trials of a negative speed set point (its ``reverses``; `Backend`)."""
+    return getattr(backend, "reverses", False) is True
 
 
 def report_progress_to(backend: Backend, callback: ProgressCallback | None) -> None:

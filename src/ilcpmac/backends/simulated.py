@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING
 
 from ilcpmac.backends.base import BenchDescription, BenchLimits
 from ilcpmac.core.errors import ConfigError
-from ilcpmac.core.records import TrialData, TrialRequest
+from ilcpmac.core.records import TrialData, TrialRequest, mirrored_request
+from ilcpmac.core.schema import finite_number
 from ilcpmac.model.motor import MotorModel
 from ilcpmac.sim.bench import simulated_description
 from ilcpmac.sim.simulator import Simulator
@@ -18,7 +19,8 @@ if TYPE_CHECKING:
 
 
 class SimulatorBackend:
-    """Runs trials on `Simulator`; trial data include the true torque and currents.
+    """Runs trials on `Simulator`; trial data include the true torque and currents. A trial of a negative speed
+    set point runs in reverse: the mirror image's forward lap (`Simulator.mirrored`, the `Backend` contract).
 
     The kernel releases the GIL, so a campaign may run ``max_parallel_trials``
     trials at once in threads.
@@ -35,9 +37,13 @@ class SimulatorBackend:
         as its description tells it (`MotorInfo.inertia_uncertainty`).
     """
 
+    #: it runs trials of a negative speed set point (`ilcpmac.backends.base.runs_reverse`)
+    reverses = True
+
     def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1,
                  record_counts_per_rev: int | None = None, inertia_uncertainty: float | None = None) -> None:
         self.simulator = Simulator(model, warmup_revolutions, record_counts_per_rev)
+        self.mirror = self.simulator.mirrored()
         self.limits = limits
         self.inertia_uncertainty = inertia_uncertainty
         self.max_parallel_trials = os.cpu_count() or 1
@@ -63,6 +69,8 @@ class SimulatorBackend:
         return replace(description, motor=replace(description.motor, inertia_uncertainty=self.inertia_uncertainty))
 
     def run_trial(self, request: TrialRequest) -> TrialData:
+        if finite_number(request.speed_setpoint_hz) and request.speed_setpoint_hz < 0:
+            return self.mirror.run_trial(mirrored_request(request))
         return self.simulator.run_trial(request)
 
     def close(self) -> None:

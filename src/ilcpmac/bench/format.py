@@ -33,6 +33,7 @@ from ilcpmac.core.records import (
     MotorInfo,
     SensorCalibration,
     TrialData,
+    mirrored_table,
 )
 from ilcpmac.core.schema import (
     field_like,
@@ -933,8 +934,10 @@ def config_static_trial(config: CampaignConfig, motor: MotorInfo) -> StaticTrial
 def check_bench(config: CampaignConfig, description) -> None:
     """Raise `ConfigError` naming the key if the bench a backend describes (`BenchDescription`) is not the one
     [bench] describes: pole pairs, slots and counts per revolution, and the inertia, back-EMF and
-    calibration where [bench] gives them."""
+    calibration where [bench] gives them; a mirrored bench's back-EMF against [bench]'s mirrored (`mirrored_table`,
+    docs/bench-format.md, "Reverse laps")."""
     bench, motor = config.bench, description.motor
+    theirs = mirrored_table(description.backemf_nm_per_a) if motor.mirrored else description.backemf_nm_per_a
     for key in ("pole_pairs", "slots"):
         if getattr(bench, key) != getattr(motor, key):
             raise ConfigError(f"{config.path}: [bench] {key} {getattr(bench, key)} differs from the bench's "
@@ -956,14 +959,14 @@ def check_bench(config: CampaignConfig, description) -> None:
                           f"{motor.inertia_kgm2:g}")
     if bench.backemf is not None:
         ours = backemf_table(motor, bench.backemf, motor.counts_per_rev)
-        error = np.abs(ours - description.backemf_nm_per_a)
+        error = np.abs(ours - theirs)
         count, phase = np.unravel_index(np.argmax(error), error.shape)
         if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
             raise ConfigError(f"{config.path}: [bench.backemf] differs from the bench's back-EMF table by "
                               f"{error[count, phase]:.3g} N m / A at count {count}, phase {'abc'[phase]}")
     if bench.backemf_file is not None:
         ours = read_backemf_csv(config.path.parent / bench.backemf_file, motor)
-        error = np.abs(ours - description.backemf_nm_per_a)
+        error = np.abs(ours - theirs)
         count, phase = np.unravel_index(np.argmax(error), error.shape)
         if error[count, phase] > BACKEMF_TOLERANCE * np.abs(ours).max():
             raise ConfigError(f"{config.path}: [bench] backemf_file {bench.backemf_file} differs from the bench's "

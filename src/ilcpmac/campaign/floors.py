@@ -261,11 +261,16 @@ def _own_unresolved(deviations: dict[Point, tuple[np.ndarray, np.ndarray, np.nda
 
 
 def _axis_weights(grid: np.ndarray, x: float) -> np.ndarray:
-    """The Lagrange weights at ``x`` of the quadratic through the three values of ``grid`` nearest it (linear,
-    as the compensation's, with fewer than three)."""
+    """The Lagrange weights at ``x`` of the quadratic through the three values of ``grid`` nearest it, of two as
+    near the one nearer zero (linear, as the compensation's, with fewer than three).
+
+    Nearer zero, not first in the grid: the same choice at -x as at x on an axis through zero (-5 to 5 N m, on
+    configs/four-quadrant.toml: at 2 N m -1, 1 and 3, at -2 N m -3, -1 and 1, where the grid's order took -5, -3
+    and -1, which saw half the interpolation error the trials showed at 1.5 Hz), and the grid's order on one of a
+    sign."""
     if grid.size < 3:
         return interpolation_weights(grid, np.ones(1), x, 1.0)[:, 0]
-    nearest = np.sort(np.argsort(np.abs(grid - x), kind="stable")[:3])
+    nearest = np.sort(np.lexsort((np.abs(grid), np.abs(grid - x)))[:3])
     weights = np.zeros(grid.size)
     for i in nearest:
         others = [grid[j] for j in nearest if j != i]

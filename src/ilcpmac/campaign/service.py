@@ -26,7 +26,7 @@ from ilcpmac.campaign.plan import MAX_BUDGET_MIN, CampaignPlan
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDir, RunFiles
 from ilcpmac.campaign.validation import PointResult, point_results
-from ilcpmac.config import CampaignConfig, check_config, config_text, load_config, packaged_config
+from ilcpmac.config import FORWARD, CampaignConfig, check_config, config_text, load_config, packaged_config
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import BenchDescription, IdentificationResult, TrialData
@@ -38,8 +38,9 @@ if TYPE_CHECKING:
     from ilcpmac.identify import Identifier
     from ilcpmac.stages.base import Stage, StageSetup
 
-__all__ = ["DEFAULT_CONFIG", "CampaignResult", "built_backend", "check_campaign_config", "default_run_dir",
-           "load_campaign_config", "run", "run_drive", "simulate_bench", "simulated_bench"]
+__all__ = ["DEFAULT_CONFIG", "CampaignResult", "built_backend", "campaign_in", "check_campaign_config",
+           "default_run_dir", "given_config", "load_campaign_config", "overridden", "planned", "refuse_with_resume",
+           "resumed_budget_min", "run", "run_drive", "simulate_bench", "simulated_bench"]
 
 #: the packaged config `run` runs with no config
 DEFAULT_CONFIG = "seed-bench.toml"
@@ -123,11 +124,7 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     """
     events = events or NoEvents()
     if resume is not None:
-        given = [name for name, value in (("CONFIG", config), ("--out", out), ("--budget", budget_min),
-                                          ("--seed", seed), ("--trials", trials)) if value is not None]
-        if given:
-            raise ConfigError(f"--resume continues a run with the config, seed, trials and budget it began with: "
-                              f"give no {', '.join(given)} (start a new run to change them)")
+        refuse_with_resume(config, out, budget_min, seed, trials)
     resume_dir = None if resume is None else Path(resume)
     out_dir = None if out is None else Path(out)
     # the run directory is locked before the backend is built: a second run on it, or one that cannot
@@ -139,21 +136,18 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         if resume_dir is not None:
             settings = RunDir.read_settings(resume_dir)
             cfg = load_config(RunFiles(resume_dir).config)
-            seed, trials, budget_min = settings.get("seed"), settings.get("trials"), settings.get("budget_min")
-            if budget_min is not None and not (isinstance(budget_min, (int, float)) and
-                                               0 < budget_min <= MAX_BUDGET_MIN):
-                raise ConfigError(f"{RunFiles(resume_dir).settings}: budget_min: {budget_min!r} is not a number "
-                                  f"of minutes within (0, {MAX_BUDGET_MIN:g}]")
-        elif isinstance(config, CampaignConfig):
-            cfg = config
+            if settings.get("direction") is not None:
+                raise ConfigError(f"--resume {resume_dir}: the {settings['direction']} of a campaign in both "
+                                  f"directions: resume the run directory that holds it, {resume_dir.parent}")
+            seed, trials = settings.get("seed"), settings.get("trials")
+            budget_min = resumed_budget_min(settings, RunFiles(resume_dir).settings)
         else:
-            cfg = load_config(config or packaged_config(DEFAULT_CONFIG))
-        if trials is not None:
-            cfg = replace(cfg, campaign=replace(cfg.campaign, learn_trials=trials))
-        if seed is not None:
-            cfg = replace(cfg, grid=replace(cfg.grid, seed=seed))
-        # the overrides obey the same ranges as the file; an unknown stage or option stops here, not after the grid
-        check_campaign_config(cfg, extra_stages)
+            cfg = given_config(config)
+        cfg = overridden(cfg, trials, seed, extra_stages)
+        if cfg.directions() != (FORWARD,):
+            raise ConfigError(f"{cfg.path}: [campaign] learn_speeds_hz learns in reverse: a campaign in both "
+                              "directions runs with ilcpmac run or ilcpmac.campaign.run_quadrants (docs/campaign.md, "
+                              "\"Four quadrants\")")
         seed = cfg.grid.seed
         path = resume_dir or out_dir or default_run_dir(cfg)
         if lock is None:
@@ -163,17 +157,13 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         try:
             description = bench.describe()
             # before anything is written
-            plan = CampaignPlan.build(cfg, description, seed) if budget_min is None else \
-                CampaignPlan.within_budget(cfg, description, seed, budget_min * 60.0)
-            if resume_dir is not None:
-                run_dir = RunDir.resume(path, description, lock)
-            else:
-                run_dir = RunDir.create(path, description, config_text(cfg),
-                                        {"seed": seed, "trials": trials, "budget_min": budget_min,
-                                         "config": str(cfg.path)}, lock, plan.static)
-            cfg = plan.config
-            summary = _run(cfg, bench, description, run_dir, plan, seed, resume_dir is not None, events, identify,
-                           extra_stages)
+            plan = planned(cfg, description, seed, budget_min)
+            run_dir = RunDir.resume(path, description, lock) if resume_dir is not None else \
+                RunDir.create(path, description, config_text(cfg), {"seed": seed, "trials": trials,
+                                                                    "budget_min": budget_min, "config": str(cfg.path)},
+                              lock, plan.static)
+            result = campaign_in(bench, description, run_dir, plan, resume_dir is not None, events, identify,
+                                 extra_stages)
         finally:
             if backend is None or isinstance(backend, str):
                 bench.close()
@@ -182,6 +172,58 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
             lock.release()
         if made is not None and run_dir is None:  # nothing was created: leave no empty directory behind
             shutil.rmtree(made, ignore_errors=True)
+    return result
+
+
+def refuse_with_resume(config: object, out: object, budget_min: object, seed: object, trials: object) -> None:
+    """`ConfigError` for what a resumed run takes from its run directory and was given all the same."""
+    given = [name for name, value in (("CONFIG", config), ("--out", out), ("--budget", budget_min),
+                                      ("--seed", seed), ("--trials", trials)) if value is not None]
+    if given:
+        raise ConfigError(f"--resume continues a run with the config, seed, trials and budget it began with: "
+                          f"give no {', '.join(given)} (start a new run to change them)")
+
+
+def resumed_budget_min(settings: dict, source: Path) -> float | None:
+    """The budget a run began with, from its settings ``source``: `ConfigError` naming the file if not minutes."""
+    budget_min = settings.get("budget_min")
+    if budget_min is not None and not (isinstance(budget_min, (int, float)) and 0 < budget_min <= MAX_BUDGET_MIN):
+        raise ConfigError(f"{source}: budget_min: {budget_min!r} is not a number of minutes within (0, "
+                          f"{MAX_BUDGET_MIN:g}]")
+    return budget_min
+
+
+def given_config(config: str | Path | CampaignConfig | None) -> CampaignConfig:
+    """The campaign of ``config``: a loaded config as it is, a file loaded, None the packaged `DEFAULT_CONFIG`."""
+    return config if isinstance(config, CampaignConfig) else load_config(config or packaged_config(DEFAULT_CONFIG))
+
+
+def overridden(cfg: CampaignConfig, trials: int | None, seed: int | None,
+               extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> CampaignConfig:
+    """``cfg`` with --trials and --seed where given, checked (`check_campaign_config`): the overrides obey the same
+    ranges as the file; an unknown stage or option stops here, not after the grid."""
+    if trials is not None:
+        cfg = replace(cfg, campaign=replace(cfg.campaign, learn_trials=trials))
+    if seed is not None:
+        cfg = replace(cfg, grid=replace(cfg.grid, seed=seed))
+    check_campaign_config(cfg, extra_stages)
+    return cfg
+
+
+def planned(cfg: CampaignConfig, description: BenchDescription, seed: int, budget_min: float | None) -> CampaignPlan:
+    """The campaign's plan on the bench ``description`` (`CampaignPlan.build`, or `CampaignPlan.within_budget`
+    of ``budget_min`` minutes): `ConfigError` before anything is written."""
+    return CampaignPlan.build(cfg, description, seed) if budget_min is None else \
+        CampaignPlan.within_budget(cfg, description, seed, budget_min * 60.0)
+
+
+def campaign_in(backend: Backend, description: BenchDescription, run_dir: RunDir, plan: CampaignPlan, resume: bool,
+                events: CampaignEvents, identify: Identifier | None,
+                extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> CampaignResult:
+    """`plan` run on a built ``backend`` (which ``description`` describes) in its created (or resumed) run
+    directory."""
+    summary = _run(plan.config, backend, description, run_dir, plan, plan.seed, resume, events, identify,
+                   extra_stages)
     identification = summary["identification"]
     return CampaignResult(run_dir.path, plan, summary, records_of(summary),
                           None if identification is None else IdentificationResult.from_json(identification))

@@ -279,8 +279,9 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str | None, add
     import ilcpmac.campaign
     from ilcpmac.campaign.floors import floors_of
     from ilcpmac.campaign.mean_torque import mean_torques_of
+    from ilcpmac.campaign.quadrants import MIRROR_NOTE, QuadrantsResult, is_quadrants_dir
     from ilcpmac.campaign.service import DEFAULT_CONFIG
-    from ilcpmac.config import load_config, packaged_config
+    from ilcpmac.config import FORWARD, REVERSE, load_config, packaged_config
     from ilcpmac.report.table import FINAL_TITLE, SUMMARY_TITLE, final_lines, summary_table
 
     loaded = None if resume_dir is not None else load_config(config or packaged_config(DEFAULT_CONFIG))
@@ -298,24 +299,31 @@ def run(config: Path | None, out_dir: Path | None, backend_kind: str | None, add
         raise click.UsageError("--write-config: only for a drive campaign (a config with a [drive] table, "
                                "docs/moteus.md)")
     events = LiveCampaign(console)
+    both = is_quadrants_dir(resume_dir) if resume_dir is not None else loaded is not None and \
+        loaded.directions() != (FORWARD,)
+    start = ilcpmac.campaign.run_quadrants if both else ilcpmac.campaign.run
     try:
-        result = ilcpmac.campaign.run(loaded or config, out=out_dir, backend=backend_kind, address=address,
-                                      trials=trials, seed=seed, budget_min=budget_min, resume=resume_dir,
-                                      events=events)
+        result = start(loaded or config, out=out_dir, backend=backend_kind, address=address, trials=trials,
+                       seed=seed, budget_min=budget_min, resume=resume_dir, events=events)
     except KeyboardInterrupt:
         if events.path is None:
             raise
         # every finished trial is on disk: the run goes on from the next
-        click.echo(f"error: interrupted; continue with ilcpmac run --resume {shlex.quote(str(events.path))}",
-                   err=True)
+        top = events.path.parent if both else events.path
+        click.echo(f"error: interrupted; continue with ilcpmac run --resume {shlex.quote(str(top))}", err=True)
         sys.exit(130)
-    console.print(Text(SUMMARY_TITLE))
-    console.print(summary_table(result.records, result.plan.learned, result.plan.validated,
-                                floors_of(result.summary), console.width, mean_torques_of(result.summary)))
-    lines = final_lines(result.summary)
-    if lines:
-        console.print(Text("\n  ".join([FINAL_TITLE, *lines])))
+    campaigns = result.directions if isinstance(result, QuadrantsResult) else {"": result}
+    for direction, campaign in campaigns.items():
+        title = SUMMARY_TITLE if not direction else f"{SUMMARY_TITLE} {direction}" + (
+            f" ({MIRROR_NOTE})" if direction == REVERSE else "")
+        console.print(Text(title))
+        console.print(summary_table(campaign.records, campaign.plan.learned, campaign.plan.validated,
+                                    floors_of(campaign.summary), console.width, mean_torques_of(campaign.summary)))
+        lines = final_lines(campaign.summary)
+        if lines:
+            console.print(Text("\n  ".join([FINAL_TITLE, *lines])))
     count, size = files_written(result.path)
+    reports = [result.path / d if d else result.path for d in campaigns]
     # not wrapped: the path and the command stay whole, to copy
     console.print(Text(f"wrote {count} files, {size / 1e6:.1f} MB, in {result.path}\n"
-                       f"next: ilcpmac report {shlex.quote(str(result.path))}"), soft_wrap=True)
+                       + "\n".join(f"next: ilcpmac report {shlex.quote(str(p))}" for p in reports)), soft_wrap=True)

@@ -115,6 +115,23 @@ def mirrored_table(table: np.ndarray) -> np.ndarray:
     return -table[-np.arange(table.shape[0]) % table.shape[0]]
 
 
+#: the line of an identification result in the mirror image's coordinates (a campaign in reverse learns in them):
+#: no table of it is the motor's
+MIRROR_COORDINATES = ("in the mirror image's coordinates (phi = -theta), as the reverse direction of a campaign "
+                      "learns: its cogging, position torque and encoder tables are not the motor's")
+
+
+def mirrored_request(request: "TrialRequest") -> "TrialRequest":
+    """The request of the same trial in the mirror's coordinates (docs/bench-format.md, "Reverse laps"): set
+    points negated and the feed-forward and excitation tables mirrored (`mirrored_table`), so that the torque
+    reference becomes -tau_ref(-c); every current reference is the same number at the mirrored count. Its own
+    inverse: a mirror request's motor request and back."""
+    return replace(request, torque_setpoint_nm=-request.torque_setpoint_nm,
+                   speed_setpoint_hz=-request.speed_setpoint_hz,
+                   feedforward_nm=mirrored_table(request.feedforward_nm),
+                   excitation_nm=mirrored_table(request.excitation_nm))
+
+
 @dataclass(frozen=True)
 class SensorCalibration:
     """The controller's sensor calibration (the report's starred estimates).

@@ -18,7 +18,7 @@ import numpy as np
 
 from ilcpmac.core.records import IdentificationResult, MethodEstimates, mirrored_table
 
-__all__ = ["MIRRORED_MESSAGE", "in_motor_coordinates", "in_mirror_coordinates"]
+__all__ = ["MIRRORED_MESSAGE", "in_mirror_coordinates", "in_motor_coordinates", "mirror_image"]
 
 #: the line a mirrored bench's result carries in its messages
 MIRRORED_MESSAGE = ("reverse laps (bench.toml: mirrored = true): identified as forward laps of the motor's mirror "
@@ -28,18 +28,26 @@ MIRRORED_MESSAGE = ("reverse laps (bench.toml: mirrored = true): identified as f
 
 
 def in_motor_coordinates(result: IdentificationResult) -> IdentificationResult:
-    """``result`` of a mirrored bench in the motor's own coordinates, with `MIRRORED_MESSAGE` in its messages.
+    """``result`` of a mirrored bench in the motor's own coordinates (`mirror_image`), with `MIRRORED_MESSAGE` in
+    its messages."""
+    mirrored = mirror_image(result)
+    return replace(mirrored, messages=(*mirrored.messages, MIRRORED_MESSAGE))
+
+
+def mirror_image(result: IdentificationResult) -> IdentificationResult:
+    """``result`` in the other coordinates of the mirror pair: a mirror's in the motor's, a motor's in its mirror's
+    (what a campaign in reverse learns with: `ilcpmac.campaign.quadrants`); its own inverse.
 
     The cogging tables (the result's and each method's), the position-locked torque and the encoder's line
     errors become
     t(c) = -t'((N - c) mod N); their standard errors keep their sign and take the same row order; the
     eccentricity A sin(2 pi c / N + phase) keeps A and takes -phase, within (-pi, pi]. ``details`` stay
-    the mirror's.
+    as they are.
     """
     def cogging(estimates: MethodEstimates) -> dict:
         return {} if estimates.cogging_nm is None else {"cogging_nm": mirrored_table(estimates.cogging_nm)}
 
-    changes = {**cogging(result), "messages": (*result.messages, MIRRORED_MESSAGE),
+    changes = {**cogging(result),
                "methods": {name: replace(m, **cogging(m)) for name, m in result.methods.items()}}
     if result.encoder_error_counts is not None:
         changes["encoder_error_counts"] = mirrored_table(result.encoder_error_counts)

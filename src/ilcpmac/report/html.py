@@ -31,9 +31,11 @@ from PIL import Image
 from ilcpmac import plotting
 from ilcpmac.campaign.floors import PointFloor, floors_of
 from ilcpmac.campaign.mean_torque import PointMeanTorque, mean_torques_of
+from ilcpmac.campaign.quadrants import MIRROR_NOTE
 from ilcpmac.campaign.record import Point, TrialRecord
 from ilcpmac.campaign.rundir import RunDirError
 from ilcpmac.campaign.validation import PointResult, point_results
+from ilcpmac.config import REVERSE
 from ilcpmac.core.files import atomic_write
 from ilcpmac.core.records import IdentificationResult, MethodEstimates
 from ilcpmac.report.plots import RunReport, build_figures
@@ -182,6 +184,8 @@ def _header(report: RunReport, summary_written: float | None) -> str:
     if settings.get("budget_min") is not None:
         facts.append(f"--budget {settings['budget_min']} min")
     facts.append(f"stages {', '.join(report.config.pipeline.stages)}")
+    if settings.get("direction") == REVERSE:
+        facts.append(f"the reverse of a campaign in both directions, {MIRROR_NOTE}")
     when = "" if summary_written is None else datetime.fromtimestamp(summary_written, UTC).strftime(
         "%Y-%m-%d %H:%M UTC")
     try:

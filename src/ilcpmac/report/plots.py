@@ -31,7 +31,7 @@ from ilcpmac.bench.format import read_bench_head
 from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles
 from ilcpmac.campaign.validation import point_results
-from ilcpmac.config import CampaignConfig, load_config
+from ilcpmac.config import DIRECTIONS, CampaignConfig, load_config
 from ilcpmac.core.records import BenchDescription
 from ilcpmac.pipeline.analysis import TorqueSpectrum
 from ilcpmac.signals.harmonics import harmonic_amplitudes
@@ -83,7 +83,11 @@ class RunReport:
             records = records_of(summary)
         except (KeyError, TypeError, ValueError) as e:
             raise RunDirError(f"{files.summary}: unreadable ({e!r})") from None
+        settings = files.read_json(files.settings)
+        direction = settings.get("direction") if isinstance(settings, dict) else None
         config = load_config(files.config)
+        if direction in DIRECTIONS:  # one direction of a campaign in both: its own points
+            config = config.in_direction(direction)
         head = read_bench_head(files.path)
         if head.sensors is None:
             raise RunDirError(f"{files.bench}: a run's bench.toml has [sensors]")
