@@ -245,6 +245,7 @@ def test_a_campaign_in_both_directions_learns_and_validates_every_quadrant(write
     done = CliRunner().invoke(main, ["run", str(path), "--out", str(run)], terminal_width=100)
     assert done.exit_code == 0, done.output
     assert "forward" in done.output and "reverse (as the mirror image's forward laps" in done.output
+    assert done.output.startswith("plan of both directions: forward ")  # before the first trial
     assert f"next: ilcpmac report {run / 'forward'}" in done.output
     for direction in (FORWARD, REVERSE):
         summary = json.loads((run / direction / "summary.json").read_text())
@@ -287,3 +288,47 @@ def test_the_reverse_identification_without_a_forward_one_is_the_mirrors_own():
     result = MirroredIdentification(None, motors)(None)  # type: ignore[arg-type]
     np.testing.assert_array_equal(result.cogging_nm, mirrored_table(np.arange(8.0)))
     assert MIRRORED_MESSAGE not in result.messages and MIRROR_COORDINATES in result.messages
+
+
+class Crash(Exception):
+    """A killed process, as the backend sees it."""
+
+
+@pytest.mark.slow
+def test_a_campaign_in_both_directions_stopped_in_reverse_resumes_as_the_uninterrupted_one(write_config, tmp_path):
+    """Killed within the reverse learning (the forward done), ``--resume`` of the run directory continues the
+    reverse where it stopped, with the forward's identification and calibration, and writes every record byte for
+    byte as the run that was never stopped."""
+    from ilcpmac.backends.registry import BackendSetup
+
+    path = write_config(BOTH)
+    reference = run_quadrants(path, out=tmp_path / "reference")
+    forward_trials = len(reference.directions[FORWARD].records)
+
+    class Crashing:
+        reverses = True
+        max_parallel_trials = 1
+
+        def __init__(self) -> None:
+            self.inner, self.calls = SimulatorBackend.from_setup(BackendSetup(load_config(path), None)), 0
+
+        def describe(self):
+            return self.inner.describe()
+
+        def run_trial(self, request):
+            self.calls += 1
+            if self.calls == forward_trials + 12:
+                raise Crash(f"killed during call {self.calls}")
+            return self.inner.run_trial(request)
+
+        def close(self) -> None:
+            """Nothing to release."""
+
+    with pytest.raises(Crash):
+        run_quadrants(path, out=tmp_path / "crashed", backend=Crashing())
+    assert not (tmp_path / "crashed" / "compensation.json").exists()
+    resumed = run_quadrants(resume=tmp_path / "crashed")
+    for name in ("compensation.json", "forward/compensation.json", "reverse/compensation.json",
+                 "reverse/states/learned.json"):
+        assert (tmp_path / "crashed" / name).read_bytes() == (tmp_path / "reference" / name).read_bytes(), name
+    assert resumed.directions[REVERSE].summary["points"] == reference.directions[REVERSE].summary["points"]

@@ -15,8 +15,8 @@ from ilcpmac.compensation import FadeOut
 from ilcpmac.core.torque_source import TorqueSource, TorqueSourceChoice
 
 __all__ = ["CampaignEvents", "CampaignMessage", "CampaignStart", "CompensationBeatsNone", "CompensationWorse",
-           "CompensationWritten", "FloorsExpected", "GridStarted", "GuardEvent", "Identifying", "NoEvents",
-           "PipelineNote", "PlanStated", "Resumed", "TorqueSourceChosen"]
+           "CompensationWritten", "DirectionsPlanned", "FloorsExpected", "GridStarted", "GuardEvent", "Identifying",
+           "NoEvents", "PipelineNote", "PlanStated", "Resumed", "TorqueSourceChosen"]
 
 
 @dataclass(frozen=True)
@@ -86,6 +86,30 @@ class PlanStated:
         return (f"{head}\nbudget {minutes(self.budget_s)}: the trials after the grid {self.scale:.2f}x the config's; "
                 f"the final trials' noise floor {1 / self.scale**0.5:.2f}x the config plan's (it falls as one over "
                 "the square root of a trial's duration; the floors expected are stated after the grid)")
+
+
+@dataclass(frozen=True)
+class DirectionsPlanned:
+    """Before the first trial of a campaign in both directions (`ilcpmac.campaign.quadrants`): each direction's
+    trials and motor time (its `PlanStated` follows as it starts), in the order they run.
+
+    Attributes
+    ----------
+    trials : trials per direction.
+    motor_time_s : the motor's running time per direction, warm-ups included, s.
+    exact : False when learned points may stop early: the figures are then at most.
+    """
+
+    trials: dict[str, int]
+    motor_time_s: dict[str, float]
+    exact: bool = True
+
+    @property
+    def text(self) -> str:
+        each = ", then ".join(f"{d} {self.trials[d]} trials {minutes(t)}" for d, t in self.motor_time_s.items())
+        return (f"plan of both directions: {each}; {'at most ' if not self.exact else ''}"
+                f"{minutes(sum(self.motor_time_s.values()))} of motor time in all (reverse as the motor's mirror "
+                "image turning forward)")
 
 
 @dataclass(frozen=True)
@@ -259,9 +283,9 @@ class AlreadyComplete:
 
 
 #: what the campaign says between its trials
-CampaignMessage = (PlanStated | GridStarted | Identifying | FloorsExpected | PipelineNote | TorqueSourceChosen
-                   | GuardEvent | CompensationWritten | CompensationWorse | CompensationBeatsNone | Resumed
-                   | AlreadyComplete)
+CampaignMessage = (PlanStated | DirectionsPlanned | GridStarted | Identifying | FloorsExpected | PipelineNote
+                   | TorqueSourceChosen | GuardEvent | CompensationWritten | CompensationWorse | CompensationBeatsNone
+                   | Resumed | AlreadyComplete)
 
 
 class CampaignEvents(Protocol):

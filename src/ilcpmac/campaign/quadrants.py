@@ -26,7 +26,7 @@ import numpy as np
 
 from ilcpmac.backends.base import Backend, report_progress_to, runs_reverse
 from ilcpmac.bench.format import Bench, check_bench
-from ilcpmac.campaign.events import CampaignEvents, NoEvents
+from ilcpmac.campaign.events import CampaignEvents, DirectionsPlanned, NoEvents
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.rundir import CONFIG_FILE, RunDir, RunLock
 from ilcpmac.campaign.service import (
@@ -283,7 +283,17 @@ def run_quadrants(config: str | Path | CampaignConfig | None = None, *, out: str
                 reverse = configs[REVERSE]
                 configs[REVERSE] = replace(held_calibration(reverse) if FORWARD in directions else reverse,
                                            grid=replace(reverse.grid, seed=reverse_seed(seed)))
-            plans = {d: planned(configs[d], sides[d][1], configs[d].grid.seed, share) for d in directions}
+            try:
+                plans = {d: planned(configs[d], sides[d][1], configs[d].grid.seed, share) for d in directions}
+            except ConfigError as e:
+                if share is None or len(directions) == 1:
+                    raise
+                raise ConfigError(f"{e} (each direction's share of --budget {budget_min:g} min)") from None
+            if len(directions) > 1:
+                events.message(DirectionsPlanned(
+                    {d: len(plans[d].steps_left([])) for d in directions},
+                    {d: sum(plans[d].bench_seconds(step.request) for step in plans[d].steps_left([]))
+                     for d in directions}, not any(plans[d].stops_early() for d in directions)))
             if resume is None:
                 made = None
                 atomic_write(path / CONFIG_FILE, config_text(cfg))

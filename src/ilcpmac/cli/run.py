@@ -233,6 +233,9 @@ class LiveCampaign:
         self.view.trial(record, records)
 
     def message(self, message: CampaignMessage) -> None:
+        if self.path is None:  # before the campaign's start (a campaign in both directions states its plan)
+            self.console.print(Text(message.text, style="bold"), soft_wrap=not self.console.is_terminal)
+            return
         self.view.message(message)
 
     def progress(self, fraction: float) -> None:
