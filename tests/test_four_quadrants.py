@@ -202,6 +202,13 @@ def test_a_config_that_cannot_learn_in_reverse_is_refused_naming_the_key(write_c
         load_config(write_config({**BOTH, "campaign": {**BOTH["campaign"], **changes}}))
 
 
+def test_a_reverse_point_that_generates_on_the_brake_is_refused_in_the_motors_signs(write_config):
+    brake = {**BOTH, "simulator.mechanics": {"load": "brake"},
+             "campaign": {**BOTH["campaign"], "learn_torques_nm": [1.0, 3.0], "validate_torques_nm": [2.0]}}
+    with pytest.raises(ConfigError, match=r"1 N m at -0.9 Hz generates, which the eddy-current brake"):
+        load_config(write_config(brake))
+
+
 def test_a_campaign_in_both_directions_is_refused_by_run_and_by_a_forward_only_backend(write_config, tmp_path):
     import ilcpmac.campaign
     from ilcpmac.backends.registry import BackendSetup

@@ -40,8 +40,8 @@ def test_a_negative_torque_on_the_brake_is_refused_before_any_trial(write_config
     import ilcpmac.campaign
 
     brake = {**GENERATING, "simulator.mechanics": {"load": "brake"}}
-    with pytest.raises(ConfigError, match=r'-3 N m generates, which the eddy-current brake of \[simulator.mechanics\] '
-                                          r'load = "brake" cannot drive'):
+    with pytest.raises(ConfigError, match=r'-3 N m at 0.9 Hz generates, which the eddy-current brake of '
+                                          r'\[simulator.mechanics\] load = "brake" cannot drive'):
         ilcpmac.campaign.run(write_config(brake), out=tmp_path / "run")
     assert not (tmp_path / "run").exists()
 

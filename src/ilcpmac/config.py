@@ -808,6 +808,13 @@ def _run_problem(config: CampaignConfig) -> str | None:
     if unlearned:
         return (f"[campaign] validate_speeds_hz: {unlearned[0]:g} Hz validates a direction [campaign] "
                 f"learn_speeds_hz learns nothing in (give it a speed of that sign)")
+    if config.model is not None and config.model.mechanics.load == "brake":
+        generating = [(t, s) for t, s in config.learned_points() + config.validation_points() if t * s < 0]
+        if generating:
+            t, s = generating[0]
+            return (f"[campaign] learn_torques_nm / validate_torques_nm {t:g} N m at {s:g} Hz generates, which the "
+                    "eddy-current brake of [simulator.mechanics] load = \"brake\" cannot drive: set load = "
+                    "\"machine\"")
     if directions == (FORWARD,):
         return _direction_problem(config)
     for key, values, limit_key, limit in (("learn_speeds_hz", campaign.learn_speeds_hz, "max_speed_hz",

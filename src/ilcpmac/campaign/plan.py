@@ -82,20 +82,6 @@ def records_at(records: list[TrialRecord], point: Point, roles: tuple[str, ...])
     return [r for r in records if r.role in roles and r.point == point]
 
 
-
-
-def _check_generating(config: CampaignConfig) -> None:
-    """`ConfigError` naming the keys where a learned or validated torque is negative (generating) on a simulated
-    bench whose load cannot drive the rotor ([simulator.mechanics] load = "brake")."""
-    if config.model is None or config.model.mechanics.load != "brake":
-        return
-    negative = [t for t, _ in config.learned_points() + config.validation_points() if t < 0]
-    if negative:
-        raise ConfigError(f"{config.path}: [campaign] learn_torques_nm / validate_torques_nm {negative[0]:g} N m "
-                          "generates, which the eddy-current brake of [simulator.mechanics] load = \"brake\" cannot "
-                          "drive: set load = \"machine\"")
-
-
 @dataclass(frozen=True)
 class CampaignPlan:
     """The limits of a campaign, its grid and operating points, checked against the bench before anything
@@ -130,7 +116,6 @@ class CampaignPlan:
         each operating point as its uncompensated trial runs it, and as the stages may run it (any calibration
         of the trust region); raise `ConfigError` naming the keys."""
         check_bench(config, description)
-        _check_generating(config)
         torque_source(config, description)
         limits = SafetyLimits.of_campaign(config.limits, description.limits, config.grid.warmup_revolutions)
         grid = [replace(r, seed=trial_seed(seed, i + 1))
