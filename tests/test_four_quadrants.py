@@ -333,8 +333,17 @@ def test_a_campaign_in_both_directions_stopped_in_reverse_resumes_as_the_uninter
 
     with pytest.raises(Crash):
         run_quadrants(path, out=tmp_path / "crashed", backend=Crashing())
-    assert not (tmp_path / "crashed" / "compensation.json").exists()
-    resumed = run_quadrants(resume=tmp_path / "crashed")
+    crashed = tmp_path / "crashed"
+    assert not (crashed / "compensation.json").exists()
+    for name, edit in (("campaign.toml", lambda t: t.replace("max_torque_nm = 8.0", "max_torque_nm = 80.0")),
+                       ("quadrants.json", lambda t: t.replace('"seed": 2009', '"seed": 2010'))):
+        text = (crashed / name).read_text()
+        assert edit(text) != text
+        (crashed / name).write_text(edit(text))
+        with pytest.raises(ConfigError, match="not what .* began with"):
+            run_quadrants(resume=crashed)
+        (crashed / name).write_text(text)
+    resumed = run_quadrants(resume=crashed)
     for name in ("compensation.json", "forward/compensation.json", "reverse/compensation.json",
                  "reverse/states/learned.json"):
         assert (tmp_path / "crashed" / name).read_bytes() == (tmp_path / "reference" / name).read_bytes(), name

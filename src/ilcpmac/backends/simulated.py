@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -43,7 +44,8 @@ class SimulatorBackend:
     def __init__(self, model: MotorModel, limits: BenchLimits, warmup_revolutions: int = 1,
                  record_counts_per_rev: int | None = None, inertia_uncertainty: float | None = None) -> None:
         self.simulator = Simulator(model, warmup_revolutions, record_counts_per_rev)
-        self.mirror = self.simulator.mirrored()
+        self._mirror: Simulator | None = None
+        self._mirroring = threading.Lock()
         self.limits = limits
         self.inertia_uncertainty = inertia_uncertainty
         self.max_parallel_trials = os.cpu_count() or 1
@@ -70,8 +72,16 @@ class SimulatorBackend:
 
     def run_trial(self, request: TrialRequest) -> TrialData:
         if finite_number(request.speed_setpoint_hz) and request.speed_setpoint_hz < 0:
-            return self.mirror.run_trial(mirrored_request(request))
+            return self.mirror().run_trial(mirrored_request(request))
         return self.simulator.run_trial(request)
+
+    def mirror(self) -> Simulator:
+        """The simulator of the motor's mirror image (`Simulator.mirrored`), made at the first reverse trial (its
+        tables are as large as the motor's) and kept."""
+        with self._mirroring:  # trials run in threads
+            if self._mirror is None:
+                self._mirror = self.simulator.mirrored()
+            return self._mirror
 
     def close(self) -> None:
         """Nothing to release."""

@@ -278,17 +278,10 @@ def run_quadrants(config: str | Path | CampaignConfig | None = None, *, out: str
             share = None if budget_min is None else budget_min / len(directions)
             sides = {d: (bench, description) if d == FORWARD else
                      (MirroredBackend(bench), mirrored_description(description)) for d in directions}
-            configs = {d: cfg.in_direction(d) for d in directions}
-            if REVERSE in directions:
-                reverse = configs[REVERSE]
-                configs[REVERSE] = replace(held_calibration(reverse) if FORWARD in directions else reverse,
-                                           grid=replace(reverse.grid, seed=reverse_seed(seed)))
-            try:
-                plans = {d: planned(configs[d], sides[d][1], configs[d].grid.seed, share) for d in directions}
-            except ConfigError as e:
-                if share is None or len(directions) == 1:
-                    raise
-                raise ConfigError(f"{e} (each direction's share of --budget {budget_min:g} min)") from None
+            plans = _plans(cfg, {d: side[1] for d, side in sides.items()}, share)
+            for d in directions:
+                if (path / d / CONFIG_FILE).exists():
+                    _check_resumable(path, d, plans[d], trials)
             if len(directions) > 1:
                 events.message(DirectionsPlanned(
                     {d: len(plans[d].steps_left([])) for d in directions},
@@ -321,6 +314,40 @@ def run_quadrants(config: str | Path | CampaignConfig | None = None, *, out: str
         if made is not None:
             shutil.rmtree(made, ignore_errors=True)
     return QuadrantsResult(path, results, compensation)
+
+
+def _plans(cfg: CampaignConfig, descriptions: dict[str, BenchDescription], budget_min: float | None
+           ) -> dict[str, CampaignPlan]:
+    """Each direction's plan on its description (the reverse one the mirror's), within its share ``budget_min`` of
+    --budget: the reverse at its own seed (`reverse_seed`) and, after a forward one, at its calibration
+    (`held_calibration`). `ConfigError` for any that cannot run."""
+    configs = {d: cfg.in_direction(d) for d in descriptions}
+    if REVERSE in configs:
+        reverse = configs[REVERSE]
+        configs[REVERSE] = replace(held_calibration(reverse) if FORWARD in configs else reverse,
+                                   grid=replace(reverse.grid, seed=reverse_seed(cfg.grid.seed)))
+    try:
+        return {d: planned(configs[d], descriptions[d], configs[d].grid.seed, budget_min) for d in descriptions}
+    except ConfigError as e:
+        if budget_min is None or len(descriptions) == 1:
+            raise
+        raise ConfigError(f"{e} (each direction's share of --budget {budget_min * len(descriptions):g} min)") \
+            from None
+
+
+def _check_resumable(root: Path, direction: str, plan: CampaignPlan, trials: int | None) -> None:
+    """`ConfigError` where the run of ``direction`` in ``root`` did not begin as ``plan`` would (its sealed
+    campaign.toml, seed, trials and direction: `RunDir.read_settings`): an edited campaign.toml or quadrants.json
+    must not plan the rest of a run."""
+    path = root / direction
+    settings = RunDir.read_settings(path)
+    began = {"seed": plan.seed, "trials": trials, "direction": direction}
+    changed = [key for key, value in began.items() if settings.get(key) != value]
+    if (root / CONFIG_FILE).read_bytes() != (path / CONFIG_FILE).read_bytes():
+        changed.insert(0, CONFIG_FILE)
+    if changed:
+        raise ConfigError(f"--resume {root}: {', '.join(changed)} not what {path} began with (its seal keeps them): "
+                          f"put {root / CONFIG_FILE} and {root / QUADRANTS_FILE} back, or start a new run")
 
 
 def _direction(direction: str, plan: CampaignPlan, backend: Backend, description: BenchDescription, root: Path,
