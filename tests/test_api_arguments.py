@@ -22,6 +22,8 @@ VALID: dict[str, dict] = {
     "write_config": {"path": "c.toml", "changes": {}, "base": "base.toml"},
     "run": {"config": "c.toml", "out": "run", "backend": "sim", "address": "localhost:1", "seed": 1, "trials": 1,
             "budget_min": 5.0, "resume": None, "on_event": print},
+    "run_quadrants": {"config": "c.toml", "out": "run", "backend": "sim", "address": "localhost:1", "seed": 1,
+                      "trials": 1, "budget_min": 5.0, "resume": None, "on_event": print},
     "run_drive": {"config": "c.toml", "out": "run", "backend": "moteus", "address": "/dev/ttyACM0",
                   "write_config": False, "on_event": print},
     "print_event": {"event": None},  # no valid event without a campaign: its only argument is always hostile

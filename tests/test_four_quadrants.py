@@ -348,3 +348,23 @@ def test_a_campaign_in_both_directions_stopped_in_reverse_resumes_as_the_uninter
                  "reverse/states/learned.json"):
         assert (tmp_path / "crashed" / name).read_bytes() == (tmp_path / "reference" / name).read_bytes(), name
     assert resumed.directions[REVERSE].summary["points"] == reference.directions[REVERSE].summary["points"]
+
+
+@pytest.mark.slow
+def test_the_api_runs_both_directions_and_load_run_names_their_folders(write_config, tmp_path):
+    import ilcpmac.api as ilc
+
+    path = write_config(BOTH)
+    with pytest.raises(ConfigError, match="ilcpmac.api.run_quadrants"):
+        ilc.run(path, out=tmp_path / "one")
+    both = ilc.run_quadrants(path, out=tmp_path / "run")
+    assert list(both.directions) == [FORWARD, REVERSE] and both.compensation_file == tmp_path / "run" / \
+        "compensation.json"
+    for results in both.directions.values():
+        assert len(results.points) == 4 and all(p.ripple_pp_true_percent < 2 * p.floor_pp_true_percent
+                                                for p in results.points)
+    assert ilc.load_run(tmp_path / "run" / REVERSE).points == both.directions[REVERSE].points
+    with pytest.raises(IlcpmacError, match=r"a campaign in both directions: load_run of .*forward and .*reverse"):
+        ilc.load_run(tmp_path / "run")
+    exported = ilc.export(both.compensation_file, "json", tmp_path / "out")
+    assert Compensation.read(exported.files[0]).speeds_hz.tolist() == [-0.9, 0.9]

@@ -48,14 +48,14 @@ from ilcpmac.bench.importer import ImportedBench, ImportMapping, read_mapping
 from ilcpmac.bench.moteus import MoteusMapping, q_torque_constant
 from ilcpmac.bench.rolling import RollingData
 from ilcpmac.bench.standstill import TRUTH_FILE, ScanData, ScanResult
-from ilcpmac.campaign import service
+from ilcpmac.campaign import quadrants, service
 from ilcpmac.campaign.events import CampaignMessage, CampaignStart, NoEvents
 from ilcpmac.campaign.floors import PointFloor
 from ilcpmac.campaign.mean_torque import PointMeanTorque
 from ilcpmac.campaign.plan import MAX_BUDGET_MIN
 from ilcpmac.campaign.record import TrialRecord, records_of
 from ilcpmac.campaign.rundir import RunDirError, RunFiles, campaign_grid
-from ilcpmac.compensation import CONTENTS
+from ilcpmac.compensation import COMPENSATION_FILE, CONTENTS
 from ilcpmac.config import CampaignConfig, config_path, load_config, packaged_config
 from ilcpmac.core.errors import BenchFormatError, ConfigError, IlcpmacError, OptionError
 from ilcpmac.core.files import atomic_write, check_writable
@@ -71,10 +71,10 @@ if TYPE_CHECKING:
     from ilcpmac.sim.standstill import ScanPlan
 
 __all__ = ["COLUMN_UNITS", "DEFAULT_CONFIG", "CampaignEvent", "HoldingMaps", "ImportedBench", "PointSummary",
-           "RollingData", "RunResults", "ScanData", "ScanResult", "SimulatedBench", "SimulatedLog", "TrialColumns",
-           "export", "identify", "import_logs", "import_maps", "import_rolling", "import_scan", "load_run",
-           "print_event", "run", "run_drive", "simulate_bench", "simulate_log", "simulate_scan",
-           "torque_constant_nm_per_a", "write_config"]
+           "QuadrantRuns", "RollingData", "RunResults", "ScanData", "ScanResult", "SimulatedBench", "SimulatedLog",
+           "TrialColumns", "export", "identify", "import_logs", "import_maps", "import_rolling", "import_scan",
+           "load_run", "print_event", "run", "run_drive", "run_quadrants", "simulate_bench", "simulate_log",
+           "simulate_scan", "torque_constant_nm_per_a", "write_config"]
 
 #: a simulated log's plan: `ilcpmac.sim.standstill.ScanPlan` or `ilcpmac.sim.drive_log.LogPlan`
 PlanT = TypeVar("PlanT")
@@ -633,6 +633,47 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
     return RunResults.from_summary(result.path, result.summary)
 
 
+@dataclass(frozen=True)
+class QuadrantRuns:
+    """A campaign in both directions (docs/campaign.md, "Four quadrants"): each direction's results and the
+    compensation of both.
+
+    Attributes
+    ----------
+    path : Path
+        Its run directory.
+    directions : dict of str to RunResults
+        "forward" and "reverse" (`load_run` of each direction's folder), in the order they ran; the reverse's points
+        and trials are its mirror image's: the motor's torque and speed negated.
+    compensation_file : Path
+        compensation.json of both directions, in the motor's coordinates (`export` takes it).
+    """
+
+    path: Path
+    directions: dict[str, RunResults]
+    compensation_file: Path
+
+
+@_checked
+def run_quadrants(config: str | Path | CampaignConfig | None = None, *, out: str | Path | None = None,
+                  backend: str | Backend | None = None, address: str | None = None, seed: int | None = None,
+                  trials: int | None = None, budget_min: float | None = None, resume: str | Path | None = None,
+                  on_event: Callable[[CampaignEvent], None] | None = None) -> QuadrantRuns:
+    """Run a campaign in both directions (``ilcpmac run`` of a config whose ``[campaign] learn_speeds_hz`` holds a
+    negative speed): forward, then in reverse as the motor's mirror image, each in its own folder of the run
+    directory, then the compensation of both.
+
+    The arguments are `run`'s (``budget_min`` shared equally between the directions); the backend must run reverse
+    trials (the simulator does; docs/writing-a-backend.md). Raises as `run` does, before anything runs for a plan
+    of either direction that cannot.
+    """
+    result = quadrants.run_quadrants(config, out=out, backend=backend, address=address, trials=trials, seed=seed,
+                                     budget_min=budget_min, resume=resume,
+                                     events=None if on_event is None else _Callback(on_event))
+    return QuadrantRuns(result.path, {d: RunResults.from_summary(r.path, r.summary)
+                                      for d, r in result.directions.items()}, result.path / COMPENSATION_FILE)
+
+
 @_checked
 def run_drive(config: str | Path | CampaignConfig, *, out: str | Path | None = None,
               backend: str | Backend | None = None, address: str | None = None, write_config: bool = False,
@@ -722,6 +763,9 @@ def load_run(run_dir: str | Path) -> RunResults:
     RunDirError
         No summary.json there, or one that cannot be read (one line naming the file).
     """
+    if quadrants.is_quadrants_dir(run_dir):
+        raise RunDirError(f"{run_dir}: a campaign in both directions: load_run of {Path(run_dir) / 'forward'} and "
+                          f"{Path(run_dir) / 'reverse'} (run_quadrants returns both)")
     files = RunFiles(run_dir)
     return RunResults.from_summary(files.path, files.read_summary())
 

@@ -146,8 +146,8 @@ def run(config: str | Path | CampaignConfig | None = None, *, out: str | Path | 
         cfg = overridden(cfg, trials, seed, extra_stages)
         if cfg.directions() != (FORWARD,):
             raise ConfigError(f"{cfg.path}: [campaign] learn_speeds_hz learns in reverse: a campaign in both "
-                              "directions runs with ilcpmac run or ilcpmac.campaign.run_quadrants (docs/campaign.md, "
-                              "\"Four quadrants\")")
+                              "directions runs with ilcpmac run, ilcpmac.api.run_quadrants or "
+                              "ilcpmac.campaign.run_quadrants (docs/campaign.md, \"Four quadrants\")")
         seed = cfg.grid.seed
         path = resume_dir or out_dir or default_run_dir(cfg)
         if lock is None:
