@@ -663,9 +663,24 @@ def run_quadrants(config: str | Path | CampaignConfig | None = None, *, out: str
     negative speed): forward, then in reverse as the motor's mirror image, each in its own folder of the run
     directory, then the compensation of both.
 
-    The arguments are `run`'s (``budget_min`` shared equally between the directions); the backend must run reverse
-    trials (the simulator does; docs/writing-a-backend.md). Raises as `run` does, before anything runs for a plan
-    of either direction that cannot.
+    Parameters
+    ----------
+    config, out, backend, address, seed, trials, resume, on_event
+        As `run`'s; the backend must run reverse trials (the simulator does; docs/writing-a-backend.md).
+    budget_min : float or None
+        The motor's running time of both directions, min, shared equally between them; None: as the config says.
+
+    Returns
+    -------
+    QuadrantRuns
+        Each direction's results and the compensation of both.
+
+    Raises
+    ------
+    ConfigError
+        Before anything runs, for a config, an override, a backend or a plan of either direction that cannot run.
+    IlcpmacError
+        As `run`'s; ``resume`` continues.
     """
     result = quadrants.run_quadrants(config, out=out, backend=backend, address=address, trials=trials, seed=seed,
                                      budget_min=budget_min, resume=resume,
