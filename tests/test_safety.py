@@ -141,7 +141,7 @@ def test_setpoint_alone_beyond_the_limits_raises(limits, backemf, factor, negati
 
 def test_torque_bound_is_the_tighter_of_current_and_torque_limit():
     backemf = np.array([[0.2, -0.1, -0.1], [0.0, 0.3, -0.3], [1.0, 0.0, 0.0]])
-    limits = SafetyLimits(1.0, 10.0, 8.0)
+    limits = SafetyLimits(max_correction_nm=1.0, max_current_a=10.0, max_torque_nm=8.0)
     bound = torque_bound_nm(backemf, limits)
     # I* = tau K_p / sum K^2 reaches 10 A at tau = 10 sum K^2 / max |K_p|
     np.testing.assert_allclose(bound, [np.minimum(10 * 0.06 / 0.2, 8.0), 10 * 0.18 / 0.3, 8.0])
@@ -150,7 +150,7 @@ def test_torque_bound_is_the_tighter_of_current_and_torque_limit():
 
 def test_excitation_beyond_the_limits_raises_and_names_them():
     backemf = np.tile([0.2, -0.1, -0.1], (N, 1))
-    limits = SafetyLimits(1.0, 10.0, 8.0)  # bound 3 N m
+    limits = SafetyLimits(max_correction_nm=1.0, max_current_a=10.0, max_torque_nm=8.0)  # bound 3 N m
     excitation = np.zeros(N)
     excitation[5] = 0.6
     request = TrialRequest(2.5, 0.5, 1, np.zeros(N), excitation, CALIBRATION)
@@ -163,7 +163,7 @@ def test_excitation_beyond_the_limits_raises_and_names_them():
 
 def test_huge_feedforward_is_clipped_to_the_limits():
     backemf = np.tile([0.2, -0.1, -0.1], (N, 1))
-    limits = SafetyLimits(1.5, 10.0, 8.0)  # torque bound 3 N m
+    limits = SafetyLimits(max_correction_nm=1.5, max_current_a=10.0, max_torque_nm=8.0)  # torque bound 3 N m
     ff = np.full(N, 1e308)
     ff[1::2] = -1e308
     out = enforce_limits(TrialRequest(2.0, 0.5, 1, ff, np.zeros(N), CALIBRATION), backemf, limits)
@@ -177,7 +177,7 @@ def test_huge_feedforward_is_clipped_to_the_limits():
 def test_a_zero_back_emf_row_admits_only_zero_torque_and_never_a_nan_bound():
     backemf = np.tile([0.2, -0.1, -0.1], (N, 1))
     backemf[7] = 0.0
-    limits = SafetyLimits(1.0, 10.0, 8.0)
+    limits = SafetyLimits(max_correction_nm=1.0, max_current_a=10.0, max_torque_nm=8.0)
     for flowing in (None, FlowingCurrent(np.full(3, 1.1), np.array([0.5, -0.5, 0.0]))):
         low, high = torque_interval_nm(backemf, limits, flowing)
         assert np.all(np.isfinite(low)) and np.all(np.isfinite(high))
@@ -191,7 +191,7 @@ def test_a_zero_back_emf_row_admits_only_zero_torque_and_never_a_nan_bound():
 def test_the_flowing_current_bounds_the_torque_with_the_sensors_gain_and_offset():
     """i_p = epsilon alpha_p I*_p + beta_p: a sensor reading half the current lets twice the reference flow."""
     backemf = np.tile([0.2, -0.1, -0.1], (N, 1))  # I*_a = tau / 0.3 per N m
-    limits = SafetyLimits(10.0, 10.0, 8.0)
+    limits = SafetyLimits(max_correction_nm=10.0, max_current_a=10.0, max_torque_nm=8.0)
     low, high = torque_interval_nm(backemf, limits, FlowingCurrent(np.array([2.0, 1.0, 1.0]), np.array([1.0, 0, 0])))
     # phase a: |2 tau / 0.3 + 1| <= 10 -> tau in [-1.65, 1.35]; phases b, c: |tau / 0.6| <= 10
     np.testing.assert_allclose(low, -1.65)
@@ -213,8 +213,8 @@ def test_calibration_truth_and_flowing_current_agree_with_the_simulator(small_si
 
 # ---------------------------------------------------------------- the calibration trust region
 
-TRUST = SafetyLimits(1.5, 30.0, 8.0, max_scale_deviation=0.1, max_offset_deviation_a=0.5,
-                     max_torque_gain_deviation=0.1, from_config=True)
+TRUST = SafetyLimits(max_correction_nm=1.5, max_current_a=30.0, max_torque_nm=8.0, max_scale_deviation=0.1,
+                     max_offset_deviation_a=0.5, max_torque_gain_deviation=0.1, from_config=True)
 TRUTH = SensorCalibration([25.0, 18.0, 18.0], [25.0, -9.0, -9.0], 0.75)
 
 
@@ -289,7 +289,8 @@ def test_the_flowing_current_is_bounded_once_the_sensors_are_identified(limits_b
 
     _, description, identified, _, base = limits_bench
     truth = identified_truth(identified)
-    limits = SafetyLimits(1.5, 30.0, 8.0, from_config=True)  # no trust region
+    # no trust region
+    limits = SafetyLimits(max_correction_nm=1.5, max_current_a=30.0, max_torque_nm=8.0, from_config=True)
     four = base.with_changes(torque_setpoint_nm=5.0, calibration=dataclasses.replace(
         truth, current_scale=4 * truth.current_scale))
     assert request_violation(four, description, limits) is None  # the references alone are fine

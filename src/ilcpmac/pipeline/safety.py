@@ -37,7 +37,14 @@ from ilcpmac.stages.base import Identified
 ROUNDING = 1e-9
 
 
-@dataclass(frozen=True)
+#: the limits a bench states too (`BenchLimits`): a campaign's are the smaller of the two
+BENCH_BOUNDED = ("max_current_a", "max_torque_nm", "max_speed_hz")
+#: the limits of the config's [limits] alone (`LimitSettings`), besides the feed-forward's bound
+CONFIG_ONLY = ("max_scale_deviation", "max_offset_deviation_a", "max_torque_gain_deviation", "max_samples_per_trial",
+               "max_trial_duration_s")
+
+
+@dataclass(frozen=True, kw_only=True)
 class SafetyLimits:
     """Bounds on a request (docs/safety.md); the optional ones are unbounded unless given.
 
@@ -79,23 +86,22 @@ class SafetyLimits:
     @classmethod
     def of_bench(cls, bench: BenchLimits) -> "SafetyLimits":
         """What a bench announces: current, torque and speed."""
-        return cls(math.inf, bench.max_current_a, bench.max_torque_nm, bench.max_speed_hz)
+        return cls(max_correction_nm=math.inf, **{key: getattr(bench, key) for key in BENCH_BOUNDED})
 
     @classmethod
     def of_campaign(cls, settings: LimitSettings, bench: BenchLimits, warmup_revolutions: int) -> "SafetyLimits":
-        """The config's [limits], never beyond what the bench accepts."""
-        return cls(settings.correction_nm(), min(settings.max_current_a, bench.max_current_a),
-                   min(settings.max_torque_nm, bench.max_torque_nm), min(settings.max_speed_hz, bench.max_speed_hz),
-                   settings.max_scale_deviation, settings.max_offset_deviation_a,
-                   settings.max_torque_gain_deviation, settings.max_samples_per_trial,
-                   settings.max_trial_duration_s, warmup_revolutions, from_config=True)
+        """The config's [limits], never beyond what the bench accepts (`BENCH_BOUNDED`)."""
+        return cls(max_correction_nm=settings.correction_nm(),
+                   **{key: min(getattr(settings, key), getattr(bench, key)) for key in BENCH_BOUNDED},
+                   **{key: getattr(settings, key) for key in CONFIG_ONLY},
+                   warmup_revolutions=warmup_revolutions, from_config=True)
 
     def text(self, key: str, unit: str) -> str:
         """Limit ``key`` as a message names it: its value and where it comes from."""
         value = getattr(self, key)
         if not self.from_config:
             return f"the bench limit of {value:g} {unit}"
-        bench = " or the bench's" if key in ("max_current_a", "max_torque_nm", "max_speed_hz") else ""
+        bench = " or the bench's" if key in BENCH_BOUNDED else ""
         return f"{value:g} {unit} ([limits] {key}{bench})"
 
 
