@@ -181,6 +181,16 @@ def test_the_cli_offers_the_plot_formats_without_importing_matplotlib():
     assert done.stdout.strip() == "[]", done.stdout + done.stderr
 
 
+def test_the_cli_offers_the_export_formats_and_contents_the_export_knows():
+    """cli/export.py names them apart, so that starting the CLI imports no numpy: a format added to one only was
+    refused by click or crashed the export."""
+    from ilcpmac.cli import export as cli_export
+    from ilcpmac.compensation import CONTENTS
+    from ilcpmac.export import FORMATS
+
+    assert cli_export.FORMATS == FORMATS and cli_export.CONTENTS == CONTENTS
+
+
 def test_starting_the_cli_leaves_numpy_to_be_imported_after_tune_process():
     """numpy reads OPENBLAS_NUM_THREADS when first imported: the CLI's modules import it only inside the
     commands, after `main` has run `tune_process` (ilcpmac.core's package once imported every record)."""
