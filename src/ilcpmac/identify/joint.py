@@ -66,6 +66,8 @@ the gains and offsets over blocks of harmonics and over set points
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -89,19 +91,78 @@ LOOP_WINDING_FITTED = dict(zip(LOOP_WINDING, ("tau_a_s", "tau_b_s", "tau_c_s", "
 SHARED_FALSE_ALARM = 1e-3
 #: reduced chi-square of a harmonic family above which (and above its 99.9 % noise quantile) the fit is called off
 MISFIT_CHI2 = 1.5
-#: names of the nonlinear parameters, in order, and their typical sizes
+
+
+class Phi(IntEnum):
+    """The index of each nonlinear parameter in the vector phi (`NONLINEAR` names them in this order)."""
+
+    TAU_A = 0  # the current loop's time constant per phase, s
+    TAU_B = 1
+    TAU_C = 2
+    DELAY = 3  # the current loop's delay T_d, s
+    HIGHPASS = 4  # the torque sensor's high-pass corner, Hz
+    WINDING_TAU = 5  # the winding's L / R, s
+    TORQUE_DELAY = 6  # the torque sensor's delay D, s
+
+
+#: phases a, b, c's loop time constants in phi
+TAU = (Phi.TAU_A, Phi.TAU_B, Phi.TAU_C)
+#: names of the nonlinear parameters, in the order of `Phi`, and their typical sizes
 NONLINEAR = ("tau_a_s", "tau_b_s", "tau_c_s", "delay_s", "highpass_hz", "winding_tau_s", "torque_delay_s")
 NONLINEAR_SCALE = np.array([1e-3, 1e-3, 1e-3, 1e-4, 0.05, 1e-3, 1e-5])
 #: their lower bounds (time constants, delay and corner not negative; the torque's delay free)
 NONLINEAR_LOWER = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -np.inf])
 #: the torque sensor's (high-pass corner and delay): held at 0 (none) on the encoder-derived torque, which
 #: passes no sensor
-SENSOR_PARAMETERS = np.array([False, False, False, False, True, False, True])
-#: per loop parameter (index in NONLINEAR), the columns of `_JointProblem.loop_derivatives` and the linear
-#: columns (LINEAR) they move
-LOOP_COLUMNS = {0: ([0, 6], [0, 6]), 1: ([1, 7], [1, 6]), 2: ([2, 8], [2, 6]), 3: ([3, 4, 5, 9], [0, 1, 2, 6]),
-                5: ([10], [6])}
+SENSOR_PARAMETERS = np.isin(np.arange(len(Phi)), (Phi.HIGHPASS, Phi.TORQUE_DELAY))
+
+
+class Column(IntEnum):
+    """The index of each linear column, and of its coefficient in x (`LINEAR` names them in this order)."""
+
+    THETA_A = 0  # each phase's current column K_p G_p I*_p
+    THETA_B = 1
+    THETA_C = 2
+    BETA_STAR_A = 3  # each phase's offset column K_p
+    BETA_STAR_B = 4
+    BETA_STAR_C = 5
+    EMF = 6  # the back-EMF column sum_p K_p W (1 - G_p) e_p
+    SATURATION = 7
+
+
+#: phases a, b, c's current and offset columns
+THETA = (Column.THETA_A, Column.THETA_B, Column.THETA_C)
+BETA_STAR = (Column.BETA_STAR_A, Column.BETA_STAR_B, Column.BETA_STAR_C)
+#: the gains' block of the linear columns, theta and beta* (what `_gain_structure` tests), and its theta part
+GAINS = len(THETA) + len(BETA_STAR)
+#: the linear columns' names, in the order of `Column`
 LINEAR = ("theta_a", "theta_b", "theta_c", "beta_star_a", "beta_star_b", "beta_star_c", "emf", "saturation")
+
+
+class LoopDerivative(IntEnum):
+    """The index of each column of `_JointProblem.loop_derivatives`."""
+
+    CURRENT_TAU_A = 0  # K_p G_p I*_p with respect to tau_p
+    CURRENT_TAU_B = 1
+    CURRENT_TAU_C = 2
+    CURRENT_DELAY_A = 3  # K_p G_p I*_p with respect to T_d
+    CURRENT_DELAY_B = 4
+    CURRENT_DELAY_C = 5
+    EMF_TAU_A = 6  # the back-EMF column's phase p with respect to tau_p
+    EMF_TAU_B = 7
+    EMF_TAU_C = 8
+    EMF_DELAY = 9  # the back-EMF column with respect to T_d
+    EMF_WINDING_TAU = 10  # and to L / R
+
+
+#: per loop parameter, the columns of `_JointProblem.loop_derivatives` and the linear columns they move
+LOOP_COLUMNS = {
+    Phi.TAU_A: ([LoopDerivative.CURRENT_TAU_A, LoopDerivative.EMF_TAU_A], [Column.THETA_A, Column.EMF]),
+    Phi.TAU_B: ([LoopDerivative.CURRENT_TAU_B, LoopDerivative.EMF_TAU_B], [Column.THETA_B, Column.EMF]),
+    Phi.TAU_C: ([LoopDerivative.CURRENT_TAU_C, LoopDerivative.EMF_TAU_C], [Column.THETA_C, Column.EMF]),
+    Phi.DELAY: ([LoopDerivative.CURRENT_DELAY_A, LoopDerivative.CURRENT_DELAY_B, LoopDerivative.CURRENT_DELAY_C,
+                 LoopDerivative.EMF_DELAY], [*THETA, Column.EMF]),
+    Phi.WINDING_TAU: ([LoopDerivative.EMF_WINDING_TAU], [Column.EMF])}
 #: why the common current offset is not identified where the back-EMFs sum to zero
 COMMON_OFFSET_NOT_IDENTIFIED = (
     "current offsets: the common offset (mean of beta over the phases) not identified - the back-EMFs sum to zero "
@@ -327,7 +388,7 @@ class JointEstimate:
 
     def delta_epsilon_std_of(self, covariance: np.ndarray) -> float:
         """Standard error of delta*eps under ``covariance``."""
-        return self.std_of({f"theta_{p}": 1.0 / 3.0 for p in "abc"}, covariance)
+        return self.std_of({LINEAR[c]: 1.0 / len(THETA) for c in THETA}, covariance)
 
     @property
     def alpha(self) -> np.ndarray:
@@ -343,9 +404,9 @@ class JointEstimate:
         """Standard errors of alpha under ``covariance``."""
         mean = self.theta.mean()
         out = []
-        for p, name in enumerate("abc"):
-            grad = {f"theta_{q}": -self.theta[p] / (3.0 * mean**2) for q in "abc"}
-            grad[f"theta_{name}"] += 1.0 / mean
+        for p, column in enumerate(THETA):
+            grad = {LINEAR[c]: -self.theta[p] / (len(THETA) * mean**2) for c in THETA}
+            grad[LINEAR[column]] += 1.0 / mean
             out.append(self.std_of(grad, covariance))
         return np.array(out)
 
@@ -358,9 +419,9 @@ class JointEstimate:
     def sensor_response(self, harmonics: np.ndarray, speed_hz: float) -> np.ndarray:
         """The torque sensor's identified response per harmonic at a speed: high-pass and delay (1 without a
         sensor)."""
-        _, _, _, _, highpass_hz, _, delay_s = self.nonlinear
-        return torque_sensor.sensor_response(2.0 * np.pi * np.asarray(harmonics, float) * speed_hz, highpass_hz,
-                                             delay_s)
+        phi = self.nonlinear
+        return torque_sensor.sensor_response(2.0 * np.pi * np.asarray(harmonics, float) * speed_hz,
+                                             phi[Phi.HIGHPASS], phi[Phi.TORQUE_DELAY])
 
     def cogging_table_nm(self, counts_per_rev: int) -> np.ndarray:
         """delta tau_c per count, N m (measured units): T on the cogging harmonics."""
@@ -463,24 +524,26 @@ class _JointProblem:
 
     @staticmethod
     def loop_of(phi: np.ndarray) -> CurrentLoop:
-        return CurrentLoop(phi[:3], phi[3])
+        return CurrentLoop(phi[list(TAU)], phi[Phi.DELAY])
 
     def data(self, phi: np.ndarray) -> np.ndarray:
-        """Harmonic amplitudes 0..max_harmonic of the measured torque tables advanced by D = phi[6] s.
+        """Harmonic amplitudes 0..max_harmonic of the measured torque tables advanced by D s (phi's
+        TORQUE_DELAY).
 
         The torque sensor's filter and sampling delay the measurement by D;
         advancing the data in time (cubic interpolation through the count
         instants) puts it back on the count instants of the model.
         """
-        shift = phi[6] if self.sensor else 0.0  # the encoder-derived torque is at the count instants
+        shift = phi[Phi.TORQUE_DELAY] if self.sensor else 0.0  # the encoder-derived torque is at the count instants
         data = self._cached("data", (shift,), lambda: trial_amplitudes(
             self.shifted(shift)[0][:, :, None], self.max_harmonic)[:, :, 0])
         return data if self.ripple_highpass is None else data - self.ripple_highpass
 
     def data_slope(self, phi: np.ndarray) -> np.ndarray:
-        """The derivative of `data` with respect to D = phi[6] (the torque sensor's), per s."""
-        return self._cached("data_slope", (phi[6],), lambda: trial_amplitudes(
-            self.shifted(phi[6])[1][:, :, None], self.max_harmonic)[:, :, 0])
+        """The derivative of `data` with respect to D (phi's TORQUE_DELAY, the torque sensor's), per s."""
+        delay = phi[Phi.TORQUE_DELAY]
+        return self._cached("data_slope", (delay,), lambda: trial_amplitudes(
+            self.shifted(delay)[1][:, :, None], self.max_harmonic)[:, :, 0])
 
     def shifted(self, shift_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The torque tables advanced by ``shift_s`` and their derivative in it (`shifted_at`), both from one
@@ -495,7 +558,7 @@ class _JointProblem:
         omega = 2.0 * np.pi * self.speeds[:, None] * harmonics[None, :]
         if not self.sensor:
             return np.ones(omega.shape, complex)
-        return torque_sensor.highpass(omega, phi[4])
+        return torque_sensor.highpass(omega, phi[Phi.HIGHPASS])
 
     def variance_at(self, harmonics: np.ndarray) -> np.ndarray:
         """Variance of the real (and imaginary) part of each trial's ``harmonics``, shape (n_trials, len(harmonics))."""
@@ -536,8 +599,8 @@ class _JointProblem:
 
     def phase_current(self, phi: np.ndarray, p: int) -> np.ndarray:
         """G_p I*_p per count (per line for a record of count means), shape (n_trials, cpr b)."""
-        return self._cached(f"current{p}", (phi[p], phi[3]), lambda: self.lagged(self.phase_i_ref[p], phi[p],
-                                                                                 phi[3]))
+        tau, delay = phi[TAU[p]], phi[Phi.DELAY]
+        return self._cached(f"current{p}", (tau, delay), lambda: self.lagged(self.phase_i_ref[p], tau, delay))
 
     def current_torque(self, phi: np.ndarray, p: int) -> np.ndarray:
         """K_p G_p I*_p per count as the record holds it, shape (n_trials, cpr)."""
@@ -547,7 +610,7 @@ class _JointProblem:
         """sum_p K_p i_p^3 per count, i_p = theta_p G_p I*_p + beta*_p, shape (n_trials, cpr)."""
         terms = []
         for p in range(3):
-            current = x[p] * self.phase_current(phi, p) + x[3 + p]
+            current = x[THETA[p]] * self.phase_current(phi, p) + x[BETA_STAR[p]]
             terms.append(self.backemf_lines[:, p] * (current * current * current))
         return self.counted(terms[0] + terms[1] + terms[2])
 
@@ -565,19 +628,22 @@ class _JointProblem:
 
     def rejected(self, phi: np.ndarray, p: int) -> np.ndarray:
         """(1 - G_p) e_p per count, shape (n_trials, cpr): what the loop lets through of its back-EMF."""
+        tau, delay = phi[TAU[p]], phi[Phi.DELAY]
+
         def compute():
             emf = self.phase_emf[p]
-            return emf - self.lagged(emf, phi[p], phi[3], continuous=True)
+            return emf - self.lagged(emf, tau, delay, continuous=True)
 
-        return self._cached(f"rejected{p}", (phi[p], phi[3]), compute)
+        return self._cached(f"rejected{p}", (tau, delay), compute)
 
     def phase_columns(self, phi: np.ndarray, p: int) -> np.ndarray:
         """Amplitudes of K_p G_p I*_p and of K_p W (1 - G_p) e_p, shape (n_trials, n_fit, 2)."""
         k = self.backemf[:, p]
-        current = self._cached(f"current_amplitude{p}", (phi[p], phi[3]), lambda: self.amplitudes(
+        tau, delay, winding = phi[TAU[p]], phi[Phi.DELAY], phi[Phi.WINDING_TAU]
+        current = self._cached(f"current_amplitude{p}", (tau, delay), lambda: self.amplitudes(
             self.current_torque(phi, p)[:, :, None]))
-        emf = self._cached(f"emf_amplitude{p}", (phi[p], phi[3], phi[5]), lambda: self.amplitudes(
-            (k * self.lagged(self.rejected(phi, p), phi[5], 0.0, continuous=True))[:, :, None]))
+        emf = self._cached(f"emf_amplitude{p}", (tau, delay, winding), lambda: self.amplitudes(
+            (k * self.lagged(self.rejected(phi, p), winding, 0.0, continuous=True))[:, :, None]))
         return np.concatenate([current, emf], axis=2)
 
     def lag_derivatives(self, x: np.ndarray, tau: float, delay: float,
@@ -595,21 +661,28 @@ class _JointProblem:
         K_p W (1 - G_p) e_p with respect to tau_p; of sum_p K_p W (1 - G_p) e_p with respect to T_d and L/R.
         The last ones kept: the Gauss-Newton step of `fit_joint` starts where the lagged loop's fit took its last
         Jacobian."""
-        key = tuple(phi[[0, 1, 2, 3, 5]])
+        key = tuple(phi[[*TAU, Phi.DELAY, Phi.WINDING_TAU]])
         if self._loop_derivatives[0] != key:
-            per_phase = []
-            for p in range(3):
-                k = self.backemf[:, p]
-                current = [self.counted(self.backemf_lines[:, p] * d)
-                           for d in self.lag_derivatives(self.phase_i_ref[p], phi[p], phi[3])]
-                emf = self.lag_derivatives(self.phase_emf[p], phi[p], phi[3], continuous=True)
-                winding, _ = self.lag_derivatives(self.rejected(phi, p), phi[5], 0.0, continuous=True)
-                tables = [*current, *(-k * self.lagged(d, phi[5], 0.0, continuous=True) for d in emf), k * winding]
+            current_tau, current_delay, emf_tau, emf_delay, emf_winding = [], [], [], [], []
+            delay, winding_tau = phi[Phi.DELAY], phi[Phi.WINDING_TAU]
+
+            def amplitudes(table: np.ndarray) -> np.ndarray:
                 # one transform per table: a stack of them transforms slower than its parts
-                per_phase.append([self.amplitudes(table[:, :, None]) for table in tables])
-            a, b, c = per_phase
-            self._loop_derivatives = (key, np.concatenate([a[0], b[0], c[0], a[1], b[1], c[1], a[2], b[2], c[2],
-                                                           a[3] + b[3] + c[3], a[4] + b[4] + c[4]], axis=2))
+                return self.amplitudes(table[:, :, None])
+
+            for p in range(3):
+                k, tau = self.backemf[:, p], phi[TAU[p]]
+                d_tau, d_delay = self.lag_derivatives(self.phase_i_ref[p], tau, delay)
+                current_tau.append(amplitudes(self.counted(self.backemf_lines[:, p] * d_tau)))
+                current_delay.append(amplitudes(self.counted(self.backemf_lines[:, p] * d_delay)))
+                e_tau, e_delay = self.lag_derivatives(self.phase_emf[p], tau, delay, continuous=True)
+                emf_tau.append(amplitudes(-k * self.lagged(e_tau, winding_tau, 0.0, continuous=True)))
+                emf_delay.append(amplitudes(-k * self.lagged(e_delay, winding_tau, 0.0, continuous=True)))
+                winding, _ = self.lag_derivatives(self.rejected(phi, p), winding_tau, 0.0, continuous=True)
+                emf_winding.append(amplitudes(k * winding))
+            columns = [*current_tau, *current_delay, *emf_tau, emf_delay[0] + emf_delay[1] + emf_delay[2],
+                       emf_winding[0] + emf_winding[1] + emf_winding[2]]  # in the order of LoopDerivative
+            self._loop_derivatives = (key, np.concatenate(columns, axis=2))
         return self._loop_derivatives[1]
 
     def design(self, phi: np.ndarray, saturation: np.ndarray | None) -> np.ndarray:
@@ -632,9 +705,11 @@ class _JointProblem:
         torque = np.zeros(self.i_ref.shape[:2])
         for p in range(3):
             k = self.backemf[:, p]
-            torque += (x[p] * self.current_torque(phi, p) + x[3 + p] * self.counted(self.backemf_lines[:, p])
-                       + x[6] * k * self.lagged(self.rejected(phi, p), phi[5], 0.0, continuous=True))
-        torque -= x[7] * self.cubic_torque(phi, x)
+            torque += (x[THETA[p]] * self.current_torque(phi, p)
+                       + x[BETA_STAR[p]] * self.counted(self.backemf_lines[:, p])
+                       + x[Column.EMF] * k * self.lagged(self.rejected(phi, p), phi[Phi.WINDING_TAU], 0.0,
+                                                         continuous=True))
+        torque -= x[Column.SATURATION] * self.cubic_torque(phi, x)
         amplitudes = np.zeros(self.cpr // 2 + 1, complex)
         for h, value in table.items():
             amplitudes[h] = value
@@ -690,20 +765,20 @@ class _JointProblem:
         residuals, products = np.empty((n_rows, indices.size)), np.empty((design.shape[2], indices.size))
         for column, i in enumerate(indices.tolist()):
             d_y, d_columns = np.zeros(n_rows), np.zeros((n_rows, design.shape[2]))
-            if i in LOOP_COLUMNS:
-                source, target = LOOP_COLUMNS[i]
+            if (parameter := Phi(i)) in LOOP_COLUMNS:
+                source, target = LOOP_COLUMNS[parameter]
                 loop = self.loop_derivatives(phi)[:, :, source]
                 d_columns[:, target] = _weighted_change(loop, weights, root, free)
-            elif i == 4 and self.sensor:
+            elif parameter == Phi.HIGHPASS and self.sensor:
                 omega = 2.0 * np.pi * self.speeds[:, None] * self.sets.fit[None, :]
-                corner = 2.0 * np.pi * phi[4]
+                corner = 2.0 * np.pi * phi[Phi.HIGHPASS]
                 data = self.data(phi)[:, self.sets.fit]
                 d_data = data * (2.0 * np.pi / (1j * omega))
                 d_log_weight = (-4.0 * np.pi * corner / (omega**2 + corner**2))[:, :, None]
                 d_y = _weighted_change(d_data[:, :, None], weights, root, free,
                                        ((data / hp)[:, :, None], d_log_weight))[:, 0]
                 d_columns = _weighted_change(None, weights, root, free, (design, d_log_weight))
-            elif i == 6 and self.sensor:
+            elif parameter == Phi.TORQUE_DELAY and self.sensor:
                 d_data = self.data_slope(phi)[:, self.sets.fit] / self.highpass(phi, self.sets.fit)
                 d_y = _weighted_change(d_data[:, :, None], weights, root, free)[:, 0]
             residuals[:, column] = d_y - d_columns @ x
@@ -735,8 +810,8 @@ class _JointProblem:
         """
         if self.common_offset:
             return np.eye(size)
-        constraint = np.delete(np.eye(size), 5, axis=1)
-        constraint[5, 3:5] = -1.0
+        constraint = np.delete(np.eye(size), Column.BETA_STAR_C, axis=1)
+        constraint[Column.BETA_STAR_C, [Column.BETA_STAR_A, Column.BETA_STAR_B]] = -1.0
         return constraint
 
     def constrained(self, columns: np.ndarray) -> np.ndarray:
@@ -962,7 +1037,7 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     lagged = _fit_nonlinear(problem, initial_loop, problem.identifiable)
     ideal = _fit_nonlinear(problem, CurrentLoop(), SENSOR_PARAMETERS & problem.identifiable)
     # the lag must pay for its five more parameters (Akaike)
-    _, phi, active, saturation, x, rest = lagged if lagged[0] + 2.0 * 5 < ideal[0] else ideal
+    _, phi, active, saturation, x, rest = lagged if lagged.rss + 2.0 * 5 < ideal.rss else ideal
     shared = _shared_rest(problem, phi, saturation, x)
     if shared.any():
         sets = replace(sets, table_free=sets.table_free | shared)
@@ -977,26 +1052,38 @@ def fit_joint(tables: BenchTables, initial_loop: CurrentLoop) -> JointEstimate:
     covariance, bound, names, chi2, misfit = _covariance(problem, phi, active, saturation, x, rest)
     structure = _gain_structure(problem, phi, saturation, rest, covariance)
     covariance = covariance.copy()
-    covariance[:6, :6] += structure.covariance
+    covariance[:GAINS, :GAINS] += structure.covariance
     # B I B with I >= 0, plus a structure >= 0: a negative diagonal is round-off about zero (-1.7e-15 against 886)
     std = dict(zip(names, np.sqrt(np.maximum(np.diag(covariance), 0.0))))
     return JointEstimate(
-        theta=x[:3], theta_std=np.array([std[f"theta_{p}"] for p in "abc"]),
-        beta_star_a=x[3:6], beta_star_std=np.array([std[f"beta_star_{p}"] for p in "abc"]),
-        saturation_per_a2=float(x[-1]), saturation_std=float(std["saturation"]),
+        theta=x[list(THETA)], theta_std=np.array([std[LINEAR[c]] for c in THETA]),
+        beta_star_a=x[list(BETA_STAR)], beta_star_std=np.array([std[LINEAR[c]] for c in BETA_STAR]),
+        saturation_per_a2=float(x[Column.SATURATION]), saturation_std=float(std["saturation"]),
         loop=problem.loop_of(phi),
-        loop_std=np.array([std.get(name, 0.0) for name in NONLINEAR[:4]]),
-        highpass_hz=float(phi[4]) if problem.sensor else None,
-        highpass_std=float(std["highpass_hz"]) if problem.sensor else None, winding_time_constant_s=float(phi[5]),
-        torque_delay_s=float(phi[6]) if problem.sensor else None,
-        emf_gain=float(x[LINEAR.index("emf")]), emf_gain_std=float(std["emf"]),
+        loop_std=np.array([std.get(NONLINEAR[i], 0.0) for i in (*TAU, Phi.DELAY)]),
+        highpass_hz=float(phi[Phi.HIGHPASS]) if problem.sensor else None,
+        highpass_std=float(std["highpass_hz"]) if problem.sensor else None,
+        winding_time_constant_s=float(phi[Phi.WINDING_TAU]),
+        torque_delay_s=float(phi[Phi.TORQUE_DELAY]) if problem.sensor else None,
+        emf_gain=float(x[Column.EMF]), emf_gain_std=float(std["emf"]),
         position_table=problem.position_table(phi, design, x), cogging_harmonics=sets.cogging,
         covariance=covariance, bound_covariance=bound, parameter_names=names, chi2_reduced=chi2, misfit=misfit,
         gain_structure=structure, sets=sets, common_offset_identified=problem.common_offset)
 
 
+class NonlinearFit(NamedTuple):
+    """What `_fit_nonlinear` ends at."""
+
+    rss: float  # the weighted residual sum of squares
+    phi: np.ndarray  # the nonlinear parameters (`Phi`)
+    active: np.ndarray  # which of them were fitted
+    saturation: np.ndarray  # the saturation column
+    x: np.ndarray  # the linear parameters (`Column`)
+    rest: np.ndarray  # the weighted residual
+
+
 def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray,
-                   start: np.ndarray | None = None) -> tuple:
+                   start: np.ndarray | None = None) -> NonlinearFit:
     """Variable projection over the ``active`` nonlinear parameters, started from ``loop``, or from ``start`` (all
     of phi, a fit's) when given.
 
@@ -1005,13 +1092,18 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
     (`_JointProblem.jacobian`). The parameters not ``active`` keep their
     starting values: ``loop``'s, L / R at 1 ms, no high-pass, no torque delay.
 
-    Returns (weighted residual sum of squares, phi, active, saturation column, linear parameters, residual).
+    Returns the `NonlinearFit`.
     """
     from scipy.optimize import least_squares  # 0.35 s to import: only when fitting
 
-    phi = start.copy() if start is not None else np.array([
-        *loop.time_constant_s, max(loop.delay_s, 0.0) if active[3] else loop.delay_s, 0.01 if active[4] else 0.0,
-        1e-3, 0.0])
+    if start is not None:
+        phi = start.copy()
+    else:  # loop's, its delay within its bound where fitted, a 0.01 Hz corner where fitted, L / R 1 ms, no delay
+        phi = np.zeros(len(Phi))
+        phi[list(TAU)] = loop.time_constant_s
+        phi[Phi.DELAY] = max(loop.delay_s, 0.0) if active[Phi.DELAY] else loop.delay_s
+        phi[Phi.HIGHPASS] = 0.01 if active[Phi.HIGHPASS] else 0.0
+        phi[Phi.WINDING_TAU] = 1e-3
     lower = NONLINEAR_LOWER[active]
     saturation = problem.saturation_column(phi, problem.solve(phi, None)[0])
 
@@ -1035,7 +1127,7 @@ def _fit_nonlinear(problem: _JointProblem, loop: CurrentLoop, active: np.ndarray
                                     x_scale=NONLINEAR_SCALE[active], method="trf", ftol=1e-6, xtol=1e-6).x
     saturation = problem.saturation_column(phi, problem.solve(phi, saturation)[0])
     x, rest = problem.solve(phi, saturation)
-    return float(rest @ rest), phi, active, saturation, x, rest
+    return NonlinearFit(float(rest @ rest), phi, active, saturation, x, rest)
 
 
 def _shared_rest(problem: _JointProblem, phi: np.ndarray, saturation: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -1086,10 +1178,10 @@ def _ripple_highpass(problem: _JointProblem, phi: np.ndarray, x: np.ndarray, tab
     """
     fit = problem.sets.fit
     out = np.zeros((problem.speeds.size, problem.max_harmonic + 1), complex)
-    if not phi[4] > 0.0:  # no high-pass
+    if not phi[Phi.HIGHPASS] > 0.0:  # no high-pass
         return out
     torque = problem.model_counts(phi, x, table)
-    output = torque - periodic_lag(torque, problem.count_period, 1.0 / (2.0 * np.pi * phi[4]))
+    output = torque - periodic_lag(torque, problem.count_period, 1.0 / (2.0 * np.pi * phi[Phi.HIGHPASS]))
     amplitudes = trial_amplitudes(np.stack([output, torque], axis=2), problem.max_fit)[:, fit]
     out[:, fit] = amplitudes[:, :, 0] - problem.highpass(phi, fit) * amplitudes[:, :, 1]
     return out
@@ -1191,7 +1283,7 @@ def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndar
     """
     _, design = problem.weighted(phi, problem.design(phi, saturation))
     n_trials, n_fit = problem.variance.shape[0], problem.sets.fit.size
-    columns = design[:, :6].reshape(2, n_trials, n_fit, 6)
+    columns = design[:, :GAINS].reshape(2, n_trials, n_fit, GAINS)
     residual = rest.reshape(2, n_trials, n_fit)
     excitation = dict(misfit_groups(problem.sets.fit, problem.pole_pairs, problem.cogging_order)).get("excitation")
     members = np.flatnonzero(excitation) if excitation is not None else np.zeros(0, int)
@@ -1200,15 +1292,15 @@ def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndar
     def structure(parts: list, size: int) -> tuple[float, np.ndarray]:
         """The largest chi2/dof over the tested quantities, and the structure's covariance (size x size)."""
         shift_rows, noise_rows = [], []
-        constraint = problem.constraint(size) if size == 6 else np.eye(size)
+        constraint = problem.constraint(size) if size == GAINS else np.eye(size)
         for d, r in parts:
             d = d @ constraint
             noise = np.linalg.pinv(d.T @ d)
             shift_rows.append(constraint @ noise @ d.T @ r)
             noise_rows.append(constraint @ noise @ constraint.T)
         shifts, noises = np.array(shift_rows), np.array(noise_rows)
-        tests = [mean] + [np.eye(size)[3 + p] for p in range(size - 3)]
-        expected_gain = np.einsum("i,bij,j->b", mean, noises[:, :3, :3], mean)
+        tests = [mean] + [np.eye(size)[c] for c in range(len(THETA), size)]
+        expected_gain = np.einsum("i,bij,j->b", mean, noises[:, :len(THETA), :len(THETA)], mean)
         if len(parts) < 2 or not np.all(expected_gain > 0.0):
             return 0.0, np.zeros((size, size))
         found, q_max = False, 0.0
@@ -1225,20 +1317,22 @@ def _gain_structure(problem: _JointProblem, phi: np.ndarray, saturation: np.ndar
         values, vectors = np.linalg.eigh(excess)
         return q_max, (vectors * np.maximum(values, 0.0)) @ vectors.T
 
-    q_harmonics, excess_harmonics = 0.0, np.zeros((3, 3))
+    q_harmonics, excess_harmonics = 0.0, np.zeros((len(THETA), len(THETA)))
     for size in {members.size // 2, int(np.ceil(np.sqrt(members.size)))}:
         if size < 1 or members.size // size < 2:
             continue
         blocks = members[: members.size // size * size].reshape(-1, size)
-        q, excess = structure([(columns[:, :, b, :3].reshape(-1, 3), residual[:, :, b].ravel()) for b in blocks], 3)
+        q, excess = structure([(columns[:, :, b, :len(THETA)].reshape(-1, len(THETA)), residual[:, :, b].ravel())
+                               for b in blocks], len(THETA))
         if mean @ excess @ mean >= mean @ excess_harmonics @ mean:
             q_harmonics, excess_harmonics = max(q, q_harmonics), excess
-    q_set_points, excess = structure([(columns[:, k].reshape(-1, 6), residual[:, k].ravel())
-                                      for k in range(n_trials)], 6)
-    excess[:3, :3] += excess_harmonics
-    fitted = covariance[:6, :6]
-    gain = np.concatenate([mean, np.zeros(3)])
-    ratios = [(g @ (fitted + excess) @ g) / (g @ fitted @ g) for g in (gain, *np.eye(6)[3:]) if g @ fitted @ g > 0.0]
+    q_set_points, excess = structure([(columns[:, k].reshape(-1, GAINS), residual[:, k].ravel())
+                                      for k in range(n_trials)], GAINS)
+    excess[:len(THETA), :len(THETA)] += excess_harmonics
+    fitted = covariance[:GAINS, :GAINS]
+    gain = np.concatenate([mean, np.zeros(len(BETA_STAR))])
+    ratios = [(g @ (fitted + excess) @ g) / (g @ fitted @ g) for g in (gain, *np.eye(GAINS)[len(THETA):])
+              if g @ fitted @ g > 0.0]
     return GainStructure(problem.sets.fit[members], (q_harmonics, q_set_points), excess,
                          float(np.sqrt(max(ratios, default=1.0))))
 
