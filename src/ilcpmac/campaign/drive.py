@@ -57,7 +57,7 @@ import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -99,7 +99,7 @@ MIN_REVOLUTIONS = 2.0
 USABLE_SIGNIFICANCE = 3.0
 
 
-def _positive_speeds(x) -> bool:
+def _positive_speeds(x: tuple[float, ...]) -> bool:
     return 0 < len(x) <= 16 and all(0 < v <= 1e3 for v in x) and len(set(x)) == len(x)
 
 
@@ -128,7 +128,8 @@ class DriveSettings:
 def drive_settings(config: CampaignConfig) -> DriveSettings:
     """The config's [drive] table (`CampaignConfig.drive_options`; none: the defaults), each error one line
     naming the file and ``[drive] KEY``."""
-    return parse_section(config.drive_options or {}, DriveSettings, str(config.path), "drive")
+    settings: DriveSettings = parse_section(config.drive_options or {}, DriveSettings, str(config.path), "drive")
+    return settings
 
 
 # ---------------------------------------------------------------- the plan
@@ -291,7 +292,9 @@ def residual_nm(estimate: RollingEstimate, k_q: np.ndarray, table: MoteusTable, 
                 bandwidth_hz: float | None) -> np.ndarray:
     """Eq. (1): rho^ per count, the position torque the trial's rows tell plus the torque of the table's current
     as it flows (eq. 3), N m."""
-    return estimate.table_nm() + k_q * lagged_a(_table_at_counts_a(table, k_q.size), speed_hz, bandwidth_hz)
+    flowing = lagged_a(_table_at_counts_a(table, k_q.size), speed_hz, bandwidth_hz)
+    delivered: np.ndarray = estimate.table_nm() + k_q * flowing
+    return delivered
 
 
 def learned_table(table: MoteusTable, mean_residual_nm: np.ndarray, k_q: np.ndarray, gain: float) -> MoteusTable:
@@ -409,7 +412,7 @@ class Unapplied:
                    "position table follows")
         return out
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {"one_table_nm": None if self.one_table_nm is None else list(self.one_table_nm),
                 "own_table_nm": None if self.own_table_nm is None else list(self.own_table_nm),
                 "electrical_nm": self.electrical_nm}
@@ -480,9 +483,9 @@ class DriveCampaignResult:
         out.append(f"motor time: {self.motor_time_used_s:.4g} s of {self.motor_time_planned_s:.4g} s planned")
         return out + list(self.messages)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """drive_result.json."""
-        return finite_json({
+        result: dict[str, Any] = finite_json({
             "speeds_hz": list(self.plan.speeds_hz), "rounds": list(self.plan.rounds),
             "settle_s": self.plan.settle_s, "seconds": self.plan.seconds,
             "motor_time_planned_s": self.motor_time_planned_s, "motor_time_used_s": self.motor_time_used_s,
@@ -493,6 +496,7 @@ class DriveCampaignResult:
                         "true_final_nm": p.true_final_nm, "true_floor_nm": p.true_floor_nm} for p in self.points],
             "table": {"scale_a": float(np.float32(self.table.scale_a)), "values": self.table.values.tolist()},
             "messages": list(self.messages)})
+        return result
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 from ilcpmac.campaign.plan import CampaignPlan
 from ilcpmac.campaign.record import Point, TrialRecord
@@ -191,13 +191,13 @@ class GuardEvent:
         return (f"guard: measured ripple at {self.set_point} grew twice in a row; reverted to the correction of "
                 f"trial {self.reverted_to_trial} and halved the learning gain to {self.learning_gain:g}")
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The trial state's "guard" object (states/trial_NNN.json)."""
         return {"set_point": self.set_point, "reverted_to_trial": self.reverted_to_trial,
                 "learning_gain": self.learning_gain}
 
     @classmethod
-    def from_json(cls, data: dict) -> GuardEvent:
+    def from_json(cls, data: dict[str, Any]) -> GuardEvent:
         """The event `to_json` wrote."""
         return cls(str(data["set_point"]), int(data["reverted_to_trial"]), float(data["learning_gain"]))
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -105,7 +105,7 @@ class PointFloor:
     measured_pp: float
     true_pp: float | None
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """Its keys in summary.json's ``points`` entry of the point."""
         out = {"floor_pp_measured": self.measured_pp}
         if self.true_pp is not None:
@@ -113,7 +113,7 @@ class PointFloor:
         return out
 
     @classmethod
-    def from_json(cls, data: dict) -> PointFloor | None:
+    def from_json(cls, data: dict[str, Any]) -> PointFloor | None:
         """The floor in summary.json's ``points`` entry ``data`` (`to_json` beside the point's results); None in
         an entry without one (a run of an earlier release)."""
         if "floor_pp_measured" not in data:
@@ -130,7 +130,7 @@ class PointFloor:
         return {"measured": self.measured_pp, "true": self.true_pp}[kind]
 
 
-def floors_of(summary: dict) -> dict[Point, PointFloor]:
+def floors_of(summary: dict[str, Any]) -> dict[Point, PointFloor]:
     """The floor of every point of summary.json ``summary`` that has one, by point (`PointFloor.from_json`)."""
     return {floor.point: floor for p in summary.get("points", []) if (floor := PointFloor.from_json(p)) is not None}
 
@@ -161,7 +161,7 @@ class RippleEstimate:
 
 def stands_out(estimate_nm: np.ndarray, variance_nm2: np.ndarray) -> np.ndarray:
     """Where ``estimate_nm`` stands out of its noise at `SIGNIFICANCE` (never at h = 0)."""
-    out = np.abs(estimate_nm) ** 2 > SIGNIFICANCE**2 * variance_nm2
+    out: np.ndarray = np.abs(estimate_nm) ** 2 > SIGNIFICANCE**2 * variance_nm2
     out[0] = False
     return out
 
@@ -203,7 +203,8 @@ class LearningFloor:
 
     @property
     def total_nm2(self) -> np.ndarray:
-        return self.noise_nm2 + self.unresolved_nm2
+        total: np.ndarray = self.noise_nm2 + self.unresolved_nm2
+        return total
 
 
 def learning_floors(estimates: dict[Point, RippleEstimate]) -> dict[Point, LearningFloor]:
@@ -301,7 +302,9 @@ def interpolation_error(tables_nm: np.ndarray, torques_nm: np.ndarray, speeds_hz
     else:
         seen = tables * np.stack([response(h, float(speed)) / at for speed in speeds_hz])
     ideal = np.einsum("i,j,ijh->h", _axis_weights(torques_nm, point[0]), _axis_weights(speeds_hz, point[1]), seen)
-    return at * (ideal - np.einsum("ij,ijh->h", interpolation_weights(torques_nm, speeds_hz, *point), tables))
+    bilinear = np.einsum("ij,ijh->h", interpolation_weights(torques_nm, speeds_hz, *point), tables)
+    error_nm: np.ndarray = at * (ideal - bilinear)
+    return error_nm
 
 
 def _floor(final: TorqueSpectrum, mean_nm: float, learning: np.ndarray, offset_nm: np.ndarray | None) -> float:

@@ -11,6 +11,7 @@ back-EMF as identified.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from ilcpmac.campaign.record import Point, number_in, optional_in
 from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
@@ -66,7 +67,7 @@ class PointMeanTorque:
         """The true mean over the set point, less 1 (None on a bench)."""
         return None if self.true_nm is None else self.true_nm / self.point[0] - 1.0
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """Its keys in summary.json's ``points`` entry of the point (`MEAN_TORQUE_UNITS`)."""
         return {"mean_torque_nm": self.implied.mean_nm, "mean_torque_std_nm": self.implied.std_nm,
                 "mean_torque_backemf_nm": self.implied.backemf_loss_nm,
@@ -76,7 +77,7 @@ class PointMeanTorque:
                 "mean_torque_model_std_nm": self.implied.model_std_nm}
 
     @classmethod
-    def from_json(cls, data: dict) -> PointMeanTorque | None:
+    def from_json(cls, data: dict[str, Any]) -> PointMeanTorque | None:
         """The mean torque in summary.json's ``points`` entry ``data``; None in an entry without one (a run of an
         earlier release). `ValueError` naming the key for a value out of range."""
         if "mean_torque_nm" not in data:
@@ -98,6 +99,6 @@ class PointMeanTorque:
         return cls(point, data["learned"], implied, true)
 
 
-def mean_torques_of(summary: dict) -> dict[Point, PointMeanTorque]:
+def mean_torques_of(summary: dict[str, Any]) -> dict[Point, PointMeanTorque]:
     """The mean torque of every point of summary.json ``summary`` that has one, by point."""
     return {m.point: m for p in summary.get("points", []) if (m := PointMeanTorque.from_json(p)) is not None}

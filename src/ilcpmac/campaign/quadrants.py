@@ -20,7 +20,7 @@ import math
 import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -225,7 +225,7 @@ def is_quadrants_dir(path: str | Path) -> bool:
     return (Path(path) / QUADRANTS_FILE).is_file()
 
 
-def _settings(path: Path) -> dict:
+def _settings(path: Path) -> dict[str, Any]:
     """quadrants.json of the run directory ``path``: its seed, trials and budget."""
     source = path / QUADRANTS_FILE
     try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from ilcpmac.core.records import MAX_SPEED_HZ, MAX_TORQUE_NM
 from ilcpmac.core.schema import shown
@@ -33,7 +34,7 @@ MAX_MOTOR_TIME_S = 1e9
 MAX_MEAN_TORQUE_ERROR = 1e6
 
 
-def number_in(data: dict, key: str, low: float, high: float) -> float:
+def number_in(data: dict[str, Any], key: str, low: float, high: float) -> float:
     """``data[key]`` as a float within [low, high]; `ValueError` naming ``key`` for anything else (a bool, text,
     NaN, a number beyond the range): what a reader of summary.json takes from it."""
     value = data[key]
@@ -42,16 +43,16 @@ def number_in(data: dict, key: str, low: float, high: float) -> float:
     return float(value)
 
 
-def optional_in(data: dict, key: str, low: float, high: float) -> float | None:
+def optional_in(data: dict[str, Any], key: str, low: float, high: float) -> float | None:
     """`number_in`, or None where ``data`` has no ``key`` or holds null there."""
     return None if data.get(key) is None else number_in(data, key, low, high)
 
 
-def _figures_json(kind: str, figures: RippleFigures | None) -> dict:
+def _figures_json(kind: str, figures: RippleFigures | None) -> dict[str, Any]:
     return {} if figures is None else {key.format(kind): getattr(figures, name) for name, key in FIGURE_KEYS}
 
 
-def _figures_from_json(kind: str, data: dict) -> RippleFigures | None:
+def _figures_from_json(kind: str, data: dict[str, Any]) -> RippleFigures | None:
     if FIGURE_KEYS[0][1].format(kind) not in data:
         return None
     return RippleFigures(**{name: number_in(data, key.format(kind), 0.0, MAX_TORQUE_NM if key.endswith("_nm")
@@ -121,7 +122,7 @@ class TrialRecord:
         """`measured` or `true` by name."""
         return {"measured": self.measured, "true": self.true}[kind]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The record's object in summary.json (and states/trial_NNN.json); absent figures are left out."""
         out = {"index": self.index, "phase": self.phase, "role": self.role, "torque_setpoint": self.torque_setpoint_nm,
                "speed_setpoint": self.speed_setpoint_hz, **_figures_json("true", self.true),
@@ -132,7 +133,7 @@ class TrialRecord:
         return out
 
     @classmethod
-    def from_json(cls, data: dict) -> TrialRecord:
+    def from_json(cls, data: dict[str, Any]) -> TrialRecord:
         """The record `to_json` wrote; `ValueError` (or `KeyError`, `TypeError`) naming the key of a value no run
         writes (a number out of its range, text for a number, a missing key)."""
         index, phase, role = data["index"], data["phase"], data["role"]
@@ -150,7 +151,7 @@ class TrialRecord:
                    optional_in(data, "mean_torque_error", -MAX_MEAN_TORQUE_ERROR, MAX_MEAN_TORQUE_ERROR))
 
 
-def records_of(summary: dict) -> list[TrialRecord]:
+def records_of(summary: dict[str, Any]) -> list[TrialRecord]:
     """The trial records of a summary.json, one per trial in the order they ran (trial k's index k); `ValueError`
     naming the trial otherwise (`TrialRecord.from_json`)."""
     records = []

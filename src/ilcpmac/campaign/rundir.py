@@ -69,6 +69,7 @@ from contextlib import contextmanager, suppress
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from filelock import FileLock, Timeout
@@ -241,7 +242,7 @@ class RunFiles:
                               "limits it began with: put that config back, or start a new run")
         return seal
 
-    def read_json(self, path: Path, packed: bool = False) -> dict | None:
+    def read_json(self, path: Path, packed: bool = False) -> dict[str, Any] | None:
         """The JSON object in ``path`` (one of these paths), None when it does not exist; `RunDirError`
         naming it when it cannot be read, is no JSON object, holds NaN or infinity, nests beyond the parser's depth
         or is larger than anything a run writes there (`JSON_MAX_BYTES`, `SUMMARY_MAX_BYTES`: refused before it is
@@ -258,7 +259,7 @@ class RunFiles:
             raise RunDirError(f"{path}: unreadable (a JSON {type(data).__name__}, not an object)")
         return data
 
-    def read_sealed(self, path: Path) -> dict | None:
+    def read_sealed(self, path: Path) -> dict[str, Any] | None:
         """The JSON object in ``path`` without its `DIGEST_KEY`, None when it does not exist; `RunDirError` naming
         it when it is unreadable or, in a `sealed` run, its digest is missing or differs (edited since written;
         a run made before digests is not checked)."""
@@ -269,7 +270,7 @@ class RunFiles:
             raise RunDirError(f"{path}: unreadable (not a JSON object)")
         return self._unsealed(path, data)
 
-    def _unsealed(self, path: Path, data: dict, checked: bool | None = None) -> dict:
+    def _unsealed(self, path: Path, data: dict[str, Any], checked: bool | None = None) -> dict[str, Any]:
         """``data``, the object read from ``path``, without its digest, which must match (`read_sealed`) when
         ``checked`` (default: in a `sealed` run)."""
         claimed = data.pop(DIGEST_KEY, None)
@@ -313,7 +314,7 @@ class RunFiles:
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise RunDirError(f"{self.learned}: unreadable ({e!r})") from None
 
-    def read_summary(self) -> dict:
+    def read_summary(self) -> dict[str, Any]:
         """summary.json; `RunDirError` when there is none or it is unreadable."""
         summary = self.read_json(self.summary)
         if summary is None:
@@ -355,13 +356,13 @@ def _file_digest(path: Path) -> str:
         raise RunDirError(f"{path}: unreadable ({e.strerror or e})") from None
 
 
-def _sealed_text(data: dict, target: Path) -> str:
+def _sealed_text(data: dict[str, Any], target: Path) -> str:
     """``data`` as JSON for ``target`` (`_json_text`) with `DIGEST_KEY`: the digest of its text without it, which
     `RunFiles.read_sealed` checks."""
     return _json_text({**data, DIGEST_KEY: _digest(_json_text(data, target))}, target)
 
 
-def _non_finite(data, where: str = "") -> tuple[str, float] | None:
+def _non_finite(data: Any, where: str = "") -> tuple[str, float] | None:
     """The first key path in ``data`` holding a non-finite float, and that float."""
     if isinstance(data, float):
         return None if math.isfinite(data) else (where, data)
@@ -373,7 +374,7 @@ def _non_finite(data, where: str = "") -> tuple[str, float] | None:
     return None
 
 
-def _json_text(data, target: Path, indent: int | None = None) -> str:
+def _json_text(data: Any, target: Path, indent: int | None = None) -> str:
     """``data`` as JSON for ``target``; a non-finite number is a `RunDirError` naming its key."""
     try:
         return json.dumps(data, allow_nan=False, indent=indent)
@@ -384,7 +385,7 @@ def _json_text(data, target: Path, indent: int | None = None) -> str:
         raise RunDirError(f"{target}: {found[0]} is {found[1]}, not a finite number; not written") from None
 
 
-def _packed(data, target: Path, where: str = ""):
+def _packed(data: Any, target: Path, where: str = "") -> Any:
     """``data`` with every flat list of `PACKED_MIN_LENGTH` or more floats, not all whole numbers, as
     {`PACKED_KEY`: the base64 of its float64 bytes}: the same numbers to the bit in 10.7 characters each (a
     measured value's decimal text takes about 19, a whole number's a few: those stay text), encoded in a
@@ -403,7 +404,7 @@ def _packed(data, target: Path, where: str = ""):
     return [_packed(value, target, f"{where}.{k}") for k, value in enumerate(data)]
 
 
-def _unpacked(data: dict):
+def _unpacked(data: dict[str, Any]) -> Any:
     """A JSON object of a state file as `_packed` was given it (the object_hook of `json.loads`)."""
     if data.keys() != {PACKED_KEY}:
         return data
@@ -419,7 +420,7 @@ def _unpacked(data: dict):
     return values.tolist()
 
 
-def _unpacked_all(data):
+def _unpacked_all(data: Any) -> Any:
     """``data`` (as `json.loads` gave it) with every packed list given back (`_unpacked` at every depth)."""
     if isinstance(data, dict):
         return _unpacked({key: _unpacked_all(value) for key, value in data.items()})
@@ -523,7 +524,7 @@ class RunLock:
     def __enter__(self) -> "RunLock":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.release()
 
 
@@ -541,12 +542,12 @@ class RunDir:
         #: the digest of each complete trial's file (`TRIAL_DIGEST_KEY`), where the run records them
         self._trial_digests: dict[int, str] = {}
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rundir")
-        self._pending: list[Future] = []
+        self._pending: list[Future[None]] = []
         self._failed = False
         self._closed = False
         #: when summary.json was last written (time.monotonic, s), and the summary a commit held back since
         self._summary_written_s = -math.inf
-        self._held_summary: dict | None = None
+        self._held_summary: dict[str, Any] | None = None
         #: whether bench.toml lists the static trial's copy ([static])
         self.has_static = False
         self._lock = lock
@@ -573,8 +574,9 @@ class RunDir:
         return RunLock(path).acquire()
 
     @classmethod
-    def create(cls, path: str | Path, description: BenchDescription, config_text: str, settings: dict | None = None,
-               lock: RunLock | None = None, static: StaticTrial | None = None) -> "RunDir":
+    def create(cls, path: str | Path, description: BenchDescription, config_text: str,
+               settings: dict[str, Any] | None = None, lock: RunLock | None = None,
+               static: StaticTrial | None = None) -> "RunDir":
         """Start a new run in ``path``, which must hold nothing or the debris of an interrupted creation.
 
         ``settings`` (states/run.json) are what ``ilcpmac run --resume`` needs besides the config;
@@ -655,7 +657,7 @@ class RunDir:
             self._trial_digests[i] = recorded
 
     @staticmethod
-    def read_settings(path: str | Path) -> dict:
+    def read_settings(path: str | Path) -> dict[str, Any]:
         """The settings a run was created with (states/run.json without its seal), once its seal is checked
         (`RunFiles.resumable_seal`: `RunDirError` naming the file for a run without one, or whose campaign.toml is
         not the one it began with): a resumed run goes on with its own seed, overrides and config."""
@@ -711,7 +713,7 @@ class RunDir:
         """The file names of trials 1..``count``, as bench.toml lists them."""
         return tuple(name for name, _, _ in self._entries[:count])
 
-    def add_trial(self, trial: TrialData, state: TrialState, summary: dict) -> int:
+    def add_trial(self, trial: TrialData, state: TrialState, summary: dict[str, Any]) -> int:
         """Queue the next trial, its state and the summary for commit, in order; return its index."""
         for future in [f for f in self._pending if f.done()]:
             future.result()  # re-raise a failed write early
@@ -722,7 +724,7 @@ class RunDir:
         self._pending.append(self._writer.submit(self._commit, index, trial, state, summary, list(self._entries)))
         return index
 
-    def _commit(self, index: int, trial: TrialData, state: TrialState, summary: dict,
+    def _commit(self, index: int, trial: TrialData, state: TrialState, summary: dict[str, Any],
                 entries: list[tuple[str, float, float]]) -> None:
         if self._failed:  # a later trial must not be listed in bench.toml before the one that failed
             return
@@ -754,7 +756,7 @@ class RunDir:
             self._states[index] = self.files.read_state(index)
         return self._states[index]
 
-    def write_identification(self, data: dict) -> None:
+    def write_identification(self, data: dict[str, Any]) -> None:
         """Write states/identification.json atomically, with the digests of the trial files committed so far
         (`flush` first), the run's id and its own digest."""
         self.flush()
@@ -764,7 +766,7 @@ class RunDir:
         with _writing(target, self._resumable):
             atomic_write(target, text)
 
-    def read_identification(self) -> dict | None:
+    def read_identification(self) -> dict[str, Any] | None:
         """states/identification.json without its digests and run id, or None when it does not exist; `RunDirError`
         naming it when its digest, its run or the trial files it was identified from (their digests) differ."""
         target = self.files.identification
@@ -787,19 +789,19 @@ class RunDir:
         with _writing(target, self._resumable):
             atomic_write(target, _json_text(_packed(learned_json(points), target), target))
 
-    def write_compensation(self, data: dict) -> None:
+    def write_compensation(self, data: dict[str, Any]) -> None:
         """Write compensation.json atomically."""
         target = self.files.compensation
         with _writing(target, self._resumable):
             atomic_write(target, _json_text(data, target, indent=1))
 
-    def write_summary(self, summary: dict) -> None:
+    def write_summary(self, summary: dict[str, Any]) -> None:
         """Queue summary.json for writing after the trials added before it, in place of any summary a commit
         held back (atomically; not fsynced: it is rebuilt from the states on resume). Complete once `flush`
         returns, which re-raises a failed write."""
         self._pending.append(self._writer.submit(self._write_summary, summary))
 
-    def _write_summary(self, summary: dict) -> None:
+    def _write_summary(self, summary: dict[str, Any]) -> None:
         """Write ``summary`` (in the writer's thread)."""
         target = self.files.summary
         self._held_summary = None

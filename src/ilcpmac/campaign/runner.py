@@ -128,7 +128,8 @@ def _graduation_error_left_counts2(estimate: np.ndarray, variance: np.ndarray, a
     plus the Wiener residual s var_h; elsewhere 0 (noise alone)."""
     believed = significant_encoder_error(estimate, variance, FALSE_ALARM)
     shrink = np.divide(np.abs(believed), np.abs(estimate), out=np.zeros(estimate.size), where=believed != 0)
-    return np.abs(believed - applied) ** 2 + shrink * variance
+    error: np.ndarray = np.abs(believed - applied) ** 2 + shrink * variance
+    return error
 
 
 class CampaignRunner:
@@ -170,10 +171,10 @@ class CampaignRunner:
         self.identified: Identified | None = None
         #: what measures the torque ripple, from the identification on
         self.measurement: TorqueMeasurement | None = None
-        self.identification_json: dict | None = None
+        self.identification_json: dict[str, typing.Any] | None = None
         self._pipeline: Pipeline | None = None
         #: the stages' state as they started (what a trial after the grid is saved with if they fail on it)
-        self._started: dict | None = None
+        self._started: dict[str, typing.Any] | None = None
         #: what the drive applies, built from the pipeline when learning ends
         self.compensation: Compensation | None = None
         self.gains: dict[str, float] = {}
@@ -207,7 +208,7 @@ class CampaignRunner:
 
     # ---------------------------------------------------------------- running
 
-    def run(self) -> dict:
+    def run(self) -> dict[str, typing.Any]:
         """Run the campaign to its end (resuming what ``run_dir`` holds); return the summary."""
         try:
             self._resume()
@@ -225,7 +226,7 @@ class CampaignRunner:
             self.run_dir.close()
         return summary
 
-    def _ended(self) -> dict | None:
+    def _ended(self) -> dict[str, typing.Any] | None:
         """summary.json of a run that had ended (no trial left, and its last summary written at its end: "complete"
         with every trial), which a resume leaves as it is; None otherwise."""
         if self.next_step() is not None:
@@ -353,7 +354,7 @@ class CampaignRunner:
         self.events.trial(record, self.records)
         return failure
 
-    def _stages_before(self, index: int) -> dict:
+    def _stages_before(self, index: int) -> dict[str, typing.Any]:
         """The stages' state before trial ``index`` taught them: saved with the trial before it, or as they
         started when that one ran before them."""
         saved = self.run_dir.state(index - 1).pipeline
@@ -461,7 +462,7 @@ class CampaignRunner:
         """`FloorsExpected` from the grid's measured ``spectra`` (in the measurement's units) and true ones."""
         assert self.measurement is not None
         measurement, grid = self.measurement, self.grid
-        ranges: dict[str, list] = {"measured": [], "true": []}
+        ranges: dict[str, list[tuple[float, float] | None]] = {"measured": [], "true": []}
         for points in (self.plan.learned, self.plan.validated):
             found: dict[str, list[float]] = {"measured": [], "true": []}
             for point in points:
@@ -528,7 +529,7 @@ class CampaignRunner:
             float(np.sqrt(np.sum(np.abs(estimate[1:]) ** 2) / 2.0)), float(np.sqrt(np.sum(variance[1:]) / 2.0)),
             float(np.sqrt(np.sum(np.abs(applied[1:]) ** 2) / 2.0))))
 
-    def _saved_choice(self, saved: dict, fresh: TorqueSourceChoice) -> TorqueSourceChoice:
+    def _saved_choice(self, saved: dict[str, typing.Any], fresh: TorqueSourceChoice) -> TorqueSourceChoice:
         """The torque source states/identification.json recorded; `RunDirError` naming the file when it holds none,
         another than the config fixes (`preset_choice`), or another than the grid trials on disk choose
         (``fresh``: a file edited and resealed must not change what measures)."""
@@ -744,7 +745,7 @@ class CampaignRunner:
             self.pipeline.restore(last.pipeline)
         self.events.message(Resumed(done, self.run_dir.path))
 
-    def _check_identification(self, saved: dict) -> TorqueSourceChoice:
+    def _check_identification(self, saved: dict[str, typing.Any]) -> TorqueSourceChoice:
         """The saved identification against the grid trials' on disk, identified again: the current the stages may
         set flows through it (`LimitGuard`), so a file edited, resealed or copied from another run must not stand
         in for the data. `RunDirError` naming the file where an estimate differs beyond `IDENTIFIED_RTOL`; else
@@ -759,7 +760,7 @@ class CampaignRunner:
                                   f"disk give ({b}); the run cannot go on from it")
         return choice
 
-    def summary(self, complete: bool = False) -> dict:
+    def summary(self, complete: bool = False) -> dict[str, typing.Any]:
         """summary.json: the units of its figures, every trial, the identification, the final figures of the
         learned points, the validation points' results, the compensation's fade-out and whether the run had ended
         when it was written (``complete``; docs/campaign.md)."""

@@ -15,7 +15,7 @@ import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from ilcpmac.backends.base import Backend
 from ilcpmac.backends.registry import BackendSetup, build_backend
@@ -63,7 +63,7 @@ class CampaignResult:
 
     path: Path
     plan: CampaignPlan
-    summary: dict
+    summary: dict[str, Any]
     records: list[TrialRecord]
     identification: IdentificationResult | None
 
@@ -184,7 +184,7 @@ def refuse_with_resume(config: object, out: object, budget_min: object, seed: ob
                           f"give no {', '.join(given)} (start a new run to change them)")
 
 
-def resumed_budget_min(settings: dict, source: Path) -> float | None:
+def resumed_budget_min(settings: dict[str, Any], source: Path) -> float | None:
     """The budget a run began with, from its settings ``source``: `ConfigError` naming the file if not minutes."""
     budget_min = settings.get("budget_min")
     if budget_min is not None and not (isinstance(budget_min, (int, float)) and 0 < budget_min <= MAX_BUDGET_MIN):
@@ -266,7 +266,7 @@ def built_backend(cfg: CampaignConfig, name: str | None, address: str | None, wr
 
 def _run(cfg: CampaignConfig, backend: Backend, description: BenchDescription, run_dir: RunDir, plan: CampaignPlan,
          seed: int, resume: bool, events: CampaignEvents, identify: Identifier | None,
-         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> dict:
+         extra_stages: dict[str, Callable[[StageSetup], Stage]] | None) -> dict[str, Any]:
     """`run`'s campaign on a built backend (which ``description`` describes) in its created (or resumed) run
     directory: the summary."""
     # the runner's estimators import numba: deferred so that importing ilcpmac.campaign stays light
@@ -287,7 +287,7 @@ def _run(cfg: CampaignConfig, backend: Backend, description: BenchDescription, r
 def simulated_bench(config: CampaignConfig, seed: int | None = None, revolutions: int | None = None,
                     on_done: Callable[[int, TrialData], None] | None = None,
                     torque_sensor: bool = True, workers: int | None = None,
-                    static_trial: bool = False) -> tuple[Bench, dict]:
+                    static_trial: bool = False) -> tuple[Bench, dict[str, Any]]:
     """Run the set-point grid on the simulator, in memory: the bench folder's contents and its truth
     (`ilcpmac.sim.bench.truth_dict`).
 

@@ -61,7 +61,7 @@ class TrialState:
                             feedforward_nm=self.feedforward_nm, excitation_nm=np.zeros_like(self.feedforward_nm),
                             calibration=self.calibration, seed=self.seed)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The object of states/trial_NNN.json."""
         return {"record": self.record.to_json(), "pipeline": self.pipeline, "gains": self.gains,
                 "guard": None if self.guard is None else self.guard.to_json(),
@@ -69,7 +69,7 @@ class TrialState:
                             "revolutions": self.revolutions, "seed": self.seed}}
 
     @classmethod
-    def from_json(cls, data: dict) -> TrialState:
+    def from_json(cls, data: dict[str, Any]) -> TrialState:
         """The state `to_json` wrote."""
         request, guard, pipeline = data["request"], data["guard"], data["pipeline"]
         if pipeline is not None and not isinstance(pipeline, dict):
@@ -105,22 +105,22 @@ class LearnedPoint:
             request = answer
         return cls(trial, tables)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """Its object in states/learned.json's ``points``."""
         return {"trial": self.trial, "tables_nm": {name: table.tolist() for name, table in self.tables_nm.items()}}
 
     @classmethod
-    def from_json(cls, data: dict) -> LearnedPoint:
+    def from_json(cls, data: dict[str, Any]) -> LearnedPoint:
         """The point `to_json` wrote."""
         return cls(int(data["trial"]), {str(name): np.asarray(table, float)
                                         for name, table in data["tables_nm"].items()})
 
 
-def learned_json(points: list[LearnedPoint]) -> dict:
+def learned_json(points: list[LearnedPoint]) -> dict[str, Any]:
     """The object of states/learned.json."""
     return {"points": [point.to_json() for point in points]}
 
 
-def learned_from_json(data: dict) -> list[LearnedPoint]:
+def learned_from_json(data: dict[str, Any]) -> list[LearnedPoint]:
     """The points `learned_json` wrote."""
     return [LearnedPoint.from_json(point) for point in data["points"]]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from ilcpmac.campaign.record import Point, TrialRecord, records_of
 from ilcpmac.compensation import FadeOut
@@ -48,7 +49,7 @@ class PointResult:
         after = self.after.measured_ripple.pp
         return self.before.measured_ripple.pp / after if after > 0 else math.inf
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """Its object in summary.json's ``validation`` list (ripple as fractions of the mean torque)."""
         out = {"torque_setpoint": self.point[0], "speed_setpoint": self.point[1], "learned": self.learned,
                "uncompensated_trial": self.before.index, "compensated_trial": self.after.index}
@@ -64,7 +65,7 @@ class PointResult:
         return out
 
     @classmethod
-    def from_json(cls, data: dict, trials: dict[int, TrialRecord]) -> PointResult:
+    def from_json(cls, data: dict[str, Any], trials: dict[int, TrialRecord]) -> PointResult:
         """The result `to_json` wrote, its two trials taken from ``trials`` (by index); `ValueError` naming the key
         of a trial that is not among them."""
         pair = []
@@ -75,7 +76,7 @@ class PointResult:
         return cls((float(data["torque_setpoint"]), float(data["speed_setpoint"])), bool(data["learned"]), *pair)
 
 
-def _pair(records: list[TrialRecord], point: Point, roles: tuple[str, ...]) -> tuple | None:
+def _pair(records: list[TrialRecord], point: Point, roles: tuple[str, ...]) -> tuple[TrialRecord, TrialRecord] | None:
     before = [r for r in records if r.point == point and r.role == "baseline"]
     after = [r for r in records if r.point == point and r.role in roles]
     if not before or not after or before[0].measured is None or after[-1].measured is None:
@@ -94,7 +95,7 @@ def point_results(records: list[TrialRecord], learned: list[Point], validated: l
     return out
 
 
-def results_of(summary: dict) -> list[PointResult]:
+def results_of(summary: dict[str, Any]) -> list[PointResult]:
     """The results of summary.json ``summary``'s ``points``, learned points first (`PointResult.from_json`, with the
     trials of its ``trials``: `records_of`)."""
     points = summary.get("points", [])

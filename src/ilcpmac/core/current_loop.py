@@ -128,7 +128,8 @@ class CurrentLoop:
     @property
     def lag_time_constant_s(self) -> np.ndarray:
         """tau_p per phase, s, kept above zero (1e-300 s) so that the decays below divide by it."""
-        return np.maximum(self.time_constant_s, 1e-300)
+        bounded: np.ndarray = np.maximum(self.time_constant_s, 1e-300)
+        return bounded
 
     def count_decays(self, count_period_s: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """The recursion's decays per phase over equal count intervals dt = ``count_period_s`` (module docstring):
@@ -222,8 +223,9 @@ def periodic_lag(x: np.ndarray, count_period_s: np.ndarray, time_constant_s: flo
     start = np.sum(u * np.exp(total - log_decay), axis=1, keepdims=True) / -np.expm1(total)
     # s_c = prod_{i<c} a_i (s_0 + sum_{i<c} u_i / prod_{j<=i} a_j), every factor at most exp(-total) <= 1e16
     before = np.concatenate([np.zeros((x.shape[0], 1)), log_decay[:, :-1]], axis=1)
-    return np.exp(before) * (start + np.concatenate([np.zeros((x.shape[0], 1)),
-                                                     np.cumsum(u * np.exp(-log_decay), axis=1)[:, :-1]], axis=1))
+    summed = np.concatenate([np.zeros((x.shape[0], 1)), np.cumsum(u * np.exp(-log_decay), axis=1)[:, :-1]], axis=1)
+    lagged: np.ndarray = np.exp(before) * (start + summed)
+    return lagged
 
 
 #: the back-EMF's harmonics below this fraction of its largest power are left out of `speed_feedback`
@@ -254,10 +256,12 @@ def speed_feedback(harmonics: np.ndarray, speed_hz: float, loop: CurrentLoop, ba
         """k Y_p(k), shape k.shape + (3,)."""
         w = 2.0 * np.pi * speed_hz * k[..., None]
         g = np.exp(-1j * w * max(loop.delay_s, 0.0)) / (1.0 + 1j * w * loop.time_constant_s)
-        return k[..., None] * conductance_s / (1.0 + 1j * w * winding_time_constant_s) * (1.0 - g)
+        rejected: np.ndarray = k[..., None] * conductance_s / (1.0 + 1j * w * winding_time_constant_s) * (1.0 - g)
+        return rejected
 
     coupling = np.sum(power * (weighted(h[..., None] + n) - weighted(n)), axis=(-2, -1)) / h
-    return 1.0 / (1.0 + coupling / (2j * np.pi * speed_hz * h * inertia_kgm2 + brake_nms))
+    response: np.ndarray = 1.0 / (1.0 + coupling / (2j * np.pi * speed_hz * h * inertia_kgm2 + brake_nms))
+    return response
 
 
 def backemf_power(backemf_nm_per_a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

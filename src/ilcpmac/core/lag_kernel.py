@@ -3,11 +3,12 @@
 Apart from the loop's model so that importing `CurrentLoop` (records, stages, the CLI) does not import numba.
 """
 
+import numpy as np
 from numba import njit
 
 
 @njit(cache=True)
-def _advance(s, a, x_now, x_next, tau, dt, continuous):
+def _advance(s: float, a: float, x_now: float, x_next: float, tau: float, dt: float, continuous: bool) -> float:
     """The state at the next count from ``s`` at this one (``a`` = exp(-dt / tau))."""
     if continuous:  # exact for an input linear between counts
         return a * s + x_next - a * x_now - (x_next - x_now) * (1.0 - a) * tau / dt
@@ -15,7 +16,7 @@ def _advance(s, a, x_now, x_next, tau, dt, continuous):
 
 
 @njit(cache=True)
-def warm_up_start(decay):
+def warm_up_start(decay: np.ndarray) -> int:
     """The count of a revolution from which the recursion, started there, has forgotten its start below 1e-16
     by the revolution's end (``decay`` = exp(-dt / tau) per count)."""
     start = decay.size - 1
@@ -27,7 +28,8 @@ def warm_up_start(decay):
 
 
 @njit(cache=True)
-def lag_kernel(x, dt, tau, decay, sample_decay, delayed, continuous, out):
+def lag_kernel(x: np.ndarray, dt: np.ndarray, tau: float, decay: np.ndarray, sample_decay: np.ndarray, delayed: bool,
+               continuous: bool, out: np.ndarray) -> None:
     """The count recursion (`ilcpmac.core.current_loop`) for one phase, x of shape (n_trials, cpr); fills ``out``.
 
     ``decay`` = exp(-dt / tau) per count; ``delayed``: T_d >= 0, the sample

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from importlib.metadata import entry_points
+from typing import Any
 
 __all__ = ["PluginEntry", "installed"]
 
@@ -19,7 +20,7 @@ class PluginEntry:
     value: str
     distribution: str
 
-    def load(self):
+    def load(self) -> Any:
         """Import the factory (its import error propagates: the caller says what failed to load)."""
         (ep,) = entry_points(group=self.group, name=self.name)
         return ep.load()
@@ -34,7 +35,8 @@ class PluginEntry:
         module = sys.modules.get(getattr(factory, "__module__", ""))
         for doc in (getattr(factory, "__doc__", None), getattr(module, "__doc__", None)):
             if doc and doc.strip():
-                return doc.strip().splitlines()[0]
+                first: str = doc.strip().splitlines()[0]
+                return first
         return "(no description)"
 
 

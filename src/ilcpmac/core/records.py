@@ -12,7 +12,9 @@ through the result JSON of docs/bench-format.md (`to_json`, `from_json`).
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -112,7 +114,8 @@ def mirrored_table(table: np.ndarray) -> np.ndarray:
     "Reverse laps"); mirroring twice gives the table back.
     """
     table = np.asarray(table)
-    return -table[-np.arange(table.shape[0]) % table.shape[0]]
+    mirrored: np.ndarray = -table[-np.arange(table.shape[0]) % table.shape[0]]
+    return mirrored
 
 
 #: the line of an identification result in the mirror image's coordinates (a campaign in reverse learns in them):
@@ -161,13 +164,13 @@ class SensorCalibration:
         """This calibration with read-only copies of its arrays (`frozen`), to share with the stages."""
         return SensorCalibration(frozen(self.current_scale), frozen(self.current_offset), self.torque_gain)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """``{"current_scale": [3], "current_offset": [3], "torque_gain": float}`` (bench.toml's [sensors] keys)."""
         return {"current_scale": self.current_scale.tolist(), "current_offset": self.current_offset.tolist(),
                 "torque_gain": self.torque_gain}
 
     @classmethod
-    def from_json(cls, data: dict) -> "SensorCalibration":
+    def from_json(cls, data: dict[str, Any]) -> "SensorCalibration":
         """The calibration `to_json` wrote."""
         return cls(data["current_scale"], data["current_offset"], data["torque_gain"])
 
@@ -236,14 +239,15 @@ class TrialRequest:
 
     def torque_reference_nm(self) -> np.ndarray:
         """tau_ref per encoder count over one mechanical revolution, N m."""
-        return self.torque_setpoint_nm + self.feedforward_nm + self.excitation_nm
+        reference: np.ndarray = self.torque_setpoint_nm + self.feedforward_nm + self.excitation_nm
+        return reference
 
     @property
     def setpoint_key(self) -> str:
         """The per-set-point memory key of the stages and the campaign, e.g. ``"3@0.75"`` (N m @ Hz)."""
         return f"{self.torque_setpoint_nm:g}@{self.speed_setpoint_hz:g}"
 
-    def with_changes(self, **changes) -> "TrialRequest":
+    def with_changes(self, **changes: Any) -> "TrialRequest":
         """A copy with some fields replaced."""
         return replace(self, **changes)
 
@@ -362,7 +366,7 @@ ENCODER_ERROR_KEYS = (("error_counts", "encoder_error_counts"), ("error_std_coun
                       ("line_rms_counts", "encoder_line_rms_counts"))
 
 
-def _json_value(value):
+def _json_value(value: Any) -> float | list[float] | None:
     """Floats and float lists for JSON; None stays None."""
     if value is None:
         return None
@@ -375,7 +379,7 @@ class ResultKeyError(ValueError):
     """A key of a result JSON holds what docs/bench-format.md does not allow; the message names the key."""
 
 
-def boolean_problem(value) -> str | None:
+def boolean_problem(value: object) -> str | None:
     """What is wrong with the first JSON true or false in ``value`` (a number or nested lists), e.g.
     ``"value [0, 2] is true, not a number"``; None when it holds none. A bool is an int to Python and numpy
     makes it 1.0 or 0.0: every reader of numbers from JSON asks this first (`IdentificationResult.from_json`,
@@ -390,7 +394,7 @@ def boolean_problem(value) -> str | None:
     return None
 
 
-def _from_json_value(value, vector: bool, key: str, size: int | None = None):
+def _from_json_value(value: Any, vector: bool, key: str, size: int | None = None) -> Any:
     """A number as a float or a list of numbers as a 1-D float array (of ``size`` values, when given) from JSON;
     None stays None; anything else raises `ResultKeyError` naming ``key``."""
     if value is None:
@@ -413,7 +417,7 @@ def _from_json_value(value, vector: bool, key: str, size: int | None = None):
     return a.astype(float)
 
 
-def _loop_winding_covariance(joint: dict) -> np.ndarray | None:
+def _loop_winding_covariance(joint: dict[str, Any]) -> np.ndarray | None:
     """``diagnostics.joint``'s ``loop_winding_covariance``: None, or 6 x 6 finite numbers, symmetric, with a
     diagonal >= 0; `ResultKeyError` naming the key otherwise."""
     key = "diagnostics.joint.loop_winding_covariance"
@@ -431,17 +435,17 @@ def _loop_winding_covariance(joint: dict) -> np.ndarray | None:
     return matrix
 
 
-def _winding_value(joint: dict, name: str) -> float | None:
+def _winding_value(joint: dict[str, Any], name: str) -> float | None:
     """``diagnostics.joint``'s ``name``, a finite number >= 0 or None: the speed's feedback rests on it
     (`IdentificationResult.winding_conductance_s`); anything else raises `ResultKeyError` naming the key."""
     key = f"diagnostics.joint.{name}"
-    value = _from_json_value(joint.get(name), False, key)
+    value: float | None = _from_json_value(joint.get(name), False, key)
     if value is not None and not (math.isfinite(value) and value >= 0.0):
         raise ResultKeyError(f"key {key!r}: must be a finite number >= 0 or null, got {shown(value)}")
     return value
 
 
-def _counted(table, key: str, vectors: tuple[str, ...]) -> dict:
+def _counted(table: Any, key: str, vectors: tuple[str, ...]) -> dict[str, Any]:
     """The vectors ``vectors`` of the result JSON's object ``table`` under ``key`` (an absent one is None), one
     value per count: of one length n, and its "count" (when given) the counts 0 .. n - 1."""
     if not isinstance(table, dict):
@@ -494,9 +498,9 @@ class MethodEstimates:
     inertia_estimate_std: float | None = None
     cogging_nm: np.ndarray | None = field(default=None, repr=False)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The result keys of docs/bench-format.md (null where unknown), with ``_std`` keys and the cogging."""
-        out = {}
+        out: dict[str, Any] = {}
         for key, name in RESULT_KEYS:
             out[key] = _json_value(getattr(self, name))
             out[key + "_std"] = _json_value(getattr(self, name + "_std"))
@@ -506,7 +510,7 @@ class MethodEstimates:
         return out
 
     @staticmethod
-    def fields_from_json(data: dict, prefix: str = "") -> dict:
+    def fields_from_json(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         """The estimates' fields from the keys `to_json` writes (a missing key is None); a wrong value raises
         `ResultKeyError` naming its key (after ``prefix``)."""
         if not isinstance(data, dict):
@@ -527,7 +531,7 @@ class MethodEstimates:
         return out
 
     @classmethod
-    def from_json(cls, data: dict) -> MethodEstimates:
+    def from_json(cls, data: dict[str, Any]) -> MethodEstimates:
         """The estimates `to_json` wrote."""
         return cls(**cls.fields_from_json(data))
 
@@ -591,8 +595,8 @@ class IdentificationResult(MethodEstimates):
     current_loop: CurrentLoop | None = None
     methods: dict[str, MethodEstimates] = field(default_factory=dict)
     calibration: SensorCalibration | None = None
-    messages: tuple = ()
-    diagnostics: dict = field(default_factory=dict)
+    messages: tuple[str, ...] = ()
+    diagnostics: dict[str, Any] = field(default_factory=dict[str, Any])
     details: object = field(default=None, compare=False, repr=False)
     torque_source: TorqueSource = TorqueSource.SENSOR
     torque_sensor_highpass_hz: float | None = None
@@ -611,7 +615,7 @@ class IdentificationResult(MethodEstimates):
     position_torque_std_nm: np.ndarray | None = field(default=None, repr=False)
 
     @property
-    def current_loop_bandwidth_per_phase_hz(self) -> tuple | None:
+    def current_loop_bandwidth_per_phase_hz(self) -> tuple[float, ...] | None:
         """Each phase's current-loop corner, Hz (None: no lag identified)."""
         return None if self.current_loop is None else tuple(float(b) for b in self.current_loop.bandwidth_hz)
 
@@ -621,11 +625,11 @@ class IdentificationResult(MethodEstimates):
         per_phase = self.current_loop_bandwidth_per_phase_hz
         return None if per_phase is None else float(np.mean(per_phase))
 
-    def missing(self, names) -> list[str]:
+    def missing(self, names: Iterable[str]) -> list[str]:
         """Those of the field ``names`` the identification could not estimate (None)."""
         return [name for name in names if getattr(self, name) is None]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The result object of docs/bench-format.md, with ``_std`` keys, "methods", "diagnostics" and "messages".
 
         Never a NaN or infinity: `identify_bench` makes such estimates None with
@@ -650,10 +654,11 @@ class IdentificationResult(MethodEstimates):
             "std": _json_value(self.position_torque_std_nm)}
         out["diagnostics"] = self.diagnostics
         out["messages"] = list(self.messages)
-        return finite_json(out)
+        finite: dict[str, Any] = finite_json(out)
+        return finite
 
     @classmethod
-    def from_json(cls, data: dict) -> IdentificationResult:
+    def from_json(cls, data: dict[str, Any]) -> IdentificationResult:
         """The result `to_json` wrote (or a truth under the same keys); ``details`` is None.
 
         The current loop is ``current_loop_time_constant_s``, else 1 / (2 pi corner) with the corner

@@ -49,12 +49,12 @@ _SHORT.maxlist = _SHORT.maxtuple = 8
 Check = Callable[[typing.Any], bool]
 
 
-def shown(value) -> str:
+def shown(value: object) -> str:
     """``repr(value)`` cut short, a tuple shown as the TOML list it was read from, for one-line errors."""
     return _SHORT.repr(list(value) if isinstance(value, tuple) else value)
 
 
-def finite_number(x) -> bool:
+def finite_number(x: object) -> bool:
     """A real number (not a bool), finite and within the range of a float (a larger integer is not)."""
     if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)):
         return False
@@ -69,7 +69,7 @@ def in_range(low: float, high: float, *, low_open: bool = False, high_open: bool
 
     NaN fails every comparison, so it is out of every range.
     """
-    def check(x) -> bool:
+    def check(x: typing.Any) -> bool:
         values = tuple(x) if isinstance(x, (tuple, list, np.ndarray)) else (x,)
         return all((low < v if low_open else low <= v) and (v < high if high_open else v <= high)
                    for v in values)
@@ -88,7 +88,7 @@ def all_of(*checks: Check) -> Check:
 
 
 def param(check: Check | None = None, doc: str = "", *, parallel: bool = False, commented: bool = False,
-          **kw) -> typing.Any:
+          **kw: typing.Any) -> typing.Any:
     """A dataclass field with its ``check`` and one-line ``doc`` (quoted by every error about it).
 
     ``parallel``: one of the lists that describe a sum of sines together (orders, amplitudes, phases): the
@@ -98,18 +98,18 @@ def param(check: Check | None = None, doc: str = "", *, parallel: bool = False, 
     return field(metadata={"check": check, "doc": doc, "parallel": parallel, "commented": commented}, **kw)
 
 
-def setting(check: Check | None, doc: str, default, *, commented: bool = False) -> typing.Any:
+def setting(check: Check | None, doc: str, default: typing.Any, *, commented: bool = False) -> typing.Any:
     """A field of an optional config key: `param` with its ``default``."""
     return param(check, doc, default=default, commented=commented)
 
 
-def field_like(cls: type, name: str, **kw) -> typing.Any:
+def field_like(cls: type, name: str, **kw: typing.Any) -> typing.Any:
     """A dataclass field checked and documented as field ``name`` of dataclass ``cls``."""
     (like,) = [f for f in fields(cls) if f.name == name]
     return field(metadata=like.metadata, **kw)
 
 
-def value_problem(f: Field, value) -> str | None:
+def value_problem(f: Field[typing.Any], value: object) -> str | None:
     """``"key: invalid value ... (doc)"`` if field ``f``'s check refuses ``value``, else None.
 
     None is the value of an optional field left out.
@@ -120,7 +120,7 @@ def value_problem(f: Field, value) -> str | None:
     return f"{f.name}: invalid value {shown(value)} ({f.metadata.get('doc', '')})"
 
 
-def lengths_problem(obj) -> str | None:
+def lengths_problem(obj: typing.Any) -> str | None:
     """``"a, b: must have equal lengths ..."`` if the parallel lists of dataclass ``obj`` differ, else None."""
     lengths = {f.name: len(getattr(obj, f.name)) for f in fields(obj)
                if f.metadata.get("parallel") and isinstance(getattr(obj, f.name), tuple)}
@@ -134,7 +134,7 @@ def config_key(table: str, key: str) -> str:
     return f"[{table}] {key}"
 
 
-def section_problem(table: str, obj, name: Callable[[str, str], str] = config_key) -> str | None:
+def section_problem(table: str, obj: typing.Any, name: Callable[[str, str], str] = config_key) -> str | None:
     """The first field of dataclass ``obj`` out of its range, or its unequal parallel lists, as "[table] ...".
 
     ``name(table, key)`` names a key in the message.
@@ -150,7 +150,8 @@ def section_problem(table: str, obj, name: Callable[[str, str], str] = config_ke
 # ---------------------------------------------------------------- reading TOML
 
 
-def coerce_value(value, annotation, where: str, error: type[IlcpmacError] = ConfigError):
+def coerce_value(value: typing.Any, annotation: typing.Any, where: str,
+                 error: type[IlcpmacError] = ConfigError) -> typing.Any:
     """``value`` from TOML as the type ``annotation`` names (ints as floats, lists as tuples); ``error``
     naming ``where`` for any other type."""
     origin = typing.get_origin(annotation)
@@ -181,7 +182,7 @@ def coerce_value(value, annotation, where: str, error: type[IlcpmacError] = Conf
     raise TypeError(f"unsupported config type {annotation}")  # a programming error, not user input
 
 
-def unknown_key(table: dict, known) -> str | None:
+def unknown_key(table: dict[str, typing.Any], known: typing.Iterable[str]) -> str | None:
     """``"unknown key 'k' (known: a, b)"`` for the first key of ``table`` (sorted) not in ``known``, else None."""
     unknown = sorted(set(table) - set(known))
     return f"unknown key {shown(unknown[0])} (known: {', '.join(known)})" if unknown else None
@@ -192,9 +193,9 @@ def toml_name(key: str) -> str:
     return key if re.fullmatch(r"[A-Za-z0-9_-]{1,60}", key) else shown(key)
 
 
-def parse_section(table: object, cls: type, source: str, section: str, given: dict | None = None,
+def parse_section(table: object, cls: type, source: str, section: str, given: dict[str, typing.Any] | None = None,
                   error: type[IlcpmacError] = ConfigError, label: str | None = None,
-                  sources: typing.Mapping[str, str] | None = None):
+                  sources: typing.Mapping[str, str] | None = None) -> typing.Any:
     """Build dataclass ``cls`` from TOML ``table``; every error (an ``error``) names ``source`` and the key.
 
     A field whose metadata names a ``"table"`` class is the optional sub-table
@@ -241,7 +242,7 @@ def parse_section(table: object, cls: type, source: str, section: str, given: di
     return obj
 
 
-def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict:
+def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict[str, typing.Any]:
     """Read a TOML file of at most `MAX_TOML_BYTES`; anything else raises ``error`` naming it.
 
     A folder, FIFO or device is refused: the file is opened without blocking
@@ -265,7 +266,7 @@ def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict:
 # ---------------------------------------------------------------- writing TOML and JSON
 
 
-def toml_value(value) -> str:
+def toml_value(value: typing.Any) -> str:
     """``value`` as TOML: a bool, string, integer, float, list (a tuple or array too) or inline table."""
     if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
@@ -286,7 +287,7 @@ def toml_key(key: str) -> str:
     return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else toml_value(key)
 
 
-def toml_text(data: dict, prefix: str = "") -> str:
+def toml_text(data: dict[str, typing.Any], prefix: str = "") -> str:
     """TOML text of ``data`` (tables of tables, scalars and lists), as `tomllib` reads it back."""
     lines = [f"{toml_key(k)} = {toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
     for k, v in data.items():
@@ -296,7 +297,7 @@ def toml_text(data: dict, prefix: str = "") -> str:
     return "\n".join(line for line in lines if line) + "\n"
 
 
-def section_toml(obj) -> str:
+def section_toml(obj: typing.Any) -> str:
     """The lines of dataclass ``obj`` as the TOML table `parse_section` reads it from: every field without a
     default, and every other one whose value is not its default; a ``commented`` field's doc follows its
     value as a comment."""
@@ -309,7 +310,7 @@ def section_toml(obj) -> str:
     return "".join(lines)
 
 
-def _type_name(annotation) -> str:
+def _type_name(annotation: typing.Any) -> str:
     """A field's type as a config's reader knows it: number, integer, string, true/false, a list of one."""
     origin = typing.get_origin(annotation)
     if origin in (typing.Union, types.UnionType):
@@ -338,10 +339,10 @@ def key_table(cls: type, table: str, given: typing.Iterable[str] = (), heading: 
     return "\n".join(rows) + "\n"
 
 
-def unique_keys(pairs: list[tuple[str, typing.Any]]) -> dict:
+def unique_keys(pairs: list[tuple[str, typing.Any]]) -> dict[str, typing.Any]:
     """A JSON object from its ``pairs`` (``json.loads(..., object_pairs_hook=unique_keys)``); a key given twice
     raises ValueError naming it, where `json.loads` would keep the last silently."""
-    data: dict = {}
+    data: dict[str, typing.Any] = {}
     for key, value in pairs:
         if key in data:
             raise ValueError(f"key {shown(key)} given twice")
@@ -349,7 +350,7 @@ def unique_keys(pairs: list[tuple[str, typing.Any]]) -> dict:
     return data
 
 
-def finite_json(value):
+def finite_json(value: typing.Any) -> typing.Any:
     """``value`` (dicts, lists and numbers) with every NaN and infinity made None: JSON has no such numbers."""
     if isinstance(value, dict):
         return {k: finite_json(v) for k, v in value.items()}

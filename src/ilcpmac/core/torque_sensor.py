@@ -29,7 +29,8 @@ def delay(omega_rad_s: np.ndarray, delay_s: float) -> np.ndarray:
 
 def sensor_response(omega_rad_s: np.ndarray, highpass_hz: float, delay_s: float) -> np.ndarray:
     """H_s(w): the `highpass` and the `delay` at ``omega_rad_s``."""
-    return highpass(omega_rad_s, highpass_hz) * delay(omega_rad_s, delay_s)
+    response: np.ndarray = highpass(omega_rad_s, highpass_hz) * delay(omega_rad_s, delay_s)
+    return response
 
 
 def harmonic_response(harmonics: np.ndarray, speed_hz: float, highpass_hz: float, delay_s: float) -> np.ndarray:
@@ -43,4 +44,5 @@ def harmonic_response(harmonics: np.ndarray, speed_hz: float, highpass_hz: float
     corner = 2.0 * np.pi * highpass_hz
     with np.errstate(divide="ignore", invalid="ignore"):
         response = np.where(w > 0, 1.0 / (1.0 - 1j * corner / w), 1.0)
-    return response * delay(w, delay_s)
+    delayed: np.ndarray = response * delay(w, delay_s)
+    return delayed

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
@@ -109,13 +110,13 @@ class TorqueSourceChoice:
                 f"{self.encoder_error_rms_counts:.3g} +- {self.encoder_error_std_counts:.2g} counts RMS, "
                 f"{self.encoder_error_applied_rms_counts:.3g} applied")
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """The record as summary.json and states/identification.json hold it."""
         return {"source": self.source.value, "automatic": self.automatic, "reason": self.reason.name.lower(),
                 **{name: getattr(self, name) for name in _CHOICE_FIGURES}}
 
     @classmethod
-    def from_json(cls, data: dict) -> TorqueSourceChoice:
+    def from_json(cls, data: dict[str, Any]) -> TorqueSourceChoice:
         """The record of `to_json`; `ValueError` naming what is wrong."""
         try:
             return cls(TorqueSource(data["source"]), bool(data["automatic"]), ChoiceReason[data["reason"].upper()],

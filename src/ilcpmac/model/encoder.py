@@ -44,7 +44,8 @@ def line_errors_counts(counts_per_rev: int, eccentricity_counts: float, eccentri
     angle_rad = 2.0 * np.pi * np.arange(counts_per_rev) / counts_per_rev
     errors = (eccentricity_counts * np.sin(angle_rad + eccentricity_phase_rad)
               + line_std_counts * np.random.default_rng(seed).standard_normal(counts_per_rev))
-    return errors - errors.mean()
+    centred: np.ndarray = errors - errors.mean()
+    return centred
 
 
 def line_errors_problem(errors_counts: np.ndarray, counts_per_rev: int) -> str | None:

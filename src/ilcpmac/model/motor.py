@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -25,16 +25,16 @@ _THREE = length_in(3, 3)
 _TERMS = length_in(0, MAX_TERMS)
 
 
-def _terms(low: float, high: float, doc: str, **kw):
+def _terms(low: float, high: float, doc: str, **kw: Any) -> Any:
     """A list of a sum of sines' terms (at most MAX_TERMS), each within [low, high]; ``kw`` go to `param`."""
     return param(all_of(_TERMS, in_range(low, high)), f"{doc}, at most {MAX_TERMS} terms", parallel=True, **kw)
 
 
-def _phases(note: str = "", **kw):
+def _phases(note: str = "", **kw: Any) -> Any:
     return _terms(-2 * math.pi, 2 * math.pi, f"phi, rad, each within [-2 pi, 2 pi]{note}", **kw)
 
 
-def _per_phase(low: float, high: float, doc: str, *, low_open: bool = False, **kw):
+def _per_phase(low: float, high: float, doc: str, *, low_open: bool = False, **kw: Any) -> Any:
     return param(all_of(_THREE, in_range(low, high, low_open=low_open)), f"{doc}, three values", **kw)
 
 
@@ -185,7 +185,9 @@ class CurrentSensors:
 
     def true_offset_counts(self, calibration: SensorCalibration) -> np.ndarray:
         """o_s per phase, counts, from beta = G_s (o_s - o*_s) (eq. 1.7)."""
-        return calibration.current_offset + np.asarray(self.beta_a) * self.true_scale_counts_per_a(calibration)
+        scale = self.true_scale_counts_per_a(calibration)
+        offset: np.ndarray = calibration.current_offset + np.asarray(self.beta_a) * scale
+        return offset
 
 
 @dataclass(frozen=True)

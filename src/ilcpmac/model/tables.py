@@ -6,6 +6,8 @@ one row per encoder count.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ilcpmac.core.binning import per_line
@@ -31,7 +33,8 @@ def backemf_table(winding: Winding | MotorInfo, backemf: BackEmf, n_points: int)
     return table
 
 
-def _sines(orders, amplitudes, phases, n_points: int) -> np.ndarray:
+def _sines(orders: Sequence[float], amplitudes: Sequence[float], phases: Sequence[float], n_points: int
+           ) -> np.ndarray:
     theta = mechanical_angles_rad(n_points)
     table = np.zeros(n_points)
     for order, amplitude, phase in zip(orders, amplitudes, phases):
@@ -54,12 +57,14 @@ def q_axis(theta_e_rad: np.ndarray) -> np.ndarray:
     """sin(theta_e - 2 pi p / 3) per phase p, shape (n, 3): the phase currents of a unit amplitude-invariant i_q
     (i_d = 0, the inverse Park transform); i_q = 2/3 sum_p i_p of it, and a back-EMF table K gives the q-axis
     torque per ampere sum_p K_p of it."""
-    return np.sin(np.asarray(theta_e_rad)[:, None] - 2.0 * np.pi * np.arange(3) / 3.0)
+    phases: np.ndarray = np.sin(np.asarray(theta_e_rad)[:, None] - 2.0 * np.pi * np.arange(3) / 3.0)
+    return phases
 
 
 def dead_counts(backemf_nm_per_a: np.ndarray) -> np.ndarray:
     """The counts whose back-EMF row is zero: no current makes torque there, shape (n,)."""
-    return np.sum(backemf_nm_per_a**2, axis=1) == 0
+    vanishing: np.ndarray = np.sum(backemf_nm_per_a**2, axis=1) == 0
+    return vanishing
 
 
 def current_references(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.ndarray) -> np.ndarray:
@@ -74,8 +79,9 @@ def current_references(torque_reference_nm: np.ndarray, backemf_nm_per_a: np.nda
         The controller's back-EMF table K*.
     """
     norm = np.sum(backemf_nm_per_a**2, axis=1)[:, None]
-    return np.divide(torque_reference_nm[:, None] * backemf_nm_per_a, norm,
-                     out=np.zeros(np.shape(backemf_nm_per_a)), where=norm != 0)
+    references: np.ndarray = np.divide(torque_reference_nm[:, None] * backemf_nm_per_a, norm,
+                                      out=np.zeros(np.shape(backemf_nm_per_a)), where=norm != 0)
+    return references
 
 
 def references_per_line(references_a: np.ndarray, backemf_nm_per_a: np.ndarray, b: int

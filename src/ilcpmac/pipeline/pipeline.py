@@ -33,14 +33,13 @@ from typing import Any, Callable, TypeVar
 
 import numpy as np
 
-from ilcpmac.core.errors import IlcpmacError, StageError
+from ilcpmac.core.errors import IlcpmacError, SafetyError, StageError
 from ilcpmac.core.records import BenchDescription, SensorCalibration, TrialData, TrialRequest, immutable
 from ilcpmac.pipeline.analysis import TorqueMeasurement, TorqueSpectrum, TrialAnalysis
 from ilcpmac.pipeline.regression import Regression
 from ilcpmac.pipeline.safety import (
     FlowingCurrent,
     MalformedRequest,
-    SafetyError,
     SafetyLimits,
     calibration_violation,
     clip_to_trust_region,
@@ -79,8 +78,8 @@ class _StageThread:
     cost about a millisecond each on a loaded machine, and a campaign makes some twenty a trial."""
 
     def __init__(self) -> None:
-        self.calls: queue.SimpleQueue = queue.SimpleQueue()
-        self.outcomes: queue.SimpleQueue = queue.SimpleQueue()
+        self.calls: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self.outcomes: queue.SimpleQueue[Any] = queue.SimpleQueue()
         threading.Thread(target=self._serve, name="ilcpmac stages", daemon=True).start()
 
     def _serve(self) -> None:
@@ -120,7 +119,8 @@ def bounded(stage: str, what: str, call: Callable[..., T], *args: Any) -> T:
         raise StageError(f"stage {stage!r}: {what} did not return within {STAGE_CALL_S:g} s (STAGE_CALL_S); "
                          "abandoned in its thread") from None
     if returned:
-        return value
+        answer: T = value
+        return answer
     if isinstance(value, KeyboardInterrupt | IlcpmacError):
         raise value
     text = " ".join(str(value).split())[:200]
@@ -157,7 +157,7 @@ def shared_trial(trial: TrialData) -> TrialData:
     return replace(trial, **columns, request=None if trial.request is None else _shared_request(trial.request))
 
 
-def _json_copy(state: Any, stage: str) -> dict:
+def _json_copy(state: Any, stage: str) -> dict[str, Any]:
     """A copy of ``state`` as JSON holds it: objects with text keys, lists, text, finite numbers (integers within
     64 bits), booleans, null.
 
@@ -209,7 +209,8 @@ def _json_copy(state: Any, stage: str) -> dict:
     if not isinstance(state, dict):
         raise StageError(f"stage {stage!r}: state returned {type(state).__name__}, not a dict")
     try:
-        return copy(state, "")
+        copied: dict[str, Any] = copy(state, "")
+        return copied
     except RecursionError:
         raise StageError(f"stage {stage!r}: state is not JSON: nested too deeply") from None
 
@@ -404,16 +405,16 @@ class Pipeline:
             stage.learn(shared, frame)
         return frame
 
-    def state(self) -> dict:
+    def state(self) -> dict[str, Any]:
         """Every stage's state, by name, each a checked copy (`BoundedStage.state`)."""
         return {stage.name: stage.state() for stage in self.bounded}
 
-    def restore(self, state: dict) -> None:
+    def restore(self, state: dict[str, Any]) -> None:
         """Restore every stage from `state`."""
         for stage in self.bounded:
             stage.restore(state[stage.name])
 
-    def revert(self, state: dict, key: str) -> None:
+    def revert(self, state: dict[str, Any], key: str) -> None:
         """Go back to `state` (an earlier `state`) at set point ``key`` only: a stage with the optional
         ``revert`` reverts that key and keeps what it learned at other set points; any other is restored
         whole."""

@@ -286,7 +286,8 @@ def at_nominal_angles(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int
     e_c = e[count % counts_per_rev]
     step_s = np.diff(time_s) / (np.diff(count) + np.diff(e_c))
     local_step_s = np.concatenate([step_s[:1], (step_s[:-1] + step_s[1:]) / 2.0, step_s[-1:]])
-    return time_s - e_c * local_step_s
+    corrected_s: np.ndarray = time_s - e_c * local_step_s
+    return corrected_s
 
 
 def speed_to_torque_gain(harmonics: np.ndarray, inertia_kgm2: float, speed_rad_s: float,
@@ -299,8 +300,9 @@ def encoder_error_gain(harmonics: np.ndarray, counts_per_rev: int, inertia_kgm2:
                        viscous_nm_s: float) -> np.ndarray:
     """m_h of eq. (4): the apparent torque harmonic per count of encoder error harmonic, N m per count."""
     h = np.asarray(harmonics)
-    return (-speed_to_torque_gain(h, inertia_kgm2, speed_rad_s, viscous_nm_s)
-            * 1j * h * (2.0 * np.pi / counts_per_rev) * speed_rad_s)
+    gain: np.ndarray = (-speed_to_torque_gain(h, inertia_kgm2, speed_rad_s, viscous_nm_s)
+                       * 1j * h * (2.0 * np.pi / counts_per_rev) * speed_rad_s)
+    return gain
 
 
 def quantisation_variance_nm2(harmonics: np.ndarray, counts_per_rev: int, timer_resolution_s: float,
@@ -317,7 +319,8 @@ def quantisation_variance_nm2(harmonics: np.ndarray, counts_per_rev: int, timer_
     n = revolutions * counts_per_rev
     bracket = (n - 1) * (h * delta) ** 2 + 2.0 / np.sinc(h / counts_per_rev) ** 2
     gain = np.abs(speed_to_torque_gain(h, inertia_kgm2, speed, viscous_nm_s)) ** 2
-    return gain * speed**4 * timer_resolution_s**2 / (3.0 * n**2 * delta**2) * bracket
+    variance: np.ndarray = gain * speed**4 * timer_resolution_s**2 / (3.0 * n**2 * delta**2) * bracket
+    return variance
 
 
 @dataclass(frozen=True)
@@ -402,7 +405,8 @@ class EncoderTorqueSpectrum:
     @property
     def weight_variance_nm2(self) -> np.ndarray:
         """The variance a fit weights each harmonic with: the larger of the scatter and the quantisation floor."""
-        return np.maximum(self.variance_nm2, self.quantisation_variance_nm2)
+        variance: np.ndarray = np.maximum(self.variance_nm2, self.quantisation_variance_nm2)
+        return variance
 
     def encoder_error_gain(self) -> np.ndarray:
         """m_h of eq. (4) at this trial's speed and mechanics, shape (H + 1,), N m per count."""
@@ -467,7 +471,8 @@ def staircase_bias(harmonics: np.ndarray, counts_per_rev: int, speed_hz: float, 
         mean = (dt + delay + (state - 1.0) * tau * (b - a) + z * (-delay + (state - 1.0) * tau * (1.0 - b))) / dt
     boxcar = (np.exp(0.5j * nu) * np.sinc(h / counts_per_rev))[:, None]
     stamps = bin_response(h, lines_per_count * counts_per_rev, lines_per_count)[:, None]
-    return mean * stamps / boxcar - loop.response(h, speed_hz, counts_per_rev, lines_per_count)
+    response: np.ndarray = mean * stamps / boxcar - loop.response(h, speed_hz, counts_per_rev, lines_per_count)
+    return response
 
 
 def without_staircase(spectrum: EncoderTorqueSpectrum, reference_nm: np.ndarray, epsilon_alpha: np.ndarray,
@@ -520,7 +525,8 @@ def revolution_torques_nm(count: np.ndarray, time_s: np.ndarray, counts_per_rev:
 def _to_counts(counts_per_rev: int) -> np.ndarray:
     """Step 1's correction per harmonic 0..N/2: the boxcar over a count interval, centred half a count late."""
     h = np.arange(counts_per_rev // 2 + 1)
-    return np.exp(-1j * np.pi * h / counts_per_rev) / np.sinc(h / counts_per_rev)
+    response: np.ndarray = np.exp(-1j * np.pi * h / counts_per_rev) / np.sinc(h / counts_per_rev)
+    return response
 
 
 def _dwell_table(count: np.ndarray, time_s: np.ndarray, counts_per_rev: int,

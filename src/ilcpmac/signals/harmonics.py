@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 def whole_revolution_span(count: np.ndarray, counts_per_rev: int) -> slice:
@@ -48,7 +49,8 @@ def linear_trend(x: np.ndarray, values: np.ndarray) -> np.ndarray:
     mean = values.mean(axis=-1, keepdims=True)
     # sum(dx) = 0: no need to centre values; one dot per line, as for a single line
     slope = np.array([np.dot(dx, line) for line in values.reshape(-1, dx.size)]) / max(np.dot(dx, dx), 1e-300)
-    return dx * slope.reshape(mean.shape) + mean
+    interpolated: np.ndarray = dx * slope.reshape(mean.shape) + mean
+    return interpolated
 
 
 def harmonic_amplitudes(table: np.ndarray, max_harmonic: int | None = None, axis: int = 0) -> np.ndarray:
@@ -92,7 +94,7 @@ def harmonic_band(n_points: int, low: int, high: int, step: int = 1) -> np.ndarr
     return band
 
 
-def harmonic_columns(theta_rad: np.ndarray, orders) -> np.ndarray:
+def harmonic_columns(theta_rad: np.ndarray, orders: ArrayLike) -> np.ndarray:
     """Regressors [cos(o theta), sin(o theta)] per order o, shape (n, 2 len(orders))."""
     arg = np.outer(theta_rad, np.asarray(orders, float))
     return np.hstack([np.cos(arg), np.sin(arg)])
@@ -230,7 +232,8 @@ def pooled_variance(variance: np.ndarray, n_revs: int, half_window: int = POOL_H
 
     def window_sum(values: np.ndarray) -> np.ndarray:
         cumulative = np.concatenate([np.zeros(values.shape[:-1] + (1,)), np.cumsum(values, axis=-1)], axis=-1)
-        return cumulative[..., hi] - cumulative[..., lo]
+        band: np.ndarray = cumulative[..., hi] - cumulative[..., lo]
+        return band
 
     s0, sx, sxx = (window_sum(np.broadcast_to(x**p, y.shape)) for p in (0, 1, 2))
     sy, sxy = window_sum(y), window_sum(x * y)
@@ -262,7 +265,8 @@ def synchronous_table(count: np.ndarray, values: np.ndarray, counts_per_rev: int
     """
     values = np.asarray(values, float)
     if every_count(count, counts_per_rev):
-        return values.reshape((-1, counts_per_rev) + values.shape[1:]).mean(axis=0)
+        means: np.ndarray = values.reshape((-1, counts_per_rev) + values.shape[1:]).mean(axis=0)
+        return means
     position = count % counts_per_rev
     hits = np.bincount(position, minlength=counts_per_rev)
     columns = values.reshape(values.shape[0], -1)
@@ -290,7 +294,8 @@ def periodic_interpolation(table: np.ndarray, position_counts: np.ndarray) -> np
     base = np.floor(position_counts)
     frac = (position_counts - base).reshape((-1,) + (1,) * (table.ndim - 1))
     k = base.astype(np.int64) % cpr
-    return (1.0 - frac) * table[k] + frac * table[(k + 1) % cpr]
+    interpolated: np.ndarray = (1.0 - frac) * table[k] + frac * table[(k + 1) % cpr]
+    return interpolated
 
 
 def _at_samples(table: np.ndarray, count: np.ndarray, counts_per_rev: int) -> np.ndarray:
