@@ -296,3 +296,16 @@ def test_a_record_of_fewer_counts_than_the_lines_sampled_holds_count_means_and_s
                                               rf"over 4 lines each, differs from the bench's 1024 counts as means over "
                                               rf"{lines} lines each"):
             CampaignPlan.build(cfg, other, 1)
+
+
+@pytest.mark.parametrize("name", ["sim", "remote"])
+def test_a_backend_that_takes_no_options_refuses_a_misspelt_one_naming_the_key(write_config, tmp_path, name):
+    """[backends.sim] or [backends.remote] holds nothing they read: a key there (a typo for another backend's, or
+    an option the user believes they take) was ignored; now `ilcpmac run` stops on it before any motion."""
+    import ilcpmac.campaign
+
+    path = write_config({f"backends.{name}": {"adress": "localhost:1"}})
+    with pytest.raises(ConfigError, match=rf"\[backends.{name}\] adress: the {name} backend takes no options"):
+        ilcpmac.campaign.run(path, out=tmp_path / "run", backend=name, address="localhost:1" if name == "remote"
+                             else None)
+    assert not (tmp_path / "run").exists()

@@ -37,6 +37,13 @@ class BackendSetup:
     options: dict = field(default_factory=dict)
     write_config: bool = False
 
+    def refuse_options(self, name: str) -> None:
+        """`ConfigError` naming the first key of ``options`` for a backend ``name`` that takes none (a misspelt
+        option of it must not pass unseen)."""
+        if self.options:
+            key = sorted(self.options)[0]
+            raise ConfigError(f"{self.config.path}: [backends.{name}] {key}: the {name} backend takes no options")
+
 
 def installed_backends() -> dict[str, PluginEntry]:
     """Every backend in the entry-point group, by name."""

@@ -126,6 +126,7 @@ class RemoteBackend:
     @classmethod
     def from_setup(cls, setup: BackendSetup) -> RemoteBackend:
         """A bench target speaking the bench protocol over TCP at --address HOST:PORT (docs/protocol.md)."""
+        setup.refuse_options("remote")
         if not setup.address:
             raise BackendError("--backend remote needs --address HOST:PORT")
         return cls(setup.address)

@@ -56,6 +56,7 @@ class SimulatorBackend:
 
         Raises `ConfigError` when given an address (``--address``): the simulator runs here, and a user who gave one
         meant a bench, which must never be taken for the simulator."""
+        setup.refuse_options("sim")
         if setup.address is not None:
             raise ConfigError(f"--address {setup.address}: the sim backend runs the simulator in this process and "
                               "takes no address; for a bench at that address give --backend remote (or the "
