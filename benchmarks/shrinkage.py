@@ -22,7 +22,7 @@ import argparse
 import numpy as np
 
 from ilcpmac.campaign.floors import SIGNIFICANCE
-from ilcpmac.stages.ilc import DEFAULTS, _shrunk
+from ilcpmac.stages.ilc import IlcOptions, _shrunk
 
 #: power of the ripple over the noise of its estimate, D / P
 RATIOS = (0.0, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 64.0, 1000.0)
@@ -43,7 +43,7 @@ def main() -> None:
     parser.add_argument("--samples", type=int, default=400_000, help="harmonics drawn per ratio (default 400000)")
     args = parser.parse_args()
     rng = np.random.default_rng(37)
-    significance2 = DEFAULTS["significance"] ** 2
+    significance2 = IlcOptions().significance ** 2
     names = ["ilc stage", *ALTERNATIVES, "floor's model", "Wiener"]
     print("power kept / P" + "".join(f"{name:>17}" for name in names))
     for ratio in RATIOS:

@@ -376,8 +376,9 @@ def test_a_pipeline_of_replay_alone_shapes_as_the_record_applies(fast, tmp_path,
 
 
 @pytest.mark.parametrize("options, error, match", [
-    ({}, ConfigError, r"\[stages.replay\] file: invalid value ''"),
-    ({"file": 3}, ConfigError, r"\[stages.replay\] file: expected str"),
+    ({}, ConfigError, r"\[stages.replay\] file: missing \(the compensation.json to replay"),
+    ({"file": ""}, ConfigError, r"\[stages.replay\] file: invalid value ''"),
+    ({"file": 3}, ConfigError, r"\[stages.replay\] file: expected a string, got 3"),
     ({"file": "x.json", "gain": 1.0}, ConfigError, r"\[stages.replay\] unknown key 'gain'"),
     ({"file": "missing.json"}, BenchFormatError, "missing.json: no such file"),
     ({"file": "other.json"}, ConfigError,

@@ -35,7 +35,8 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
 
 @pytest.mark.parametrize("changes, pattern", [
     # issue 8, item 3: values that make no physical sense
-    ({"stages": {"ilc": {"learning_gain": math.nan}}}, r"\[stages\.ilc\] learning_gain: invalid value nan"),
+    ({"stages": {"ilc": {"learning_gain": math.nan}}},
+     r"\[stages\.ilc\] learning_gain: expected a finite number, got nan"),
     ({"stages": {"ilc": {"learning_gain": 0.0}}}, r"\[stages\.ilc\] learning_gain"),
     ({"stages": {"ilc": {"significance": -5.0}}}, r"\[stages\.ilc\] significance: invalid value -5"),
     ({"stages": {"ilc": {"process_noise_nm": math.inf}}}, r"\[stages\.ilc\] process_noise_nm"),
@@ -47,7 +48,7 @@ def assert_one_line(error: Exception, path: Path, pattern: str) -> None:
     ({"stages": {"current-sensor": {"trials_per_point": -1}}},
      r"\[stages\.current-sensor\] trials_per_point: invalid value -1"),
     ({"stages": {"current-sensor": {"trials_per_point": 2.5}}},
-     r"\[stages\.current-sensor\] trials_per_point: expected int"),
+     r"\[stages\.current-sensor\] trials_per_point: expected an integer, got 2.5"),
     ({"pipeline": {"stages": ["ilc", "ilc"]}}, r"\[pipeline\] stages: invalid value \['ilc', 'ilc'\]"),
     ({"simulator.controller": {"control_rate_hz": 0.001}},
      r"\[simulator\.controller\] control_rate_hz: invalid value 0.001"),

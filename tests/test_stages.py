@@ -32,7 +32,6 @@ from ilcpmac.sim.bench import truth_dict
 from ilcpmac.stages import Stage
 from ilcpmac.stages.base import Identified, StageSetup, read_options
 from ilcpmac.stages.cogging import CoggingFeedForward
-from ilcpmac.stages.ilc import DEFAULTS as ILC_DEFAULTS
 from ilcpmac.stages.ilc import IterativeLearningControl
 from ilcpmac.stages.registry import build_stages, installed_stages
 from ilcpmac.stages.sensor import CurrentSensorCorrection
@@ -445,15 +444,19 @@ def test_ilc_rejects_bad_options_naming_the_key(fast, options, key):
         IterativeLearningControl(StageSetup(fast.describe(), identified(fast), H, options))
 
 
+#: a plugin's options as earlier releases declared them (`read_options`)
+PLUGIN_DEFAULTS = {"learning_gain": 1.0, "q_cutoff_harmonic": None, "estimation": "kalman", "significance": 2.0}
+
+
 def test_read_options_merges_defaults_and_accepts_ints_for_floats():
-    values = read_options({"learning_gain": 1, "estimation": "fixed"}, ILC_DEFAULTS, "ilc")
+    values = read_options({"learning_gain": 1, "estimation": "fixed"}, PLUGIN_DEFAULTS, "ilc")
     assert values["learning_gain"] == 1.0 and type(values["learning_gain"]) is float
     assert values["estimation"] == "fixed"
-    assert values["q_cutoff_harmonic"] == ILC_DEFAULTS["q_cutoff_harmonic"]
+    assert values["q_cutoff_harmonic"] == PLUGIN_DEFAULTS["q_cutoff_harmonic"]
     with pytest.raises(ConfigError, match=r"\[stages\.ilc\] unknown key 'gain' \(known: learning_gain"):
-        read_options({"gain": 1.0}, ILC_DEFAULTS, "ilc")
+        read_options({"gain": 1.0}, PLUGIN_DEFAULTS, "ilc")
     with pytest.raises(ConfigError, match=r"\[stages\.ilc\] significance: expected float, got '3'"):
-        read_options({"significance": "3"}, ILC_DEFAULTS, "ilc")
+        read_options({"significance": "3"}, PLUGIN_DEFAULTS, "ilc")
 
 
 def test_ilc_state_restores(fast, kalman_ilc):
@@ -733,6 +736,39 @@ def test_a_plugin_stages_stale_option_is_refused_before_the_first_trial(tmp_path
                                           r"\(known: orders\)$"):
         ilcpmac.campaign.run(config, out=tmp_path / "run", extra_stages={"declared": Declared})
     assert not (tmp_path / "run").exists()
+
+
+def test_a_stage_declaring_an_options_schema_has_them_checked_before_the_first_trial(tmp_path, write_config):
+    """The schema kit's declaration (`options_schema`, `parse_options`): a value out of range and an unknown key
+    are each one line naming the key, before any trial; the stage gets a typed record."""
+    from dataclasses import dataclass
+
+    from campaign_helpers import SMALL_CAMPAIGN
+
+    import ilcpmac.campaign
+    from ilcpmac.core.schema import in_range, setting
+    from ilcpmac.stages.base import parse_options
+
+    @dataclass(frozen=True)
+    class Options:
+        gain: float = setting(in_range(0.0, 1.0), "within [0, 1]", 0.5)
+
+    class Declared:
+        name = "declared"
+        options_schema = Options
+
+        def __init__(self, setup):
+            raise AssertionError("never built: the options are refused first")
+
+    assert parse_options({"gain": 1}, Options, "declared") == Options(1.0)
+    for options, message in (({"gain": 2.0}, r"\[stages.declared\] gain: invalid value 2.0 \(within \[0, 1\]\)"),
+                             ({"gian": 0.1}, r"\[stages.declared\] unknown key 'gian'")):
+        config = write_config({**SMALL_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "cogging", "ilc",
+                                                                           "declared"]},
+                               "stages.declared": options})
+        with pytest.raises(ConfigError, match=r"campaign.toml: " + message):
+            ilcpmac.campaign.run(config, out=tmp_path / "run", extra_stages={"declared": Declared})
+        assert not (tmp_path / "run").exists()
 
 
 def test_the_ilc_learns_the_campaigns_ripple_band_unless_its_cutoff_is_given(fast):

@@ -10,15 +10,25 @@ Other harmonics are left alone.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import TrialData, TrialRequest
+from ilcpmac.core.schema import in_range, setting
 from ilcpmac.estimators import KalmanEstimator
 from ilcpmac.stages import Frame, StageSetup
-from ilcpmac.stages.base import read_options
+from ilcpmac.stages.base import parse_options
 
-DEFAULTS = {"orders": [1], "process_noise_nm": 1e-5}
+
+@dataclass(frozen=True)
+class CancellerOptions:
+    """[stages.harmonic-canceller] (all optional; defaults shown)."""
+
+    orders: tuple[int, ...] = setting(lambda x: len(x) > 0, "the harmonics cancelled, distinct, within the ripple "
+                                      "band (checked when the stage is built)", (1,))
+    process_noise_nm: float = setting(in_range(0.0, 1e3), "N m per trial, within [0, 1e3]", 1e-5)
 
 
 class HarmonicCanceller:
@@ -29,18 +39,18 @@ class HarmonicCanceller:
 
     name = "harmonic-canceller"
     #: its options, checked before the campaign's first trial (docs/writing-a-stage.md)
-    option_defaults = DEFAULTS
+    options_schema = CancellerOptions
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = read_options(setup.options, DEFAULTS, self.name)
-        orders = opts["orders"]
+        opts = parse_options(setup.options, CancellerOptions, self.name)
+        orders = list(opts.orders)
         if (not orders or not all(type(h) is int and 1 <= h <= setup.max_harmonic for h in orders)
                 or len(set(orders)) != len(orders)):
             raise ConfigError(f"[stages.{self.name}] orders: need distinct integer harmonics in "
                               f"1..{setup.max_harmonic}, got {orders!r}")
         self.orders = np.array(orders, int)
         self._setup = setup
-        self._q = opts["process_noise_nm"] ** 2
+        self._q = opts.process_noise_nm ** 2
         self._cpr = setup.description.motor.counts_per_rev
         self._theta = 2.0 * np.pi * np.arange(self._cpr) / self._cpr
         self._correction: dict[str, np.ndarray] = {}  # complex amplitude per order, N m, per set point

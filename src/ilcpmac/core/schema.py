@@ -203,12 +203,12 @@ def parse_section(table: object, cls: type, source: str, section: str, given: di
     ``label`` names the table in messages (default ``"[section]"``; e.g. ``"[[trials]] #2"``).
     ``sources`` names, by dotted name (``"section.key"``, ``"section"`` for the table itself), where a table
     or key came from when not from ``source`` (a config's keys from one it extends); an error about it names
-    that instead.
+    that instead. An empty ``source`` names none (a stage's options, which its caller names the file of).
     """
     label = label or f"[{section}]"
     sources = sources or {}
     if not isinstance(table, dict):
-        raise error(f"{sources.get(section, source)}: {label} must be a table")
+        raise error(f"{_at(sources.get(section, source))}{label} must be a table")
     given = given or {}
     hints = typing.get_type_hints(cls)
     known = {f.name: f for f in fields(cls) if f.name not in given and f.init}
@@ -217,8 +217,8 @@ def parse_section(table: object, cls: type, source: str, section: str, given: di
     if unknown:
         from_ = sources.get(f"{section}.{unknown[0]}", source)
         if unknown[0] in renamed:
-            raise error(f"{from_}: {label} {unknown[0]} is now {renamed[unknown[0]]}")
-        raise error(f"{from_}: {label} {unknown_key(table, known)}")
+            raise error(f"{_at(from_)}{label} {unknown[0]} is now {renamed[unknown[0]]}")
+        raise error(f"{_at(from_)}{label} {unknown_key(table, known)}")
     values = dict(given)
     for name, f in known.items():
         from_ = sources.get(f"{section}.{name}", source)
@@ -230,16 +230,21 @@ def parse_section(table: object, cls: type, source: str, section: str, given: di
             if f.default is not dataclasses.MISSING:
                 values[name] = f.default
                 continue
-            raise error(f"{source}: {label} {name}: missing ({f.metadata.get('doc', '')})")
-        values[name] = coerce_value(table[name], hints[name], f"{from_}: {label} {name}", error)
+            raise error(f"{_at(source)}{label} {name}: missing ({f.metadata.get('doc', '')})")
+        values[name] = coerce_value(table[name], hints[name], f"{_at(from_)}{label} {name}", error)
         problem = value_problem(f, values[name])
         if problem is not None:
-            raise error(f"{from_}: {label} {problem}")
+            raise error(f"{_at(from_)}{label} {problem}")
     obj = cls(**values)
     problem = lengths_problem(obj)
     if problem is not None:
-        raise error(f"{source}: {label} {problem}")
+        raise error(f"{_at(source)}{label} {problem}")
     return obj
+
+
+def _at(source: str) -> str:
+    """``source`` as a message begins with it: "FILE: ", or nothing for none."""
+    return f"{source}: " if source else ""
 
 
 def read_toml(path: Path, error: type[IlcpmacError] = ConfigError) -> dict[str, typing.Any]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -33,8 +33,11 @@ from ilcpmac.core.records import (
     TrialRequest,
     frozen,
 )
-from ilcpmac.core.schema import shown
+from ilcpmac.core.schema import parse_section, shown
 from ilcpmac.core.torque_sensor import harmonic_response
+
+#: a stage's options schema (`parse_options`)
+T = TypeVar("T")
 
 #: the identification's estimates the pipeline itself needs (the trial's delta, the identified sensors
 #: bounding the flowing current); a stage declares what more it needs in its ``needs``
@@ -304,6 +307,21 @@ class Stage(Protocol):
     def restore(self, state: dict[str, Any]) -> None:
         """Set the state saved by `state`."""
         ...
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    """The options schema of a stage that takes none: any key in its ``[stages.NAME]`` is refused."""
+
+
+def parse_options(options: dict, schema: type[T], stage: str) -> T:
+    """A stage's ``[stages.NAME]`` ``options`` as its ``schema``, a frozen dataclass whose fields are declared with
+    the schema kit (`ilcpmac.core.schema.setting`: check, doc, default; `param` for a required one), as a config's
+    keys are: an unknown key, a wrong type or a value out of range raises one `ConfigError` naming
+    ``[stages.NAME] key``. A factory that names it ``options_schema`` has its options checked with the config,
+    before the first trial (`ilcpmac.stages.registry.check_options_of`)."""
+    parsed: T = parse_section(options, schema, "", f"stages.{stage}")
+    return parsed
 
 
 def read_options(options: dict, defaults: dict[str, Any], stage: str) -> dict[str, Any]:

@@ -21,6 +21,7 @@ then its prior.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,18 +29,21 @@ import numpy as np
 from ilcpmac.core.errors import ConfigError, IdentificationError
 from ilcpmac.core.files import read_bounded
 from ilcpmac.core.records import TrialData, TrialRequest
-from ilcpmac.core.schema import in_range
+from ilcpmac.core.schema import in_range, setting
 from ilcpmac.estimators.kalman import KalmanEstimator
 from ilcpmac.signals.harmonics import harmonic_amplitudes, harmonic_columns
-from ilcpmac.stages.base import Frame, StageSetup, check_options
+from ilcpmac.stages.base import Frame, StageSetup, parse_options
 
-DEFAULTS = {"prior_std_nm": 0.01, "process_noise_nm": 1e-4, "start_from": ""}
-#: each option's range
-RANGES = {"prior_std_nm": (in_range(0.0, 1e3, low_open=True), "N m, within (0, 1e3]"),
-          "process_noise_nm": (in_range(0.0, 1e3), "N m per trial, within [0, 1e3]"),
-          "start_from": (lambda path: path == "" or Path(path).is_file(),
-                         "a standstill scan's result JSON (ilcpmac identify SCAN_FOLDER), relative to the working "
-                         'folder; "" for the identified cogging')}
+
+@dataclass(frozen=True)
+class CoggingOptions:
+    """[stages.cogging] (all optional; defaults shown)."""
+
+    prior_std_nm: float = setting(in_range(0.0, 1e3, low_open=True), "N m, within (0, 1e3]", 0.01)
+    process_noise_nm: float = setting(in_range(0.0, 1e3), "N m per trial, within [0, 1e3]", 1e-4)
+    start_from: str = setting(lambda path: path == "" or Path(path).is_file(),
+                              "a standstill scan's result JSON (ilcpmac identify SCAN_FOLDER), relative to the "
+                              'working folder; "" for the identified cogging', "")
 #: largest scan result JSON read
 MAX_SCAN_RESULT_BYTES = 2**26
 
@@ -57,26 +61,26 @@ class CoggingFeedForward:
 
     name = "cogging"
     #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
-    option_defaults, option_ranges = DEFAULTS, RANGES
+    options_schema = CoggingOptions
     needs = ("cogging_nm",)
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
+        opts = parse_options(setup.options, CoggingOptions, self.name)
         motor = setup.description.motor
         self._cpr = motor.counts_per_rev
         self._setup = setup
         self.orders = np.arange(motor.cogging_order, setup.max_harmonic + 1, motor.cogging_order)
-        if opts["start_from"]:
-            x0, std = scan_prior(Path(opts["start_from"]), self.orders, motor.cogging_order)
+        if opts.start_from:
+            x0, std = scan_prior(Path(opts.start_from), self.orders, motor.cogging_order)
         elif setup.identified.cogging_nm is None:
             raise IdentificationError(f"stage {self.name!r} needs cogging_nm, which the identification could not "
                                       "estimate; or set [stages.cogging] start_from")
         else:
             c = harmonic_amplitudes(setup.identified.cogging_nm)[self.orders]
             # tau_c = sum Re(c e^{j h theta}) = sum Re(c) cos - Im(c) sin
-            x0, std = np.concatenate([c.real, -c.imag]), np.full(2 * len(self.orders), opts["prior_std_nm"])
+            x0, std = np.concatenate([c.real, -c.imag]), np.full(2 * len(self.orders), opts.prior_std_nm)
         self._theta = 2.0 * np.pi * np.arange(self._cpr) / self._cpr
-        self._kalman = KalmanEstimator(x0, std**2, opts["process_noise_nm"] ** 2)
+        self._kalman = KalmanEstimator(x0, std**2, opts.process_noise_nm ** 2)
 
     def cogging_nm(self) -> np.ndarray:
         """The estimated cogging torque per encoder count, N m."""

@@ -57,36 +57,36 @@ checked on the identified response within its uncertainty.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import TrialData, TrialRequest
-from ilcpmac.core.schema import in_range
+from ilcpmac.core.schema import in_range, setting
 from ilcpmac.signals.harmonics import harmonic_amplitudes, table_from_amplitudes
-from ilcpmac.stages.base import Frame, StageSetup, check_options
+from ilcpmac.stages.base import Frame, StageSetup, parse_options
 
-DEFAULTS = {
-    "learning_gain": 1.0,
-    "q_cutoff_harmonic": None,
-    "estimation": "kalman",
-    "process_noise_nm": None,
-    "significance": 2.0,
-    "model_uncertainty": 0.2,
-    "pooling": "points",
-}
-#: each option's range (q_cutoff_harmonic is also checked against the encoder's Nyquist limit)
-RANGES = {
-    "learning_gain": (in_range(0.0, 10.0, low_open=True),
-                      "gamma, within (0, 10]; convergence asks for less (checked on the identified model)"),
-    "q_cutoff_harmonic": (lambda x: x is None or (type(x) is int and 1 <= x <= 2**23),
-                          "highest learned harmonic, below counts_per_rev / 2; left out: [campaign] ripple_harmonics"),
-    "estimation": (lambda x: x in ("kalman", "fixed"), '"kalman" or "fixed"'),
-    "process_noise_nm": (lambda x: x is None or in_range(0.0, 1e3)(x),
-                         "N m per trial, within [0, 1e3]; left out: 1e-5 x min(1, [limits] max_torque_nm / 8 N m)"),
-    "significance": (in_range(0.0, 100.0), "standard deviations, within [0, 100]"),
-    "model_uncertainty": (in_range(0.0, 1.0, high_open=True), "relative, within [0, 1)"),
-    "pooling": (lambda x: x in ("points", "none"), '"points" (shrink toward what the set points share) or "none"'),
-}
+
+@dataclass(frozen=True)
+class IlcOptions:
+    """[stages.ilc] (all optional; defaults shown). q_cutoff_harmonic is also checked against the encoder's
+    Nyquist limit when the stage is built."""
+
+    learning_gain: float = setting(
+        in_range(0.0, 10.0, low_open=True),
+        "gamma, within (0, 10]; convergence asks for less (checked on the identified model)", 1.0)
+    q_cutoff_harmonic: int | None = setting(
+        lambda x: x is None or 1 <= x <= 2**23,
+        "highest learned harmonic, below counts_per_rev / 2; left out: [campaign] ripple_harmonics", None)
+    estimation: str = setting(lambda x: x in ("kalman", "fixed"), '"kalman" or "fixed"', "kalman")
+    process_noise_nm: float | None = setting(
+        lambda x: x is None or in_range(0.0, 1e3)(x),
+        "N m per trial, within [0, 1e3]; left out: 1e-5 x min(1, [limits] max_torque_nm / 8 N m)", None)
+    significance: float = setting(in_range(0.0, 100.0), "standard deviations, within [0, 100]", 2.0)
+    model_uncertainty: float = setting(in_range(0.0, 1.0, high_open=True), "relative, within [0, 1)", 0.2)
+    pooling: str = setting(lambda x: x in ("points", "none"),
+                           '"points" (shrink toward what the set points share) or "none"', "points")
 
 
 #: the default process noise, N m per trial: `PROCESS_NOISE_NM` on a bench whose torque limit ([limits]
@@ -120,18 +120,18 @@ class IterativeLearningControl:
 
     name = "ilc"
     #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
-    option_defaults, option_ranges = DEFAULTS, RANGES
+    options_schema = IlcOptions
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
+        opts = parse_options(setup.options, IlcOptions, self.name)
         cpr = setup.description.motor.counts_per_rev
-        cutoff = setup.max_harmonic if opts["q_cutoff_harmonic"] is None else opts["q_cutoff_harmonic"]
+        cutoff = setup.max_harmonic if opts.q_cutoff_harmonic is None else opts.q_cutoff_harmonic
         if not cutoff < cpr // 2:
             raise ConfigError(f"[stages.ilc] q_cutoff_harmonic: {cutoff} is beyond the "
                               f"Nyquist limit of {cpr} counts per revolution")
         self.options = opts
-        self._pooled = opts["pooling"] == "points" and opts["estimation"] == "kalman"
-        given = opts["process_noise_nm"]
+        self._pooled = opts.pooling == "points" and opts.estimation == "kalman"
+        given = opts.process_noise_nm
         #: the process noise of d per trial, N m
         self.process_noise_nm = given if given is not None else \
             PROCESS_NOISE_NM * min(1.0, setup.description.limits.max_torque_nm / PROCESS_NOISE_FULL_NM)
@@ -151,10 +151,10 @@ class IterativeLearningControl:
 
     def check_convergence(self, request: TrialRequest) -> None:
         """Raise `ConfigError` unless |1 - L G| < 1/|Q| for G within the model uncertainty."""
-        u = self.options["model_uncertainty"]
+        u = self.options.model_uncertainty
         speed = request.speed_setpoint_hz
         model = self.plant(request, speed)
-        gamma = self.options["learning_gain"]
+        gamma = self.options.learning_gain
         worst = np.zeros(self._h.size)
         for g_scale in (1 - u, 1 + u):
             for bandwidth_scale in (1 - u, 1 + u):
@@ -180,7 +180,7 @@ class IterativeLearningControl:
     def _delivering(self, m: dict[str, np.ndarray]) -> np.ndarray:
         """t_{j+1} = G^_s Q (u_j + gamma L eps_j) of the set point whose memory is ``m``, N m per harmonic 1..H:
         with eps_j = -(d^ shrunk + G^ u_j), its ripple under u_j as estimated now, held - Q rho d^ shrunk."""
-        significance2 = self.options["significance"] ** 2
+        significance2 = self.options.significance ** 2
         shared = _shrunk(*self._shared(), significance2) if self._pooled else 0.0
         return m["held"] - self._q * m["rho"] * (shared + _shrunk(m["d"] - shared, m["P"], significance2))
 
@@ -223,11 +223,11 @@ class IterativeLearningControl:
         e = frame.torque_harmonics_nm[1: self._max_harmonic + 1]
         var = np.maximum(frame.torque_harmonics_var[1: self._max_harmonic + 1], 1e-30)
         z = e - G * u
-        if self.options["estimation"] == "fixed":
+        if self.options.estimation == "fixed":
             m["d"], m["P"] = z, np.zeros(z.size)  # eps_j = -e_j, the ripple as the trial measured it
         else:
             # d drifts by the model error times the change of u: forget in proportion
-            model_drift = self.options["model_uncertainty"] * np.abs(G * (u - m["u_applied"]))
+            model_drift = self.options.model_uncertainty * np.abs(G * (u - m["u_applied"]))
             prior = m["P"] + self.process_noise_nm**2 + model_drift**2
             first = np.isinf(prior)  # no estimate yet: take the measurement as it is
             prior = np.where(first, 0.0, prior)
@@ -235,7 +235,7 @@ class IterativeLearningControl:
             m["d"] = m["d"] + gain * (z - m["d"])
             m["P"] = np.where(first, var, (1.0 - gain) * prior)
         G_s = self.plant(request, request.speed_setpoint_hz)
-        gamma = self.options["learning_gain"] * frame.learning_gain
+        gamma = self.options.learning_gain * frame.learning_gain
         m["u_applied"], m["held"], m["rho"] = u, G_s * self._q * (1.0 - gamma) * u, gamma * G_s / G
         self._trials[key] = self._trials.get(key, 0) + 1
 

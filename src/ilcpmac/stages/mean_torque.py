@@ -43,7 +43,7 @@ import numpy as np
 from ilcpmac.core.current_loop import CurrentLoop, lagged
 from ilcpmac.core.records import LOOP_WINDING, BenchDescription, TrialData, TrialRequest
 from ilcpmac.model.tables import current_references
-from ilcpmac.stages.base import Frame, Identified, StageSetup, check_options
+from ilcpmac.stages.base import Frame, Identified, NoOptions, StageSetup, parse_options
 
 __all__ = ["MeanTorque", "MeanTorqueCorrection", "implied_mean_nm", "implied_mean_torque"]
 
@@ -164,12 +164,11 @@ class MeanTorqueCorrection:
     """
 
     name = "mean-torque"
-    option_defaults: dict = {}
-    option_ranges: dict = {}
+    options_schema = NoOptions
     needs = ()
 
     def __init__(self, setup: StageSetup) -> None:
-        check_options(setup.options, {}, {}, self.name)
+        parse_options(setup.options, NoOptions, self.name)
         self._description = setup.description
         self._identified = setup.identified
         #: the speed each set point's last trial ran at, Hz

@@ -11,7 +11,7 @@ from typing import Callable
 from ilcpmac.config import CampaignConfig
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.plugins import PluginEntry, installed
-from ilcpmac.stages.base import Stage, StageSetup, check_options
+from ilcpmac.stages.base import Stage, StageSetup, check_options, parse_options
 
 GROUP = "ilcpmac.stages"
 
@@ -59,9 +59,14 @@ def build_stages(names: list[str], setups: dict[str, StageSetup],
 
 def check_options_of(name: str, factory: Callable[[StageSetup], Stage], options: dict) -> None:
     """Check stage ``name``'s ``[stages.NAME]`` ``options`` against what its factory declares, before any stage is
-    built: ``option_defaults`` (a dict of every key's default: an unknown key or a wrong type is refused) and
-    optionally ``option_ranges`` (key -> (check, doc), `check_options`). A factory that declares none checks its
-    options when it is built, after the identification grid."""
+    built: ``options_schema``, a dataclass declared with the schema kit (`parse_options`); or, as plugins of
+    earlier releases declare them, ``option_defaults`` (a dict of every key's default: an unknown key or a wrong
+    type is refused) and optionally ``option_ranges`` (key -> (check, doc), `check_options`). A factory that
+    declares none checks its options when it is built, after the identification grid."""
+    schema = getattr(factory, "options_schema", None)
+    if schema is not None:
+        parse_options(options, schema, name)
+        return
     defaults = getattr(factory, "option_defaults", None)
     if defaults is not None:
         check_options(options, defaults, getattr(factory, "option_ranges", {}), name)

@@ -8,16 +8,21 @@ request's torque and speed set point added to it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from ilcpmac.compensation import Compensation
 from ilcpmac.core.errors import ConfigError
 from ilcpmac.core.records import TrialData, TrialRequest
-from ilcpmac.stages.base import Frame, StageSetup, check_options
+from ilcpmac.core.schema import param
+from ilcpmac.stages.base import Frame, StageSetup, parse_options
 
-DEFAULTS = {"file": ""}
-#: each option's range
-RANGES = {"file": (bool, "the compensation.json to replay, relative to the working directory")}
+
+@dataclass(frozen=True)
+class ReplayOptions:
+    """[stages.replay]."""
+
+    file: str = param(bool, "the compensation.json to replay, relative to the working directory")
 
 
 class Replay:
@@ -31,15 +36,15 @@ class Replay:
 
     name = "replay"
     #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
-    option_defaults, option_ranges = DEFAULTS, RANGES
+    options_schema = ReplayOptions
     needs = ()
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
-        self.compensation = Compensation.read(Path(opts["file"]))
+        opts = parse_options(setup.options, ReplayOptions, self.name)
+        self.compensation = Compensation.read(Path(opts.file))
         cpr = setup.description.motor.counts_per_rev
         if self.compensation.counts_per_rev != cpr:
-            raise ConfigError(f"[stages.{self.name}] file: {opts['file']} has counts_per_rev = "
+            raise ConfigError(f"[stages.{self.name}] file: {opts.file} has counts_per_rev = "
                               f"{self.compensation.counts_per_rev}, the bench {cpr}")
 
     def columns(self, trial: TrialData) -> None:

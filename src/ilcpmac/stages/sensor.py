@@ -40,23 +40,28 @@ estimates go stale by as much (on the seed bench, seed 13, the cogging order at 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ilcpmac.core.binning import count_means
 from ilcpmac.core.current_loop import CurrentLoop
 from ilcpmac.core.records import SensorCalibration, TrialData, TrialRequest
-from ilcpmac.core.schema import in_range
+from ilcpmac.core.schema import in_range, setting
 from ilcpmac.estimators.kalman import KalmanEstimator
 from ilcpmac.model.tables import current_references, references_per_line
 from ilcpmac.signals.harmonics import filtered, synchronous_average
-from ilcpmac.stages.base import Frame, StageSetup, check_options
+from ilcpmac.stages.base import Frame, StageSetup, parse_options
 
-DEFAULTS = {"process_noise_rel": 1e-6, "prior_std_rel": 0.02, "trials_per_point": 2}
-#: each option's range
-RANGES = {"process_noise_rel": (in_range(0.0, 1.0), "relative, within [0, 1]"),
-          "prior_std_rel": (in_range(0.0, 10.0, low_open=True), "relative, within (0, 10]"),
-          "trials_per_point": (in_range(0, 2**31), "trials learned from at each set point after the "
-                               "identification, within [0, 2^31]; then the calibration holds")}
+
+@dataclass(frozen=True)
+class SensorOptions:
+    """[stages.current-sensor] (all optional; defaults shown)."""
+
+    process_noise_rel: float = setting(in_range(0.0, 1.0), "relative, within [0, 1]", 1e-6)
+    prior_std_rel: float = setting(in_range(0.0, 10.0, low_open=True), "relative, within (0, 10]", 0.02)
+    trials_per_point: int = setting(in_range(0, 2**31), "trials learned from at each set point after the "
+                                    "identification, within [0, 2^31]; then the calibration holds", 2)
 
 
 def phase_torques(references_a: np.ndarray, backemf_nm_per_a: np.ndarray, speed_hz: float, loop: CurrentLoop,
@@ -110,10 +115,10 @@ class CurrentSensorCorrection:
 
     name = "current-sensor"
     #: its options, checked before the first trial (`ilcpmac.stages.registry.check_options_of`)
-    option_defaults, option_ranges = DEFAULTS, RANGES
+    options_schema = SensorOptions
 
     def __init__(self, setup: StageSetup) -> None:
-        opts = check_options(setup.options, DEFAULTS, RANGES, self.name)
+        opts = parse_options(setup.options, SensorOptions, self.name)
         ident = setup.identified
         self._backemf = setup.description.backemf_nm_per_a
         self._cpr = setup.description.motor.counts_per_rev
@@ -123,12 +128,12 @@ class CurrentSensorCorrection:
         gain = ident.sensor_gain  # G_s, A / count
         x0 = np.concatenate([gain, gain * ident.calibration.current_offset + ident.beta_a])
         gain_std = np.maximum(gain * np.hypot(ident.alpha_std / ident.alpha, ident.epsilon_std / ident.epsilon),
-                              opts["prior_std_rel"] * gain)
-        offset_std = np.maximum(ident.beta_std_a, opts["prior_std_rel"] * np.abs(x0[3:]).max())
+                              opts.prior_std_rel * gain)
+        offset_std = np.maximum(ident.beta_std_a, opts.prior_std_rel * np.abs(x0[3:]).max())
         prior_std = np.concatenate([gain_std, offset_std])
         size = np.abs(x0) + prior_std
-        self._kalman = KalmanEstimator(x0, prior_std**2, (opts["process_noise_rel"] * size) ** 2)
-        self._trials_per_point = opts["trials_per_point"]
+        self._kalman = KalmanEstimator(x0, prior_std**2, (opts.process_noise_rel * size) ** 2)
+        self._trials_per_point = opts.trials_per_point
         #: trials learned from after the identification, by set point
         self._learned: dict[str, int] = {}
 
