@@ -140,7 +140,7 @@ class IterativeLearningControl:
         self._max_harmonic = min(setup.max_harmonic, cutoff)
         self._h = np.arange(1, self._max_harmonic + 1)
         self._q = q_filter(self._h, cutoff)
-        self._memory: dict[str, dict[str, np.ndarray]] = {}
+        self._memory: dict[str, PointMemory] = {}
         self._trials: dict[str, int] = {}
 
     # -- the plant model and the convergence check
@@ -172,17 +172,15 @@ class IterativeLearningControl:
 
     # -- the stage protocol
 
-    def _entry(self, key: str) -> dict[str, np.ndarray]:
-        n = self._h.size
-        return self._memory.setdefault(key, {**{name: np.zeros(n, complex) for name in _COMPLEX},
-                                             "P": np.full(n, np.inf)})
+    def _entry(self, key: str) -> PointMemory:
+        return self._memory.setdefault(key, PointMemory.empty(self._h.size))
 
-    def _delivering(self, m: dict[str, np.ndarray]) -> np.ndarray:
+    def _delivering(self, m: PointMemory) -> np.ndarray:
         """t_{j+1} = G^_s Q (u_j + gamma L eps_j) of the set point whose memory is ``m``, N m per harmonic 1..H:
         with eps_j = -(d^ shrunk + G^ u_j), its ripple under u_j as estimated now, held - Q rho d^ shrunk."""
         significance2 = self.options.significance ** 2
         shared = _shrunk(*self._shared(), significance2) if self._pooled else 0.0
-        return m["held"] - self._q * m["rho"] * (shared + _shrunk(m["d"] - shared, m["P"], significance2))
+        return m.held - self._q * m.rho * (shared + _shrunk(m.d - shared, m.P, significance2))
 
     def _table(self, harmonics: np.ndarray) -> np.ndarray:
         """Per-count table of harmonics 1..H, N m."""
@@ -224,43 +222,37 @@ class IterativeLearningControl:
         var = np.maximum(frame.torque_harmonics_var[1: self._max_harmonic + 1], 1e-30)
         z = e - G * u
         if self.options.estimation == "fixed":
-            m["d"], m["P"] = z, np.zeros(z.size)  # eps_j = -e_j, the ripple as the trial measured it
+            m.d, m.P = z, np.zeros(z.size)  # eps_j = -e_j, the ripple as the trial measured it
         else:
             # d drifts by the model error times the change of u: forget in proportion
-            model_drift = self.options.model_uncertainty * np.abs(G * (u - m["u_applied"]))
-            prior = m["P"] + self.process_noise_nm**2 + model_drift**2
+            model_drift = self.options.model_uncertainty * np.abs(G * (u - m.u_applied))
+            prior = m.P + self.process_noise_nm**2 + model_drift**2
             first = np.isinf(prior)  # no estimate yet: take the measurement as it is
             prior = np.where(first, 0.0, prior)
             gain = np.where(first, 1.0, prior / (prior + var))
-            m["d"] = m["d"] + gain * (z - m["d"])
-            m["P"] = np.where(first, var, (1.0 - gain) * prior)
+            m.d = m.d + gain * (z - m.d)
+            m.P = np.where(first, var, (1.0 - gain) * prior)
         G_s = self.plant(request, request.speed_setpoint_hz)
         gamma = self.options.learning_gain * frame.learning_gain
-        m["u_applied"], m["held"], m["rho"] = u, G_s * self._q * (1.0 - gamma) * u, gamma * G_s / G
+        m.u_applied, m.held, m.rho = u, G_s * self._q * (1.0 - gamma) * u, gamma * G_s / G
         self._trials[key] = self._trials.get(key, 0) + 1
 
     def _shared(self) -> tuple[np.ndarray, np.ndarray]:
         """What the set points share: the inverse-variance mean of every learned set point's estimate d^ per
         harmonic, and its variance (infinite before `POOLED_MIN` set points have learned)."""
-        learned = [e for e in self._memory.values() if np.all(np.isfinite(e["P"]))]
+        learned = [e for e in self._memory.values() if np.all(np.isfinite(e.P))]
         if len(learned) < POOLED_MIN:
             n = self._h.size
             return np.zeros(n, complex), np.full(n, np.inf)
-        weights = np.array([1.0 / e["P"] for e in learned])
+        weights = np.array([1.0 / e.P for e in learned])
         information = weights.sum(axis=0)
-        return (weights * np.array([e["d"] for e in learned])).sum(axis=0) / information, 1.0 / information
+        return (weights * np.array([e.d for e in learned])).sum(axis=0) / information, 1.0 / information
 
     def state(self) -> dict:
-        def pack(m: dict[str, np.ndarray]) -> dict:
-            out: dict[str, object] = {name: {"re": m[name].real.tolist(), "im": m[name].imag.tolist()}
-                                      for name in _COMPLEX}
-            out["P"] = [None if np.isinf(p) else p for p in m["P"]]  # JSON has no infinity
-            return out
-
-        return {key: {**pack(m), "trials": self._trials.get(key, 0)} for key, m in self._memory.items()}
+        return {key: {**m.to_json(), "trials": self._trials.get(key, 0)} for key, m in self._memory.items()}
 
     def restore(self, state: dict) -> None:
-        self._memory = {key: _unpack(s) for key, s in state.items()}
+        self._memory = {key: PointMemory.from_json(s) for key, s in state.items()}
         self._trials = {key: s["trials"] for key, s in state.items()}
 
     def revert(self, state: dict, key: str) -> None:
@@ -268,7 +260,7 @@ class IterativeLearningControl:
         self._memory.pop(key, None)
         self._trials.pop(key, None)
         if key in state:
-            self._memory[key] = _unpack(state[key])
+            self._memory[key] = PointMemory.from_json(state[key])
             self._trials[key] = state[key]["trials"]
 
 
@@ -277,16 +269,45 @@ def _shrunk(d: np.ndarray, P: np.ndarray, significance2: float) -> np.ndarray:
     return np.maximum(0.0, 1.0 - (significance2 * P / np.maximum(np.abs(d) ** 2, 1e-300)) ** 2) * d
 
 
-#: a learned set point's memory, complex per harmonic: its last trial's u_j, the estimate d^ (of variance P), and
-#: what its next feed-forward takes of them (`IterativeLearningControl._delivering`): held = G^_s Q (1 - gamma) u_j
-#: (0 at gamma 1) and rho = gamma G^_s / G^, G^ at the trial's speed and G^_s at the set point's
+#: the complex fields of `PointMemory`, as its state names them
 _COMPLEX = ("u_applied", "d", "held", "rho")
 
 
-def _unpack(s: dict) -> dict[str, np.ndarray]:
-    """One set point's memory from its `IterativeLearningControl.state`."""
-    missing = [name for name in (*_COMPLEX, "P") if name not in s]
-    if missing:
-        raise ValueError(f"a set point's state without {', '.join(missing)} (written by an earlier release?)")
-    return {**{name: np.array(s[name]["re"]) + 1j * np.array(s[name]["im"]) for name in _COMPLEX},
-            "P": np.array([np.inf if p is None else p for p in s["P"]], float)}
+@dataclass
+class PointMemory:
+    """A learned set point's memory, per harmonic 1..H: its last trial's feed-forward u_j (N m), the estimate d^ of
+    its ripple without it (N m) and d^'s variance P (N m^2; inf before its first trial), and what its next
+    feed-forward takes of them (`IterativeLearningControl._delivering`): held = G^_s Q (1 - gamma) u_j (0 at gamma
+    1) and rho = gamma G^_s / G^, G^ at the trial's speed and G^_s at the set point's. Updated in place by `learn`.
+    """
+
+    u_applied: np.ndarray
+    d: np.ndarray
+    held: np.ndarray
+    rho: np.ndarray
+    P: np.ndarray
+
+    @classmethod
+    def empty(cls, harmonics: int) -> PointMemory:
+        """Before the set point's first trial: zeros, P infinite."""
+        zeros = np.zeros(harmonics, complex)
+        return cls(zeros, zeros.copy(), zeros.copy(), zeros.copy(), np.full(harmonics, np.inf))
+
+    def to_json(self) -> dict:
+        """The set point's part of `IterativeLearningControl.state`: each complex field as {"re", "im"}, P with
+        null for infinity (JSON has none)."""
+        out: dict[str, object] = {}
+        for name in _COMPLEX:
+            values = getattr(self, name)
+            out[name] = {"re": values.real.tolist(), "im": values.imag.tolist()}
+        out["P"] = [None if np.isinf(p) else p for p in self.P]
+        return out
+
+    @classmethod
+    def from_json(cls, s: dict) -> PointMemory:
+        """The memory `to_json` wrote; `ValueError` naming what a set point's state lacks."""
+        missing = [name for name in (*_COMPLEX, "P") if name not in s]
+        if missing:
+            raise ValueError(f"a set point's state without {', '.join(missing)} (written by an earlier release?)")
+        complex_fields = {name: np.array(s[name]["re"]) + 1j * np.array(s[name]["im"]) for name in _COMPLEX}
+        return cls(**complex_fields, P=np.array([np.inf if p is None else p for p in s["P"]], float))
