@@ -9,7 +9,8 @@ of the run's compensation.json alone (what a campaign learned turning one way gi
 a negative speed to its slowest learned one); and the run's whole compensation.json of both directions (its
 reverse tables mirrored back into the motor's coordinates).
 
-Usage: python benchmarks/four_quadrants.py [--seeds 2009 1 2]
+Usage: python benchmarks/four_quadrants.py [--seeds 2009 1 2] [--config CONFIG] (default configs/four-quadrant.toml;
+benchmarks/motors/small-actuator-four-quadrant.toml another motor)
 """
 
 from __future__ import annotations
@@ -39,9 +40,9 @@ def quadrant(torque: float, speed: float) -> str:
                                                                                                 speed > 0)]
 
 
-def run(out: Path, seed: int) -> float:
+def run(config: Path, out: Path, seed: int) -> float:
     start = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "ilcpmac", "run", str(CONFIG), "--out", str(out), "--seed",
+    done = subprocess.run([sys.executable, "-m", "ilcpmac", "run", str(config), "--out", str(out), "--seed",
                            str(seed)], cwd=ROOT, capture_output=True, text=True, env=dict(os.environ))
     if done.returncode != 0:
         sys.exit(f"ilcpmac run failed ({done.returncode}): {done.stderr.strip().splitlines()[-1:]}")
@@ -100,16 +101,19 @@ def reverse_comparison(run_dir: Path, reverse_points: list[tuple[float, float]])
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[2009, 1, 2])
-    seeds = parser.parse_args().seeds
+    parser.add_argument("--config", type=Path, default=CONFIG)
+    arguments = parser.parse_args()
+    seeds, config = arguments.seeds, arguments.config.resolve()
     verdicts = {"learned": True, "validation": True, "mean": True}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             out = Path(tmp) / f"run{seed}"
-            seconds = run(out, seed)
+            seconds = run(config, out, seed)
             rows = points(out)
             valid_reverse = [(r["torque"], r["speed"]) for r in rows if not r["learned"] and r["speed"] < 0]
             others = reverse_comparison(out, valid_reverse)
-            print(f"\nconfigs/four-quadrant.toml, seed {seed}: {len(rows)} points, wall {seconds:.1f} s; true ripple "
+            print(f"\n{config.relative_to(ROOT) if config.is_relative_to(ROOT) else config}, seed {seed}: "
+                  f"{len(rows)} points, wall {seconds:.1f} s; true ripple "
                   "pp, % of |mean torque|; true mean torque vs set point")
             header = (f"{'':>2} {'kind':>5} {'T N m':>6} {'S Hz':>5} {'final %':>8} {'floor %':>8} {'ratio':>6} "
                       f"{'mean %':>7} | {'none %':>7} {'fwd half %':>10} {'both %':>7}")

@@ -155,3 +155,20 @@ def test_the_loop_and_winding_covariance_reads_back_and_refuses_what_is_no_covar
         data["diagnostics"]["joint"]["loop_winding_covariance"] = value
         with pytest.raises(ResultKeyError, match="diagnostics.joint.loop_winding_covariance"):
             IdentificationResult.from_json(data)
+
+
+def test_a_covariance_asymmetric_by_rounding_reads_back():
+    """The small actuator's joint fit left 7e-9 (relative) between its elements (3, 4) and (4, 3), seven orders
+    below its largest variance: read with 1e-9 of the element itself, its result was refused and ``ilcpmac run``
+    ended on a traceback after its last trial. Rounding is now measured against sqrt(C_ii C_jj)."""
+    from ilcpmac.core.records import _loop_winding_covariance
+
+    rng = np.random.default_rng(3)
+    root = rng.normal(size=(6, 6)) * np.array([3e-6, 3e-6, 3e-6, 3e-6, 1e-5, 0.5])[:, None]
+    covariance = root @ root.T
+    covariance[3, 4] *= 1.0 + 7e-9  # what the fit's products leave
+    np.testing.assert_array_equal(_loop_winding_covariance({"loop_winding_covariance": covariance.tolist()}),
+                                  covariance)
+    covariance[3, 4] *= 1.01
+    with pytest.raises(ResultKeyError, match="diagnostics.joint.loop_winding_covariance"):
+        _loop_winding_covariance({"loop_winding_covariance": covariance.tolist()})

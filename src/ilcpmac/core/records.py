@@ -429,10 +429,22 @@ def _loop_winding_covariance(joint: dict[str, Any]) -> np.ndarray | None:
     except (TypeError, ValueError):
         raise ResultKeyError(f"key {key!r}: must be 6 x 6 numbers or null, got {shown(value)}") from None
     if matrix.shape != (len(LOOP_WINDING),) * 2 or not np.all(np.isfinite(matrix)) or np.any(np.diag(matrix) < 0.0) \
-            or not np.allclose(matrix, matrix.T, rtol=1e-9, atol=0.0):
+            or not _symmetric(matrix):
         raise ResultKeyError(f"key {key!r}: must be a symmetric 6 x 6 covariance of finite numbers, its diagonal "
                              f">= 0, or null, got {shown(value)}")
     return matrix
+
+
+#: how far a covariance's element ij may differ from ji, relative to sqrt(C_ii C_jj): rounding only (the joint fit's
+#: products leave 1e-10 of it; 1e-9 of the element itself refused a small actuator's 7e-9 between two elements
+#: seven orders below the largest variance)
+SYMMETRY_RTOL = 1e-6
+
+
+def _symmetric(covariance: np.ndarray) -> bool:
+    """Whether ``covariance`` (square, finite, its diagonal >= 0) is symmetric to rounding (`SYMMETRY_RTOL`)."""
+    scale = np.sqrt(np.outer(np.diag(covariance), np.diag(covariance)))
+    return bool(np.all(np.abs(covariance - covariance.T) <= SYMMETRY_RTOL * scale))
 
 
 def _winding_value(joint: dict[str, Any], name: str) -> float | None:
