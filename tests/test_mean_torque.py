@@ -247,3 +247,31 @@ def test_a_trial_s_mean_torque_error_out_of_range_is_refused_naming_its_key(valu
     assert TrialRecord.from_json(record).mean_torque_error is None  # a record of an earlier release
     with pytest.raises(ValueError, match="mean_torque_error"):
         TrialRecord.from_json({**record, "mean_torque_error": value})
+
+
+@pytest.mark.slow
+def test_a_mean_torque_stated_less_surely_than_the_tolerance_is_warned_of(write_config, tmp_path):
+    """[campaign] mean_torque_tolerance: the run says where a point's stated standard uncertainty of its mean torque
+    exceeds it, the worst first, in N m; at the default (1 %) the small seed bench (0.1-0.3 %) hears nothing."""
+    from campaign_helpers import SMALL_CAMPAIGN, Quiet
+
+    import ilcpmac.campaign
+    from ilcpmac.campaign.events import MeanTorqueUncertain
+    from ilcpmac.campaign.mean_torque import mean_torques_of
+
+    for tolerance, run in ((None, "default"), (1e-4, "tight")):
+        changes = {**SMALL_CAMPAIGN, "pipeline": {"stages": ["current-sensor", "cogging", "ilc", "mean-torque"]}}
+        if tolerance is not None:
+            changes["campaign"] = {**SMALL_CAMPAIGN["campaign"], "mean_torque_tolerance": tolerance}
+        events = Quiet()
+        result = ilcpmac.campaign.run(write_config(changes, name=f"{run}.toml"), out=tmp_path / run, events=events)
+        warned = [m for m in events.messages if isinstance(m, MeanTorqueUncertain)]
+        if tolerance is None:
+            assert not warned
+            continue
+        (message,) = warned
+        stds = [m.error_std for m in mean_torques_of(result.summary).values()]
+        assert len(message.points) == sum(s > tolerance for s in stds) == len(stds)
+        worst = max(stds)
+        assert message.points[0][1] / abs(message.points[0][0][0]) == pytest.approx(worst, rel=1e-12)
+        assert "[campaign] mean_torque_tolerance" in message.text and "N m" in message.text

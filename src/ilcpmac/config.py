@@ -161,6 +161,10 @@ class CampaignSettings:
     validate_seconds: float | None = setting(
         in_range(0.0, 1e5, low_open=True), "recorded duration of a validation trial, s, at any speed; left out with "
         f"validate_revolutions: {VALIDATE_SECONDS:g} s", None)
+    mean_torque_tolerance: float = setting(
+        in_range(0.0, 1.0, low_open=True), "largest standard uncertainty of a point's mean torque the run states "
+        "without a warning, as a fraction of its set point, within (0, 1] (docs/campaign.md, \"The mean torque\")",
+        0.01)
     torque_source: str = setting(
         lambda x: x in SETTING_VALUES,
         '"sensor" (the torque sensor), "encoder" (the torque from the encoder\'s time stamps, docs/sensorless.md), '

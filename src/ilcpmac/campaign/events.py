@@ -16,7 +16,7 @@ from ilcpmac.core.torque_source import TorqueSource, TorqueSourceChoice
 
 __all__ = ["CampaignEvents", "CampaignMessage", "CampaignStart", "CompensationBeatsNone", "CompensationWorse",
            "CompensationWritten", "DirectionsPlanned", "FloorsExpected", "GridStarted", "GuardEvent", "Identifying",
-           "NoEvents", "PipelineNote", "PlanStated", "Resumed", "TorqueSourceChosen"]
+           "MeanTorqueUncertain", "NoEvents", "PipelineNote", "PlanStated", "Resumed", "TorqueSourceChosen"]
 
 
 @dataclass(frozen=True)
@@ -234,6 +234,24 @@ class CompensationWorse:
 
 
 @dataclass(frozen=True)
+class MeanTorqueUncertain:
+    """The mean torque is stated less surely than [campaign] mean_torque_tolerance at ``points``: each point and its
+    stated standard uncertainty in N m (`PointMeanTorque`), the largest relative one first."""
+
+    points: tuple[tuple[Point, float], ...]
+    tolerance: float
+
+    @property
+    def text(self) -> str:
+        (torque, speed), std_nm = self.points[0]
+        return (f"mean torque: known to no better than {100 * self.tolerance:g} % of the set point "
+                f"([campaign] mean_torque_tolerance) at {len(self.points)} point(s), at worst +- {std_nm:.3g} N m "
+                f"({100 * std_nm / abs(torque):.2g} %) at {torque:g} N m, {speed:g} Hz: the split of delta eps into "
+                "delta and eps, the given inertia and the identified loop carry it (a static trial pins eps: "
+                "docs/real-bench.md, \"Pinning eps\")")
+
+
+@dataclass(frozen=True)
 class CompensationBeatsNone:
     """At every point, ``learned`` (their last trial) and ``validated``, the compensated trial's measured
     peak-to-peak ripple is below the uncompensated one's (`PointResult.worse` nowhere); the least reduction,
@@ -285,7 +303,7 @@ class AlreadyComplete:
 #: what the campaign says between its trials
 CampaignMessage = (PlanStated | DirectionsPlanned | GridStarted | Identifying | FloorsExpected | PipelineNote
                    | TorqueSourceChosen | GuardEvent | CompensationWritten | CompensationWorse | CompensationBeatsNone
-                   | Resumed | AlreadyComplete)
+                   | MeanTorqueUncertain | Resumed | AlreadyComplete)
 
 
 class CampaignEvents(Protocol):

@@ -53,6 +53,7 @@ from ilcpmac.campaign.events import (
     GridStarted,
     GuardEvent,
     Identifying,
+    MeanTorqueUncertain,
     PipelineNote,
     PlanStated,
     Resumed,
@@ -676,6 +677,10 @@ class CampaignRunner:
             self.run_dir.write_compensation(self.compensation.to_json())
         self.floors = self._floors()
         self.mean_torques = self._mean_torques(results)
+        tolerance = self.config.campaign.mean_torque_tolerance
+        uncertain = sorted((m for m in self.mean_torques if m.error_std > tolerance), key=lambda m: -m.error_std)
+        if uncertain:
+            self.events.message(MeanTorqueUncertain(tuple((m.point, m.implied.std_nm) for m in uncertain), tolerance))
         worse = [r for r in results if r.worse]
         if worse:
             self.events.message(CompensationWorse(tuple(r.point for r in worse), fade))
