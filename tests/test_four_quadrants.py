@@ -368,3 +368,21 @@ def test_the_api_runs_both_directions_and_load_run_names_their_folders(write_con
         ilc.load_run(tmp_path / "run")
     exported = ilc.export(both.compensation_file, "json", tmp_path / "out")
     assert Compensation.read(exported.files[0]).speeds_hz.tolist() == [-0.9, 0.9]
+
+
+@pytest.mark.slow
+def test_a_campaign_in_reverse_alone_learns_with_its_own_grid_in_the_mirrors_coordinates(write_config, tmp_path):
+    """Only negative speeds: no forward campaign, so the reverse identifies its grid and learns with that, mirrored
+    into its own coordinates (the bench folder says mirrored = true, whose identification reports in the motor's);
+    every point within its bounds (measured 0.86-1.46x); the record holds negative speeds only."""
+    reverse_only = {**BOTH, "campaign": {**BOTH["campaign"], "learn_speeds_hz": [-0.9], "validate_speeds_hz": [-0.9]}}
+    result = run_quadrants(write_config(reverse_only), out=tmp_path / "run")
+    assert list(result.directions) == [REVERSE] and not (tmp_path / "run" / FORWARD).exists()
+    summary = result.directions[REVERSE].summary
+    for p in summary["points"]:
+        assert 0.0 < p["ripple_pp_true"] < (1.5 if p["learned"] else 2.0) * p["floor_pp_true"], p["torque_setpoint"]
+    from ilcpmac.identify.mirror import MIRRORED_MESSAGE
+
+    messages = summary["identification"]["messages"]
+    assert MIRROR_COORDINATES in messages and MIRRORED_MESSAGE not in messages
+    assert result.compensation.speeds_hz.tolist() == [-0.9] and result.compensation.torques_nm.tolist() == [-3.0, 3.0]

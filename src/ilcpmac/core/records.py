@@ -428,10 +428,10 @@ def _loop_winding_covariance(joint: dict[str, Any]) -> np.ndarray | None:
         matrix = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
         raise ResultKeyError(f"key {key!r}: must be 6 x 6 numbers or null, got {shown(value)}") from None
-    if matrix.shape != (len(LOOP_WINDING),) * 2 or not np.all(np.isfinite(matrix)) or np.any(np.diag(matrix) < 0.0) \
-            or not _symmetric(matrix):
-        raise ResultKeyError(f"key {key!r}: must be a symmetric 6 x 6 covariance of finite numbers, its diagonal "
-                             f">= 0, or null, got {shown(value)}")
+    why = _covariance_problem(matrix, len(LOOP_WINDING))
+    if why is not None:
+        raise ResultKeyError(f"key {key!r}: must be a symmetric {len(LOOP_WINDING)} x {len(LOOP_WINDING)} covariance "
+                             f"of finite numbers, its diagonal >= 0, or null; got {why}")
     return matrix
 
 
@@ -441,10 +441,23 @@ def _loop_winding_covariance(joint: dict[str, Any]) -> np.ndarray | None:
 SYMMETRY_RTOL = 1e-6
 
 
-def _symmetric(covariance: np.ndarray) -> bool:
-    """Whether ``covariance`` (square, finite, its diagonal >= 0) is symmetric to rounding (`SYMMETRY_RTOL`)."""
-    scale = np.sqrt(np.outer(np.diag(covariance), np.diag(covariance)))
-    return bool(np.all(np.abs(covariance - covariance.T) <= SYMMETRY_RTOL * scale))
+def _covariance_problem(covariance: np.ndarray, size: int) -> str | None:
+    """What keeps ``covariance`` from being a size x size covariance (finite, its diagonal >= 0, symmetric to
+    rounding: `SYMMETRY_RTOL`), in a few words naming the element; None when nothing does."""
+    if covariance.shape != (size, size):
+        return f"shape {covariance.shape}"
+    if not np.all(np.isfinite(covariance)):
+        return "a number that is not finite"
+    variances = np.diag(covariance)
+    if np.any(variances < 0.0):
+        k = int(np.argmin(variances))
+        return f"the variance [{k}, {k}] = {float(variances[k])!r}"
+    scale = np.sqrt(np.outer(variances, variances))
+    excess = np.abs(covariance - covariance.T) - SYMMETRY_RTOL * scale
+    i, j = (int(n) for n in np.unravel_index(int(np.argmax(excess)), excess.shape))
+    if excess[i, j] <= 0.0:
+        return None
+    return f"[{i}, {j}] = {float(covariance[i, j])!r} against [{j}, {i}] = {float(covariance[j, i])!r}"
 
 
 def _winding_value(joint: dict[str, Any], name: str) -> float | None:
