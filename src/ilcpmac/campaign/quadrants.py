@@ -294,18 +294,19 @@ def run_quadrants(config: str | Path | CampaignConfig | None = None, *, out: str
                                                                 "trials": trials, "budget_min": budget_min,
                                                                 "config": str(cfg.path)}, indent=1))
             results: dict[str, CampaignResult] = {}
+            learned: dict[str, Compensation] = {}
             for direction in directions:
                 ahead = results.get(FORWARD)
-                forward = None if ahead is None or ahead.identification is None else at_calibration(
-                    ahead.identification, Compensation.read(ahead.path / COMPENSATION_FILE).calibration,
-                    description.calibration)
-                told = identify if direction == FORWARD else MirroredIdentification(forward, identify or identify_bench)
+                told = identify if direction == FORWARD else MirroredIdentification(
+                    None if ahead is None or ahead.identification is None else at_calibration(
+                        ahead.identification, learned[FORWARD].calibration, description.calibration),
+                    identify or identify_bench)
                 results[direction] = _direction(direction, plans[direction], *sides[direction], path, cfg, trials,
                                                 share, events, told, extra_stages)
+                learned[direction] = Compensation.read(results[direction].path / COMPENSATION_FILE)
         finally:
             if backend is None or isinstance(backend, str):
                 bench.close()
-        learned = {d: Compensation.read(r.path / COMPENSATION_FILE) for d, r in results.items()}
         compensation = both_directions(learned.get(FORWARD), learned[REVERSE]) if REVERSE in learned else \
             learned[FORWARD]
         atomic_write(path / COMPENSATION_FILE, json.dumps(compensation.to_json(), indent=1))

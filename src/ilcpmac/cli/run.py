@@ -92,14 +92,13 @@ class CampaignView:
             self.fraction = fraction
 
     def message(self, message: CampaignMessage) -> None:
-        """Say ``message`` above the display; unwrapped where the console is no terminal (a file, a pipe), so that
-        no line breaks mid-sentence at a width nobody reads it at. The torque source chosen names the table's
-        figures from then on."""
+        """Say ``message`` above the display (`say`). The torque source chosen names the table's figures from then
+        on."""
         from ilcpmac.campaign.events import TorqueSourceChosen
 
         if isinstance(message, TorqueSourceChosen):
             self.source = message.choice.source.value
-        self.console.print(Text(message.text, style="bold"), soft_wrap=not self.console.is_terminal)
+        say(self.console, message)
 
     def end(self, how: str) -> None:
         """The campaign is over ("done", "stopped"): the status line says so from now on."""
@@ -186,6 +185,12 @@ class CampaignView:
         yield Text(self.status(width))
 
 
+def say(console: Console, message: CampaignMessage) -> None:
+    """Print ``message`` in bold; unwrapped where the console is no terminal (a file, a pipe), so that no line
+    breaks mid-sentence at a width nobody reads it at."""
+    console.print(Text(message.text, style="bold"), soft_wrap=not console.is_terminal)
+
+
 def files_written(path: Path) -> tuple[int, int]:
     """How many files a run directory holds and their total bytes (its lock files left out)."""
     files = [p for p in path.rglob("*") if p.is_file() and not p.name.startswith(".lock")]
@@ -234,7 +239,7 @@ class LiveCampaign:
 
     def message(self, message: CampaignMessage) -> None:
         if self.path is None:  # before the campaign's start (a campaign in both directions states its plan)
-            self.console.print(Text(message.text, style="bold"), soft_wrap=not self.console.is_terminal)
+            say(self.console, message)
             return
         self.view.message(message)
 
